@@ -1,0 +1,149 @@
+"""One benchmark entry point: ``python -m disent.bench [SUBCOMMAND ...]``.
+
+Every subcommand prints a table and merges its figures into ``reports/bench.json``
+(the report reads them).  Benchmarks print figures; no test asserts a time.
+The machine is shared and noisy, so each figure is the median of several rounds.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import time
+from pathlib import Path
+from typing import Callable
+
+import torch
+
+BENCH_JSON = Path("reports/bench.json")
+
+
+def median_time(fn: Callable[[], object], rounds: int = 5, warmup: int = 1) -> float:
+    """Median wall time in seconds of ``fn()`` over ``rounds`` after ``warmup`` calls."""
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(rounds):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def measure_peak_gflops(n: int = 2048, rounds: int = 5, device: str = "cpu") -> float:
+    """This machine's fp32 matmul peak in GFLOP/s at the current thread count."""
+    a = torch.randn(n, n, device=device)
+    b = torch.randn(n, n, device=device)
+    sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
+
+    def mm():
+        a @ b
+        sync()
+
+    return 2 * n**3 / median_time(mm, rounds) / 1e9
+
+
+def machine_info() -> dict:
+    return {
+        "torch": torch.__version__,
+        "threads": torch.get_num_threads(),
+        "device": torch.cuda.get_device_name() if torch.cuda.is_available() else platform.processor() or platform.machine(),
+        "cpu_count": os.cpu_count(),
+    }
+
+
+def save(section: str, figures: dict, path: Path = BENCH_JSON) -> None:
+    """Merge ``figures`` under ``section`` into the benchmark JSON (atomic write)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    data = json.loads(path.read_text()) if path.exists() else {}
+    data.update(machine_info())
+    data[section] = figures
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(data, indent=2, sort_keys=True))
+    os.replace(tmp, path)
+
+
+def print_table(title: str, rows: dict) -> None:
+    print(f"\n{title}")
+    width = max(len(k) for k in rows)
+    for k, v in rows.items():
+        print(f"  {k:<{width}}  {v:,.4g}" if isinstance(v, (int, float)) else f"  {k:<{width}}  {v}")
+
+
+# ----------------------------------------------------------------------------- subcommands
+def bench_render(args) -> dict:
+    """Shading layer: forward / backward pixels/s, analytic backward vs plain autograd."""
+    from disent.render import sh_shading, sh_shading_reference
+
+    B, H = args.batch, args.size
+    normal = torch.nn.functional.normalize(torch.randn(B, 3, H, H), dim=1).requires_grad_()
+    sh = torch.randn(B, 3, 9).requires_grad_()
+    pixels = B * H * H
+    fwd = median_time(lambda: sh_shading(normal, sh), args.rounds)
+
+    def fwd_bwd(fn):
+        return lambda: fn(normal, sh).sum().backward()
+
+    custom = median_time(fwd_bwd(sh_shading), args.rounds)
+    plain = median_time(fwd_bwd(sh_shading_reference), args.rounds)
+    out = {
+        "batch": B, "resolution": H,
+        "forward_pixels_s": pixels / fwd,
+        "forward_backward_pixels_s": pixels / custom,
+        "backward_pixels_s": pixels / max(custom - fwd, 1e-9),
+        "autograd_forward_backward_pixels_s": pixels / plain,
+        "custom_vs_autograd_speedup": plain / custom,
+    }
+    print_table(f"shading layer, batch {B} at {H}x{H}, {torch.get_num_threads()} threads", out)
+    return out
+
+
+def bench_peak(args) -> dict:
+    out = {"peak_gflops": measure_peak_gflops(rounds=args.rounds)}
+    print_table("fp32 matmul peak", out)
+    return out
+
+
+SUBCOMMANDS: dict[str, Callable] = {"peak": bench_peak, "render": bench_render}
+
+
+def register(name: str, fn: Callable) -> None:
+    """Let a module add a subcommand (``fn(args) -> dict``)."""
+    SUBCOMMANDS[name] = fn
+
+
+def _load_optional_subcommands() -> None:
+    """Import modules that register benchmark subcommands, where present."""
+    import importlib
+
+    for mod in ("disent.data.bench", "disent.models.bench", "disent.lighting"):
+        try:
+            importlib.import_module(mod)
+        except ModuleNotFoundError as e:
+            if e.name != mod and not mod.startswith(str(e.name)):
+                raise
+
+
+def main(argv=None) -> None:
+    _load_optional_subcommands()
+    p = argparse.ArgumentParser(prog="python -m disent.bench", description=__doc__)
+    p.add_argument("which", nargs="*", default=[], help=f"subcommands (default: all): {', '.join(SUBCOMMANDS)}")
+    p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
+    p.add_argument("--rounds", type=int, default=5, help="timed rounds; the median is reported")
+    p.add_argument("--batch", type=int, default=256)
+    p.add_argument("--size", type=int, default=64)
+    p.add_argument("--out", type=Path, default=BENCH_JSON)
+    args = p.parse_args(argv)
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    for name in args.which or list(SUBCOMMANDS):
+        if name not in SUBCOMMANDS:
+            p.error(f"unknown benchmark {name!r}; choose from {', '.join(SUBCOMMANDS)}")
+        save(name, SUBCOMMANDS[name](args), args.out)
+    print(f"\nwritten to {args.out}")
+
+
+if __name__ == "__main__":
+    main()
