@@ -1,0 +1,144 @@
+"""The pseudo-GT pipeline on the photos that ship with the dependencies, for the report.
+
+    python -m disent.data.photos [--out reports/photos] [--workers 2] [--run RUN_DIR ...]
+
+Photos: scikit-image's ``astronaut``, matplotlib's ``grace_hopper`` sample and the 100 faces
+of scikit-image's ``lfw_subset`` (25x25 gray crops, bundled with scikit-image; its other 100
+images are non-faces and measure false detections).  Writes ``pseudo_gt.json`` (landmark
+success rate, fit residual in pixels) and ``pseudo_gt.png`` (pseudo normals and mask over each
+photo).  With ``--run``, a trained model (``disent.models.load_run``) decomposes the crops and
+relights them: ``decomposition_<run>.png``, ``relight_<run>.png``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from disent.data import pseudo_gt as pg
+
+N_LFW_FACES = 100  # lfw_subset: images 0-99 are faces, 100-199 are not
+
+
+def bundled_photos(folder: Path) -> dict[str, list[Path]]:
+    """Write the bundled photos as files under ``folder``: {source: [paths]}."""
+    import matplotlib.cbook as cbook
+    from PIL import Image
+    from skimage import data
+
+    folder.mkdir(parents=True, exist_ok=True)
+    out = {"astronaut": [folder / "astronaut.png"], "grace_hopper": [folder / "grace_hopper.jpg"]}
+    if not out["astronaut"][0].exists():
+        Image.fromarray(data.astronaut()).save(out["astronaut"][0])
+    if not out["grace_hopper"][0].exists():
+        out["grace_hopper"][0].write_bytes(Path(cbook.get_sample_data("grace_hopper.jpg", asfileobj=False)).read_bytes())
+    lfw = data.lfw_subset()  # [200, 25, 25] float in [0, 1]
+    for name, sl in (("lfw_faces", slice(0, N_LFW_FACES)), ("lfw_nonfaces", slice(N_LFW_FACES, None))):
+        out[name] = []
+        for i, im in enumerate(lfw[sl], sl.start):
+            p = folder / f"lfw_{i:03d}.png"
+            if not p.exists():
+                Image.fromarray(np.rint(im * 255).astype(np.uint8)).save(p)
+            out[name].append(p)
+    return out
+
+
+def statistics(records_by_source: dict) -> dict:
+    """Per source: images, landmark success rate, fit residual (crop and photo pixels)."""
+    out = {}
+    for src, recs in records_by_source.items():
+        used = [r for r in recs if r.used]
+        res = np.array([r.residual_px for r in used])
+        res_photo = np.array([r.residual_photo_px for r in used])
+        out[src] = {
+            "images": len(recs), "used": len(used), "success_rate": len(used) / max(1, len(recs)),
+            "skip_reasons": pg.summarize(recs)["skip_reasons"],
+            "residual_px_median": float(np.median(res)) if len(res) else None,
+            "residual_px_mean": float(res.mean()) if len(res) else None,
+            "residual_photo_px_median": float(np.median(res_photo)) if len(res) else None,
+        }
+    return out
+
+
+def overlay_figure(records: list, path: Path, resolution: int, cols: int = 8):
+    """Per photo: the crop with dlib (green) and fitted (red) landmarks, the pseudo normals
+    blended over the photo, the mask outline, and the L-hat shading of the pseudo normals."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import torch
+
+    from disent.render import sh_shading
+
+    n = len(records)
+    rows = int(np.ceil(n / cols))
+    fig, axes = plt.subplots(rows * 3, cols, figsize=(1.6 * cols, 1.6 * 3 * rows), squeeze=False)
+    for ax in axes.flat:
+        ax.axis("off")
+    for k, rec in enumerate(records):
+        z = pg.load_cached(rec)
+        img = z["image"].astype(np.float32) / 255
+        mask = z["mask_pseudo"][0].astype(np.float32)
+        normal = z["normal_pseudo"].astype(np.float32).transpose(1, 2, 0)
+        shade = sh_shading(torch.from_numpy(z["normal_pseudo"].astype(np.float32))[None],
+                           torch.from_numpy(z["sh_pseudo"])[None])[0].numpy().transpose(1, 2, 0)
+        r, c = 3 * (k // cols), k % cols
+        a = axes[r, c]
+        a.imshow(img)
+        a.plot(*z["landmarks"].T, ".", color="lime", ms=1.5)
+        a.plot(*z["landmarks_fit"].T, ".", color="red", ms=1.5)
+        a.set_title(f"{Path(rec.path).stem}\n{rec.residual_px:.2f} px", fontsize=6)
+        blend = img * (1 - 0.7 * mask[..., None]) + 0.7 * mask[..., None] * (normal * 0.5 + 0.5)
+        axes[r + 1, c].imshow(np.clip(blend, 0, 1))
+        axes[r + 1, c].contour(mask, [0.5], colors="yellow", linewidths=0.6)
+        axes[r + 2, c].imshow(np.clip(shade * mask[..., None] + img * (1 - mask[..., None]), 0, 1))
+    fig.suptitle("pseudo ground truth on bundled photos: landmarks (dlib green, fit red) / "
+                 f"normal_pseudo + mask_pseudo / L-hat shading ({resolution}px crops)", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=150)
+    plt.close(fig)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", default="reports/photos")
+    ap.add_argument("--resolution", type=int, default=64)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--cache-dir", default=None)
+    ap.add_argument("--run", nargs="*", default=[], help="trained run folders to apply to the crops")
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    settings = pg.PseudoGTSettings(resolution=args.resolution)
+    cache = Path(args.cache_dir) if args.cache_dir else pg.default_cache_dir()
+    photos = bundled_photos(cache / "bundled_photos")
+    paths = [p for ps in photos.values() for p in ps]
+    records, summary = pg.prepare(paths, settings, cache, workers=args.workers)
+    by_src, i = {}, 0
+    for src, ps in photos.items():
+        by_src[src] = records[i:i + len(ps)]
+        i += len(ps)
+    stats = statistics(by_src)
+    stats["settings"] = {k: getattr(settings, k) for k in settings.__dataclass_fields__}
+    (out / "pseudo_gt.json").write_text(json.dumps(stats, indent=2) + "\n")
+    shown = [r for src in ("astronaut", "grace_hopper", "lfw_faces") for r in by_src[src] if r.used][:24]
+    overlay_figure(shown, out / "pseudo_gt.png", args.resolution)
+    for src in photos:
+        s = stats[src]
+        print(f"{src:14s} {s['used']:3d}/{s['images']:3d} used ({100 * s['success_rate']:.0f}%)  "
+              f"fit residual median {s['residual_px_median'] or float('nan'):.2f} px (crop), "
+              f"{s['residual_photo_px_median'] or float('nan'):.2f} px (photo)  skipped: {s['skip_reasons']}")
+    print(f"wrote {out / 'pseudo_gt.json'} and {out / 'pseudo_gt.png'}")
+    for run in args.run:
+        from disent.data.photos_models import apply_run
+
+        apply_run(run, [r for r in records if r.used], out)
+
+
+if __name__ == "__main__":
+    main()

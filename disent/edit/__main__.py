@@ -1,0 +1,248 @@
+"""``python -m disent.edit``: traversal edits, relighting and the measured tables.
+
+Examples::
+
+    # smile on the paper's manifolds (UV + Ni), a lambda progression strip per input
+    python -m disent.edit traverse outputs/DATE/TIME synth:3 face.png photos/ --attribute smiling \\
+        --strength 0.07 0.05 0.03 --out edits/
+    # eyeglasses through the albedo only, barycenter with alpha = 1
+    python -m disent.edit traverse RUN synth:3 --attribute eyeglasses --manifolds Ai --method barycenter --strength 1
+    # relight: the light of another image, a named light, or a direction
+    python -m disent.edit relight RUN target.png --source source.png --out relit/
+    python -m disent.edit relight RUN synth:0 synth:1 --light <name> --method transfer ratio decode
+    python -m disent.edit relight RUN synth:0 --direction 0.5 0.3 0.8 --intensity 1.0 --ambient 0.2
+    # the measured tables and figures (reports/edit/)
+    python -m disent.edit measure RUN
+    python -m disent.edit lights         # the light bank's names
+
+Inputs: an image file (centre-cropped to a square and resized to the model's resolution;
+use face crops framed like the training data), a folder of images, or ``synth:INDEX``
+(a SynthFaces test face).  Pools: ``--pool synth`` (SynthFaces ``pool_<attr>``) or a
+CelebA-style folder (``list_attr_celeba.txt``, read by :class:`disent.data.folder.FolderFaces`).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+
+from disent.edit.traversal import ATTRIBUTES
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".webp")
+
+
+# ----------------------------------------------------------------------------- images
+def load_image(path: Path, resolution: int) -> torch.Tensor:
+    """An image file as ``[3,R,R]`` in [0,1]: centre square crop, antialiased resize."""
+    from PIL import Image
+
+    import numpy as np
+
+    with Image.open(path) as im:
+        x = torch.from_numpy(np.asarray(im.convert("RGB"), dtype=np.float32) / 255.0).permute(2, 0, 1)
+    _, H, W = x.shape
+    s = min(H, W)
+    x = x[:, (H - s) // 2:(H - s) // 2 + s, (W - s) // 2:(W - s) // 2 + s]
+    return F.interpolate(x[None], size=(resolution, resolution), mode="bilinear", antialias=True,
+                         align_corners=False)[0].clamp(0, 1)
+
+
+def save_image(x: torch.Tensor, path: Path) -> None:
+    from PIL import Image
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arr = (x.detach().clamp(0, 1).permute(1, 2, 0) * 255).round().byte().numpy()
+    Image.fromarray(arr).save(path)
+
+
+def strip(images: list[torch.Tensor], pad: int = 2) -> torch.Tensor:
+    """Images ``[3,H,W]`` side by side with a white gap."""
+    gap = torch.ones(3, images[0].shape[1], pad)
+    return torch.cat([t for im in images for t in (im, gap)][:-1], 2)
+
+
+def load_inputs(specs: list[str], resolution: int, seed: int = 0) -> list[tuple[str, torch.Tensor]]:
+    """``(name, image [3,R,R])`` for each file, every image of each folder, and ``synth:INDEX``."""
+    out = []
+    for spec in specs:
+        if spec.startswith("synth:"):
+            from disent.data import SynthFaces
+
+            index = int(spec.split(":", 1)[1])
+            out.append((f"synth{index:05d}", SynthFaces("test", resolution=resolution, seed=seed)[index]["image"]))
+            continue
+        p = Path(spec)
+        if p.is_dir():
+            files = sorted(f for f in p.iterdir() if f.suffix.lower() in IMAGE_SUFFIXES)
+            if not files:
+                raise SystemExit(f"no images in folder {p}")
+            out += [(f.stem, load_image(f, resolution)) for f in files]
+        elif p.is_file():
+            out.append((p.stem, load_image(p, resolution)))
+        else:
+            raise SystemExit(f"input {spec!r} is neither an image, a folder, nor synth:INDEX")
+    return out
+
+
+def load_model(run: str):
+    from disent.models import load_run
+
+    model, cfg = load_run(run)
+    return model, int(getattr(model, "resolution", 64))
+
+
+# ----------------------------------------------------------------------------- pools
+def build_pool(model, attribute: str, pool: str, size: int, resolution: int, seed: int):
+    from disent.edit.measure import stack
+    from disent.edit.traversal import encode_pool
+
+    if pool == "synth":
+        from disent.data import SynthFaces
+
+        data = SynthFaces(split=f"pool_{attribute}", resolution=resolution, seed=seed, size=size)
+    else:
+        from disent.data.folder import FolderFaces
+
+        data = FolderFaces(pool, split=f"pool_{attribute}", resolution=resolution, seed=seed, size=size)
+    batch = stack([data[i] for i in range(len(data))])
+    return encode_pool(model, batch["image"], batch["attrs"][attribute], attribute)
+
+
+# ----------------------------------------------------------------------------- commands
+@torch.no_grad()
+def cmd_traverse(a) -> None:
+    from disent.edit.traversal import default_manifolds, traverse
+
+    model, R = load_model(a.run)
+    inputs = load_inputs(a.inputs, R, a.seed)
+    pool = build_pool(model, a.attribute, a.pool, a.pool_size, R, a.seed)
+    images = torch.stack([x for _, x in inputs])
+    codes = model.encode(images)
+    manifolds = tuple(a.manifolds or default_manifolds(codes, a.attribute))
+    recon = model.decode(codes)["recon"]
+    edits = [model.decode(traverse(codes, pool, manifolds, a.method, s, add=not a.remove))["recon"]
+             for s in a.strength]
+    out = Path(a.out)
+    key = "lam" if a.method == "dmt" else "alpha"
+    tag = f"{'remove' if a.remove else 'add'}_{a.attribute}_{'+'.join(manifolds)}_{a.method}"
+    for i, (name, x) in enumerate(inputs):
+        for s, e in zip(a.strength, edits):
+            save_image(e[i], out / f"{name}_{tag}_{key}{s:g}.png")
+        save_image(strip([x, recon[i]] + [e[i] for e in edits]), out / f"{name}_{tag}_strip.png")
+    print(f"{len(inputs)} image(s): {tag}, {key} = {list(a.strength)}; strips (input | reconstruction | "
+          f"edits) and edits in {out}/")
+
+
+def source_light(a, model, R) -> tuple[str, torch.Tensor]:
+    from disent.edit.relight import directional_light, named_light
+
+    if a.source:
+        (name, img), = load_inputs([a.source], R, a.seed)
+        return f"from_{name}", model(img[None])["sh"]
+    if a.light:
+        return a.light, named_light(a.light)
+    if a.direction:
+        return "dir_" + "_".join(f"{v:g}" for v in a.direction), directional_light(a.direction, a.intensity, a.ambient)
+    raise SystemExit("relight needs --source IMAGE, --light NAME or --direction X Y Z")
+
+
+@torch.no_grad()
+def cmd_relight(a) -> None:
+    from disent.edit.relight import relight
+    from disent.render import sh_shading
+
+    model, R = load_model(a.run)
+    inputs = load_inputs(a.inputs, R, a.seed)
+    label, sh = source_light(a, model, R)
+    images = torch.stack([x for _, x in inputs])
+    out = Path(a.out)
+    results = {m: relight(model, images, sh, m) for m in a.method}
+    est = model(images)
+    S_transfer = sh_shading(est["normal"], sh.expand(len(images), -1, -1))
+    for i, (name, x) in enumerate(inputs):
+        for m, r in results.items():
+            save_image(r[i], out / f"{name}_{m}_{label}.png")
+        shade = lambda s: (s / s.amax().clamp_min(1e-6)).clamp(0, 1)  # noqa: E731  shading shown normalised
+        save_image(strip([x, shade(est["shading"][i]), shade(S_transfer[i])] + [results[m][i] for m in a.method]),
+                   out / f"{name}_relight_{label}_strip.png")
+    print(f"{len(inputs)} image(s) relit ({label}) by {', '.join(a.method)}; strips (input | S_target | "
+          f"S_transfer | results) in {out}/")
+
+
+def cmd_lights(a) -> None:
+    from disent.data import LIGHT_BANK
+
+    for name in sorted(LIGHT_BANK):
+        print(name)
+
+
+def cmd_measure(a) -> None:
+    from disent.edit.measure import run_measurements
+
+    run_measurements(a)
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(prog="python -m disent.edit", description=__doc__.split("\n")[0])
+    sub = p.add_subparsers(dest="cmd", required=True)
+
+    t = sub.add_parser("traverse", help="move faces along an attribute (DMT or barycenter)")
+    t.add_argument("run", help="run folder or checkpoint")
+    t.add_argument("inputs", nargs="+", help="image files, folders, or synth:INDEX")
+    t.add_argument("--attribute", required=True, choices=ATTRIBUTES)
+    t.add_argument("--manifolds", nargs="+", help="codes to move (default: the paper's choice for the attribute)")
+    t.add_argument("--method", default="dmt", choices=("dmt", "barycenter"))
+    t.add_argument("--strength", nargs="+", type=float, default=[0.07, 0.05, 0.03],
+                   help="lambda for dmt (smaller moves further; the paper's 0.07 0.05 0.03), alpha for barycenter")
+    t.add_argument("--remove", action="store_true", help="move away from the attribute instead")
+    t.add_argument("--pool", default="synth", help="'synth' or a CelebA-style folder")
+    t.add_argument("--pool-size", type=int, default=400)
+    t.add_argument("--out", default="edits")
+    t.add_argument("--seed", type=int, default=0)
+    t.set_defaults(fn=cmd_traverse)
+
+    r = sub.add_parser("relight", help="relight faces (transfer with detailed albedo, ratio, decode)")
+    r.add_argument("run")
+    r.add_argument("inputs", nargs="+", help="target image files, folders, or synth:INDEX")
+    r.add_argument("--source", help="image whose estimated light is transferred")
+    r.add_argument("--light", help="a light of the bank (see: python -m disent.edit lights)")
+    r.add_argument("--direction", nargs=3, type=float, help="distant light direction, camera frame (+z to camera)")
+    r.add_argument("--intensity", type=float, default=1.0)
+    r.add_argument("--ambient", type=float, default=0.2)
+    r.add_argument("--method", nargs="+", default=["transfer"], choices=("transfer", "ratio", "decode"))
+    r.add_argument("--out", default="relit")
+    r.add_argument("--seed", type=int, default=0)
+    r.set_defaults(fn=cmd_relight)
+
+    m = sub.add_parser("measure", help="the measured traversal and relighting tables on SynthFaces")
+    m.add_argument("run")
+    m.add_argument("--out", default="reports/edit")
+    m.add_argument("--attributes", nargs="+", default=list(ATTRIBUTES), choices=ATTRIBUTES)
+    m.add_argument("--pool-size", type=int, default=200)
+    m.add_argument("--sources", type=int, default=16)
+    m.add_argument("--lambdas", nargs="+", type=float, default=None)
+    m.add_argument("--alphas", nargs="+", type=float, default=None)
+    m.add_argument("--measure-net", default=None, help="a trained measuring net (default: <out>/measure_net.pt, "
+                   "trained when missing)")
+    m.add_argument("--train-size", type=int, default=3000)
+    m.add_argument("--train-steps", type=int, default=1500)
+    m.add_argument("--relight-faces", type=int, default=8)
+    m.add_argument("--threads", type=int, default=1)
+    m.add_argument("--seed", type=int, default=0)
+    m.set_defaults(fn=cmd_measure)
+
+    lp = sub.add_parser("lights", help="list the light bank")
+    lp.set_defaults(fn=cmd_lights)
+
+    a = p.parse_args(argv)
+    if getattr(a, "threads", None):
+        torch.set_num_threads(a.threads)
+    a.fn(a)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

@@ -1,0 +1,134 @@
+"""The ablation table: every variant (model + ablations) as mean +- std over seeds.
+
+``python -m disent.eval.ablation [ROOT ...] [--out ablations/results.md]`` reads run folders
+(default ``multirun/`` and ``outputs/``) and writes a Markdown table plus a JSON beside it.
+The caption states the training budget read from the runs' own configs.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+from disent.eval.runs import RUN_ROOTS, Run, find_runs
+
+# (key in eval.json, column title, lower is better)
+COLUMNS = (
+    ("recon_mse", "recon MSE", True),
+    ("recon_face_psnr", "face PSNR", False),
+    ("recon_face_ssim", "face SSIM", False),
+    ("normal_mean", "normal err (deg)", True),
+    ("pseudo_normal_mean", "pseudo-GT err (deg)", True),
+    ("albedo_si_mse", "albedo SI-MSE", True),
+    ("sh_error", "SH err", True),
+)
+MODEL_ORDER = ("baseline", "explicit", "implicit")
+BUDGET_KEYS = ("train.steps", "train.max_steps", "train.epochs", "train.batch_size", "data.size", "data.train_size",
+               "data.resolution")
+
+
+def _stats(values):
+    v = [x for x in values if isinstance(x, (int, float)) and math.isfinite(x)]
+    if not v:
+        return None
+    m = sum(v) / len(v)
+    s = math.sqrt(sum((x - m) ** 2 for x in v) / (len(v) - 1)) if len(v) > 1 else 0.0
+    return {"mean": m, "std": s, "n": len(v)}
+
+
+def _dig(cfg, dotted):
+    for k in dotted.split("."):
+        if not isinstance(cfg, dict) or k not in cfg:
+            return None
+        cfg = cfg[k]
+    return cfg
+
+
+def budget(runs: list[Run]) -> dict:
+    """The training budget the runs share: each budget key with its set of values."""
+    out = {}
+    for key in BUDGET_KEYS:
+        vals = sorted({str(v) for r in runs if (v := _dig(r.cfg, key)) is not None})
+        if vals:
+            out[key] = vals[0] if len(vals) == 1 else vals
+    exps = sorted({str(r.choices.get("experiment")) for r in runs if r.choices.get("experiment")})
+    if exps:
+        out["experiment"] = exps[0] if len(exps) == 1 else exps
+    return out
+
+
+def ablation_table(runs: list[Run]) -> dict:
+    """``{"rows": [{variant, seeds, status, <key>: {mean,std,n}}], "budget": {...}}`` over finished runs."""
+    by_variant = {}
+    for r in runs:
+        by_variant.setdefault(r.variant, []).append(r)
+
+    def order(v):
+        model, *abl = v.split("+")
+        return (MODEL_ORDER.index(model) if model in MODEL_ORDER else 99, len(abl), v)
+
+    rows = []
+    for v in sorted(by_variant, key=order):
+        rs = by_variant[v]
+        ok = [r for r in rs if r.status == "ok"]
+        row = {"variant": v, "seeds": sorted(r.seed for r in ok if r.seed is not None), "runs": len(rs),
+               "failed": {s: sum(r.status == s for r in rs) for s in ("nan", "diverged", "incomplete") if any(r.status == s for r in rs)}}
+        for key, _, _ in COLUMNS:
+            row[key] = _stats([r.value(key) for r in ok])
+        rows.append(row)
+    return {"rows": rows, "budget": budget(runs)}
+
+
+def _fmt(s):
+    if s is None:
+        return "–"
+    m, d = s["mean"], s["std"]
+    digits = 4 if abs(m) < 1 else 3
+    return f"{m:.{digits}g} ± {d:.2g}"
+
+
+def to_markdown(table: dict) -> str:
+    """The table as Markdown, best mean per column in bold, budget in the caption."""
+    rows = table["rows"]
+    if not rows:
+        return "_No runs found: run the suite (see `ablations/README.md`)._\n"
+    best = {}
+    for key, _, low in COLUMNS:
+        vals = [r[key]["mean"] for r in rows if r[key]]
+        if vals:
+            best[key] = min(vals) if low else max(vals)
+    head = "| variant | seeds | " + " | ".join(t + (" ↓" if low else " ↑") for _, t, low in COLUMNS) + " |"
+    lines = [head, "|" + "---|" * (len(COLUMNS) + 2)]
+    for r in rows:
+        cells = []
+        for key, _, _ in COLUMNS:
+            c = _fmt(r[key])
+            if r[key] and best.get(key) == r[key]["mean"]:
+                c = f"**{c}**"
+            cells.append(c)
+        seeds = f"{len(r['seeds'])}/{r['runs']}" + (f" ({', '.join(f'{n} {s}' for s, n in r['failed'].items())})" if r["failed"] else "")
+        lines.append(f"| {r['variant']} | {seeds} | " + " | ".join(cells) + " |")
+    b = ", ".join(f"{k}={v}" for k, v in table["budget"].items()) or "not recorded in the run configs"
+    caption = (f"Mean ± std over seeds (finished runs / all runs). Budget: {b}. "
+               "Errors against SynthFaces ground truth on the test split; SH error after per-image scale alignment; "
+               "pseudo-GT err is the pseudo normals' own error on the same pixels.")
+    return "\n".join(lines) + f"\n\n_{caption}_\n"
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("roots", nargs="*", default=list(RUN_ROOTS))
+    p.add_argument("--out", default="ablations/results.md")
+    a = p.parse_args(argv)
+    table = ablation_table(find_runs(a.roots))
+    md = to_markdown(table)
+    out = Path(a.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text("# Ablation results\n\n" + md)
+    out.with_suffix(".json").write_text(json.dumps(table, indent=1))
+    print(md)
+
+
+if __name__ == "__main__":
+    main()

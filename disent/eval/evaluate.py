@@ -1,0 +1,94 @@
+"""Accuracy of one model on SynthFaces ground truth, and the helpers every protocol shares.
+
+``evaluate_model(model, dataset)`` returns the flat dict of test metrics that run folders,
+the ablation table and the report use (keys below); nothing here trains.
+"""
+from __future__ import annotations
+
+import time
+
+import torch
+from torch.utils.data import DataLoader, Subset
+
+from disent.eval.metrics import normal_angular_error, reconstruction_metrics, scale_invariant_mse, sh_error
+
+FACE_THRESHOLD = 0.99  # matte above this is face without background mixing
+
+
+def face_mask(matte: torch.Tensor, threshold: float = FACE_THRESHOLD) -> torch.Tensor:
+    """Binary face mask ``[B,1,H,W]`` from a soft matte: antialiased border pixels mix in background."""
+    return (matte > threshold).to(matte.dtype)
+
+
+def batches(dataset, batch_size: int = 64, limit: int | None = None, indices=None):
+    """Collated dict batches of the first ``limit`` items (or of ``indices``), in order, no workers."""
+    if indices is None:
+        indices = range(len(dataset) if limit is None else min(limit, len(dataset)))
+    return DataLoader(Subset(dataset, list(indices)), batch_size=batch_size, shuffle=False, num_workers=0)
+
+
+@torch.no_grad()
+def predict(model, image: torch.Tensor) -> dict:
+    """``model(image)`` in eval mode without gradients."""
+    was_training = model.training
+    model.eval()
+    try:
+        return model(image)
+    finally:
+        model.train(was_training)
+
+
+def _cat(parts):
+    return {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
+
+
+def model_outputs(model, dataset, limit: int = 256, batch_size: int = 64, keys=("recon", "normal", "albedo", "shading", "sh", "matte")):
+    """Concatenated model outputs and ground truth over the first ``limit`` items, plus images/s."""
+    outs, gts, seconds = [], [], 0.0
+    for batch in batches(dataset, batch_size, limit):
+        t0 = time.perf_counter()
+        out = predict(model, batch["image"])
+        seconds += time.perf_counter() - t0
+        outs.append({k: out[k].float() for k in keys if k in out})
+        gts.append({k: v for k, v in batch.items() if torch.is_tensor(v)})
+    out, gt = _cat(outs), _cat(gts)
+    return out, gt, len(gt["image"]) / max(seconds, 1e-12)
+
+
+def metrics_from_outputs(out: dict, gt: dict) -> dict:
+    """Flat metric dict from model outputs and ground truth (same keys as SynthFaces items).
+
+    ``recon_*`` on the whole image, ``recon_face_*`` under the true face mask; ``normal_*`` the
+    model's angular error against the true normals and ``pseudo_normal_*`` the pseudo-GT's on the
+    same pixels (true face mask intersected with the pseudo mask); ``albedo_si_mse``,
+    ``shading_si_mse``; ``sh_error`` after the per-image scale alignment.
+    """
+    m = {}
+    face = face_mask(gt["matte"])
+    for name, mask in (("recon", None), ("recon_face", face)):
+        for k, v in reconstruction_metrics(out["recon"].clamp(0, 1), gt["image"], mask).items():
+            m[f"{name}_{k}"] = v
+    if "normal" in out:
+        both = face * (gt["mask_pseudo"] > 0.5)
+        for k, v in normal_angular_error(out["normal"], gt["normal"], both).items():
+            m[f"normal_{k}"] = v
+        for k, v in normal_angular_error(gt["normal_pseudo"], gt["normal"], both).items():
+            m[f"pseudo_normal_{k}"] = v
+    if "albedo" in out:
+        m["albedo_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], face)
+    if "shading" in out:
+        shading = out["shading"].expand_as(gt["shading"])
+        m["shading_si_mse"] = scale_invariant_mse(shading, gt["shading"], face)
+    if "sh" in out:
+        m["sh_error"] = sh_error(out["sh"], gt["sh"])
+        m["pseudo_sh_error"] = sh_error(gt["sh_pseudo"], gt["sh"])
+    return m
+
+
+def evaluate_model(model, dataset, limit: int = 256, batch_size: int = 64) -> dict:
+    """All test metrics of ``model`` on the first ``limit`` items of ``dataset`` plus ``infer_images_per_s``."""
+    out, gt, ips = model_outputs(model, dataset, limit, batch_size)
+    return {**metrics_from_outputs(out, gt), "infer_images_per_s": ips, "n_eval": len(gt["image"])}
+
+
+__all__ = ["FACE_THRESHOLD", "face_mask", "batches", "predict", "model_outputs", "metrics_from_outputs", "evaluate_model"]

@@ -1,0 +1,152 @@
+"""Evaluation metrics: batched torch in, python floats (or per-image tensors) out.
+
+Masks are ``[B,1,H,W]`` (or ``[B,H,W]``); a pixel counts when its mask value is > 0.5.
+Aggregates pool pixels or average images as each docstring says.
+
+Scale conventions (intrinsic images are defined only up to scale, Grosse et al. 2009):
+
+* albedo: :func:`scale_invariant_mse` rescales the prediction by the least-squares optimal
+  scalar per image **and per channel** before the MSE;
+* lighting: :func:`sh_error` rescales the predicted SH by the least-squares optimal scalar
+  per image (one scalar for all 3 x 9 coefficients; ``per_channel=True`` uses one per channel,
+  matching the albedo convention).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from skimage.metrics import peak_signal_noise_ratio, structural_similarity
+
+ANGLE_THRESHOLDS = (20.0, 25.0, 30.0)
+
+
+def _mask(mask: torch.Tensor | None, like: torch.Tensor) -> torch.Tensor:
+    """Boolean mask ``[B,1,H,W]`` checked against ``like [B,C,H,W]`` (all ones when None)."""
+    B, _, H, W = like.shape
+    if mask is None:
+        return torch.ones(B, 1, H, W, dtype=torch.bool, device=like.device)
+    if mask.dim() == 3:
+        mask = mask[:, None]
+    if mask.shape != (B, 1, H, W):
+        raise ValueError(f"mask must be [B,1,H,W] = {(B, 1, H, W)}, got {tuple(mask.shape)}")
+    return mask > 0.5
+
+
+def _check_pair(pred: torch.Tensor, target: torch.Tensor, channels: int | None = None) -> None:
+    if pred.shape != target.shape or pred.dim() != 4:
+        raise ValueError(f"pred and target must both be [B,C,H,W], got {tuple(pred.shape)} and {tuple(target.shape)}")
+    if channels is not None and pred.shape[1] != channels:
+        raise ValueError(f"expected {channels} channels, got {pred.shape[1]}")
+
+
+def angular_error_deg(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Per-pixel angle in degrees between normal maps ``[B,3,H,W]`` -> ``[B,H,W]``.
+
+    Both maps are normalised (zero vectors stay zero and give 90 degrees); the dot is clamped to [-1, 1].
+    """
+    _check_pair(pred, target, 3)
+    p = torch.nn.functional.normalize(pred.double(), dim=1, eps=1e-12)
+    t = torch.nn.functional.normalize(target.double(), dim=1, eps=1e-12)
+    cos = (p * t).sum(1).clamp(-1.0, 1.0)
+    return torch.rad2deg(torch.acos(cos)).to(pred.dtype)
+
+
+def normal_angular_error(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> dict:
+    """Angular error over the masked pixels of the whole batch (pixels pooled).
+
+    Returns ``mean`` and ``median`` in degrees and ``under_20/25/30``, the share of pixels
+    (in [0, 1]) whose error is below 20, 25, 30 degrees.
+    """
+    err = angular_error_deg(pred, target)
+    m = _mask(mask, pred)[:, 0]
+    if not m.any():
+        raise ValueError("normal_angular_error: the mask selects no pixel")
+    e = err[m].double()
+    out = {"mean": e.mean().item(), "median": e.median().item()}
+    for t in ANGLE_THRESHOLDS:
+        out[f"under_{int(t)}"] = (e < t).double().mean().item()
+    return out
+
+
+def _win_size(H: int, W: int) -> int:
+    w = min(7, H, W)
+    w -= (w + 1) % 2  # odd
+    if w < 3:
+        raise ValueError(f"SSIM needs images of at least 3x3 pixels, got {H}x{W}")
+    return w
+
+
+def reconstruction_metrics(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None = None) -> dict:
+    """MSE, PSNR (dB) and SSIM of images in [0, 1] (scikit-image, ``data_range=1``), averaged over images.
+
+    With a mask, MSE and PSNR use the masked pixels only and SSIM is its full map averaged
+    over the mask.  A perfect reconstruction has PSNR ``inf``.
+    """
+    _check_pair(pred, target)
+    m = _mask(mask, pred)
+    if not m.flatten(1).any(1).all():
+        raise ValueError("reconstruction_metrics: the mask selects no pixel in some image")
+    P = pred.detach().double().cpu().numpy()
+    T = target.detach().double().cpu().numpy()
+    M = m[:, 0].cpu().numpy()
+    win = _win_size(*P.shape[2:])
+    mse, psnr, ssim = [], [], []
+    for p, t, mk in zip(P, T, M):  # per image; scikit-image works on one image at a time
+        pm, tm = p[:, mk], t[:, mk]
+        e = float(np.mean((pm - tm) ** 2))
+        mse.append(e)
+        psnr.append(math.inf if e == 0 else float(peak_signal_noise_ratio(tm, pm, data_range=1.0)))
+        _, smap = structural_similarity(t, p, data_range=1.0, channel_axis=0, win_size=win, full=True)
+        ssim.append(float(smap.mean(0)[mk].mean()))
+    return {"mse": float(np.mean(mse)), "psnr": float(np.mean(psnr)), "ssim": float(np.mean(ssim))}
+
+
+def optimal_scale(pred: torch.Tensor, target: torch.Tensor, weight: torch.Tensor, dims) -> torch.Tensor:
+    """argmin_s sum w (s pred - target)^2 = sum w pred target / sum w pred^2 over ``dims`` (0 if pred is 0)."""
+    num = (weight * pred * target).sum(dims, keepdim=True)
+    den = (weight * pred * pred).sum(dims, keepdim=True)
+    return torch.where(den > 0, num / den.clamp_min(1e-300), torch.zeros_like(num))
+
+
+def scale_invariant_mse(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, reduction: str = "mean"):
+    """Scale-invariant MSE of albedo (or shading) maps ``[B,C,H,W]`` over the mask.
+
+    Each image and channel of ``pred`` is multiplied by its least-squares optimal scale
+    before the MSE over masked pixels and channels.  ``reduction="none"`` returns ``[B]``,
+    ``"mean"`` their mean as a float.
+    """
+    _check_pair(pred, target)
+    w = _mask(mask, pred).double()
+    if not (w.flatten(1).sum(1) > 0).all():
+        raise ValueError("scale_invariant_mse: the mask selects no pixel in some image")
+    p, t = pred.detach().double(), target.detach().double()
+    s = optimal_scale(p, t, w, (2, 3))  # [B,C,1,1]
+    per_image = (w * (s * p - t) ** 2).sum((1, 2, 3)) / (w.sum((1, 2, 3)) * p.shape[1])
+    return _reduce(per_image, reduction)
+
+
+def sh_error(pred_sh: torch.Tensor, true_sh: torch.Tensor, per_channel: bool = False, reduction: str = "mean"):
+    """MSE of SH coefficients ``[B,C,9]`` after the least-squares scale alignment of ``pred_sh``.
+
+    One scale per image (default) or per image and channel (``per_channel=True``).
+    ``reduction="none"`` returns ``[B]``, ``"mean"`` a float.
+    """
+    if pred_sh.shape != true_sh.shape or pred_sh.dim() != 3 or pred_sh.shape[-1] != 9:
+        raise ValueError(f"SH must both be [B,C,9], got {tuple(pred_sh.shape)} and {tuple(true_sh.shape)}")
+    p, t = pred_sh.detach().double(), true_sh.detach().double()
+    s = optimal_scale(p, t, torch.ones_like(p), (2,) if per_channel else (1, 2))
+    return _reduce(((s * p - t) ** 2).mean((1, 2)), reduction)
+
+
+def _reduce(per_image: torch.Tensor, reduction: str):
+    if reduction == "none":
+        return per_image
+    if reduction == "mean":
+        return per_image.mean().item()
+    raise ValueError(f"reduction must be 'mean' or 'none', got {reduction!r}")
+
+
+__all__ = ["angular_error_deg", "normal_angular_error", "reconstruction_metrics", "scale_invariant_mse",
+           "sh_error", "optimal_scale", "ANGLE_THRESHOLDS"]

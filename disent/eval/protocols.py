@@ -1,0 +1,157 @@
+"""The paper's lighting-stability protocol (supplement, "Quantitative Experiments").
+
+On the ``lightbank`` split (fixed light conditions x identities x poses), each estimator
+gives one SH estimate per image; for every light condition we take the variance of each
+coefficient across identities and poses, then average over conditions and RGB.  The
+paper reports 0.36 for a 3DMM least-squares fit and 0.16 for its network's Z_L.
+
+Estimators, side by side:
+
+* ``ls_pseudo``: the paper's L-hat, ``fit_sh`` with the pseudo normals over the pseudo mask
+  (constant albedo, Sec. 4.2), the 3DMM baseline;
+* ``ls_true``: the same least squares with the true normals over the true face mask;
+* ``ls_oracle``: least squares with true normals and true albedo (a check: near zero variance);
+* ``true``: the generator's SH (exactly zero variance by construction);
+* one entry per trained model: its Z_L (``outputs["sh"]``).
+
+The raw variance depends on each estimator's scale (constant-albedo fits absorb skin tone,
+Z_L has its own scale), so ``relative`` divides it by the estimator's mean squared
+coefficient over the whole split: a scale-free companion number.
+
+``python -m disent.eval.protocols`` writes ``reports/eval/sh_variance.json`` and its bar chart.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import torch
+
+from disent.eval.evaluate import batches, face_mask, predict
+from disent.eval.metrics import sh_error
+from disent.render import SH_NAMES, fit_sh
+
+
+def sh_variance(sh: torch.Tensor, condition: torch.Tensor) -> dict:
+    """Within-condition variance of SH estimates ``sh [N,C,9]`` grouped by ``condition [N]``.
+
+    Variance is unbiased (ddof 1) over the images of each condition; conditions with fewer
+    than 2 images are skipped.  Returns ``per_coeff`` (9 values averaged over conditions and
+    channels), ``mean`` (their mean, the paper's number) and ``relative`` (``mean`` divided by
+    the estimator's mean squared coefficient).
+    """
+    if sh.dim() != 3 or sh.shape[-1] != 9 or condition.shape != sh.shape[:1]:
+        raise ValueError(f"need sh [N,C,9] and condition [N], got {tuple(sh.shape)} and {tuple(condition.shape)}")
+    x = sh.double()
+    ids, inv, counts = torch.unique(condition, return_inverse=True, return_counts=True)
+    K = len(ids)
+    s1 = torch.zeros(K, *x.shape[1:], dtype=x.dtype).index_add_(0, inv, x)
+    s2 = torch.zeros(K, *x.shape[1:], dtype=x.dtype).index_add_(0, inv, x * x)
+    n = counts.double().reshape(K, 1, 1)
+    keep = counts >= 2
+    if not keep.any():
+        raise ValueError("sh_variance needs a condition with at least 2 images")
+    var = ((s2 - s1 * s1 / n) / (n - 1).clamp_min(1)).clamp_min(0)[keep]  # [K',C,9]
+    per_coeff = var.mean((0, 1))
+    mean = per_coeff.mean().item()
+    scale = x.pow(2).mean().item()
+    return {"per_coeff": per_coeff.tolist(), "mean": mean, "relative": mean / scale if scale > 0 else float("nan"),
+            "n_images": int(counts[keep].sum()), "n_conditions": int(keep.sum())}
+
+
+def ls_estimates(batch: dict) -> dict:
+    """Least-squares SH of one batch for the three LS estimators (and the truth)."""
+    image, face = batch["image"], face_mask(batch["matte"])
+    return {
+        "ls_pseudo": fit_sh(image, batch["normal_pseudo"], batch["mask_pseudo"])[0],
+        "ls_true": fit_sh(image, batch["normal"], face)[0],
+        "ls_oracle": fit_sh(image, batch["normal"], face, albedo=batch["albedo"])[0],
+        "true": batch["sh"],
+    }
+
+
+def collect_sh(dataset, models: dict | None = None, limit: int | None = None, batch_size: int = 128):
+    """SH estimates of every estimator on ``dataset`` -> ``({name: [N,C,9]}, sh_true [N,C,9], light_id [N])``."""
+    models = models or {}
+    parts, truth, cond = {}, [], []
+    for batch in batches(dataset, batch_size, limit):
+        est = ls_estimates(batch)
+        for name, model in models.items():
+            out = predict(model, batch["image"])
+            if "sh" in out:  # the baseline autoencoder has no lighting code
+                est[name] = out["sh"]
+        for k, v in est.items():
+            parts.setdefault(k, []).append(v.detach().double())
+        truth.append(batch["sh"].double())
+        cond.append(batch["light_id"])
+    return {k: torch.cat(v) for k, v in parts.items()}, torch.cat(truth), torch.cat(cond)
+
+
+def sh_variance_protocol(dataset, models: dict | None = None, limit: int | None = None) -> dict:
+    """The supplement's table: variance (and aligned SH error) of every estimator on ``dataset``."""
+    est, truth, cond = collect_sh(dataset, models, limit)
+    if (cond < 0).any():
+        raise ValueError("sh_variance_protocol needs fixed light conditions (light_id >= 0): use split='lightbank'")
+    out = {}
+    for name, sh in est.items():
+        out[name] = {**sh_variance(sh, cond), "sh_error": sh_error(sh, truth)}
+    return {"estimators": out, "coefficients": list(SH_NAMES), "paper": {"ls_3dmm": 0.36, "network": 0.16}}
+
+
+def plot_sh_variance(result: dict, path, relative: bool = False) -> None:
+    """Grouped bars of per-coefficient variance, one colour per estimator (paper's supplement figure)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    est = {k: v for k, v in result["estimators"].items() if k != "true"}
+    names = list(est)
+    x = np.arange(9)
+    width = 0.8 / max(len(names), 1)
+    fig, ax = plt.subplots(figsize=(8, 3.2))
+    for i, name in enumerate(names):
+        v = np.array(est[name]["per_coeff"])
+        if relative:
+            v = v * est[name]["relative"] / max(est[name]["mean"], 1e-300)
+        ax.bar(x + (i - (len(names) - 1) / 2) * width, v, width,
+               label=f"{name} ({est[name]['relative' if relative else 'mean']:.3g})")
+    ax.set_xticks(x, result.get("coefficients", SH_NAMES))
+    ax.set_ylabel("relative variance" if relative else "variance within a light condition")
+    ax.set_yscale("log")
+    ax.legend(fontsize=7)
+    ax.set_title("SH coefficient variance per light condition (mean over conditions and RGB)", fontsize=9)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main(argv=None):
+    from disent.data import SynthFaces
+    from disent.eval.runs import find_runs
+    from disent.eval.runs import load_models
+
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--out", default="reports/eval")
+    p.add_argument("--limit", type=int, default=None, help="first N lightbank images (default: all)")
+    p.add_argument("--resolution", type=int, default=64)
+    p.add_argument("--runs", nargs="*", default=None, help="run folders (default: best run of each model found)")
+    a = p.parse_args(argv)
+    torch.manual_seed(0)
+    models = load_models(a.runs if a.runs is not None else find_runs())
+    ds = SynthFaces(split="lightbank", resolution=a.resolution, seed=0)
+    res = sh_variance_protocol(ds, models, a.limit)
+    res["split"], res["resolution"] = "lightbank", a.resolution
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "sh_variance.json").write_text(json.dumps(res, indent=1))
+    plot_sh_variance(res, out / "sh_variance.png")
+    for k, v in res["estimators"].items():
+        print(f"{k:28s} variance {v['mean']:.4g}  relative {v['relative']:.4g}  sh_error {v['sh_error']:.4g}  "
+              f"({v['n_conditions']} conditions, {v['n_images']} images)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,372 @@
+"""Where the methods fail, measured as curves (JSON + PNG under ``reports/eval/``).
+
+1. ``bws``: without batch-wise white shading (BWS, Sec. 4.2) does shading collapse or take a
+   colour cast, and does albedo absorb shading?  Shading mean per channel over the face and
+   the correlation between estimated albedo and true shading, for runs with and without BWS
+   and against the training batch size over which BWS averages.
+2. ``conditioning``: the least-squares L-hat against yaw (frontal to profile) and against the
+   face-mask size: condition number of the normal design ``A^T A`` and SH error.  The yaw
+   or mask fraction where the median condition number first exceeds ``BLOWUP`` x its
+   frontal / full-mask value is reported as the blow-up point.
+3. ``ood``: error against severity for each SynthFaces effect (``specular, cast_shadow,
+   noise, occluder``) and for lights outside the prior (``light``: the light turned about
+   the camera's x axis by ``severity x 180`` degrees, from above towards below and behind),
+   for each model and for least squares.
+4. ``training``: NaN and divergence rate over seeds against learning rate, per model, with
+   and without the adversarial loss, read from run folders.
+
+``python -m disent.eval.stability [conditioning ood bws training]`` (default: all).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+import torch
+from torch.utils.data import default_collate
+
+from disent.eval.evaluate import batches, face_mask, metrics_from_outputs, predict
+from disent.eval.metrics import sh_error
+from disent.render import design_condition, fit_sh, rotate_sh
+
+BLOWUP = 10.0  # a condition number this many times the well-posed one marks the blow-up
+YAWS = (0, 10, 20, 30, 40, 45, 50, 60, 70, 80, 90)
+MASK_FRACTIONS = (1.0, 0.7, 0.5, 0.3, 0.2, 0.1, 0.05, 0.02)
+SEVERITIES = (0.0, 0.25, 0.5, 0.75, 1.0)
+EFFECTS = ("specular", "cast_shadow", "noise", "occluder", "light")
+MIN_PIXELS = 9  # 9 unknowns per channel
+
+
+def _median(x: torch.Tensor) -> float:
+    return x.double().median().item()
+
+
+def _ls_errors(batch: dict, pseudo_mask=None, true_mask=None) -> dict:
+    """Design condition and aligned SH error of L-hat with pseudo and with true normals."""
+    pm = batch["mask_pseudo"] if pseudo_mask is None else pseudo_mask
+    tm = face_mask(batch["matte"]) if true_mask is None else true_mask
+    out = {}
+    for name, normal, mask in (("ls_pseudo", batch["normal_pseudo"], pm), ("ls_true", batch["normal"], tm)):
+        sh, _ = fit_sh(batch["image"], normal, mask, min_pixels=MIN_PIXELS)
+        out[f"{name}_cond"] = design_condition(normal.double(), mask.double())
+        out[f"{name}_sh_error"] = sh_error(sh, batch["sh"], reduction="none")
+    return out
+
+
+def _summarize(per_image: dict) -> dict:
+    return {k: {"median": _median(v), "p90": v.double().quantile(0.9).item()} for k, v in per_image.items()}
+
+
+def _blowup(xs, values, reference: float):
+    """First x whose value exceeds ``BLOWUP x reference`` (None if never)."""
+    for x, v in zip(xs, values):
+        if not math.isfinite(v) or v > BLOWUP * reference:
+            return x
+    return None
+
+
+# ----------------------------------------------------------------------------- 2. conditioning
+def conditioning_vs_yaw(dataset, yaws=YAWS, n: int = 16) -> dict:
+    """L-hat conditioning and error for the first ``n`` faces turned to each yaw (pitch = roll = 0)."""
+    rows = []
+    for yaw in yaws:
+        try:
+            batch = default_collate([dataset.sample(i, pose=torch.tensor([float(yaw), 0.0, 0.0])) for i in range(n)])
+        except (ValueError, NotImplementedError) as e:  # a generator that refuses a pose beyond its range
+            rows.append({"yaw": yaw, "error": str(e)})
+            continue
+        rows.append({"yaw": yaw, "face_pixels": _median(face_mask(batch["matte"]).flatten(1).sum(1)),
+                     **_summarize(_ls_errors(batch))})
+    ok = [r for r in rows if "error" not in r]
+    res = {"rows": rows, "n": n, "blowup_factor": BLOWUP}
+    for est in ("ls_pseudo", "ls_true"):
+        if ok:
+            res[f"{est}_blowup_yaw"] = _blowup([r["yaw"] for r in ok], [r[f"{est}_cond"]["median"] for r in ok],
+                                               ok[0][f"{est}_cond"]["median"])
+    return res
+
+
+def shrink_mask(mask: torch.Tensor, fraction: float) -> torch.Tensor:
+    """Keep the ``fraction`` of each image's mask nearest its centroid (a smaller, rounder face crop)."""
+    B, _, H, W = mask.shape
+    m = mask[:, 0] > 0.5
+    yy, xx = torch.meshgrid(torch.arange(H, dtype=torch.float64), torch.arange(W, dtype=torch.float64), indexing="ij")
+    cnt = m.flatten(1).sum(1).clamp_min(1).double()
+    cy = (m * yy).flatten(1).sum(1) / cnt
+    cx = (m * xx).flatten(1).sum(1) / cnt
+    d = (yy - cy[:, None, None]) ** 2 + (xx - cx[:, None, None]) ** 2
+    d = torch.where(m, d, torch.inf).flatten(1)
+    k = (cnt * fraction).ceil().long().clamp_min(1)
+    kth = d.sort(1).values.gather(1, (k - 1)[:, None])  # distance of the k-th nearest face pixel
+    return ((d <= kth) & m.flatten(1)).reshape(B, 1, H, W).to(mask.dtype)
+
+
+def conditioning_vs_mask(dataset, fractions=MASK_FRACTIONS, n: int = 32) -> dict:
+    """L-hat conditioning and error as the face mask shrinks towards its centre (frontal-to-random poses as sampled)."""
+    batch = next(iter(batches(dataset, n, n)))
+    rows = []
+    for f in fractions:
+        pm, tm = shrink_mask(batch["mask_pseudo"], f), shrink_mask(face_mask(batch["matte"]), f)
+        try:
+            stats = _summarize(_ls_errors(batch, pm, tm))
+        except ValueError as e:  # fewer than MIN_PIXELS pixels
+            rows.append({"fraction": f, "error": str(e)})
+            continue
+        rows.append({"fraction": f, "face_pixels": _median(tm.flatten(1).sum(1)), **stats})
+    ok = [r for r in rows if "error" not in r]
+    res = {"rows": rows, "n": n, "blowup_factor": BLOWUP}
+    for est in ("ls_pseudo", "ls_true"):
+        if ok:
+            res[f"{est}_blowup_fraction"] = _blowup([r["fraction"] for r in ok], [r[f"{est}_cond"]["median"] for r in ok],
+                                                    ok[0][f"{est}_cond"]["median"])
+    return res
+
+
+# ----------------------------------------------------------------------------- 3. out of distribution
+def tilt_light(sh: torch.Tensor, severity: float) -> torch.Tensor:
+    """The light ``sh [B,C,9]`` turned about the camera x axis by ``severity x 180`` degrees."""
+    a = math.pi * severity
+    R = torch.tensor([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]], dtype=torch.float64)
+    return rotate_sh(sh.double(), R).to(sh.dtype)
+
+
+def ood_batch(dataset_cls, effect: str, severity: float, n: int, resolution: int = 64) -> dict:
+    """``n`` test items with one effect at ``severity`` (``light``: the tilted light)."""
+    if effect == "light":
+        ds = dataset_cls(split="test", resolution=resolution, seed=0)
+        base = default_collate([ds[i] for i in range(n)])
+        sh = tilt_light(base["sh"], severity)
+        return default_collate([ds.sample(i, sh=sh[i]) for i in range(n)])
+    ds = dataset_cls(split="test", resolution=resolution, seed=0, effects={effect: severity} if severity > 0 else None)
+    return default_collate([ds[i] for i in range(n)])
+
+
+OOD_KEYS = ("recon_face_mse", "normal_mean", "albedo_si_mse", "sh_error")
+
+
+def ood_curves(dataset_cls, models: dict, effects=EFFECTS, severities=SEVERITIES, n: int = 32, resolution: int = 64) -> dict:
+    """Error against severity per effect: least squares (pseudo and true normals) and each model."""
+    res = {"severities": list(severities), "n": n, "effects": {}}
+    for effect in effects:
+        curves = {}
+        for s in severities:
+            batch = ood_batch(dataset_cls, effect, s, n, resolution)
+            ls = _ls_errors(batch)
+            for est in ("ls_pseudo", "ls_true"):
+                curves.setdefault(est, {}).setdefault("sh_error", []).append(ls[f"{est}_sh_error"].mean().item())
+            for name, model in models.items():
+                out = predict(model, batch["image"])
+                m = metrics_from_outputs(out, batch)
+                for k in OOD_KEYS:
+                    if k in m:
+                        curves.setdefault(name, {}).setdefault(k, []).append(m[k])
+        res["effects"][effect] = curves
+    return res
+
+
+# ----------------------------------------------------------------------------- 1. BWS
+def bws_stats(out: dict, gt: dict) -> dict:
+    """Shading mean per channel over the true face, and corr(estimated albedo, true shading).
+
+    The correlation is Pearson's over face pixels of each image (luminance, i.e. the channel
+    mean), averaged over images: near 0 when albedo is free of shading, towards 1 when it
+    absorbs it.  BWS pushes the shading mean to c = 0.75 per channel.
+    """
+    face = face_mask(gt["matte"])
+    w = face.flatten(1)
+    n = w.sum(1).clamp_min(1)
+    shading = out["shading"].expand(-1, 3, -1, -1)
+    mean_c = ((shading * face).flatten(2).sum(2) / n[:, None]).mean(0)  # [3]
+    a = out["albedo"].mean(1).flatten(1)
+    s = gt["shading"].mean(1).flatten(1)
+    am = (a * w).sum(1) / n
+    sm = (s * w).sum(1) / n
+    cov = ((a - am[:, None]) * (s - sm[:, None]) * w).sum(1)
+    den = (((a - am[:, None]) ** 2 * w).sum(1) * ((s - sm[:, None]) ** 2 * w).sum(1)).sqrt().clamp_min(1e-12)
+    return {"shading_mean_rgb": mean_c.tolist(), "shading_cast": (mean_c.max() - mean_c.min()).item(),
+            "albedo_shading_corr": (cov / den).mean().item()}
+
+
+def bws_study(runs, dataset, n: int = 64) -> dict:
+    """:func:`bws_stats` for every finished run of the explicit/implicit models, with its BWS setting and batch size."""
+    from disent.eval.runs import load_models
+
+    rows = []
+    batch = next(iter(batches(dataset, n, n)))
+    for r in runs:
+        if r.model not in ("explicit", "implicit") or r.checkpoint is None or r.status != "ok":
+            continue
+        model = next(iter(load_models([r], [r.variant]).values()), None)
+        if model is None:
+            continue
+        out = predict(model, batch["image"])
+        bs = r.cfg.get("train", {}).get("batch_size") if isinstance(r.cfg.get("train"), dict) else None
+        rows.append({"run": str(r.path), "variant": r.variant, "model": r.model, "seed": r.seed,
+                     "bws": "no_bws" not in r.ablations, "batch_size": bs, **bws_stats(out, batch)})
+    return {"rows": rows, "n": n}
+
+
+# ----------------------------------------------------------------------------- 4. training
+def training_stability(runs) -> dict:
+    """NaN / divergence rate over seeds for each (model, adversarial on/off, learning rate)."""
+    groups = {}
+    for r in runs:
+        if r.status == "incomplete" or r.ablations not in ([], ["no_adv"]):
+            continue
+        key = (r.model, r.adversarial, r.lr)
+        groups.setdefault(key, []).append(r.status)
+    rows = [{"model": m, "adversarial": adv, "lr": lr, "runs": len(s), "nan_rate": s.count("nan") / len(s),
+             "diverged_rate": s.count("diverged") / len(s)} for (m, adv, lr), s in sorted(groups.items(), key=str)]
+    return {"rows": rows}
+
+
+# ----------------------------------------------------------------------------- plots
+def _plt():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def _save(fig, path):
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    _plt().close(fig)
+
+
+def plot_conditioning(yaw: dict, mask: dict, path) -> None:
+    plt = _plt()
+    fig, axes = plt.subplots(2, 2, figsize=(8, 5.5), sharex="col")
+    for col, (res, key, label) in enumerate(((yaw, "yaw", "yaw (degrees)"), (mask, "fraction", "share of face mask kept"))):
+        ok = [r for r in res["rows"] if "error" not in r]
+        xs = [r[key] for r in ok]
+        for est, style in (("ls_pseudo", "o-"), ("ls_true", "s--")):
+            axes[0, col].plot(xs, [r[f"{est}_cond"]["median"] for r in ok], style, label=est)
+            axes[1, col].plot(xs, [r[f"{est}_sh_error"]["median"] for r in ok], style, label=est)
+            b = res.get(f"{est}_blowup_{key if key == 'yaw' else 'fraction'}")
+            if b is not None:
+                axes[0, col].axvline(b, color="C0" if est == "ls_pseudo" else "C1", lw=0.8, ls=":")
+        axes[0, col].set_yscale("log")
+        axes[1, col].set_yscale("log")
+        axes[0, col].set_ylabel("cond(A^T A), median")
+        axes[1, col].set_ylabel("SH error (aligned), median")
+        axes[1, col].set_xlabel(label)
+        if key == "fraction":
+            axes[1, col].invert_xaxis()
+        axes[0, col].legend(fontsize=7)
+    fig.suptitle(f"L-hat conditioning (dotted: median cond > {BLOWUP:g}x the well-posed value)", fontsize=9)
+    _save(fig, path)
+
+
+def plot_ood(res: dict, path) -> None:
+    plt = _plt()
+    effects = list(res["effects"])
+    keys = ("sh_error", "normal_mean", "albedo_si_mse", "recon_face_mse")
+    fig, axes = plt.subplots(len(keys), len(effects), figsize=(2.6 * len(effects), 2.0 * len(keys)), squeeze=False)
+    for j, e in enumerate(effects):
+        for i, k in enumerate(keys):
+            ax = axes[i, j]
+            for name, c in res["effects"][e].items():
+                if k in c:
+                    ax.plot(res["severities"], c[k], "o-", ms=3, label=name)
+            if i == 0:
+                ax.set_title(e, fontsize=9)
+            if j == 0:
+                ax.set_ylabel(k, fontsize=8)
+            if i == len(keys) - 1:
+                ax.set_xlabel("severity")
+    axes[0, 0].legend(fontsize=6)
+    _save(fig, path)
+
+
+def plot_bws(res: dict, path) -> None:
+    plt = _plt()
+    fig, axes = plt.subplots(1, 3, figsize=(10, 3))
+    rows = res["rows"]
+    for bws, marker in ((True, "o"), (False, "x")):
+        sel = [r for r in rows if r["bws"] == bws and r["batch_size"] is not None]
+        sel.sort(key=lambda r: r["batch_size"])
+        bs = [r["batch_size"] for r in sel]
+        label = "with BWS" if bws else "without BWS"
+        for c, color in enumerate(("r", "g", "b")):
+            axes[0].plot(bs, [r["shading_mean_rgb"][c] for r in sel], marker + ("-" if bws else "--"), color=color,
+                         label=f"{label} {color}" if c == 0 else None)
+        axes[1].plot(bs, [r["shading_cast"] for r in sel], marker + "-", label=label)
+        axes[2].plot(bs, [r["albedo_shading_corr"] for r in sel], marker + "-", label=label)
+    axes[0].axhline(0.75, color="k", lw=0.6, ls=":")
+    for ax, t in zip(axes, ("shading mean per channel (BWS target 0.75)", "colour cast (max - min channel mean)",
+                            "corr(albedo, true shading)")):
+        ax.set_xscale("log")
+        ax.set_xlabel("training batch size (BWS averages over it)")
+        ax.set_title(t, fontsize=8)
+        ax.legend(fontsize=6)
+    _save(fig, path)
+
+
+def plot_training(res: dict, path) -> None:
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(5, 3))
+    models = sorted({r["model"] for r in res["rows"]})
+    for k, m in enumerate(models):
+        for adv, ls in ((True, "-"), (False, "--")):
+            sel = sorted((r for r in res["rows"] if r["model"] == m and r["adversarial"] == adv and r["lr"]), key=lambda r: r["lr"])
+            if sel:
+                ax.plot([r["lr"] for r in sel], [r["nan_rate"] + r["diverged_rate"] for r in sel], "o" + ls,
+                        color=f"C{k}", label=f"{m} {'adv' if adv else 'no adv'}")
+    ax.set_xscale("log")
+    ax.set_xlabel("learning rate")
+    ax.set_ylabel("share of seeds NaN or diverged")
+    ax.set_ylim(-0.05, 1.05)
+    ax.legend(fontsize=6)
+    _save(fig, path)
+
+
+# ----------------------------------------------------------------------------- command
+def main(argv=None):
+    from disent.eval.runs import find_runs, load_models
+
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("studies", nargs="*", default=["conditioning", "ood", "bws", "training"])
+    p.add_argument("--out", default="reports/eval")
+    p.add_argument("--n", type=int, default=32, help="images per point")
+    p.add_argument("--resolution", type=int, default=64)
+    a = p.parse_args(argv)
+    torch.manual_seed(0)
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    runs = find_runs()
+
+    def write(name, res):
+        (out / f"{name}.json").write_text(json.dumps(res, indent=1))
+        print(f"wrote {out / name}.json")
+
+    if "conditioning" in a.studies or "ood" in a.studies or "bws" in a.studies:
+        from disent.data import SynthFaces
+    if "conditioning" in a.studies:
+        test = SynthFaces(split="test", resolution=a.resolution, seed=0)
+        yaw, mask = conditioning_vs_yaw(test, n=a.n // 2), conditioning_vs_mask(test, n=a.n)
+        write("conditioning", {"yaw": yaw, "mask": mask})
+        plot_conditioning(yaw, mask, out / "conditioning.png")
+        for est in ("ls_pseudo", "ls_true"):
+            print(f"{est}: blow-up yaw {yaw.get(est + '_blowup_yaw')}, mask fraction {mask.get(est + '_blowup_fraction')}")
+    if "ood" in a.studies:
+        res = ood_curves(SynthFaces, load_models(runs), n=a.n, resolution=a.resolution)
+        write("ood", res)
+        plot_ood(res, out / "ood.png")
+    if "bws" in a.studies:
+        res = bws_study(runs, SynthFaces(split="test", resolution=a.resolution, seed=0), n=2 * a.n)
+        write("bws", res)
+        if res["rows"]:
+            plot_bws(res, out / "bws.png")
+    if "training" in a.studies:
+        res = training_stability(runs)
+        write("training", res)
+        if res["rows"]:
+            plot_training(res, out / "training.png")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,135 @@
+"""A lighting model no larger than the scene needs: SH order 0/1/2, gray or RGB light.
+
+Candidates for an RGB image (constant albedo a_c absorbed into the light, as in L-hat):
+
+=========  ==========================  =======================
+name       light                       coefficients
+=========  ==========================  =======================
+order0     ambient L1 per channel      3
+order1_gray  L_c = g_c * l, l in R^4   4 + 2 (g_1 = 1)
+order2_gray  L_c = g_c * l, l in R^9   9 + 2
+order1_rgb   L_c free, R^4 each        12
+order2_rgb   L_c free, R^9 each        27
+=========  ==========================  =======================
+
+"Gray" light has one colour for every direction, so with a constant albedo each channel is
+a scaled copy of one SH light (rank one); RGB light may change colour with direction.  For a
+one-channel image the candidates are order0, order1 and order2 (1, 4, 9).
+
+Each model is scored, with i.i.d. Gaussian noise of unknown sigma, by
+* BIC = -2 log p(y | theta_hat, sigma_hat) + (d + 1) log N, and
+* the log evidence by a Laplace approximation at the MAP of (theta, log sigma) with the
+  priors of :mod:`disent.lighting.posterior` (coefficients ``N(0, prior_scale^2)``, gray gains
+  ``N(1, 1)``, log sigma uniform on ``[log 1e-4, 0]``) and the Gauss-Newton Hessian; the
+  positivity constraint is ignored here.
+
+The choice is the smallest model whose score is within ``threshold`` (log units, default
+log 20, "strong" evidence on Kass & Raftery's scale) of the best one.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from disent.lighting.posterior import LOG_SIGMA_RANGE, N_COEFFS, LightingData
+
+DEFAULT_THRESHOLD = math.log(20.0)
+
+
+def candidates(n_channels: int) -> list[tuple[str, int, bool]]:
+    """``(name, order, gray)`` from the smallest model to the largest."""
+    if n_channels == 1:
+        return [("order0", 0, False), ("order1", 1, False), ("order2", 2, False)]
+    models = [("order0", 0, False), ("order1_gray", 1, True), ("order2_gray", 2, True),
+              ("order1_rgb", 1, False), ("order2_rgb", 2, False)]
+    return sorted(models, key=lambda m: n_params(m[1], m[2], n_channels))
+
+
+def n_params(order: int, gray: bool, n_channels: int) -> int:
+    K = N_COEFFS[order]
+    return K + n_channels - 1 if gray and order > 0 else K * n_channels
+
+
+def _predict(theta, A, C, gray):
+    """Pixels ``[P, C]`` and the Jacobian ``[P*C, d]`` (channel-major rows) of a candidate."""
+    P, K = A.shape
+    if not gray:
+        L = theta.reshape(C, K)
+        J = np.zeros((C, P, C, K))
+        for c in range(C):
+            J[c, :, c] = A
+        return A @ L.T, J.reshape(C * P, C * K)
+    l, g = theta[:K], np.concatenate([[1.0], theta[K:]])
+    s = A @ l  # [P] shading of the one light
+    J = np.zeros((C, P, K + C - 1))
+    for c in range(C):
+        J[c, :, :K] = g[c] * A
+        if c > 0:
+            J[c, :, K + c - 1] = s
+    return np.outer(s, g), J.reshape(C * P, K + C - 1)
+
+
+def _initial(A, y, gray):
+    """Least-squares fit; for gray light the best rank-one fit (SVD in the whitened design)."""
+    L = np.linalg.lstsq(A, y, rcond=None)[0].T  # [C, K]
+    if not gray:
+        return L.reshape(-1)
+    Q, R = np.linalg.qr(A)
+    U, s, Vt = np.linalg.svd(R @ L.T, full_matrices=False)  # best rank one of Q^T y = R L^T
+    l = np.linalg.solve(R, U[:, 0] * s[0]) * Vt[0, 0]
+    return np.concatenate([l, Vt[0, 1:] / Vt[0, 0]])
+
+
+def score(data: LightingData, order: int, gray: bool = False, prior_scale: float = 2.0,
+          iterations: int = 5) -> dict:
+    """Maximised log-likelihood, BIC and Laplace log evidence of one candidate."""
+    A, y = data.design(order), data.y
+    C = y.shape[1]
+    gray = gray and order > 0 and C > 1
+    N = y.size
+    theta = _initial(A, y, gray)
+    d = theta.size
+    prior_mean = np.zeros(d)
+    prior_prec = np.full(d, 1.0 / prior_scale**2)
+    if gray:
+        prior_mean[N_COEFFS[order]:], prior_prec[N_COEFFS[order]:] = 1.0, 1.0
+    for _ in range(iterations):  # Gauss-Newton on the log posterior, sigma at its conditional mode
+        pred, J = _predict(theta, A, C, gray)
+        r = (y - pred).T.reshape(-1)
+        s2 = max(r @ r / N, 1e-300)
+        H = J.T @ J / s2 + np.diag(prior_prec)
+        theta = theta + np.linalg.solve(H, J.T @ r / s2 - prior_prec * (theta - prior_mean))
+    pred, J = _predict(theta, A, C, gray)
+    r = (y - pred).T.reshape(-1)
+    sse = r @ r
+    s2 = sse / N
+    loglik = -0.5 * N * (math.log(2 * math.pi * s2) + 1)
+    H = J.T @ J / s2 + np.diag(prior_prec)
+    log_prior = (-0.5 * (prior_prec * (theta - prior_mean) ** 2).sum() + 0.5 * np.log(prior_prec / (2 * math.pi)).sum()
+                 - math.log(LOG_SIGMA_RANGE[1] - LOG_SIGMA_RANGE[0]))
+    # Laplace: log Z = log p(y, theta*, t*) + (d+1)/2 log 2 pi - 1/2 log det H; H_tt = 2N for t = log sigma
+    log_evidence = (loglik + log_prior + 0.5 * (d + 1) * math.log(2 * math.pi)
+                    - 0.5 * np.linalg.slogdet(H)[1] - 0.5 * math.log(2 * N))
+    return {"order": order, "gray": gray, "n_params": d, "loglik": float(loglik), "sigma": float(math.sqrt(s2)),
+            "bic": float(-2 * loglik + (d + 1) * math.log(N)), "log_evidence": float(log_evidence)}
+
+
+def select_order(data: LightingData, criterion: str = "evidence", threshold: float = DEFAULT_THRESHOLD,
+                 prior_scale: float = 2.0) -> dict:
+    """Score every candidate; choose the smallest within ``threshold`` of the best.
+
+    ``criterion``: ``"evidence"`` (Laplace log evidence) or ``"bic"`` (compared as -BIC/2,
+    the same log units).  Returns ``{"choice", "order", "gray", "scores"}``.
+    """
+    if criterion not in ("evidence", "bic"):
+        raise ValueError(f"criterion must be 'evidence' or 'bic', got {criterion!r}")
+    scores = {name: score(data, order, gray, prior_scale) for name, order, gray in candidates(data.n_channels)}
+    value = {k: s["log_evidence"] if criterion == "evidence" else -0.5 * s["bic"] for k, s in scores.items()}
+    best = max(value.values())
+    choice = next(k for k in scores if value[k] >= best - threshold)  # dicts keep the small-to-large order
+    return {"choice": choice, "order": scores[choice]["order"], "gray": scores[choice]["gray"],
+            "criterion": criterion, "scores": scores}
+
+
+__all__ = ["candidates", "n_params", "score", "select_order", "DEFAULT_THRESHOLD"]

@@ -1,0 +1,372 @@
+"""How uncertain is the least-squares light L-hat: an emcee posterior over the SH lighting.
+
+Model, per colour channel c and masked pixel p (Eq. 2 with a constant albedo a_c absorbed
+into the light, so ``L_c = a_c * L``, as the paper's L-hat of Sec. 4.2 assumes):
+
+    I_c(p) = S(n_p, L_c) + e,   S(n, L) = sum_k basis_k(n) L_k  (Eq. 4, linear in L)
+
+* noise ``e``: Gaussian, or Student-t with ``nu`` degrees of freedom (robust to what the model
+  lacks: specular highlights, cast shadows, a misfit mask), scale ``sigma`` shared by the
+  channels and sampled as ``log sigma``;
+* prior: shading non-negative at every face normal (a hard constraint, log-prior -inf
+  outside), each coefficient ``N(0, prior_scale^2)`` (weak), ``log sigma`` uniform on
+  ``[log 1e-4, log 1]`` (Jeffreys, bounded).
+
+Sampled with ``emcee.EnsembleSampler`` (log-probability vectorised over walkers), started in
+a small ball around the least-squares fit; the stopping rule is emcee's: the chain is longer
+than ``50 * tau`` for every parameter and the estimate of ``tau`` changed by less than 1 %.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import emcee
+import numpy as np
+import torch
+from scipy.special import gammaln
+
+from disent.render import C4, sh_basis
+
+N_COEFFS = {0: 1, 1: 4, 2: 9}  # SH coefficients up to each band (L1; L1..L4; L1..L9)
+LOG_SIGMA_RANGE = (math.log(1e-4), 0.0)
+
+
+# ----------------------------------------------------------------------------- data
+@dataclass
+class LightingData:
+    """The masked pixels of one image, ready for a lighting fit."""
+
+    basis: np.ndarray  # [P, 9] SH basis at each masked pixel's normal (float64)
+    y: np.ndarray  # [P, C] pixel values (image, or image / albedo)
+    index: np.ndarray  # [P] flat pixel index into H*W, to paint maps back
+    shape: tuple  # (H, W)
+
+    @property
+    def n_pixels(self) -> int:
+        return self.y.shape[0]
+
+    @property
+    def n_channels(self) -> int:
+        return self.y.shape[1]
+
+    def design(self, order: int = 2) -> np.ndarray:
+        return self.basis[:, : N_COEFFS[order]]
+
+
+def prepare(image, normal, mask, albedo=None, *, gray: bool = False, threshold: float = 0.5,
+            min_pixels: int = 16) -> LightingData:
+    """Masked pixels of one image: ``image [C,H,W]``, ``normal [3,H,W]``, ``mask [1,H,W]`` or ``[H,W]``.
+
+    Pixels with ``mask > threshold`` are used (a matte's soft edge mixes in background).  With
+    ``albedo [3,H,W]`` the target is ``image / albedo`` (pixels with albedo below 1e-3 dropped),
+    as in :func:`disent.render.fit_sh`.  ``gray=True`` averages the channels first (9 parameters).
+    """
+    image, normal = torch.as_tensor(image), torch.as_tensor(normal)
+    if image.dim() != 3 or normal.dim() != 3 or normal.shape[0] != 3 or image.shape[1:] != normal.shape[1:]:
+        raise ValueError(f"need image [C,H,W] and normal [3,H,W] of one size, got {tuple(image.shape)}, "
+                         f"{tuple(normal.shape)}")
+    H, W = image.shape[1:]
+    mask = torch.as_tensor(mask).reshape(H, W) > threshold
+    target = image.double()
+    if albedo is not None:
+        albedo = torch.as_tensor(albedo).double()
+        mask = mask & (albedo > 1e-3).all(0)
+        target = target / albedo.clamp_min(1e-3)
+    if gray:
+        target = target.mean(0, keepdim=True)
+    index = torch.nonzero(mask.flatten()).flatten()
+    if index.numel() < min_pixels:
+        raise ValueError(f"lighting fit needs at least {min_pixels} masked pixels, got {index.numel()}")
+    y = target.flatten(1)[:, index].T
+    if not torch.isfinite(y).all():
+        raise ValueError("image has NaN or Inf inside the mask")
+    basis = sh_basis(normal.double().flatten(1)[:, index], 0).T
+    return LightingData(basis.numpy().copy(), y.numpy().copy(), index.numpy(), (H, W))
+
+
+# ----------------------------------------------------------------------------- log posterior
+@dataclass
+class LogPosterior:
+    """log p(L, log sigma | pixels) up to a constant, vectorised: ``theta [W, D] -> [W]``.
+
+    ``theta`` holds the ``C * K`` coefficients (channel-major) and, unless ``known_sigma`` is
+    given, ``log sigma`` last.
+    """
+
+    data: LightingData
+    order: int = 2
+    likelihood: str = "gaussian"  # or "student_t"
+    nu: float = 4.0
+    prior_scale: float = 2.0
+    positivity: bool = True
+    known_sigma: float | None = None
+
+    def __post_init__(self):
+        if self.likelihood not in ("gaussian", "student_t"):
+            raise ValueError(f"likelihood must be 'gaussian' or 'student_t', got {self.likelihood!r}")
+        self.A = self.data.design(self.order)  # [P, K]
+        self.K, self.C = self.A.shape[1], self.data.n_channels
+        self.yT = np.ascontiguousarray(self.data.y.T)  # [C, P]
+        self.yy, self.Aty, self.AtA = (self.yT**2).sum(), self.yT @ self.A, self.A.T @ self.A
+
+    @property
+    def ndim(self) -> int:
+        return self.C * self.K + (self.known_sigma is None)
+
+    def split(self, theta: np.ndarray):
+        """``theta [W, D]`` -> ``(L [W, C, K], log_sigma [W])``."""
+        L = theta[:, : self.C * self.K].reshape(-1, self.C, self.K)
+        log_sigma = np.full(len(theta), math.log(self.known_sigma)) if self.known_sigma is not None else theta[:, -1]
+        return L, log_sigma
+
+    def shading(self, L: np.ndarray) -> np.ndarray:
+        """Predicted pixels ``[W, C, P]`` for lights ``L [W, C, K]`` (Eq. 4)."""
+        shape = (*L.shape[:2], self.A.shape[0])
+        if getattr(self, "_buffer", np.empty(0)).shape != shape:  # reused: large temporaries are slow to map
+            self._buffer = np.empty(shape)
+        return np.matmul(L, self.A.T, out=self._buffer)
+
+    def log_likelihood(self, L: np.ndarray, log_sigma: np.ndarray, pred: np.ndarray | None = None) -> np.ndarray:
+        """Sum over pixels and channels; ``pred`` (= :meth:`shading`, overwritten) saves a product."""
+        n = self.C * self.A.shape[0]
+        s2 = np.exp(2 * log_sigma)
+        if self.likelihood == "gaussian":  # sufficient statistics: |y - A l|^2 = y'y - 2 l'A'y + l'A'A l
+            sse = self.yy - 2 * np.einsum("wck,ck->w", L, self.Aty) + np.einsum("wck,kl,wcl->w", L, self.AtA, L)
+            return -n * (log_sigma + 0.5 * math.log(2 * math.pi)) - 0.5 * sse / s2
+        r = self.shading(L) if pred is None else pred
+        np.subtract(r, self.yT, out=r)
+        np.square(r, out=r)
+        r /= (self.nu * s2)[:, None, None]
+        t = np.log1p(r, out=r).sum((1, 2))
+        nu = self.nu
+        const = gammaln((nu + 1) / 2) - gammaln(nu / 2) - 0.5 * math.log(nu * math.pi)
+        return n * (const - log_sigma) - 0.5 * (nu + 1) * t
+
+    def log_prior(self, L: np.ndarray, log_sigma: np.ndarray) -> np.ndarray:
+        lp = -0.5 * (L**2).sum((1, 2)) / self.prior_scale**2
+        if self.known_sigma is None:
+            lo, hi = LOG_SIGMA_RANGE
+            lp = np.where((log_sigma > lo) & (log_sigma < hi), lp, -np.inf)
+        return lp
+
+    def __call__(self, theta: np.ndarray) -> np.ndarray:
+        theta = np.atleast_2d(theta)
+        L, log_sigma = self.split(theta)
+        lp = self.log_prior(L, log_sigma)
+        pred = None
+        if self.positivity:
+            pred = self.shading(L)
+            lp = np.where(pred.min((1, 2)) >= 0, lp, -np.inf)
+        out = np.full(len(theta), -np.inf)
+        ok = np.isfinite(lp)
+        if ok.any():
+            out[ok] = lp[ok] + self.log_likelihood(L[ok], log_sigma[ok], None if pred is None else pred[ok])
+        return out
+
+
+# ----------------------------------------------------------------------------- starting point
+def robust_fit(logpost: LogPosterior, iterations: int = 20):
+    """Least-squares (Gaussian) or IRLS/EM (Student-t) fit and its Gaussian approximation.
+
+    Returns ``(mode [D], covariance [D, D])``: the fit, made feasible under the positivity
+    prior by raising the ambient term L1 where needed, and the inverse Hessian of the
+    log-posterior there (Gauss-Newton; the constraint is ignored in the covariance).
+    """
+    A, y, C, K = logpost.A, logpost.data.y, logpost.C, logpost.K
+    P = A.shape[0]
+    w = np.ones((P, C))
+    for _ in range(iterations if logpost.likelihood == "student_t" else 1):
+        AtWA = np.einsum("pk,pc,pl->ckl", A, w, A) + np.eye(K) / logpost.prior_scale**2 * 1e-9
+        AtWy = np.einsum("pk,pc,pc->ck", A, w, y)
+        L = np.linalg.solve(AtWA, AtWy[..., None])[..., 0]  # [C, K]
+        r = y - A @ L.T
+        if logpost.known_sigma is not None:
+            s2 = logpost.known_sigma**2
+        else:
+            s2 = max((w * r**2).sum() / r.size, 1e-12)  # EM update of the scale
+        if logpost.likelihood == "student_t":
+            w = (logpost.nu + 1) / (logpost.nu + r**2 / s2)
+    deficit = -(A @ L.T).min(0)  # per channel; shading must be >= 0 at every face normal
+    if logpost.positivity:
+        L[:, 0] += np.clip(deficit, 0, None) / C4 * 1.001  # basis of L1 is the constant c4
+    # Gauss-Newton Hessian: A^T W A / s2 (+ prior) per channel; Fisher information of log sigma
+    info = np.einsum("pk,pc,pl->ckl", A, w if logpost.likelihood == "gaussian" else
+                     np.full_like(w, (logpost.nu + 1) / (logpost.nu + 3)), A) / s2
+    info += np.eye(K) / logpost.prior_scale**2
+    cov_L = np.linalg.inv(info)  # [C, K, K]
+    D = logpost.ndim
+    cov = np.zeros((D, D))
+    for c in range(C):
+        cov[c * K:(c + 1) * K, c * K:(c + 1) * K] = cov_L[c]
+    mode = L.reshape(-1)
+    if logpost.known_sigma is None:
+        fisher = 2.0 if logpost.likelihood == "gaussian" else 2 * logpost.nu / (logpost.nu + 3)
+        cov[-1, -1] = 1.0 / (fisher * P * C)
+        mode = np.append(mode, 0.5 * math.log(s2))
+    return mode, cov
+
+
+def independence_move(mean: np.ndarray, cov: np.ndarray, df: float = 30.0, inflate: float = 1.05):
+    """An emcee Metropolis-Hastings move proposing independently from a multivariate t.
+
+    Centred on the Gaussian approximation of the posterior with its covariance inflated, it
+    mixes in a few steps where the posterior is close to Gaussian; mixed with a DE move
+    (which adapts to the ensemble's spread) the sampler stays correct when it is not.
+    """
+    d = len(mean)
+    chol = np.linalg.cholesky(cov * inflate**2)
+    chol_inv = np.linalg.inv(chol)
+
+    def log_q(x):
+        z = (x - mean) @ chol_inv.T
+        return -0.5 * (df + d) * np.log1p((z * z).sum(1) / df)
+
+    def proposal(x, rng):
+        z = rng.standard_normal(x.shape)
+        u = rng.chisquare(df, size=len(x)) / df
+        new = mean + (z / np.sqrt(u)[:, None]) @ chol.T
+        return new, log_q(x) - log_q(new)  # ln q(x) - ln q(x') for an independence proposal
+
+    return emcee.moves.MHMove(proposal)
+
+
+# ----------------------------------------------------------------------------- sampler
+@dataclass
+class Posterior:
+    """Samples of the lighting posterior of one image, and the sampler's diagnostics."""
+
+    sh: np.ndarray  # [S, C, 9]; coefficients above the model order are zero
+    log_sigma: np.ndarray  # [S]
+    order: int
+    likelihood: str
+    diagnostics: dict = field(default_factory=dict)
+    start: np.ndarray | None = None  # [C, 9], the least-squares (or IRLS) fit
+
+    @property
+    def mean(self) -> np.ndarray:
+        return self.sh.mean(0)
+
+    @property
+    def std(self) -> np.ndarray:
+        return self.sh.std(0)
+
+    def interval(self, level: float = 0.68):
+        """Equal-tailed credible interval ``(lo, hi)``, each ``[C, 9]``."""
+        q = (1 - level) / 2
+        lo, hi = np.quantile(self.sh, [q, 1 - q], axis=0)
+        return lo, hi
+
+    def light_direction(self) -> np.ndarray:
+        """Dominant light direction per sample ``[S, 3]`` (unit, camera frame).
+
+        The first-order part of the shading is ``2 c2 (L4 x + L2 y + L3 z)`` (Eq. 4), so the
+        light points along ``(L4, L2, L3)``; channels are summed (the white-light direction).
+        """
+        v = self.sh[:, :, [3, 1, 2]].sum(1)
+        return v / np.linalg.norm(v, axis=1, keepdims=True).clip(1e-12)
+
+    def direction_summary(self, level: float = 0.68) -> dict:
+        d = self.light_direction()
+        m = d.mean(0)
+        m = m / max(np.linalg.norm(m), 1e-12)
+        angle = np.degrees(np.arccos(np.clip(d @ m, -1, 1)))
+        return {"mean_direction": m.tolist(), f"angle_deg_q{int(level * 100)}": float(np.quantile(angle, level)),
+                "angle_deg_q95": float(np.quantile(angle, 0.95))}
+
+    def shading_map(self, normal, max_samples: int = 1000, seed: int = 0):
+        """Posterior mean and standard deviation of the shading at each pixel, ``[C, H, W]`` each."""
+        normal = torch.as_tensor(normal).double()
+        rng = np.random.default_rng(seed)
+        pick = rng.choice(len(self.sh), size=min(max_samples, len(self.sh)), replace=False)
+        B = sh_basis(normal, 0).flatten(1).numpy()  # [9, H*W]
+        S = self.sh[pick] @ B  # [s, C, H*W]
+        shape = (self.sh.shape[1], *normal.shape[1:])
+        return S.mean(0).reshape(shape), S.std(0).reshape(shape)
+
+    def summary(self) -> dict:
+        lo68, hi68 = self.interval(0.68)
+        lo95, hi95 = self.interval(0.95)
+        return {
+            "order": self.order, "likelihood": self.likelihood,
+            "mean": self.mean.tolist(), "std": self.std.tolist(),
+            "ci68": [lo68.tolist(), hi68.tolist()], "ci95": [lo95.tolist(), hi95.tolist()],
+            "least_squares": None if self.start is None else self.start.tolist(),
+            "sigma_median": float(np.exp(np.median(self.log_sigma))),
+            "direction": self.direction_summary(),
+            "diagnostics": self.diagnostics,
+        }
+
+
+def sample_posterior(data: LightingData, *, order: int = 2, likelihood: str = "gaussian", nu: float = 4.0,
+                     prior_scale: float = 2.0, positivity: bool = True, known_sigma: float | None = None,
+                     n_walkers: int | None = None, check_every: int = 50, min_tau_factor: float = 50.0,
+                     tau_rtol: float = 0.01, max_steps: int = 3000, seed: int = 0) -> Posterior:
+    """Sample ``p(L, log sigma | data)`` with emcee, stopping per emcee's autocorrelation rule.
+
+    Moves: a differential-evolution move mixed with an independence proposal from the
+    Gaussian approximation at the (IRLS) fit.  Every ``check_every`` steps the integrated
+    autocorrelation time ``tau`` is estimated; sampling stops once the chain is longer than
+    ``min_tau_factor * tau`` for every parameter and ``tau`` changed by less than ``tau_rtol``,
+    or at ``max_steps`` (then ``diagnostics["converged"]`` is False).  The first ``2 * tau``
+    steps are discarded and the rest thinned by ``tau / 2``.
+    """
+    if order not in N_COEFFS:
+        raise ValueError(f"order must be 0, 1 or 2, got {order}")
+    t0, c0 = time.perf_counter(), time.process_time()
+    logpost = LogPosterior(data, order, likelihood, nu, prior_scale, positivity, known_sigma)
+    mode, cov = robust_fit(logpost)
+    D = logpost.ndim
+    n_walkers = n_walkers or max(2 * D + 2, 32)
+    rng = np.random.default_rng(seed)
+    start = mode + 0.1 * rng.standard_normal((n_walkers, D)) @ np.linalg.cholesky(cov).T  # a small ball
+    if positivity:  # push infeasible walkers back with the ambient term, as robust_fit does
+        L, _ = logpost.split(start)
+        deficit = np.clip(-logpost.shading(L).min(2), 0, None)  # [W, C]
+        start[:, : logpost.C * logpost.K: logpost.K] += deficit / C4 * 1.001
+    moves = [(emcee.moves.DEMove(), 0.2), (independence_move(mode, cov), 0.8)]
+    sampler = emcee.EnsembleSampler(n_walkers, D, logpost, moves=moves, vectorize=True)
+    sampler.random_state = np.random.RandomState(int(rng.integers(2**31))).get_state()  # seeded moves
+    state, old_tau, converged, tau = start, np.inf, False, np.full(D, np.nan)
+    while sampler.iteration < max_steps:
+        state = sampler.run_mcmc(state, check_every, progress=False)
+        tau = sampler.get_autocorr_time(tol=0)
+        converged = bool(min_tau_factor * tau.max() < sampler.iteration and abs(old_tau - tau.max()) < tau_rtol * tau.max())
+        if converged:
+            break
+        old_tau = tau.max()
+    tau_max = float(np.nanmax(tau))
+    burn, thin = int(math.ceil(2 * tau_max)), max(1, int(tau_max / 2))
+    flat = sampler.get_chain(discard=burn, thin=thin, flat=True)
+    L, log_sigma = logpost.split(flat)
+    sh = np.zeros((len(flat), logpost.C, 9))
+    sh[:, :, : logpost.K] = L
+    n_kept = sampler.iteration - burn
+    diagnostics = {
+        "n_steps": int(sampler.iteration), "n_walkers": n_walkers, "ndim": D, "converged": converged,
+        "tau": tau.tolist(), "tau_max": tau_max, "acceptance_fraction": float(np.mean(sampler.acceptance_fraction)),
+        "ess_min": float(n_walkers * n_kept / tau_max), "ess": (n_walkers * n_kept / tau).tolist(),
+        "burn": burn, "thin": thin, "n_samples": len(flat), "n_pixels": data.n_pixels,
+        "seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - c0,
+    }
+    start_sh = np.zeros((logpost.C, 9))
+    start_sh[:, : logpost.K] = mode[: logpost.C * logpost.K].reshape(logpost.C, logpost.K)
+    return Posterior(sh, log_sigma, order, likelihood, diagnostics, start_sh)
+
+
+def gaussian_posterior(data: LightingData, sigma: float, *, order: int = 2, prior_scale: float = math.inf):
+    """Closed form of the linear-Gaussian case (known noise, no positivity constraint).
+
+    ``L_c ~ N(mu_c, Sigma)`` with ``Sigma = (A^T A / sigma^2 + I / prior_scale^2)^-1`` and
+    ``mu_c = Sigma A^T y_c / sigma^2``.  Returns ``(mu [C, K], Sigma [K, K])``.
+    """
+    A = data.design(order)
+    prec = A.T @ A / sigma**2 + np.eye(A.shape[1]) / prior_scale**2
+    cov = np.linalg.inv(prec)
+    mu = (cov @ A.T @ data.y / sigma**2).T
+    return mu, cov
+
+
+__all__ = ["N_COEFFS", "LightingData", "prepare", "LogPosterior", "robust_fit", "independence_move",
+           "Posterior", "sample_posterior", "gaussian_posterior"]

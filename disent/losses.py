@@ -1,0 +1,120 @@
+"""Every loss term of Sec. 4.2, one function each, named as in the paper.
+
+All terms are means over the values they cover, so their weights (``conf/loss/``) compare
+directly.  Foreground terms are computed under the pseudo mask M-hat (Sec. 4.2, last paragraph).
+
+=============  =======================================  ==========================
+name           term                                      needs
+=============  =======================================  ==========================
+``recon``      E_recon = ||I_i - I_o||^2                 every model
+``adv``        E_adv = D(I_o), the EBGAN energy          every model, a discriminator
+``recon_N``    E_recon-N = ||N - N-hat||^2               explicit, implicit
+``recon_L``    E_recon-L = ||Z_L - L-hat||^2             explicit, implicit
+``smooth_A``   E_smooth-A = ||grad A||_1                 explicit, implicit
+``smooth_S``   E_smooth-S = ||grad S||^2                 explicit, implicit
+``UV``         E_UV = ||UV - UV-hat||^2                  implicit
+``Ni``         E_Ni = ||N_i - N_i-hat||^2 (UV space)     implicit
+``BWS``        batch-wise white shading, mean S = c      explicit, implicit
+``M``          E_M = ||M - M-hat||^2                     explicit, implicit (with matting)
+=============  =======================================  ==========================
+
+A term whose weight is 0 is not computed at all: it is absent from the loss dict and adds
+nothing to the gradient (that is how ablations switch terms off).
+"""
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+TERMS = ("recon", "adv", "recon_N", "recon_L", "smooth_A", "smooth_S", "UV", "Ni", "BWS", "M")
+
+
+def masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Mean of ``x [B,C,H,W]`` over the pixels where ``mask [B,1,H,W]`` is on (mask acts as weight)."""
+    return (x * mask).sum() / (mask.sum() * x.shape[1]).clamp_min(1e-8)
+
+
+def spatial_gradients(x: torch.Tensor, mask: torch.Tensor):
+    """Forward differences along x and y, each with the mask of pixel pairs both inside ``mask``."""
+    dx, dy = x[..., :, 1:] - x[..., :, :-1], x[..., 1:, :] - x[..., :-1, :]
+    return (dx, mask[..., :, 1:] * mask[..., :, :-1]), (dy, mask[..., 1:, :] * mask[..., :-1, :])
+
+
+def recon(out, batch):
+    return F.mse_loss(out["recon"], batch["image"])
+
+
+def recon_N(out, batch):
+    return masked_mean((out["normal"] - batch["normal_pseudo"]).pow(2), batch["mask_pseudo"])
+
+
+def recon_L(out, batch):
+    return F.mse_loss(out["sh"], batch["sh_pseudo"])
+
+
+def smooth_A(out, batch):
+    grads = spatial_gradients(out["albedo"], batch["mask_pseudo"])
+    return sum(masked_mean(d.abs(), m) for d, m in grads)
+
+
+def smooth_S(out, batch):
+    grads = spatial_gradients(out["shading"], batch["mask_pseudo"])
+    return sum(masked_mean(d.pow(2), m) for d, m in grads)
+
+
+def UV(out, batch):
+    return masked_mean((out["uv"] - batch["uv_pseudo"]).pow(2), batch["mask_pseudo"])
+
+
+def Ni(out, batch):
+    valid = (batch["normal_uv_pseudo"].norm(dim=1, keepdim=True) > 0.5).to(out["normal_uv"].dtype)  # covered texels
+    return masked_mean((out["normal_uv"] - batch["normal_uv_pseudo"]).pow(2), valid)
+
+
+def BWS(out, batch, c: float = 0.75):
+    """Batch-wise white shading: each channel's mean shading over the batch's face pixels is c."""
+    mask = batch["mask_pseudo"]
+    mean = (out["shading"] * mask).sum((0, 2, 3)) / mask.sum().clamp_min(1e-8)  # [C]
+    return (mean - c).pow(2).mean()
+
+
+def M(out, batch):
+    return F.mse_loss(out["matte"], batch["mask_pseudo"])
+
+
+TERM_FUNCTIONS = {"recon": recon, "recon_N": recon_N, "recon_L": recon_L, "smooth_A": smooth_A,
+                  "smooth_S": smooth_S, "UV": UV, "Ni": Ni, "BWS": BWS, "M": M}  # adv comes from D
+NEEDS = {"recon": "recon", "adv": "recon", "recon_N": "normal", "recon_L": "sh", "smooth_A": "albedo",
+         "smooth_S": "shading", "UV": "uv", "Ni": "normal_uv", "BWS": "shading", "M": "matte"}
+
+
+def active_terms(weights: dict, out: dict) -> list[str]:
+    """Terms with a nonzero weight whose model output exists."""
+    unknown = set(weights) - set(TERMS)
+    if unknown:
+        raise KeyError(f"unknown loss terms {sorted(unknown)}; terms are {', '.join(TERMS)}")
+    return [t for t in TERMS if weights.get(t, 0) and NEEDS[t] in out]
+
+
+def generator_losses(out: dict, batch: dict, weights: dict, energy_fake=None, bws_c: float = 0.75) -> dict:
+    """Unweighted value of every active term, plus ``total`` = sum of weight x term (E_o and the priors).
+
+    ``energy_fake`` is D's energy of ``out['recon']`` (``[B]``), needed when ``adv`` is active.
+    """
+    losses = {}
+    for t in active_terms(weights, out):
+        if t == "adv":
+            if energy_fake is None:
+                raise ValueError("the adv term needs energy_fake (a discriminator)")
+            losses[t] = energy_fake.mean()
+        elif t == "BWS":
+            losses[t] = BWS(out, batch, bws_c)
+        else:
+            losses[t] = TERM_FUNCTIONS[t](out, batch)
+    losses["total"] = sum(weights[t] * v for t, v in losses.items())
+    return losses
+
+
+def discriminator_loss(energy_real: torch.Tensor, energy_fake: torch.Tensor, margin: float) -> torch.Tensor:
+    """EBGAN margin loss that trains D: ``D(x) + max(0, m - D(G))`` (batch means)."""
+    return energy_real.mean() + F.relu(margin - energy_fake).mean()

@@ -1,0 +1,52 @@
+"""The three models of the paper and the EBGAN discriminator.
+
+``build_model(cfg_model)`` builds ``baseline``, ``explicit`` or ``implicit`` from the Hydra
+``model`` group.  ``model(image)`` returns a dict with ``recon [B,3,H,W]`` and ``codes``; the
+explicit and implicit models add ``foreground, background, matte, albedo, shading, normal, sh``,
+and the implicit one ``uv, normal_uv, albedo_uv``.  ``codes`` holds the latent codes by paper
+name (``bg, m, L, Ne, Ae`` / ``bg, m, L, UV, Ni, Ai`` / ``z``) and, for the rendering models,
+the encoder's pooling ``switches`` that the background and matte decoders unpool with.
+``model.decode(codes)`` re-renders edited codes.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+from disent.models.baseline import Baseline
+from disent.models.discriminator import Discriminator
+from disent.models.explicit import Explicit
+from disent.models.implicit import Implicit
+
+MODELS = {"baseline": Baseline, "explicit": Explicit, "implicit": Implicit}
+
+
+def build_model(cfg_model) -> torch.nn.Module:
+    """``cfg_model``: mapping with ``name`` and that model's constructor arguments."""
+    kwargs = dict(cfg_model)
+    name = kwargs.pop("name")
+    if name not in MODELS:
+        raise ValueError(f"unknown model {name!r}; choose from {', '.join(MODELS)}")
+    return MODELS[name](**kwargs)
+
+
+def load_run(path, map_location="cpu"):
+    """``(model, cfg)`` from a run folder (its ``checkpoints/last.pt``) or a checkpoint file.
+
+    The model is in eval mode; ``cfg`` is the run's resolved OmegaConf config.
+    """
+    from omegaconf import OmegaConf
+
+    path = Path(path)
+    ckpt_path = path / "checkpoints" / "last.pt" if path.is_dir() else path
+    if not ckpt_path.exists():
+        raise FileNotFoundError(f"no checkpoint at {ckpt_path}")
+    ckpt = torch.load(ckpt_path, map_location=map_location, weights_only=False)
+    cfg = OmegaConf.create(ckpt["cfg"])
+    model = build_model(cfg.model)
+    model.load_state_dict(ckpt["model"])
+    return model.eval(), cfg
+
+
+__all__ = ["build_model", "load_run", "MODELS", "Baseline", "Explicit", "Implicit", "Discriminator"]

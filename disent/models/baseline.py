@@ -1,0 +1,31 @@
+"""Baseline autoencoder B (Sec. 5.1): the albedo path's encoder and decoder, a 265-d bottleneck
+(128 + 128 + 9), no rendering layers."""
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from disent.models.networks import Decoder, Encoder
+
+
+class Baseline(nn.Module):
+    CODE_NAMES = ("z",)
+
+    def __init__(self, resolution: int = 64, code_dim: int = 265, matting: bool = False):
+        super().__init__()
+        if matting:
+            raise ValueError("the baseline autoencoder has no matting layer (model.matting must be false)")
+        self.resolution = resolution
+        self.encoder = Encoder(resolution, code_dim)
+        self.decoder = Decoder(3, resolution, code_dim)
+
+    def encode(self, image: torch.Tensor) -> dict:
+        if image.dim() != 4 or image.shape[1] != 3 or image.shape[-2:] != (self.resolution, self.resolution):
+            raise ValueError(f"image must be [B,3,{self.resolution},{self.resolution}], got {tuple(image.shape)}")
+        return {"z": self.encoder(image)[0]}
+
+    def decode(self, codes: dict) -> dict:
+        return {"recon": torch.sigmoid(self.decoder(codes["z"])), "codes": codes}
+
+    def forward(self, image: torch.Tensor) -> dict:
+        return self.decode(self.encode(image))

@@ -1,0 +1,85 @@
+"""Encoder and decoder stacks of Sec. 4.1, shared by every model and by the discriminator.
+
+Encoder: three 3x3 convolutions (32, 64, 64 filters), each followed by 2x2 max-pooling and a
+ReLU, so a 3x64x64 image becomes 64x8x8; a fully connected layer gives the 128-d code Z_I.
+Decoders are strictly symmetric: a fully connected layer back to 64x8x8, then three
+(2x upsampling, 3x3 convolution) stages with 64, 32 and ``out_channels`` filters.  A decoder
+with ``skips=True`` (background and matte, Sec. 3.3) upsamples by max-unpooling with the
+encoder's pooling switches; without skips (every foreground decoder) it upsamples by nearest
+neighbour, so the face passes through the bottleneck only.
+"""
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+CHANNELS = (32, 64, 64)  # Sec. 4.1 filter counts of the encoder
+
+
+def check_resolution(resolution: int) -> int:
+    if resolution < 8 or resolution % 8:
+        raise ValueError(f"resolution must be a positive multiple of 8 (three 2x2 poolings), got {resolution}")
+    return resolution // 8
+
+
+class Encoder(nn.Module):
+    """Image ``[B,3,H,W]`` -> (code ``[B,code_dim]``, pooling switches, finest first)."""
+
+    def __init__(self, resolution: int = 64, code_dim: int = 128, in_channels: int = 3):
+        super().__init__()
+        side = check_resolution(resolution)
+        chans = (in_channels, *CHANNELS)
+        self.convs = nn.ModuleList(nn.Conv2d(a, b, 3, padding=1) for a, b in zip(chans[:-1], chans[1:]))
+        self.fc = nn.Linear(CHANNELS[-1] * side * side, code_dim)
+
+    def forward(self, image: torch.Tensor):
+        x, switches = image, []
+        for conv in self.convs:
+            x, idx = F.max_pool2d(conv(x), 2, return_indices=True)  # conv -> 2x2 max-pool -> ReLU
+            x = F.relu(x)
+            switches.append(idx)
+        return F.relu(self.fc(x.flatten(1))), tuple(switches)
+
+
+class Decoder(nn.Module):
+    """Code ``[B,code_dim]`` -> map ``[B,out_channels,H,W]`` (no output nonlinearity)."""
+
+    def __init__(self, out_channels: int, resolution: int = 64, code_dim: int = 128, skips: bool = False):
+        super().__init__()
+        self.side = check_resolution(resolution)
+        self.skips = skips
+        chans = (*CHANNELS[::-1], out_channels)  # 64 -> 64 -> 32 -> out, the encoder reversed
+        self.fc = nn.Linear(code_dim, CHANNELS[-1] * self.side * self.side)
+        self.convs = nn.ModuleList(nn.Conv2d(a, b, 3, padding=1) for a, b in zip(chans[:-1], chans[1:]))
+
+    def forward(self, code: torch.Tensor, switches=None) -> torch.Tensor:
+        if self.skips and switches is None:
+            raise ValueError("this decoder unpools with the encoder's switches; pass codes['switches']")
+        x = F.relu(self.fc(code)).view(code.shape[0], CHANNELS[-1], self.side, self.side)
+        for i, conv in enumerate(self.convs):
+            if self.skips:
+                x = F.max_unpool2d(x, switches[-1 - i], 2)
+            else:
+                x = F.interpolate(x, scale_factor=2, mode="nearest")
+            x = conv(x)
+            if i < len(self.convs) - 1:
+                x = F.relu(x)
+        return x
+
+
+class CodeHeads(nn.Module):
+    """Z_I -> the named latent codes (fully connected, Sec. 4.1); ``L`` is the 27-d SH light."""
+
+    def __init__(self, names, code_dim: int = 128, white: float = 0.75):
+        super().__init__()
+        self.heads = nn.ModuleDict({n: nn.Linear(code_dim, 27 if n == "L" else code_dim) for n in names})
+        if "L" in self.heads:  # start from a white ambient light, shading = white everywhere
+            from disent.render import C4
+
+            nn.init.zeros_(self.heads["L"].bias)
+            with torch.no_grad():
+                self.heads["L"].bias.view(3, 9)[:, 0] = white / C4
+
+    def forward(self, z: torch.Tensor) -> dict:
+        return {n: head(z) for n, head in self.heads.items()}

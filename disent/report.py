@@ -1,0 +1,406 @@
+"""Regenerate ``reports/README.md`` and its figures from run folders and measured JSON.
+
+``python -m disent.report`` (or ``disent-report``) reads
+
+* run folders under ``outputs/`` and ``multirun/`` (:mod:`disent.eval.runs`),
+* ``reports/eval/*.json`` from :mod:`disent.eval.protocols` and :mod:`disent.eval.stability`
+  (``--compute`` runs both first),
+* ``reports/bench.json`` (``python -m disent.bench``) and ``reports/lighting/``,
+
+and writes one Markdown report with PNG figures under ``reports/figures/``.  Every figure is
+drawn from run data; whatever is missing becomes a note in the report, never a crash.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+import math
+import shutil
+import subprocess
+import traceback
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from disent.eval import ablation as _ablation
+from disent.eval.runs import RUN_ROOTS, Run, find_runs, pick_runs
+
+MODELS = ("baseline", "explicit", "implicit")
+TRAIN_SPEED_KEYS = ("train_images_per_s", "images_per_s", "train_ips")
+INFER_SPEED_KEYS = ("infer_images_per_s", "inference_images_per_s")
+
+
+def _plt():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def _load_json(path: Path):
+    try:
+        return json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _speed(run: Run, keys) -> float | None:
+    """Median of the values logged under the first key found (training speed is logged per step)."""
+    for k in keys:
+        logged = sorted(r[k] for r in run.metrics if isinstance(r.get(k), (int, float)))
+        if logged:
+            return float(logged[len(logged) // 2])
+        v = run.value(k)
+        if v is not None:
+            return float(v)
+    return None
+
+
+def _rel(path: Path, out: Path) -> str:
+    try:
+        return str(Path(path).resolve().relative_to(out.resolve()))
+    except ValueError:
+        return str(path)
+
+
+class Report:
+    """Markdown assembled section by section; each section survives the others' failures."""
+
+    def __init__(self, out: Path):
+        self.out = Path(out)
+        self.fig = self.out / "figures"
+        self.fig.mkdir(parents=True, exist_ok=True)
+        self.lines: list[str] = []
+
+    def add(self, *lines: str) -> None:
+        self.lines.extend(lines)
+
+    def note(self, text: str) -> None:
+        self.lines.append(f"> **Missing:** {text}\n")
+
+    def image(self, path: Path, alt: str) -> None:
+        self.lines.append(f"![{alt}]({_rel(path, self.out)})\n")
+
+    def section(self, title: str, fn, *args) -> None:
+        self.add(f"## {title}\n")
+        try:
+            fn(self, *args)
+        except Exception as e:  # a broken section is reported, the rest of the report still builds
+            self.note(f"this section failed: `{type(e).__name__}: {e}`")
+            traceback.print_exc()
+
+
+# ----------------------------------------------------------------------------- pictures from models
+def _vis(name: str, x: torch.Tensor) -> np.ndarray:
+    """``[3|1,H,W]`` tensor as an ``[H,W,3]`` array in [0,1] (normals mapped from [-1,1])."""
+    x = x.detach().float()
+    if name.startswith("normal"):
+        x = (x + 1) / 2
+    if x.shape[0] == 1:
+        x = x.expand(3, -1, -1)
+    return x.clamp(0, 1).permute(1, 2, 0).numpy()
+
+
+def _grid(rows: list[tuple[str, torch.Tensor]], path: Path, title: str) -> None:
+    """One row per named ``[N,C,H,W]`` tensor, N columns."""
+    plt = _plt()
+    n = rows[0][1].shape[0]
+    fig, axes = plt.subplots(len(rows), n, figsize=(1.2 * n + 1, 1.2 * len(rows)), squeeze=False)
+    for i, (name, t) in enumerate(rows):
+        for j in range(n):
+            ax = axes[i, j]
+            ax.imshow(_vis(name, t[j]), interpolation="nearest")
+            ax.set_xticks([]), ax.set_yticks([])
+            if j == 0:
+                ax.set_ylabel(name, fontsize=7)
+    fig.suptitle(title, fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _test_batch(n: int, resolution: int = 64):
+    from disent.data import SynthFaces
+    from disent.eval.evaluate import batches
+
+    return next(iter(batches(SynthFaces(split="test", resolution=resolution, seed=0), n, n)))
+
+
+def _models(chosen: dict[str, Run]) -> dict:
+    from disent.models import load_run
+
+    out = {}
+    for name, r in chosen.items():
+        model, _ = load_run(r.path)
+        out[name] = model.eval()
+    return out
+
+
+# ----------------------------------------------------------------------------- sections
+def sec_runs(rep: Report, runs: list[Run]) -> None:
+    if not runs:
+        rep.note("no run folders under `outputs/` or `multirun/`. Train with `python -m disent` or run the "
+                 "suite (`ablations/README.md`), then run `python -m disent.report` again.")
+        return
+    cols = ("recon_mse", "normal_mean", "pseudo_normal_mean", "albedo_si_mse", "sh_error")
+    rep.add("| run | variant | seed | status | train img/s | infer img/s | " + " | ".join(cols) + " |",
+            "|" + "---|" * (6 + len(cols)))
+    for r in runs:
+        def f(v):
+            return "–" if v is None else f"{v:.4g}"
+        rep.add(f"| `{r.path}` | {r.variant} | {r.seed} | {r.status} | {f(_speed(r, TRAIN_SPEED_KEYS))} | "
+                f"{f(_speed(r, INFER_SPEED_KEYS))} | " + " | ".join(f(r.value(c)) for c in cols) + " |")
+    rep.add("")
+
+
+def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
+    chosen = pick_runs(runs)
+    if not chosen:
+        rep.note("no finished run with a checkpoint; the teaser needs one per model.")
+        return
+    for m in MODELS:
+        if m not in chosen:
+            rep.note(f"no finished `{m}` run.")
+    try:
+        models, batch = _models(chosen), _test_batch(n_vis)
+    except (ImportError, FileNotFoundError) as e:  # fall back to the grids the runs saved
+        rep.note(f"cannot render from checkpoints ({e}); showing the runs' own sample grids.")
+        for name, r in chosen.items():
+            pngs = sorted((r.path / "samples").glob("*.png"))
+            if pngs:
+                dst = rep.fig / f"teaser_{name}.png"
+                shutil.copyfile(pngs[-1], dst)
+                rep.image(dst, f"samples of {name}")
+        return
+    from disent.eval.evaluate import predict
+
+    outs = {name: predict(model, batch["image"]) for name, model in models.items()}
+    for name, out in outs.items():
+        rows = [("input", batch["image"])] + [(k, out[k]) for k in ("recon", "albedo", "normal", "shading", "matte") if k in out]
+        path = rep.fig / f"teaser_{name}.png"
+        _grid(rows, path, f"{name} ({chosen[name].path}) on SynthFaces test images")
+        rep.add(f"**{name}** (`{chosen[name].path}`)\n")
+        rep.image(path, f"teaser {name}")
+    rec = [("input", batch["image"])] + [(f"{k} recon", outs[k]["recon"]) for k in MODELS if k in outs]
+    path = rep.fig / "baseline_vs_ours.png"
+    _grid(rec, path, "Baseline autoencoder against the rendering models (paper Fig. 3)")
+    rep.add("### Baseline against ours (paper Fig. 3)\n")
+    rep.image(path, "baseline vs ours")
+    nrm = [("input", batch["image"]), ("normal true", batch["normal"] * batch["matte"]),
+           ("normal pseudo-GT", batch["normal_pseudo"] * batch["mask_pseudo"])]
+    nrm += [(f"normal {k}", outs[k]["normal"]) for k in MODELS if k in outs and "normal" in outs[k]]
+    path = rep.fig / "normals.png"
+    _grid(nrm, path, "Our normals against the pseudo-GT they were trained on and the true normals")
+    rep.add("### Our normals against the pseudo-GT and the truth\n")
+    rep.image(path, "normals")
+    rows = [(n, r) for n, r in chosen.items() if r.value("normal_mean") is not None]
+    if rows:
+        rep.add("| run | normal error (deg) | pseudo-GT error, same pixels (deg) | under 25° ours / pseudo |", "|---|---|---|---|")
+        for n, r in rows:
+            rep.add(f"| {n} | {r.value('normal_mean'):.2f} | {r.value('pseudo_normal_mean') or float('nan'):.2f} | "
+                    f"{r.value('normal_under_25') or float('nan'):.3f} / {r.value('pseudo_normal_under_25') or float('nan'):.3f} |")
+        rep.add("", "_The paper's claim \"beyond the 3DMM subspace\" holds for a run when its error is below the "
+                "pseudo-GT's on the same pixels._\n")
+
+
+def sec_sh_variance(rep: Report, eval_dir: Path) -> None:
+    res = _load_json(eval_dir / "sh_variance.json")
+    if not res:
+        rep.note("`reports/eval/sh_variance.json`; run `python -m disent.eval.protocols`.")
+        return
+    rep.add(f"Protocol of the paper's supplement on the `{res.get('split', 'lightbank')}` split: for every light "
+            "condition the variance of each SH coefficient across identities and poses, averaged over conditions "
+            "and RGB. Paper: 0.36 (3DMM least squares) and 0.16 (network). *relative* divides by the estimator's "
+            "mean squared coefficient (scale-free); SH error is after per-image scale alignment.\n",
+            "| estimator | variance | relative | SH error | conditions | images |", "|---|---|---|---|---|---|")
+    for k, v in res["estimators"].items():
+        rep.add(f"| {k} | {v['mean']:.4g} | {v['relative']:.4g} | {v['sh_error']:.4g} | {v['n_conditions']} | {v['n_images']} |")
+    rep.add("")
+    from disent.eval.protocols import plot_sh_variance
+
+    path = rep.fig / "sh_variance.png"
+    plot_sh_variance(res, path)
+    rep.image(path, "SH variance per coefficient")
+    if not any(k not in ("ls_pseudo", "ls_true", "ls_oracle", "true") for k in res["estimators"]):
+        rep.note("no trained model's Z_L in the SH-variance table (no finished explicit/implicit run when it was computed).")
+
+
+def sec_ablation(rep: Report, runs: list[Run]) -> None:
+    table = _ablation.ablation_table(runs)
+    rep.add(_ablation.to_markdown(table))
+    (rep.out / "ablation.json").write_text(json.dumps(table, indent=1))
+
+
+def sec_stability(rep: Report, eval_dir: Path) -> None:
+    from disent.eval import stability as st
+
+    cond = _load_json(eval_dir / "conditioning.json")
+    rep.add("### L-hat conditioning against yaw and mask size\n")
+    if cond:
+        path = rep.fig / "conditioning.png"
+        st.plot_conditioning(cond["yaw"], cond["mask"], path)
+        for est in ("ls_pseudo", "ls_true"):
+            rep.add(f"- `{est}`: median condition number exceeds {cond['yaw']['blowup_factor']:g}x the frontal value at "
+                    f"yaw **{cond['yaw'].get(est + '_blowup_yaw')}°** and the full-mask value when the mask shrinks to "
+                    f"**{cond['mask'].get(est + '_blowup_fraction')}** of the face (None: never in the range).")
+        bad = [r for r in cond["yaw"]["rows"] if "error" in r]
+        if bad:
+            rep.add(f"- yaws the generator refused: {', '.join(str(r['yaw']) for r in bad)}")
+        rep.add("")
+        rep.image(path, "conditioning")
+    else:
+        rep.note("`reports/eval/conditioning.json`; run `python -m disent.eval.stability conditioning`.")
+    for name, title, plot in (("ood", "Out of distribution: error against severity", st.plot_ood),
+                              ("bws", "Without BWS: shading cast and albedo absorbing shading", st.plot_bws),
+                              ("training", "Training stability: NaN and divergence rate", st.plot_training)):
+        rep.add(f"### {title}\n")
+        res = _load_json(eval_dir / f"{name}.json")
+        if not res or (isinstance(res.get("rows"), list) and not res["rows"]):
+            rep.note(f"no data for `{name}`; run `python -m disent.eval.stability {name}` after the runs it needs "
+                     "(see `ablations/README.md`).")
+            continue
+        path = rep.fig / f"{name}.png"
+        plot(res, path)
+        rep.image(path, name)
+        if name == "bws":
+            rep.add("| variant | seed | batch | shading mean r,g,b | cast | corr(albedo, true shading) |", "|---|---|---|---|---|---|")
+            for r in res["rows"]:
+                rep.add(f"| {r['variant']} | {r['seed']} | {r['batch_size']} | "
+                        f"{', '.join(f'{v:.3f}' for v in r['shading_mean_rgb'])} | {r['shading_cast']:.3f} | {r['albedo_shading_corr']:.3f} |")
+            rep.add("")
+        if name == "training":
+            rep.add("| model | adversarial | lr | runs | NaN rate | diverged rate |", "|---|---|---|---|---|---|")
+            for r in res["rows"]:
+                rep.add(f"| {r['model']} | {r['adversarial']} | {r['lr']} | {r['runs']} | {r['nan_rate']:.2f} | {r['diverged_rate']:.2f} |")
+            rep.add("")
+
+
+def pareto_front(x, y) -> list[int]:
+    """Indices of points not dominated when ``x`` is to be maximised and ``y`` minimised, by increasing x."""
+    order = sorted(range(len(x)), key=lambda i: (-x[i], y[i]))
+    front, best = [], math.inf
+    for i in order:
+        if y[i] < best:
+            front.append(i)
+            best = y[i]
+    return sorted(front, key=lambda i: x[i])
+
+
+def sec_speed(rep: Report, runs: list[Run]) -> None:
+    pts = [(r, _speed(r, TRAIN_SPEED_KEYS), r.value("normal_mean"), r.value("recon_mse")) for r in runs if r.status == "ok"]
+    pts = [p for p in pts if p[1] is not None]
+    if not pts:
+        rep.note("no finished run logged its training images/s.")
+        return
+    plt = _plt()
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.4))
+    for ax, j, label in ((axes[0], 2, "normal error (deg)"), (axes[1], 3, "reconstruction MSE")):
+        sel = [p for p in pts if p[j] is not None]
+        variants = sorted({p[0].variant for p in sel})
+        for k, v in enumerate(variants):
+            vs = [p for p in sel if p[0].variant == v]
+            ax.scatter([p[1] for p in vs], [p[j] for p in vs], s=18, color=f"C{k % 10}", label=v,
+                       marker="o" if "+" not in v else "x")
+        if sel:
+            front = pareto_front([p[1] for p in sel], [p[j] for p in sel])
+            ax.plot([sel[i][1] for i in front], [sel[i][j] for i in front], "k--", lw=0.8, label="Pareto front")
+        ax.set_xlabel("training images/s")
+        ax.set_ylabel(label)
+    axes[0].legend(fontsize=5, ncol=2)
+    fig.suptitle("Speed against accuracy, one point per run (up-left is worse; the front: fastest for its error)", fontsize=8)
+    fig.tight_layout()
+    path = rep.fig / "speed_accuracy.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    rep.image(path, "speed versus accuracy")
+    if not any(p[2] is not None for p in pts):
+        rep.note("no run has a normal error (baseline-only runs).")
+
+
+def sec_bench(rep: Report, out: Path) -> None:
+    bench = _load_json(out / "bench.json")
+    if not bench:
+        rep.note("`reports/bench.json`; run `python -m disent.bench`.")
+        return
+    env = {k: v for k, v in bench.items() if not isinstance(v, dict)}
+    if env:
+        rep.add("Machine: " + ", ".join(f"{k}={v}" for k, v in env.items()) + "\n")
+    for section, vals in bench.items():
+        if not isinstance(vals, dict):
+            continue
+        rep.add(f"**{section}**\n", "| quantity | value |", "|---|---|")
+        for k, v in vals.items():
+            rep.add(f"| {k} | {v:.4g} |" if isinstance(v, float) else f"| {k} | {json.dumps(v)[:120]} |")
+        rep.add("")
+
+
+def sec_lighting(rep: Report, out: Path) -> None:
+    d = out / "lighting"
+    files = sorted(d.glob("*")) if d.is_dir() else []
+    if not files:
+        rep.note("`reports/lighting/`; run the L-hat posterior command (`disent.lighting`).")
+        return
+    for f in files:
+        if f.suffix == ".png":
+            rep.image(f, f.stem)
+        elif f.suffix in (".json", ".md"):
+            rep.add(f"- [{f.name}]({_rel(f, out)})")
+    rep.add("")
+
+
+def _git_revision() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=10,
+                              cwd=Path(__file__).parent).stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def build(out="reports", roots=RUN_ROOTS, n_vis: int = 6, compute: bool = False, name: str = "README.md") -> Path:
+    """Write ``out/name`` and ``out/figures/*.png``; returns the Markdown path."""
+    out = Path(out)
+    eval_dir = out / "eval"
+    if compute:
+        from disent.eval import protocols, stability
+
+        protocols.main(["--out", str(eval_dir)])
+        stability.main(["--out", str(eval_dir)])
+    runs = find_runs(roots)
+    rep = Report(out)
+    budget = _ablation.budget(runs)
+    rep.add("# disent report\n",
+            f"Generated by `python -m disent.report` at revision `{_git_revision()}` on "
+            f"{_dt.datetime.now(_dt.timezone.utc).strftime('%Y-%m-%d %H:%M UTC')} from {len(runs)} run folder(s) under "
+            f"{', '.join(f'`{r}/`' for r in roots)}. Budget of those runs: "
+            f"{', '.join(f'{k}={v}' for k, v in budget.items()) or 'none recorded'}. "
+            "All numbers are measured on SynthFaces (its ground truth); nothing is copied from the paper "
+            "except where marked *paper*.\n")
+    rep.section("Runs", sec_runs, runs)
+    rep.section("Teaser: input, recon, albedo, normal, shading, matte", sec_teaser, runs, n_vis)
+    rep.section("Lighting stability: SH variance (supplement protocol)", sec_sh_variance, eval_dir)
+    rep.section("Ablations", sec_ablation, runs)
+    rep.section("Stability where methods fail", sec_stability, eval_dir)
+    rep.section("Speed against accuracy", sec_speed, runs)
+    rep.section("Benchmarks (`reports/bench.json`)", sec_bench, out)
+    rep.section("L-hat uncertainty (`reports/lighting/`)", sec_lighting, out)
+    path = out / name
+    path.write_text("\n".join(rep.lines) + "\n")
+    return path
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--out", default="reports")
+    p.add_argument("--roots", nargs="*", default=list(RUN_ROOTS))
+    p.add_argument("--n-vis", type=int, default=6, help="test images per figure")
+    p.add_argument("--compute", action="store_true", help="recompute reports/eval/*.json first (protocols, stability)")
+    a = p.parse_args(argv)
+    torch.set_num_threads(1)
+    path = build(a.out, a.roots, a.n_vis, a.compute)
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,193 @@
+"""Training loop: read top to bottom.  ``run(cfg, run_dir)`` trains, checkpoints, evaluates.
+
+One step (Sec. 4.2): the model renders I_o; the EBGAN discriminator D scores it; the generator
+minimises sum_k w_k E_k (disent/losses.py) and D its margin loss, both from the same forward
+pass.  RMSprop, lr decayed per epoch.  The data order of epoch e is a permutation seeded by
+(seed, e), so a run resumed from ``checkpoints/last.pt`` replays exactly the steps it missed.
+"""
+from __future__ import annotations
+
+import importlib
+import json
+import math
+import time
+from pathlib import Path
+
+import torch
+from omegaconf import OmegaConf
+from tqdm import tqdm
+
+from disent import losses as L
+from disent.models import Discriminator, build_model
+from disent.runs import (MetricsLog, load_checkpoint, rng_state, save_checkpoint, save_samples, set_rng_state,
+                         write_git_revision)
+
+TRAIN_KEYS = ("image", "normal_pseudo", "mask_pseudo", "sh_pseudo", "uv_pseudo", "normal_uv_pseudo")
+
+
+class NonFiniteLoss(FloatingPointError):
+    """A loss term became NaN or Inf; the run stops and keeps its last good checkpoint."""
+
+
+def make_dataset(cfg_data, split: str, size: int | None):
+    """The data set named by ``data.name``: SynthFaces, or ``disent.data.<name>.build(cfg, split, size)``."""
+    if cfg_data.name == "synth":
+        from disent.data import SynthFaces
+
+        effects = OmegaConf.to_container(cfg_data.effects) if cfg_data.get("effects") else None
+        return SynthFaces(split, resolution=cfg_data.resolution, seed=cfg_data.seed, size=size, effects=effects)
+    return importlib.import_module(f"disent.data.{cfg_data.name}").build(cfg_data, split, size)
+
+
+def get_batch(dataset, indices, keys=TRAIN_KEYS) -> dict:
+    """Stacked tensors of the items ``indices`` (through ``dataset.get_batch`` when it has one)."""
+    if hasattr(dataset, "get_batch"):
+        batch = dataset.get_batch(indices)
+    else:
+        items = [dataset[int(i)] for i in indices]
+        batch = {k: torch.stack([it[k] for it in items]) for k in keys if k in items[0]}
+    return {k: batch[k] for k in keys if k in batch}
+
+
+def epoch_order(seed: int, epoch: int, n: int) -> torch.Tensor:
+    return torch.randperm(n, generator=torch.Generator().manual_seed(seed * 100_003 + epoch))
+
+
+def to_device(batch: dict, device, channels_last: bool) -> dict:
+    fmt = torch.channels_last if channels_last else torch.contiguous_format
+    return {k: (v.to(device).contiguous(memory_format=fmt) if v.dim() == 4 else v.to(device)) for k, v in batch.items()}
+
+
+def train_step(model, disc, opt_g, opt_d, batch, cfg_loss) -> dict:
+    """One simultaneous generator/discriminator update; returns every term (detached floats later)."""
+    weights = dict(cfg_loss.weights)
+    out = model(batch["image"])
+    energy_fake = disc.energy(out["recon"]) if disc is not None else None
+    losses = L.generator_losses(out, batch, weights, energy_fake, cfg_loss.bws_c)
+    if disc is not None:
+        energy_real = disc.energy(batch["image"])
+        losses["D"] = L.discriminator_loss(energy_real, energy_fake, cfg_loss.margin)
+        losses["D_real"] = energy_real.mean().detach()
+    bad = [k for k, v in losses.items() if not torch.isfinite(v)]
+    if bad:
+        named = [k for k in bad if k != "total"] or bad
+        return {"nonfinite": named, **losses}
+    opt_g.zero_grad(set_to_none=True)
+    if disc is not None:  # D's gradient first, graph kept for the generator's; each only into its own weights
+        opt_d.zero_grad(set_to_none=True)
+        losses["D"].backward(inputs=list(disc.parameters()), retain_graph=True)
+    losses["total"].backward(inputs=list(model.parameters()))
+    opt_g.step()
+    if disc is not None:
+        opt_d.step()
+    return losses
+
+
+def evaluate(model, cfg, n: int) -> dict:
+    """Test metrics on the first ``n`` test images (disent.eval.evaluate), on the CPU."""
+    from disent.eval.evaluate import evaluate_model, model_outputs
+    from disent.eval.metrics import reconstruction_metrics
+
+    test = make_dataset(cfg.data, "test", cfg.data.get("test_size"))
+    model = model.to("cpu")
+    if "normal" in test[0]:
+        return evaluate_model(model, test, limit=n)
+    out, gt, ips = model_outputs(model, test, limit=n)  # real photos: no intrinsic ground truth
+    rec = reconstruction_metrics(out["recon"].clamp(0, 1), gt["image"])
+    return {**{f"recon_{k}": v for k, v in rec.items()}, "infer_images_per_s": ips, "n_eval": len(gt["image"])}
+
+
+def run(cfg, run_dir) -> dict:
+    run_dir = Path(run_dir)
+    t = cfg.train
+    if t.threads:
+        torch.set_num_threads(t.threads)
+    torch.manual_seed(cfg.seed)
+    device = torch.device(cfg.device)
+    fmt = torch.channels_last if t.channels_last else torch.contiguous_format
+    ckpt_path = run_dir / "checkpoints" / "last.pt"
+    write_git_revision(run_dir)
+    log = MetricsLog(run_dir / "metrics.jsonl")
+
+    data = make_dataset(cfg.data, "train", cfg.data.get("train_size"))
+    steps_per_epoch = len(data) // t.batch_size
+    if steps_per_epoch == 0:
+        raise ValueError(f"train.batch_size={t.batch_size} exceeds the {len(data)} training images")
+    total_steps = steps_per_epoch * t.epochs if t.max_steps is None else min(t.max_steps, steps_per_epoch * t.epochs)
+
+    model = build_model(cfg.model).to(device, memory_format=fmt)
+    disc = Discriminator(cfg.model.resolution).to(device, memory_format=fmt) if cfg.loss.weights.adv else None
+    opt_g = torch.optim.RMSprop(model.parameters(), lr=t.lr)
+    opt_d = torch.optim.RMSprop(disc.parameters(), lr=t.lr) if disc is not None else None
+
+    step, wall = 0, 0.0
+    resume = Path(cfg.resume) if cfg.resume else (ckpt_path if ckpt_path.exists() else None)
+    if resume is not None:
+        ck = load_checkpoint(resume / "checkpoints" / "last.pt" if resume.is_dir() else resume)
+        model.load_state_dict(ck["model"])
+        opt_g.load_state_dict(ck["opt_g"])
+        if disc is not None:
+            disc.load_state_dict(ck["disc"])
+            opt_d.load_state_dict(ck["opt_d"])
+        step, wall = ck["step"], ck["wall"]
+        set_rng_state(ck["rng"])
+        log.truncate_after(step)
+        print(f"resumed from {resume} at step {step}")
+
+    def checkpoint():
+        save_checkpoint(ckpt_path, {
+            "model": model.state_dict(), "opt_g": opt_g.state_dict(),
+            "disc": disc.state_dict() if disc is not None else None,
+            "opt_d": opt_d.state_dict() if opt_d is not None else None,
+            "step": step, "epoch": step / steps_per_epoch, "wall": wall, "rng": rng_state(),
+            "cfg": OmegaConf.to_container(cfg, resolve=True)})
+
+    bar = tqdm(total=total_steps, initial=step, disable=not t.progress, unit="step", dynamic_ncols=True)
+    last_saved = step
+    while step < total_steps:
+        epoch, i = divmod(step, steps_per_epoch)
+        lr = t.lr * t.lr_decay ** epoch  # x0.99 per epoch
+        for opt in (opt_g, opt_d):
+            for g in (opt.param_groups if opt is not None else []):
+                g["lr"] = lr
+        idx = epoch_order(cfg.seed, epoch, len(data))[i * t.batch_size:(i + 1) * t.batch_size]
+        t0 = time.perf_counter()
+        batch = to_device(get_batch(data, idx), device, t.channels_last)
+        losses = train_step(model, disc, opt_g, opt_d, batch, cfg.loss)
+        if "nonfinite" in losses:
+            bar.close()
+            raise NonFiniteLoss(
+                f"loss term {', '.join(repr(k) for k in losses['nonfinite'])} is not finite at step {step} "
+                f"(epoch {epoch}); stopped. Last good checkpoint: {ckpt_path} (step {last_saved})")
+        dt = time.perf_counter() - t0
+        wall += dt
+        step += 1
+        ips = len(idx) / dt
+        bar.update(1)
+        bar.set_postfix(loss=f"{losses['total'].item():.4f}", img_s=f"{ips:.0f}", epoch=epoch)
+        if step % t.log_every == 0 or step == total_steps:
+            log.write({"step": step, "epoch": epoch, "wall": wall, "lr": lr, "images_per_s": ips,
+                       **{k: v.item() for k, v in losses.items()}})
+        if t.sample_every and step % t.sample_every == 0:
+            save_samples(run_dir / "samples" / f"step{step:06d}.png", batch, model(batch["image"]))
+        if step % t.checkpoint_every == 0 or step % steps_per_epoch == 0 or step == total_steps:
+            checkpoint()
+            last_saved = step
+    bar.close()
+
+    model.eval()
+    with torch.no_grad():
+        save_samples(run_dir / "samples" / "final.png", batch, model(batch["image"]))
+    metrics = evaluate(model, cfg, t.eval_size)
+    log.write({"step": step, "epoch": step / steps_per_epoch, "wall": wall, "eval": metrics})
+    (run_dir / "eval.json").write_text(json.dumps(metrics, indent=2))
+    print_eval(metrics, run_dir)
+    return metrics
+
+
+def print_eval(m: dict, run_dir) -> None:
+    print(f"\ntest metrics ({m['n_eval']} images) -> {Path(run_dir) / 'eval.json'}")
+    print(f"  reconstruction  mse {m['recon_mse']:.5f}  psnr {m['recon_psnr']:.2f} dB  ssim {m['recon_ssim']:.3f}")
+    if "normal_mean" in m:
+        print(f"  normal angular error (deg, same pixels)  network {m['normal_mean']:.2f} (median "
+              f"{m['normal_median']:.2f})   pseudo-GT {m['pseudo_normal_mean']:.2f} (median {m['pseudo_normal_median']:.2f})")

@@ -1,0 +1,109 @@
+"""Evaluation protocols and stability studies on an analytic stand-in for SynthFaces (tests/eval_fakes.py)."""
+import math
+
+import pytest
+import torch
+from torch.utils.data import default_collate
+
+from disent.eval import stability as st
+from disent.eval.evaluate import evaluate_model, face_mask, metrics_from_outputs
+from disent.eval.protocols import sh_variance, sh_variance_protocol
+from eval_fakes import FakeFaces, OracleModel
+
+
+def test_sh_variance_matches_groupwise_var():
+    g = torch.Generator().manual_seed(0)
+    sh = torch.randn(30, 3, 9, generator=g, dtype=torch.float64)
+    cond = torch.arange(30) % 4
+    cond[-1] = 7  # a condition with a single image is skipped
+    r = sh_variance(sh, cond)
+    expected = torch.stack([sh[cond == c].var(0, unbiased=True) for c in range(4)]).mean((0, 1))
+    assert torch.allclose(torch.tensor(r["per_coeff"], dtype=torch.float64), expected)
+    assert r["mean"] == pytest.approx(expected.mean().item())
+    assert r["n_conditions"] == 4 and r["n_images"] == 29
+    # scaling the estimates scales the variance by s^2 but leaves the relative number alone
+    r2 = sh_variance(3 * sh, cond)
+    assert r2["mean"] == pytest.approx(9 * r["mean"]) and r2["relative"] == pytest.approx(r["relative"])
+    with pytest.raises(ValueError):
+        sh_variance(sh, cond[:5])
+
+
+def test_sh_variance_protocol_orders_estimators():
+    res = sh_variance_protocol(FakeFaces("lightbank"))["estimators"]
+    assert res["true"]["mean"] == pytest.approx(0, abs=1e-12)  # one light per condition
+    assert res["ls_oracle"]["mean"] < 1e-10 and res["ls_oracle"]["sh_error"] < 1e-10  # true normals and albedo
+    # a constant albedo absorbs skin tone (variance across identities), bent normals add more
+    assert res["ls_true"]["mean"] > 1e3 * res["ls_oracle"]["mean"]
+    assert res["ls_pseudo"]["mean"] > res["ls_true"]["mean"]
+    assert res["ls_pseudo"]["n_conditions"] == 4
+
+
+def test_sh_variance_protocol_needs_fixed_lights():
+    with pytest.raises(ValueError, match="lightbank"):
+        sh_variance_protocol(FakeFaces("test", size=6))
+
+
+def test_perfect_model_scores_perfectly():
+    ds = FakeFaces("test", size=6)
+    m = evaluate_model(OracleModel(ds), ds, limit=6, batch_size=4)
+    assert m["recon_mse"] == 0 and math.isinf(m["recon_face_psnr"])
+    assert m["normal_mean"] == pytest.approx(0, abs=1e-3) and m["normal_under_20"] == 1.0
+    assert m["pseudo_normal_mean"] > 1.0  # the bent pseudo normals are wrong on the same pixels
+    assert m["albedo_si_mse"] < 1e-12 and m["sh_error"] < 1e-12 and m["n_eval"] == 6
+    assert m["infer_images_per_s"] > 0
+
+
+def test_conditioning_grows_towards_profile():
+    res = st.conditioning_vs_yaw(FakeFaces("test"), yaws=(0, 30, 60, 90), n=3)
+    cond = [r["ls_true_cond"]["median"] for r in res["rows"]]
+    assert all(b > a for a, b in zip(cond, cond[1:]))  # fewer, narrower normals as the head turns
+    assert res["ls_true_blowup_yaw"] == 90  # this cap only degenerates at full profile
+
+
+def test_shrink_mask_is_nested_and_sized():
+    ds = FakeFaces("test", size=4)
+    mask = face_mask(default_collate([ds[i] for i in range(4)])["matte"])
+    prev = mask
+    for f in (0.7, 0.3, 0.1):
+        m = st.shrink_mask(mask, f)
+        assert (m <= prev).all()  # a subset of the larger crop
+        kept = m.flatten(1).sum(1)
+        want = (mask.flatten(1).sum(1) * f).ceil()
+        assert (kept >= want).all() and (kept <= want + 4).all()  # ties on the distance ring only
+        prev = m
+    res = st.conditioning_vs_mask(ds, fractions=(1.0, 0.3, 0.1, 0.01), n=4)
+    assert "error" in res["rows"][-1]  # too few pixels is reported, not crashed
+    cond = [r["ls_true_cond"]["median"] for r in res["rows"][:-1]]
+    assert cond[0] < cond[1] < cond[2]
+
+
+def test_tilt_light_closed_form():
+    sh = FakeFaces("lightbank").bank[:2].double()
+    assert torch.allclose(st.tilt_light(sh, 0.0), sh, atol=1e-9)
+    flipped = st.tilt_light(sh, 1.0)  # 180 degrees about x: y -> -y, z -> -z
+    sign = torch.tensor([1, -1, -1, 1, -1, 1, 1, -1, 1], dtype=torch.float64)
+    assert torch.allclose(flipped, sh * sign, atol=1e-7)
+
+
+def test_ood_noise_raises_least_squares_error():
+    res = st.ood_curves(FakeFaces, {}, effects=("noise",), severities=(0.0, 1.0), n=6, resolution=16)
+    e = res["effects"]["noise"]["ls_true"]["sh_error"]
+    assert e[1] > 2 * e[0]
+
+
+def test_bws_stats_closed_forms():
+    ds = FakeFaces("test", size=3)
+    gt = default_collate([ds[i] for i in range(3)])
+    out = {"shading": torch.full_like(gt["shading"][:, :1], 0.75), "albedo": gt["shading"].clone()}
+    s = st.bws_stats(out, gt)
+    assert s["shading_mean_rgb"] == pytest.approx([0.75] * 3) and s["shading_cast"] == pytest.approx(0)
+    assert s["albedo_shading_corr"] == pytest.approx(1.0)  # albedo that is the shading
+    out["albedo"] = 1.0 - gt["shading"]
+    assert st.bws_stats(out, gt)["albedo_shading_corr"] == pytest.approx(-1.0)
+
+
+def test_metrics_from_outputs_baseline_has_only_recon():
+    ds = FakeFaces("test", size=2)
+    gt = default_collate([ds[i] for i in range(2)])
+    m = metrics_from_outputs({"recon": gt["image"] * 0.5}, gt)
+    assert set(m) == {f"{p}_{k}" for p in ("recon", "recon_face") for k in ("mse", "psnr", "ssim")}

@@ -1,0 +1,339 @@
+"""Real photos: decoding and bad input, the landmark fit, caching, and dlib end to end."""
+from __future__ import annotations
+
+import io
+import os
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from disent.data import pseudo_gt as pg
+from disent.data.pseudo_gt import PseudoGTSettings, Skip, decode_image
+
+
+# ----------------------------------------------------------------------------- a bad-input corpus
+def png16(a: np.ndarray) -> bytes:
+    """A 16-bit PNG (gray [H,W] or RGB [H,W,3]) written by hand: PIL cannot write 16-bit RGB."""
+    a = np.asarray(a, dtype=">u2")
+    h, w = a.shape[:2]
+    raw = b"".join(b"\x00" + a[i].tobytes() for i in range(h))
+
+    def chunk(tag, data):
+        return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
+
+    ihdr = struct.pack(">IIBBBBB", w, h, 16, 2 if a.ndim == 3 else 0, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b"")
+
+
+def encode(img: Image.Image, fmt: str, **kw) -> bytes:
+    buf = io.BytesIO()
+    img.save(buf, format=fmt, **kw)
+    return buf.getvalue()
+
+
+def portrait(size=96, seed=0) -> np.ndarray:
+    """A smooth, non-constant RGB picture (not a face: the fake detector below treats it as one)."""
+    y, x = np.mgrid[0:size, 0:size] / size
+    rng = np.random.default_rng(seed)
+    rgb = np.stack([0.5 + 0.4 * np.sin(6 * x + rng.uniform(0, 6)), 0.3 + 0.5 * y, 0.6 - 0.3 * x * y], -1)
+    return (rgb * 255).astype(np.uint8)
+
+
+def bad_corpus(folder: Path) -> dict[str, tuple[Path, str]]:
+    """Every bad-input case of the pipeline: name -> (file, expected), where expected is
+    ``"skip:<reason>"`` or ``"use:<conversion note or ''>"``."""
+    rgb = portrait()
+    jpeg = encode(Image.fromarray(rgb), "JPEG", quality=90)
+    cases = {
+        "ok.jpg": (jpeg, "use:"),
+        "zero_byte.jpg": (b"", "skip:empty file"),
+        "truncated.jpg": (jpeg[: len(jpeg) // 2], "skip:truncated or corrupt"),
+        "truncated.png": (encode(Image.fromarray(rgb), "PNG")[:300], "skip:truncated or corrupt"),
+        "text.jpg": (b"this is a text file, not a JPEG\n" * 4, "skip:not an image"),
+        "gray.png": (encode(Image.fromarray(rgb[..., 1]), "PNG"), "use:L->RGB"),
+        "rgba.png": (encode(Image.fromarray(np.dstack([rgb, np.full(rgb.shape[:2], 128, np.uint8)])), "PNG"),
+                     "use:RGBA->RGB over white"),
+        "gray16.png": (png16(rgb[..., 1].astype(np.uint16) * 257), "use:I;16->8-bit"),
+        "rgb16.png": (png16(rgb.astype(np.uint16) * 257), "use:"),
+        "cmyk.jpg": (encode(Image.fromarray(rgb).convert("CMYK"), "JPEG", quality=95), "use:CMYK->RGB"),
+        "one_pixel.png": (encode(Image.new("RGB", (1, 1), (200, 100, 50)), "PNG"), "skip:too small"),
+        "no_face.png": (encode(Image.new("RGB", (80, 80), (90, 90, 90)), "PNG"), "skip:no face found"),
+    }
+    out = {}
+    for name, (data, expected) in cases.items():
+        (folder / name).write_bytes(data)
+        out[name] = (folder / name, expected)
+    os.symlink(folder / "missing-target.jpg", folder / "unreadable.jpg")  # dangling: cannot be opened
+    out["unreadable.jpg"] = (folder / "unreadable.jpg", "skip:unreadable")
+    return out
+
+
+# ----------------------------------------------------------------------------- decoding
+def test_decode_converts_to_8bit_rgb(tmp_path):
+    corpus = bad_corpus(tmp_path)
+    rgb = portrait()
+    for name, (path, expected) in corpus.items():
+        kind, what = expected.split(":", 1)
+        if kind != "use":
+            continue
+        out, notes = decode_image(path.read_bytes())
+        assert out.dtype == np.uint8 and out.shape == rgb.shape, name
+        assert (what in notes) if what else not notes, (name, notes)
+    dec = lambda n: decode_image(corpus[n][0].read_bytes())[0].astype(int)  # noqa: E731
+    # lossless cases reproduce the pixels exactly
+    assert np.array_equal(dec("rgb16.png"), rgb)
+    for n in ("gray.png", "gray16.png"):
+        assert np.array_equal(dec(n), np.repeat(rgb[..., 1:2], 3, 2).astype(int)), n
+    # alpha 128/255 over white: c*a + 255*(1-a)
+    a = 128 / 255
+    assert np.abs(dec("rgba.png") - (rgb * a + 255 * (1 - a))).max() <= 1
+    # lossy CMYK JPEG: close to the original colours
+    assert np.abs(dec("cmyk.jpg") - rgb).mean() < 6
+
+
+def test_decode_skips_with_reasons(tmp_path):
+    corpus = bad_corpus(tmp_path)
+    for name, (path, expected) in corpus.items():
+        kind, reason = expected.split(":", 1)
+        if kind != "skip" or reason in ("no face found", "unreadable"):
+            continue
+        with pytest.raises(Skip) as e:
+            decode_image(path.read_bytes())
+        assert e.value.reason == reason, (name, e.value)
+
+
+def test_decode_exif_rotation():
+    rgb = portrait(64)[:, :40]  # 64 rows x 40 columns
+    img = Image.fromarray(rgb)
+    exif = img.getexif()
+    exif[0x0112] = 6  # orientation: rotate 90 degrees clockwise to display
+    out, notes = decode_image(encode(img, "PNG", exif=exif.tobytes()))
+    assert out.shape == (40, 64, 3) and "EXIF rotation" in notes
+    assert np.array_equal(out, np.rot90(rgb, -1))
+
+
+def test_similarity_align_recovers_a_known_transform():
+    rng = np.random.default_rng(0)
+    src = rng.uniform(0, 100, (68, 2))
+    th, s, t = 0.3, 0.4, np.array([5.0, -3.0])
+    R = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+    M = pg.similarity_transform(src, src @ (s * R).T + t)
+    assert np.allclose(M[:2, :2], s * R) and np.allclose(M[:2, 2], t)
+
+
+# ----------------------------------------------------------------------------- the landmark fit
+def known_face(seed: int, fitter, resolution=64):
+    """Parameters of a random face (pose within +-25 degrees) and its projected landmarks."""
+    rng = np.random.default_rng(seed)
+    p = np.zeros(fitter.n_pose + fitter.n_identity + fitter.n_expression)
+    p[:3] = np.radians(rng.uniform(-25, 25, 3))
+    p[3], p[4:6] = np.log(0.3 * resolution), resolution / 2 + rng.normal(0, 2, 2)
+    p[6:6 + fitter.n_identity] = rng.normal(0, 1, fitter.n_identity)
+    p[-2:] = rng.uniform(0, 1, 2)
+    return p, fitter.project_landmarks(p, resolution)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_fit_recovers_a_known_face(seed):
+    """Landmarks projected from a known face: with a weak prior the fit recovers pose and landmarks."""
+    s = PseudoGTSettings(lambda_identity=1e-4, lambda_expression=1e-4)
+    fitter = pg.face_model_fitter(s)
+    p, lm = known_face(seed, fitter)
+    fit = pg.fit_landmarks(lm, 64, s, fitter)
+    q = fit["params"]
+    assert fit["residual_px"] < 0.01
+    assert np.abs(np.degrees(q[:3] - p[:3])).max() < 0.5
+    assert np.abs(q[-2:] - p[-2:]).max() < 0.1  # smile and open
+    # scale trades off against the model's size components; the posed 3-D landmarks do not
+    P, Q = fitter.project(p, fitter.landmarks3d(p)), fitter.project(q, fitter.landmarks3d(q))
+    assert np.abs((P - P.mean(0)) - (Q - Q.mean(0))).max() < 0.3  # pixels, depth included
+
+
+def test_fit_prior_and_noise():
+    """The default prior pulls coefficients to the mean (residual grows, norm shrinks);
+    landmark noise of sigma px leaves a residual of the order of sigma, not more."""
+    weak, strong = PseudoGTSettings(lambda_identity=1e-4), PseudoGTSettings(lambda_identity=10.0)
+    fitter = pg.face_model_fitter(weak)
+    p, lm = known_face(3, fitter)
+    fw, fs = pg.fit_landmarks(lm, 64, weak, fitter), pg.fit_landmarks(lm, 64, strong, fitter)
+    n = fitter.n_identity
+    assert np.linalg.norm(fs["params"][6:6 + n]) < np.linalg.norm(fw["params"][6:6 + n])
+    assert fs["residual_px"] > fw["residual_px"]
+    noisy = lm + np.random.default_rng(0).normal(0, 1.0, lm.shape)
+    fn = pg.fit_landmarks(noisy, 64, PseudoGTSettings(), fitter)
+    assert 0.5 < fn["residual_px"] < 1.5  # 2-D noise of 1 px per axis has RMS distance sqrt(2)
+    assert np.abs(np.degrees(fn["params"][:3] - p[:3])).max() < 8
+
+
+def test_fit_is_invariant_to_a_similarity_of_the_photo():
+    """Scaling, rotating and shifting the landmarks changes only scale, roll and shift."""
+    s = PseudoGTSettings(lambda_identity=1e-4, lambda_expression=1e-4)
+    fitter = pg.face_model_fitter(s)
+    _, lm = known_face(4, fitter)
+    th = np.radians(20)
+    R = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+    a, b = pg.fit_landmarks(lm, 64, s, fitter), pg.fit_landmarks(lm @ (1.5 * R).T + [3, -2], 64, s, fitter)
+    assert b["residual_px"] < 0.02
+    assert abs(np.exp(b["params"][3] - a["params"][3]) - 1.5) < 0.01
+    assert np.allclose(a["params"][:2], b["params"][:2], atol=np.radians(0.5))
+
+
+# ----------------------------------------------------------------------------- the batch: bad input, cache
+class TemplateDetector:
+    """Stands in for dlib: the face model's own frontal landmarks, scaled to the photo;
+    'no face' on a constant image."""
+
+    name = "template"
+
+    def __init__(self, settings):
+        self.fitter = pg.face_model_fitter(settings)
+
+    def __call__(self, rgb):
+        if np.ptp(rgb) == 0:
+            raise Skip("no face found")
+        h, w = rgb.shape[:2]
+        return self.fitter.template(min(h, w)) + [(w - min(h, w)) / 2, (h - min(h, w)) / 2], 1
+
+
+def test_prepare_handles_every_bad_input_and_caches(tmp_path, monkeypatch):
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    corpus = bad_corpus(folder)
+    s = PseudoGTSettings(resolution=32)
+    files = [p for p, _ in corpus.values()]
+    records, summary = pg.prepare(files, s, tmp_path / "cache", progress=False, detector=TemplateDetector(s))
+    for rec, (name, (_, expected)) in zip(records, corpus.items()):
+        kind, what = expected.split(":", 1)
+        assert rec.used == (kind == "use"), (name, rec)
+        if kind == "skip":
+            assert rec.reason == what, (name, rec)
+        elif what:
+            assert what in rec.notes, (name, rec)
+    n_used = sum(e.startswith("use") for _, e in corpus.values())
+    assert summary["used"] == n_used and summary["skipped"] == len(corpus) - n_used
+    assert summary["skip_reasons"]["truncated or corrupt"] == 2 and summary["skip_reasons"]["unreadable"] == 1
+    arrays = pg.load_cached(records[0])
+    assert arrays["image"].shape == (32, 32, 3) and arrays["normal_pseudo"].shape == (3, 32, 32)
+    assert arrays["sh_pseudo"].shape == (3, 9) and np.isfinite(arrays["sh_pseudo"]).all()
+    # landmarks placed exactly on the model's frontal template: the fit is (nearly) exact and frontal
+    assert records[0].residual_px < 0.05 and np.abs(np.degrees(arrays["params"][:3])).max() < 1.0
+    mask = arrays["mask_pseudo"][0] > 0
+    assert mask.sum() > 100 and np.allclose(np.linalg.norm(arrays["normal_pseudo"][:, mask].astype(float), axis=0), 1, atol=2e-3)
+
+    # second pass: nothing is recomputed, not even hashed; a changed file is
+    monkeypatch.setattr(pg, "process", lambda *a, **k: pytest.fail("second pass recomputed a cached image"))
+    again, summary2 = pg.prepare(files, s, tmp_path / "cache", progress=False, detector=TemplateDetector(s))
+    assert summary2 == summary and [r.cache for r in again] == [r.cache for r in records]
+    monkeypatch.undo()
+    (folder / "gray.png").write_bytes((folder / "ok.jpg").read_bytes())
+    os.utime(folder / "gray.png", ns=(1, 1))
+    third, _ = pg.prepare(files, s, tmp_path / "cache", progress=False, detector=TemplateDetector(s))
+    assert third[list(corpus).index("gray.png")].notes == []
+
+
+def test_prepare_keeps_finished_work_when_interrupted(tmp_path, monkeypatch):
+    """A crash in the middle of a batch loses nothing already processed."""
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    files = []
+    for i in range(3):
+        files.append(folder / f"{i}.png")
+        files[-1].write_bytes(encode(Image.fromarray(portrait(64, seed=i)), "PNG"))
+    s = PseudoGTSettings(resolution=32)
+    det = TemplateDetector(s)
+    real, calls = pg.process, []
+
+    def crash_on_third(data, settings, detector=None):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return real(data, settings, detector)
+
+    monkeypatch.setattr(pg, "process", crash_on_third)
+    with pytest.raises(KeyboardInterrupt):
+        pg.prepare(files, s, tmp_path / "cache", progress=False, detector=det)
+    monkeypatch.setattr(pg, "process", real)
+    calls.clear()
+    monkeypatch.setattr(pg, "process", lambda *a, **k: (calls.append(1), real(*a, **k))[1])
+    records, summary = pg.prepare(files, s, tmp_path / "cache", progress=False, detector=det)
+    assert len(calls) == 1 and summary["used"] == 3
+
+
+# ----------------------------------------------------------------------------- the data set
+def celeba_folder(root: Path, n: int = 12) -> Path:
+    """A miniature CelebA layout: img_align_celeba/, list_attr_celeba.txt, list_eval_partition.txt."""
+    (root / "img_align_celeba").mkdir(parents=True)
+    names = ["5_o_Clock_Shadow", "Eyeglasses", "No_Beard", "Smiling", "Young"]
+    lines = [str(n), " ".join(names)]
+    parts = []
+    for i in range(n):
+        f = f"{i + 1:06d}.jpg"
+        Image.fromarray(portrait(80, seed=i)).save(root / "img_align_celeba" / f, quality=90)
+        v = [1, 1 if i % 3 == 0 else -1, -1 if i % 4 == 0 else 1, 1 if i % 2 == 0 else -1, -1 if i % 5 == 0 else 1]
+        lines.append(f + "  " + " ".join(f"{x:2d}" for x in v))
+        parts.append(f"{f} {0 if i < 6 else 1 if i < 8 else 2}")
+    (root / "list_attr_celeba.txt").write_text("\n".join(lines) + "\n")
+    (root / "list_eval_partition.txt").write_text("\n".join(parts) + "\n")
+    return root
+
+
+def test_folder_faces_celeba_layout(tmp_path):
+    from disent.data.folder import FolderFaces
+
+    root = celeba_folder(tmp_path / "celeba")
+    kw = dict(resolution=32, cache_dir=tmp_path / "cache", progress=False,
+              detector=TemplateDetector(PseudoGTSettings(resolution=32)))
+    train, val, test = (FolderFaces(root, split, **kw) for split in ("train", "val", "test"))
+    assert (len(train), len(val), len(test)) == (6, 2, 4)
+    item = train[1]
+    assert set(item) == {"image", "normal_pseudo", "mask_pseudo", "uv_pseudo", "normal_uv_pseudo", "sh_pseudo", "attrs"}
+    shapes = {k: tuple(v.shape) for k, v in item.items() if k != "attrs"}
+    assert shapes == {"image": (3, 32, 32), "normal_pseudo": (3, 32, 32), "mask_pseudo": (1, 32, 32),
+                      "uv_pseudo": (2, 32, 32), "normal_uv_pseudo": (3, 32, 32), "sh_pseudo": (3, 9)}
+    assert all(v.dtype == torch.float32 for k, v in item.items() if k != "attrs")
+    assert 0 <= item["image"].min() and item["image"].max() <= 1
+    # 000002.jpg: Smiling -1, No_Beard +1, Eyeglasses -1, Young +1
+    assert {k: float(v) for k, v in item["attrs"].items() if not k.endswith("strength")} == \
+        {"smiling": 0.0, "beard": 0.0, "eyeglasses": 0.0, "senior": 0.0}
+    pool = FolderFaces(root, "pool_smiling", **kw)  # test split: 000009..000012, smiling on 9 and 11
+    assert len(pool) == 4 and sorted(float(pool[i]["attrs"]["smiling"]) for i in range(4)) == [0, 0, 1, 1]
+    with pytest.raises(ValueError, match="unknown split"):
+        FolderFaces(root, "lightbank", **kw)
+
+
+def test_build_passes_the_config(monkeypatch):
+    from disent.data import folder
+
+    seen = {}
+    monkeypatch.setattr(folder, "FolderFaces", lambda *a, **k: seen.update(args=a, kw=k))
+    cfg = {"name": "folder", "root": "/photos", "resolution": 32, "seed": 3, "cache_dir": None, "workers": 2,
+           "multiple_faces": "skip", "predictor": None, "train_size": None, "test_size": 8}
+    folder.build(cfg, "test", 8)
+    assert seen["args"] == ("/photos",)
+    assert seen["kw"] == {"split": "test", "resolution": 32, "seed": 3, "size": 8, "cache_dir": None, "workers": 2,
+                          "multiple_faces": "skip"}
+
+
+def test_folder_faces_plain_folder_split_is_stable(tmp_path):
+    from disent.data.folder import FolderFaces, hash_split
+
+    root = tmp_path / "plain"
+    (root / "sub").mkdir(parents=True)
+    for i in range(20):
+        Image.fromarray(portrait(48, seed=i)).save(root / ("sub" if i % 2 else "") / f"{i}.png")
+    (root / "empty.png").write_bytes(b"")
+    kw = dict(resolution=32, cache_dir=tmp_path / "cache", progress=False,
+              detector=TemplateDetector(PseudoGTSettings(resolution=32)))
+    splits = {s: FolderFaces(root, s, **kw) for s in ("train", "val", "test")}
+    assert sum(len(d) for d in splits.values()) == 20  # every photo once, the empty file skipped
+    assert sum(d.summary["skip_reasons"].get("empty file", 0) for d in splits.values()) == 1
+    assert "attrs" not in splits["train"][0]
+    assert hash_split("sub/1.png", 0) == hash_split("sub/1.png", 0)
+    assert len(FolderFaces(root, "train", size=3, **kw)) == 3
+    with pytest.raises(ValueError, match="needs attribute labels"):
+        FolderFaces(root, "pool_smiling", **kw)

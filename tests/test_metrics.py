@@ -1,0 +1,114 @@
+"""Closed-form checks of disent.eval.metrics."""
+import math
+
+import pytest
+import torch
+
+from disent.eval import (angular_error_deg, normal_angular_error, reconstruction_metrics, scale_invariant_mse,
+                         sh_error)
+
+
+def _rot_x(deg):
+    a = math.radians(deg)
+    return torch.tensor([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]], dtype=torch.float64)
+
+
+def _normals(B=2, H=8, W=8, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    n = torch.randn(B, 3, H, W, generator=g, dtype=torch.float64)
+    return n / n.norm(dim=1, keepdim=True)
+
+
+@pytest.mark.parametrize("deg", [0.0, 10.0, 37.5, 90.0, 180.0])
+def test_rotation_gives_its_angle(deg):
+    # rotating about x turns a normal in the y-z plane by exactly deg
+    n = torch.zeros(1, 3, 4, 5, dtype=torch.float64)
+    n[:, 2] = 1.0
+    r = torch.einsum("ij,bjhw->bihw", _rot_x(deg), n)
+    assert torch.allclose(angular_error_deg(r, n), torch.full((1, 4, 5), deg, dtype=torch.float64), atol=1e-5)
+
+
+def test_angle_ignores_length_and_is_symmetric():
+    a, b = _normals(seed=1), _normals(seed=2)
+    e = angular_error_deg(a, b)
+    assert torch.allclose(e, angular_error_deg(3.0 * a, 0.5 * b))
+    assert torch.allclose(e, angular_error_deg(b, a))
+    assert torch.allclose(angular_error_deg(-a, b), 180.0 - e, atol=1e-6)
+
+
+def test_normal_stats_on_known_mix():
+    # half the masked pixels turned by 10 deg, a quarter by 22, a quarter by 40; unmasked pixels by 90
+    n = torch.zeros(1, 3, 4, 4, dtype=torch.float64)
+    n[:, 2] = 1
+    degs = torch.tensor([10.0] * 6 + [22.0] * 3 + [40.0] * 3 + [90.0] * 4, dtype=torch.float64).reshape(4, 4)
+    a = torch.deg2rad(degs)
+    pred = torch.stack([torch.zeros_like(a), torch.sin(a), torch.cos(a)])[None]
+    mask = (degs < 90).double()[None, None]
+    s = normal_angular_error(pred, n, mask)
+    assert s["mean"] == pytest.approx((6 * 10 + 3 * 22 + 3 * 40) / 12, abs=1e-5)
+    assert s["median"] == pytest.approx(10.0, abs=1e-5)  # torch's lower median of 12 values
+    assert s["under_20"] == pytest.approx(0.5)
+    assert s["under_25"] == pytest.approx(0.75)
+    assert s["under_30"] == pytest.approx(0.75)
+
+
+def test_psnr_of_known_mse():
+    t = torch.full((2, 3, 16, 16), 0.5)
+    p = t + 0.1 * torch.where(torch.rand(2, 3, 16, 16, generator=torch.Generator().manual_seed(0)) > 0.5, 1.0, -1.0)
+    r = reconstruction_metrics(p, t)
+    assert r["mse"] == pytest.approx(0.01, rel=1e-5)
+    assert r["psnr"] == pytest.approx(20.0, abs=1e-4)  # 10 log10(1 / 0.01)
+    same = reconstruction_metrics(t, t)
+    assert same["mse"] == 0 and math.isinf(same["psnr"]) and same["ssim"] == pytest.approx(1.0)
+
+
+def test_masked_reconstruction_ignores_outside():
+    g = torch.Generator().manual_seed(3)
+    t = torch.rand(1, 3, 16, 16, generator=g)
+    p = t.clone()
+    p[..., :, 8:] = torch.rand(1, 3, 16, 8, generator=g)  # ruin the right half
+    mask = torch.zeros(1, 1, 16, 16)
+    mask[..., :, :8] = 1
+    r = reconstruction_metrics(p, t, mask)
+    assert r["mse"] == 0 and math.isinf(r["psnr"])
+    full = reconstruction_metrics(p, t)
+    assert full["mse"] > 0 and full["ssim"] < 1
+    # SSIM windows straddling the boundary see the ruined half, so masked SSIM is < 1 but above the full one
+    assert full["ssim"] < r["ssim"] < 1
+
+
+def test_scaled_albedo_has_zero_si_mse():
+    g = torch.Generator().manual_seed(0)
+    a = torch.rand(2, 3, 8, 8, generator=g, dtype=torch.float64)
+    scale = torch.tensor([0.3, 2.0, 5.0], dtype=torch.float64).reshape(1, 3, 1, 1)  # per-channel scale
+    mask = torch.ones(2, 1, 8, 8)
+    assert scale_invariant_mse(a * scale, a, mask) == pytest.approx(0.0, abs=1e-20)
+    # a non-scale change is not forgiven, and matches the closed form for a constant prediction
+    c = torch.ones_like(a)
+    s = (a.sum((2, 3), keepdim=True) / 64)  # optimal scale of a constant 1 is the mean
+    expected = ((s - a) ** 2).mean((1, 2, 3))
+    assert torch.allclose(scale_invariant_mse(c, a, mask, reduction="none"), expected)
+
+
+def test_sh_error_alignment():
+    g = torch.Generator().manual_seed(0)
+    L = torch.randn(4, 3, 9, generator=g, dtype=torch.float64)
+    assert sh_error(2.5 * L, L) == pytest.approx(0.0, abs=1e-20)
+    # per-channel scales are forgiven only with per_channel=True
+    Lc = L * torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64).reshape(1, 3, 1)
+    assert sh_error(Lc, L, per_channel=True) == pytest.approx(0.0, abs=1e-20)
+    assert sh_error(Lc, L) > 1e-3
+    # zero prediction: scale 0, error is the mean square of the truth
+    assert sh_error(torch.zeros_like(L), L) == pytest.approx(L.pow(2).mean().item())
+
+
+def test_bad_input_is_rejected():
+    n = _normals()
+    with pytest.raises(ValueError):
+        angular_error_deg(n, n[:, :2])
+    with pytest.raises(ValueError):
+        normal_angular_error(n, n, torch.zeros(2, 1, 8, 8))
+    with pytest.raises(ValueError):
+        reconstruction_metrics(n, n, torch.ones(2, 1, 4, 4))
+    with pytest.raises(ValueError):
+        sh_error(torch.zeros(1, 3, 4), torch.zeros(1, 3, 4))

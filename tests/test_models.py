@@ -1,0 +1,196 @@
+"""The three models, the EBGAN discriminator and every loss term, on a small synthetic batch."""
+from pathlib import Path
+
+import pytest
+import torch
+import torch.nn.functional as F
+from hydra import compose, initialize_config_dir
+
+from disent import losses as L
+from disent.models import Discriminator, build_model
+from disent.models.implicit import sample_uv
+from disent.render import composite, image_formation, sh_from_directions, sh_shading
+from disent.train import train_step
+
+CONF = str(Path(__file__).resolve().parents[1] / "conf")
+ABLATIONS = sorted(p.stem for p in (Path(CONF) / "ablation").glob("*.yaml"))
+R = 16  # small resolution keeps these tests fast; the networks only need a multiple of 8
+
+
+def fake_batch(B=4, H=R, seed=0):
+    """A batch with the keys of SynthFaces, rendered from a sphere-cap face on a noisy background."""
+    g = torch.Generator().manual_seed(seed)
+    ys, xs = torch.meshgrid(torch.linspace(1, -1, H), torch.linspace(-1, 1, H), indexing="ij")
+    r2 = xs**2 + ys**2
+    mask = (r2 < 0.7).float().expand(B, 1, H, H).contiguous()
+    normal = torch.stack([xs, ys, (1 - r2).clamp_min(0).sqrt()]).expand(B, 3, H, H) * mask
+    normal = F.normalize(normal + 1e-12, dim=1) * mask
+    albedo = (0.4 + 0.4 * torch.rand(B, 3, 1, 1, generator=g)).expand(B, 3, H, H)
+    d = F.normalize(torch.randn(B, 1, 3, generator=g) * 0.5 + torch.tensor([0, 0, 1.0]), dim=-1)
+    sh = sh_from_directions(d, torch.full((B, 1, 3), 0.6), 0.3)
+    shading = sh_shading(normal, sh) * mask
+    background = torch.rand(B, 3, H, H, generator=g)
+    image = composite(mask, image_formation(albedo, shading), background).clamp(0, 1)
+    uv = torch.stack([xs, -ys]) * 0.5 + 0.5
+    return {"image": image, "normal_pseudo": normal, "mask_pseudo": mask, "sh_pseudo": sh,
+            "uv_pseudo": uv.expand(B, 2, H, H) * mask, "normal_uv_pseudo": normal.clone()}
+
+
+def model_cfg(name, **kw):
+    return {"name": name, "resolution": R, **({"code_dim": 265} if name == "baseline" else {}), **kw}
+
+
+@pytest.mark.parametrize("name", ["baseline", "explicit", "implicit"])
+def test_output_shapes_and_codes(name):
+    torch.manual_seed(0)
+    model = build_model(model_cfg(name))
+    x = fake_batch()["image"]
+    out = model(x)
+    B = x.shape[0]
+    assert out["recon"].shape == (B, 3, R, R)
+    codes = {k: v for k, v in out["codes"].items() if k != "switches"}
+    expected = {"baseline": {"z": 265}, "explicit": dict(bg=128, m=128, L=27, Ne=128, Ae=128),
+                "implicit": dict(bg=128, m=128, L=27, UV=128, Ni=128, Ai=128)}[name]
+    assert {k: v.shape for k, v in codes.items()} == {k: (B, d) for k, d in expected.items()}
+    if name != "baseline":
+        for k in ("foreground", "background", "albedo", "shading", "normal"):
+            assert out[k].shape == (B, 3, R, R), k
+        assert out["matte"].shape == (B, 1, R, R) and out["sh"].shape == (B, 3, 9)
+        torch.testing.assert_close(out["normal"].norm(dim=1), torch.ones(B, R, R))
+        assert 0 <= out["matte"].min() and out["matte"].max() <= 1
+        # the output is exactly the rendering of its parts (Eqs. 2-6)
+        torch.testing.assert_close(out["shading"], sh_shading(out["normal"], out["sh"]))
+        torch.testing.assert_close(out["recon"], composite(out["matte"], out["albedo"] * out["shading"], out["background"]))
+        assert torch.equal(out["sh"], out["codes"]["L"].view(B, 3, 9))
+    if name == "implicit":
+        assert out["uv"].shape == (B, 2, R, R) and out["normal_uv"].shape == out["albedo_uv"].shape == (B, 3, R, R)
+    torch.testing.assert_close(model.decode(model.encode(x))["recon"], out["recon"])
+
+
+def test_bad_input_is_refused():
+    with pytest.raises(ValueError, match="multiple of 8"):
+        build_model(model_cfg("explicit", resolution=20))
+    with pytest.raises(ValueError, match=r"\[B,3,16,16\]"):
+        build_model(model_cfg("explicit"))(torch.rand(2, 3, 32, 32))
+    with pytest.raises(ValueError, match="unknown model"):
+        build_model(model_cfg("explicitt"))
+
+
+def test_skips_reach_background_and_matte_only():
+    """Sec. 3.3: only the bg and matte decoders see the pooling switches; the face goes through Z."""
+    torch.manual_seed(0)
+    model = build_model(model_cfg("explicit"))
+    b = fake_batch()
+    codes = model.encode(b["image"])
+    other = model.encode(b["image"].flip(-1))["switches"]
+    a, c = model.decode(codes), model.decode({**codes, "switches": other})
+    for k in ("normal", "albedo", "shading", "foreground"):
+        assert torch.equal(a[k], c[k]), k
+    for k in ("background", "matte"):
+        assert not torch.allclose(a[k], c[k]), k
+
+
+def test_implicit_shares_the_Ni_Ai_decoder_and_samples_at_uv():
+    torch.manual_seed(0)
+    model = build_model(model_cfg("implicit"))
+    codes = model.encode(fake_batch()["image"])
+    out = model.decode({**codes, "Ai": codes["Ni"]})  # same code into the shared decoder: same raw map
+    torch.testing.assert_close(F.normalize(torch.logit(out["albedo_uv"].double()), dim=1).float(), out["normal_uv"],
+                               atol=1e-4, rtol=0)
+    torch.testing.assert_close(out["normal"], F.normalize(sample_uv(out["normal_uv"], out["uv"]), dim=1))
+    # identity UV (u = column, v = row, texel centres at 0..1) reads the UV map back unchanged
+    v, u = torch.meshgrid(torch.linspace(0, 1, R), torch.linspace(0, 1, R), indexing="ij")
+    m = torch.rand(2, 3, R, R)
+    torch.testing.assert_close(sample_uv(m, torch.stack([u, v]).expand(2, 2, R, R)), m)
+    # a horizontal flip of the UV map flips the sampled image
+    torch.testing.assert_close(sample_uv(m, torch.stack([1 - u, v]).expand(2, 2, R, R)), m.flip(-1))
+
+
+def test_discriminator_energy_and_margin_loss():
+    D = Discriminator(R)
+    x = torch.rand(3, 3, R, R)
+    torch.testing.assert_close(D.energy(x), (D(x) - x).pow(2).mean((1, 2, 3)))
+    real, fake = torch.tensor([0.1, 0.3]), torch.tensor([0.5, 2.5])
+    assert L.discriminator_loss(real, fake, margin=1.0).item() == pytest.approx(0.2 + (0.5 + 0) / 2)
+
+
+def test_loss_terms_closed_forms():
+    b = fake_batch()
+    mask = b["mask_pseudo"]
+    const = {"albedo": torch.full((4, 3, R, R), 0.3), "shading": torch.full((4, 3, R, R), 0.75)}
+    assert L.smooth_A(const, b).item() == 0 and L.smooth_S(const, b).item() == 0
+    assert L.BWS(const, b, c=0.75).item() == pytest.approx(0, abs=1e-12)
+    assert L.BWS(const, b, c=0.5).item() == pytest.approx(0.25**2)
+    # BWS is a per-channel batch mean over the face: changes outside the mask do not count
+    assert L.BWS({"shading": const["shading"] + 5 * (1 - mask)}, b).item() == pytest.approx(0, abs=1e-12)
+    ramp = torch.linspace(0, 1, R).expand(4, 3, R, R)  # x-gradient 1/(R-1), no y-gradient
+    assert L.smooth_A({"albedo": ramp}, b).item() == pytest.approx(1 / (R - 1), rel=1e-5)
+    assert L.smooth_S({"shading": ramp}, b).item() == pytest.approx(1 / (R - 1) ** 2, rel=1e-5)
+    out = {"normal": b["normal_pseudo"] + 0.1 * mask, "matte": mask, "recon": b["image"], "sh": b["sh_pseudo"] + 0.5}
+    assert L.recon_N(out, b).item() == pytest.approx(0.01, rel=1e-5)  # only masked pixels count
+    assert L.M(out, b).item() == 0 and L.recon(out, b).item() == 0
+    assert L.recon_L(out, b).item() == pytest.approx(0.25)
+    with pytest.raises(KeyError, match="unknown loss terms"):
+        L.generator_losses(out, b, {"recon": 1, "bwss": 1})
+
+
+def compose_cfg(*overrides):
+    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
+        return compose(config_name="config", overrides=list(overrides))
+
+
+def test_every_ablation_config_is_listed():
+    assert {"no_bws", "no_smooth_a", "no_smooth_s", "no_smooth", "no_matting", "no_adv", "no_pseudo_normal",
+            "no_pseudo_light"} <= set(ABLATIONS)
+
+
+@pytest.mark.parametrize("ablation", ABLATIONS)
+def test_ablation_removes_its_terms(ablation):
+    """The ablated terms are absent, and the gradient is the full one minus exactly their contribution."""
+    full = compose_cfg("model=implicit")
+    abl = compose_cfg("model=implicit", f"+ablation={ablation}")
+    w_full, w_abl = dict(full.loss.weights), dict(abl.loss.weights)
+    removed = [t for t in L.TERMS if w_full[t] and not w_abl[t]]
+    assert removed, f"{ablation} switches no term off"
+    torch.manual_seed(0)
+    model = build_model(model_cfg("implicit", matting=abl.model.matting))
+    D = Discriminator(R)
+    b = fake_batch()
+    params = list(model.parameters())
+
+    def grads(weights):
+        out = model(b["image"])
+        ls = L.generator_losses(out, b, weights, D.energy(out["recon"]) if weights.get("adv") else None)
+        return ls, torch.autograd.grad(ls["total"], params, allow_unused=True)
+
+    ls_abl, g_abl = grads(w_abl)
+    ls_full, g_full = grads(w_full)
+    for t in removed:
+        assert t not in ls_abl and t in ls_full
+    out = model(b["image"])
+    ls_rem = L.generator_losses(out, b, {t: w_full[t] for t in removed},
+                                D.energy(out["recon"]) if "adv" in removed else None)
+    g_rem = (torch.autograd.grad(ls_rem["total"], params, allow_unused=True) if ls_rem["total"].requires_grad
+             else [None] * len(params))  # no_matting: E_M of a constant matte has no gradient at all
+    zero = torch.zeros(())
+    for ga, gf, gr, p in zip(g_abl, g_full, g_rem, params):
+        ga, gf, gr = (g if g is not None else zero.expand_as(p) for g in (ga, gf, gr))
+        torch.testing.assert_close(ga, gf - gr, atol=1e-6, rtol=1e-4)
+    if abl.model.matting:
+        assert any(g is not None and g.abs().sum() > 0 for g in g_rem)  # the removed terms did contribute
+    else:  # no matting layer: the output is the rendered face everywhere
+        out = model(b["image"])
+        assert torch.equal(out["matte"], torch.ones_like(out["matte"])) and torch.equal(out["recon"], out["foreground"])
+
+
+@pytest.mark.parametrize("name", ["baseline", "explicit", "implicit"])
+def test_a_few_steps_on_one_batch_lower_the_loss(name):
+    torch.manual_seed(0)
+    cfg = compose_cfg(f"model={name}")
+    model = build_model(model_cfg(name))
+    D = Discriminator(R)
+    opt_g = torch.optim.RMSprop(model.parameters(), lr=1e-3)
+    opt_d = torch.optim.RMSprop(D.parameters(), lr=1e-3)
+    b = fake_batch(8)
+    totals = [train_step(model, D, opt_g, opt_d, b, cfg.loss)["total"].item() for _ in range(15)]
+    assert totals[-1] < 0.7 * totals[0], totals

@@ -1,0 +1,113 @@
+"""The report and the run-folder readers on tiny fake run folders (no training)."""
+import json
+import math
+
+import pytest
+import yaml
+
+from disent import report
+from disent.eval.ablation import ablation_table, to_markdown
+from disent.eval.runs import find_runs
+from disent.eval.stability import training_stability
+
+
+def make_run(root, name, model="explicit", ablations=(), seed=0, lr=1e-3, losses=(3.0, 2.0, 1.0), eval_=None,
+             ips=500.0):
+    d = root / name
+    (d / ".hydra").mkdir(parents=True)
+    cfg = {"model": {"name": model}, "seed": seed, "train": {"lr": lr, "batch_size": 8, "max_steps": 3},
+           "data": {"train_size": 32, "resolution": 64}, "loss": {"weights": {"adv": 1.0}}}
+    (d / ".hydra" / "config.yaml").write_text(yaml.safe_dump(cfg))
+    ov = [f"model={model}", f"seed={seed}"] + ([f"+ablation=[{','.join(ablations)}]"] if ablations else [])
+    (d / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump(ov))
+    (d / ".hydra" / "hydra.yaml").write_text(yaml.safe_dump({"hydra": {"runtime": {"choices": {"model": model, "experiment": "smoke"}}}}))
+    rows = [{"step": i, "loss": l, "train_images_per_s": ips} for i, l in enumerate(losses)]
+    (d / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows) + '{"step": 9, "loss"')  # torn last line
+    if eval_ is not None:
+        (d / "eval.json").write_text(json.dumps(eval_))
+    return d
+
+
+def fake_suite(root):
+    make_run(root, "0", "baseline", eval_={"recon_mse": 0.01}, ips=900)
+    make_run(root, "1", "explicit", seed=0, eval_={"recon_mse": 0.02, "normal_mean": 20.0, "pseudo_normal_mean": 15.0})
+    make_run(root, "2", "explicit", seed=1, eval_={"recon_mse": 0.04, "normal_mean": 22.0, "pseudo_normal_mean": 15.0})
+    make_run(root, "3", "explicit", ["no_bws"], eval_={"recon_mse": 0.03, "normal_mean": 30.0}, ips=700)
+    make_run(root, "4", "explicit", ["no_adv"], losses=(1.0, None))  # NaN logged as null
+    make_run(root, "5", "implicit", losses=(1.0, 5.0))  # diverged, never evaluated
+    make_run(root, "6", "implicit")  # still running: incomplete
+
+
+def test_run_labels_and_status(tmp_path):
+    fake_suite(tmp_path)
+    runs = {r.path.name: r for r in find_runs([tmp_path])}
+    assert len(runs) == 7
+    assert runs["3"].variant == "explicit+no_bws" and runs["4"].ablations == ["no_adv"] and not runs["4"].adversarial
+    assert [runs[k].status for k in "0123456"] == ["ok", "ok", "ok", "ok", "nan", "diverged", "incomplete"]
+    assert runs["1"].value("normal_mean") == 20.0 and runs["1"].value("train_images_per_s") == 500.0
+
+
+def test_ablation_table_mean_std(tmp_path):
+    fake_suite(tmp_path)
+    t = ablation_table(find_runs([tmp_path]))
+    rows = {r["variant"]: r for r in t["rows"]}
+    assert list(rows)[:2] == ["baseline", "explicit"]
+    e = rows["explicit"]
+    assert e["recon_mse"]["mean"] == pytest.approx(0.03) and e["recon_mse"]["std"] == pytest.approx(math.sqrt(2) * 0.01)
+    assert e["seeds"] == [0, 1]
+    assert rows["implicit"]["failed"] == {"diverged": 1, "incomplete": 1}
+    md = to_markdown(t)
+    assert "0.03 ± 0.014" in md and "train.max_steps=3" in md and "experiment=smoke" in md
+
+
+def test_training_stability_rates(tmp_path):
+    fake_suite(tmp_path)
+    rows = training_stability(find_runs([tmp_path]))["rows"]
+    r = {(x["model"], x["adversarial"]): x for x in rows}
+    assert r[("explicit", False)]["nan_rate"] == 1.0
+    assert r[("implicit", True)]["diverged_rate"] == 1.0 and r[("implicit", True)]["runs"] == 1
+    assert r[("explicit", True)]["nan_rate"] == 0.0 and r[("explicit", True)]["runs"] == 2
+
+
+def test_pareto_front():
+    x = [1.0, 2.0, 3.0, 4.0, 2.5]
+    y = [1.0, 0.5, 0.8, 0.9, 0.4]
+    # (2.5, 0.4) dominates (2, .5) and (1, 1); (3, .8) and (4, .9) are faster
+    assert sorted(report.pareto_front(x, y)) == [2, 3, 4]
+
+
+def test_report_on_fake_runs(tmp_path):
+    fake_suite(tmp_path / "runs")
+    out = tmp_path / "reports"
+    (out / "eval").mkdir(parents=True)
+    (out / "eval" / "training.json").write_text(json.dumps(training_stability(find_runs([tmp_path / "runs"]))))
+    path = report.build(out, roots=[tmp_path / "runs"], n_vis=2)
+    md = path.read_text()
+    assert "explicit+no_bws" in md and "failed" not in md.lower()
+    assert (out / "figures" / "speed_accuracy.png").stat().st_size > 1000
+    assert (out / "figures" / "training.png").is_file()
+    assert "no finished run with a checkpoint" in md  # no checkpoints in the fakes: a note, not a crash
+    assert "sh_variance.json" in md
+
+
+def test_report_on_empty_folder(tmp_path):
+    path = report.build(tmp_path / "reports", roots=[tmp_path / "none"])
+    md = path.read_text()
+    assert md.count("**Missing:**") >= 6 and "No runs found" in md
+
+
+def test_run_status_callback_marks_nan(tmp_path):
+    from hydra.core.utils import JobReturn, JobStatus
+    from omegaconf import OmegaConf
+
+    from disent.eval.runs import Run, RunStatus
+
+    d = make_run(tmp_path, "r", losses=(1.0, 0.5))  # the log itself looks healthy
+    hydra_cfg = OmegaConf.create({"hydra": {"runtime": {"output_dir": str(d)}}})
+    ret = JobReturn(hydra_cfg=hydra_cfg, status=JobStatus.FAILED,
+                    _return_value=FloatingPointError("loss term 'BWS' is not finite at step 3"))
+    RunStatus().on_job_end(None, ret)
+    assert Run.load(d).status == "nan"
+    ret = JobReturn(hydra_cfg=hydra_cfg, status=JobStatus.FAILED, _return_value=RuntimeError("out of memory"))
+    RunStatus().on_job_end(None, ret)
+    assert Run.load(d).status == "failed"
