@@ -128,6 +128,10 @@ def _load_optional_subcommands() -> None:
 
 def main(argv=None) -> None:
     _load_optional_subcommands()
+    if __name__ == "__main__":  # run as a script, modules registered into the importable disent.bench
+        import disent.bench
+
+        SUBCOMMANDS.update(disent.bench.SUBCOMMANDS)
     p = argparse.ArgumentParser(prog="python -m disent.bench", description=__doc__)
     p.add_argument("which", nargs="*", default=[], help=f"subcommands (default: all): {', '.join(SUBCOMMANDS)}")
     p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")

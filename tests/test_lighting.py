@@ -43,6 +43,7 @@ def test_linear_gaussian_posterior_matches_closed_form():
     assert data.n_channels == 1 and 200 < data.n_pixels < 400
     post = sample_posterior(data, known_sigma=sigma, positivity=False, prior_scale=math.inf, seed=1)
     mu, cov = gaussian_posterior(data, sigma)
+    cov = cov[0]
     assert post.diagnostics["converged"]
     ess = np.asarray(post.diagnostics["ess"])
     assert ess.min() > 2000
@@ -56,7 +57,7 @@ def test_linear_gaussian_posterior_matches_closed_form():
     tol = 5 * math.sqrt(2 / ess.min())
     assert np.abs(white - np.eye(9)).max() < tol, np.abs(white - np.eye(9)).max()
     # the check has power: a posterior 20 % too wide (noise 1.2 sigma) fails it
-    _, cov_wrong = gaussian_posterior(data, 1.2 * sigma)
+    cov_wrong = gaussian_posterior(data, 1.2 * sigma)[1][0]
     Ww = np.linalg.inv(np.linalg.cholesky(cov_wrong))
     assert np.abs(Ww @ np.cov(samples.T) @ Ww.T - np.eye(9)).max() > tol
 
@@ -84,16 +85,17 @@ def test_log_posterior_vectorised_matches_plain_formulas():
 
 def test_positivity_is_a_hard_constraint():
     normal, mask = ellipsoid(16, 16)
-    data = prepare(render(normal, directional_light([1.0, 0.2, 0.3], ambient=0.0), 0.03), normal, mask)
+    data = prepare(render(normal, directional_light([1.0, 0.2, 0.3], ambient=0.05), 0.03), normal, mask)
     lp = LogPosterior(data)
     theta = np.zeros((2, lp.ndim))
     theta[:, 0] = [1.0, -1.0]  # ambient only: shading C4 * L1, positive then negative
     theta[:, -1] = math.log(0.03)
     out = lp(theta)
     assert np.isfinite(out[0]) and out[1] == -np.inf
-    post = sample_posterior(data, seed=0)
+    assert (data.basis @ robust_fit(LogPosterior(data, positivity=False))[0][:27].reshape(3, 9).T).min() < 0
+    post = sample_posterior(data, seed=0, max_steps=200)  # the free fit shades some normals negative
     shading = post.sh @ data.basis.T  # [S, C, P]
-    assert shading.min() >= 0
+    assert shading.min() >= 0 and post.diagnostics["n_samples"] > 0
 
 
 def test_robust_likelihood_resists_highlights():
@@ -102,8 +104,9 @@ def test_robust_likelihood_resists_highlights():
     sh = directional_light([0.4, 0.3, 1.0])
     image = render(normal, sh, 0.01)
     g = torch.Generator().manual_seed(3)
-    spots = (torch.rand(1, 24, 24, generator=g) < 0.08).double()
-    image = image + 0.5 * spots
+    half = torch.nn.functional.normalize(torch.tensor([0.2, 0.15, 1.0], dtype=torch.float64), dim=0)
+    spots = ((normal * half[:, None, None]).sum(0, keepdim=True) > 0.97).double()  # a highlight
+    image = image + 0.6 * spots
     data = prepare(image, normal, mask, gray=True)
     truth = sh.mean(0).numpy()
     miss = {}

@@ -98,8 +98,18 @@ def test_sh_error_alignment():
     Lc = L * torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64).reshape(1, 3, 1)
     assert sh_error(Lc, L, per_channel=True) == pytest.approx(0.0, abs=1e-20)
     assert sh_error(Lc, L) > 1e-3
-    # zero prediction: scale 0, error is the mean square of the truth
-    assert sh_error(torch.zeros_like(L), L) == pytest.approx(L.pow(2).mean().item())
+    # zero prediction: scale 0, relative error 1; a prediction orthogonal to the truth also scores 1
+    assert sh_error(torch.zeros_like(L), L) == pytest.approx(1.0)
+    e = torch.zeros(1, 3, 9, dtype=torch.float64)
+    e[0, 0, 0], L1 = 1.0, torch.zeros(1, 3, 9, dtype=torch.float64)
+    L1[0, 1, 4] = 2.0
+    assert sh_error(e, L1) == pytest.approx(1.0)
+    # a known residual: pred = truth + orthogonal part; optimal scale 1/(1+|o|^2/|t|^2) closed form
+    t = torch.zeros(1, 1, 9, dtype=torch.float64)
+    t[0, 0, 0] = 1.0
+    p = t.clone()
+    p[0, 0, 1] = 1.0  # s = 1/2, residual (-1/2, 1/2): squared norm 1/2
+    assert sh_error(p, t) == pytest.approx(0.5)
 
 
 def test_bad_input_is_rejected():

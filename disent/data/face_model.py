@@ -37,7 +37,7 @@ from functools import lru_cache
 
 import torch
 
-GRID_U, GRID_V = 48, 56
+GRID_U, GRID_V = 40, 48
 THETA_MAX = math.radians(100.0)  # azimuth range of the mesh, +-
 PHI_TOP, PHI_BOTTOM = math.radians(82.0), math.radians(-64.0)
 N_IDENTITY = 40

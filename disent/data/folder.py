@@ -138,7 +138,8 @@ class FolderFaces(Dataset):
         chunk = len(files) if size is None else max(2 * size, 64)
         all_recs = []
         while start < len(files) and (size is None or len(records) < size):
-            recs, _ = prepare(files[start:start + chunk], self.settings, cache_dir, workers, progress, detector)
+            recs, _ = prepare(files[start:start + chunk], self.settings, cache_dir, workers, progress, detector,
+                              log_summary=False)
             all_recs += recs
             records += [r for r in recs if r.used]
             start += chunk

@@ -63,6 +63,53 @@ def statistics(records_by_source: dict) -> dict:
     return out
 
 
+GROUPS = {"jaw": slice(0, 17), "brows": slice(17, 27), "nose": slice(27, 36), "eyes": slice(36, 48),
+          "mouth": slice(48, 68)}
+
+
+def fitted_pose(records: list) -> dict:
+    """Median and spread of the fitted yaw and pitch (degrees) over used records."""
+    if not records:
+        return {}
+    pose = np.degrees(np.stack([pg.load_cached(r)["params"][:2] for r in records]))
+    return {"yaw_median": float(np.median(pose[:, 0])), "pitch_median": float(np.median(pose[:, 1])),
+            "yaw_iqr": float(np.subtract(*np.percentile(pose[:, 0], [75, 25]))),
+            "pitch_iqr": float(np.subtract(*np.percentile(pose[:, 1], [75, 25])))}
+
+
+def synth_landmark_check(settings: pg.PseudoGTSettings, n: int = 64) -> dict:
+    """dlib on SynthFaces' own test renders, whose exact landmarks are known: detection rate,
+    distance of dlib's landmarks to the face model's landmark vertices (per group, crop pixels),
+    and the pose error of fits from dlib's landmarks against fits from the exact ones.
+    This separates what dlib and the model mean by each landmark from the photo domain."""
+    from disent.data import SynthFaces
+
+    R = settings.resolution
+    ds = SynthFaces("test", R, size=n)
+    fitter = pg.face_model_fitter(settings)
+    exact = fitter.synth_landmarks(ds.params(range(n)), R)
+    images = (ds.get_batch(range(n))["image"].permute(0, 2, 3, 1).numpy() * 255).round().astype(np.uint8)
+    det = pg.landmark_detector(settings)
+    dist, dpose = [], []
+    for img, lm in zip(images, exact):
+        try:
+            found, _ = det(img)
+        except pg.Skip:
+            continue
+        dist.append(np.linalg.norm(found - lm, axis=1))
+        a = pg.pseudo_gt_from_landmarks(img, found, settings)["params"]
+        b = pg.pseudo_gt_from_landmarks(img, lm, settings)["params"]
+        dpose.append(np.degrees(a[:2] - b[:2]))
+    out = {"images": n, "detected": len(dist), "detection_rate": len(dist) / n}
+    if dist:
+        d, dp = np.array(dist), np.array(dpose)
+        out["landmark_distance_px"] = {g: float(d[:, sl].mean()) for g, sl in GROUPS.items()}
+        out["landmark_distance_px"]["all"] = float(d.mean())
+        out["pose_error_deg"] = {"yaw_mean": float(dp[:, 0].mean()), "pitch_mean": float(dp[:, 1].mean()),
+                                 "yaw_std": float(dp[:, 0].std()), "pitch_std": float(dp[:, 1].std())}
+    return out
+
+
 def overlay_figure(records: list, path: Path, resolution: int, cols: int = 8):
     """Per photo: the crop with dlib (green) and fitted (red) landmarks, the pseudo normals
     blended over the photo, the mask outline, and the L-hat shading of the pseudo normals."""
@@ -124,6 +171,9 @@ def main(argv=None):
         by_src[src] = records[i:i + len(ps)]
         i += len(ps)
     stats = statistics(by_src)
+    for src in photos:
+        stats[src]["fitted_pose_deg"] = fitted_pose([r for r in by_src[src] if r.used])
+    stats["synthfaces_dlib_check"] = synth_landmark_check(settings)
     stats["settings"] = {k: getattr(settings, k) for k in settings.__dataclass_fields__}
     (out / "pseudo_gt.json").write_text(json.dumps(stats, indent=2) + "\n")
     shown = [r for src in ("astronaut", "grace_hopper", "lfw_faces") for r in by_src[src] if r.used][:24]
@@ -133,6 +183,8 @@ def main(argv=None):
         print(f"{src:14s} {s['used']:3d}/{s['images']:3d} used ({100 * s['success_rate']:.0f}%)  "
               f"fit residual median {s['residual_px_median'] or float('nan'):.2f} px (crop), "
               f"{s['residual_photo_px_median'] or float('nan'):.2f} px (photo)  skipped: {s['skip_reasons']}")
+    print("fitted pose on LFW (deg):", json.dumps(stats["lfw_faces"]["fitted_pose_deg"]))
+    print("dlib on SynthFaces renders:", json.dumps(stats["synthfaces_dlib_check"]))
     print(f"wrote {out / 'pseudo_gt.json'} and {out / 'pseudo_gt.png'}")
     for run in args.run:
         from disent.data.photos_models import apply_run

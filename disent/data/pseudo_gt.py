@@ -12,7 +12,7 @@ One photo goes through five steps, each a function here:
    landmarks by regularized least squares (``scipy.optimize.least_squares``);
 5. :func:`render_pseudo`  the fitted mesh rasterized to ``normal_pseudo``, ``mask_pseudo``,
    ``uv_pseudo``, ``normal_uv_pseudo``; then ``sh_pseudo`` = L-hat with a constant albedo
-   (:func:`disent.render.fit_sh`), exactly as for SynthFaces.
+   (:func:`disent.render.fit_sh`), by SynthFaces' own code, so both data sets share it.
 
 :func:`prepare` runs the steps over many files with worker processes and a progress bar,
 and caches each result (or the reason it was skipped) under the file's content hash, so a
@@ -41,7 +41,7 @@ IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".webp", ".tif", ".tiff")
 CONTOUR = slice(0, 17)
 LEFT_EYE, RIGHT_EYE = slice(36, 42), slice(42, 48)  # image left / image right
 INNER = np.arange(17, 68)  # the landmarks that do not slide along the silhouette
-CACHE_VERSION = 1
+CACHE_VERSION = 3
 
 
 @dataclass(frozen=True)
@@ -59,8 +59,7 @@ class PseudoGTSettings:
     lambda_expression: float = 1.0
     landmark_sigma: float = 0.02  # landmark noise std, in units of the crop width
     max_nfev: int = 200
-    n_identity: int = 10  # identity components fitted (the model's first, largest ones)
-    face_width: float = 0.625  # jaw width of a frontal face as a fraction of the crop
+    n_identity: int = 4  # identity components fitted: SynthFaces' coarse fit (synth.PSEUDO_COMPONENTS)
 
     def key(self) -> str:
         """A short hash of the settings (and the predictor file's identity) for the cache."""
@@ -226,7 +225,8 @@ def align(rgb: np.ndarray, landmarks: np.ndarray, template: np.ndarray, resoluti
     ``resolution``-square image), fitting a similarity on the non-contour landmarks.
 
     Returns ``(crop uint8 [R,R,3], landmarks in the crop [68,2], M 3x3 photo->crop)``.
-    Downscaling is anti-aliased by a Gaussian prefilter; outside the photo the edge is repeated.
+    Downscaling is anti-aliased by a Gaussian prefilter; where the crop reaches past the photo
+    it is filled with the photo's mean colour.
     """
     from scipy import ndimage
     from skimage.transform import warp
@@ -237,7 +237,10 @@ def align(rgb: np.ndarray, landmarks: np.ndarray, template: np.ndarray, resoluti
     if scale < 1.0:  # photo pixels per crop pixel = 1/scale
         sigma = 0.5 * np.sqrt(max(1.0 / scale**2 - 1.0, 0.0))
         img = ndimage.gaussian_filter(img, (sigma, sigma, 0))
-    crop = warp(img, np.linalg.inv(M), output_shape=(resolution, resolution), order=1, mode="edge")
+    inv = np.linalg.inv(M)
+    crop = warp(img, inv, output_shape=(resolution, resolution), order=1, mode="edge")
+    inside = warp(np.ones(img.shape[:2]), inv, output_shape=(resolution, resolution), order=1, cval=0.0)[..., None]
+    crop = crop * inside + img.mean((0, 1)) * (1 - inside)
     lm = landmarks @ M[:2, :2].T + M[:2, 2]
     return np.clip(np.rint(crop * 255), 0, 255).astype(np.uint8), lm, M
 
@@ -257,7 +260,7 @@ class FaceModelFitter:
 
     n_pose = 6
 
-    def __init__(self, n_identity: int = 10, face_width: float = 0.625):
+    def __init__(self, n_identity: int = 4):
         from disent.data.face_model import EXPRESSIONS, face_model
 
         m = face_model()
@@ -266,7 +269,6 @@ class FaceModelFitter:
         self.lm_mean = m.mean.double().numpy()[idx]  # [68, 3]
         self.lm_basis = np.concatenate([m.identity[:n_identity].double().numpy()[:, idx],
                                         m.expression.double().numpy()[:, idx]])  # [K+2, 68, 3]
-        self.face_width = face_width
 
     def landmarks3d(self, p: np.ndarray) -> np.ndarray:
         return self.lm_mean + np.tensordot(p[self.n_pose:], self.lm_basis, 1)
@@ -294,35 +296,65 @@ class FaceModelFitter:
         lo[-self.n_expression:], hi[-self.n_expression:] = 0.0, 1.0  # smile, open strengths
         return lo, hi
 
-    def template(self, resolution: int) -> np.ndarray:
-        """Where a frontal mean face's landmarks fall in the crop: the alignment target.
-        The jaw width (landmarks 0-16) spans ``face_width`` of the crop, the landmark box is centred."""
-        lm = self.lm_mean[:, :2] * [1.0, -1.0]
-        lm = lm / np.ptp(lm[:, 0]) * self.face_width * resolution
-        return lm - (lm.min(0) + lm.max(0)) / 2 + (resolution - 1) / 2
+    @staticmethod
+    def to_raster(p: np.ndarray, resolution: int) -> dict:
+        """Pose (degrees), scale and shift of :func:`disent.data.raster.to_camera` for ``p``:
+        crop pixels -> normalised units x = (2 col + 1)/R - 1, y = 1 - (2 row + 1)/R."""
+        R = resolution
+        return {"pose": np.degrees(p[:3]), "scale": 2 * np.exp(p[3]) / R,
+                "shift": np.array([(2 * p[4] + 1) / R - 1, 1 - (2 * p[5] + 1) / R])}
 
-    def render(self, p: np.ndarray, resolution: int) -> dict:
-        """The fitted face's pseudo-GT maps ``[C, R, R]`` (numpy), rasterized by :mod:`disent.data.raster`.
+    @staticmethod
+    def raster_to_pixels(xy: np.ndarray, resolution: int) -> np.ndarray:
+        """Normalised image units ``[..., 2]`` (x right, y up) -> crop pixels (col, row)."""
+        xy = np.asarray(xy, dtype=np.float64)
+        return np.stack([((xy[..., 0] + 1) * resolution - 1) / 2, ((1 - xy[..., 1]) * resolution - 1) / 2], -1)
 
-        ``mask_pseudo`` is the face region a 3DMM covers (the model's ``face_region``; not hair,
-        ears or neck, whose shape a landmark fit does not know); normals and UV are kept inside it.
-        """
+    def synth_landmarks(self, scene: dict, resolution: int) -> np.ndarray:
+        """The exact 68 landmarks ``[B, 68, 2]`` (pixels) of SynthFaces scenes (``SynthFaces.params``)."""
         import torch
 
-        from disent.data.raster import interpolate, rasterize, render_face, to_camera
+        from disent.data.raster import to_camera
 
-        m, R, K = self.model, resolution, self.n_identity
-        t = torch.from_numpy(p).double()
-        verts = m.shape(t[None, 6:6 + K], t[None, 6 + K:]).double()
-        # crop pixels -> the rasterizer's normalised units: x = (2 col + 1)/R - 1, y = 1 - (2 row + 1)/R
-        scale = torch.tensor([2 * np.exp(p[3]) / R], dtype=torch.float64)
-        shift = torch.tensor([[(2 * p[4] + 1) / R - 1, 1 - (2 * p[5] + 1) / R]], dtype=torch.float64)
-        cam = to_camera(verts, torch.tensor(np.degrees(p[None, :3])), scale, shift)
-        g = render_face(cam, m.faces, m.uv.double(), R)
-        region = interpolate(m.face_region.double()[:, None], m.faces, rasterize(cam, m.faces, R))
-        mask = (region > 0.5).double() * g["mask"]
-        return {"normal_pseudo": (g["normal"] * mask)[0].numpy(), "mask_pseudo": mask[0].numpy(),
-                "uv_pseudo": (g["uv"] * mask)[0].numpy(), "normal_uv_pseudo": g["normal_uv"][0].numpy()}
+        m = self.model
+        verts = m.shape(scene["alpha"], scene["expression"], scene.get("senior"))[:, m.landmarks]
+        cam = to_camera(verts.double(), scene["pose"], scene["scale"], scene["shift"])
+        return self.raster_to_pixels(cam[..., :2].numpy(), resolution)
+
+    def from_raster(self, pose_deg, scale: float, shift, resolution: int) -> np.ndarray:
+        """The inverse of :meth:`to_raster`, with mean identity and neutral expression."""
+        R = resolution
+        p = np.zeros(self.n_pose + self.n_identity + self.n_expression)
+        p[:3], p[3] = np.radians(pose_deg), np.log(scale * R / 2)
+        p[4:6] = ((shift[0] + 1) * R - 1) / 2, ((1 - shift[1]) * R - 1) / 2
+        return p
+
+    def template(self, resolution: int) -> np.ndarray:
+        """The alignment target: a frontal mean face's landmarks framed as SynthFaces frames its
+        faces on average (scale mid-range of ``synth.SCALE_RANGE``, shift (0, -0.02), see
+        ``synth.scene_params``), so photos and synthetic images share the crop."""
+        from disent.data.synth import SCALE_RANGE
+
+        p = self.from_raster((0.0, 0.0, 0.0), float(np.mean(SCALE_RANGE)), (0.0, -0.02), resolution)
+        return self.project_landmarks(p, resolution)
+
+    def render(self, p: np.ndarray, resolution: int, image: np.ndarray) -> dict:
+        """The pseudo-GT maps ``[C, R, R]`` and ``sh_pseudo [3, 9]`` (numpy) of the fitted face over
+        ``image [3, R, R]``, made by SynthFaces' own :func:`disent.data.synth.render_pseudo`
+        (its coarse mesh, the face region as ``mask_pseudo``, L-hat with constant albedo)."""
+        import torch
+
+        from disent.data.synth import render_pseudo as synth_render_pseudo
+
+        K, cam = self.n_identity, self.to_raster(p, resolution)
+        t = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float32))[None]  # noqa: E731
+        scene = {"pseudo_alpha": t(p[6:6 + K]), "pseudo_expression": t(p[6 + K:]), "pseudo_pose": t(cam["pose"]),
+                 "pseudo_scale": t(cam["scale"]), "pseudo_shift": t(cam["shift"])}
+        try:
+            out = synth_render_pseudo(t(image), scene, resolution)
+        except ValueError as e:  # fit_sh: too few pixels or non-finite values
+            raise Skip("fit failed", f"rendering/lighting: {e}") from None
+        return {k: v[0].numpy() for k, v in out.items()}
 
     def initial_params(self, landmarks: np.ndarray, resolution: int) -> np.ndarray:
         """Frontal mean face placed on the landmarks by a similarity (scale, roll, shift)."""
@@ -336,7 +368,7 @@ class FaceModelFitter:
 
 @functools.lru_cache(maxsize=4)
 def face_model_fitter(settings: PseudoGTSettings) -> FaceModelFitter:
-    return FaceModelFitter(settings.n_identity, settings.face_width)
+    return FaceModelFitter(settings.n_identity)
 
 
 # ----------------------------------------------------------------------------- 4. model fit
@@ -374,10 +406,11 @@ def fit_landmarks(landmarks: np.ndarray, resolution: int, settings: PseudoGTSett
 
 
 # ----------------------------------------------------------------------------- 5. rendering
-def render_pseudo(fit: dict, resolution: int, model) -> dict:
-    """The fitted face rasterized to the pseudo-GT maps, channels first:
-    ``normal_pseudo [3,R,R]``, ``mask_pseudo [1,R,R]``, ``uv_pseudo [2,R,R]``, ``normal_uv_pseudo [3,R,R]``."""
-    maps = model.render(fit["params"], resolution)
+def render_pseudo(fit: dict, image: np.ndarray, model) -> dict:
+    """The fitted face rasterized to the pseudo-GT maps, channels first, exactly as SynthFaces
+    makes them: ``normal_pseudo [3,R,R]``, ``mask_pseudo [1,R,R]``, ``uv_pseudo [2,R,R]``,
+    ``normal_uv_pseudo [3,R,R]``, and ``sh_pseudo [3,9]`` = L-hat of ``image [3,R,R]``."""
+    maps = model.render(fit["params"], image.shape[-1], image)
     if float(maps["mask_pseudo"].sum()) < 16:
         raise Skip("fit failed", "the fitted face covers under 16 pixels of the crop")
     return maps
@@ -399,9 +432,8 @@ def pseudo_gt_from_landmarks(rgb: np.ndarray, landmarks: np.ndarray, settings: P
     R = settings.resolution
     crop, lm, M = align(rgb, landmarks, model.template(R), R)
     fit = fit_landmarks(lm, R, settings, model)
-    maps = render_pseudo(fit, R, model)
-    image = crop.astype(np.float32).transpose(2, 0, 1) / 255.0
-    sh = sh_pseudo(image, maps["normal_pseudo"], maps["mask_pseudo"])
+    maps = render_pseudo(fit, crop.astype(np.float32).transpose(2, 0, 1) / 255.0, model)
+    sh = maps.pop("sh_pseudo")
     scale = float(np.sqrt(abs(np.linalg.det(M[:2, :2]))))
     return {
         "image": crop,
@@ -414,20 +446,6 @@ def pseudo_gt_from_landmarks(rgb: np.ndarray, landmarks: np.ndarray, settings: P
         "residual_photo_px": np.float32(fit["residual_px"] / scale),  # the same in photo pixels
         "align": M.astype(np.float32),
     }
-
-
-def sh_pseudo(image: np.ndarray, normal: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """L-hat of the photo with a constant albedo (Sec. 4.2), ``[3, 9]``."""
-    import torch
-
-    from disent.render import fit_sh
-
-    t = lambda a: torch.from_numpy(np.ascontiguousarray(a, dtype=np.float64))[None]  # noqa: E731
-    try:
-        sh, _ = fit_sh(t(image), t(normal), t(mask))
-    except ValueError as e:
-        raise Skip("fit failed", f"lighting: {e}") from None
-    return sh[0].numpy()
 
 
 @dataclass
@@ -534,7 +552,7 @@ def format_summary(s: dict) -> str:
 
 
 def prepare(paths, settings: PseudoGTSettings | None = None, cache_dir=None, workers: int = 0,
-            progress: bool = True, detector=None) -> tuple[list[Record], dict]:
+            progress: bool = True, detector=None, log_summary: bool = True) -> tuple[list[Record], dict]:
     """Pseudo ground truth for every path, cached; returns the records (in input order) and a summary.
 
     The manifest ``<cache>/<settings key>/manifest.jsonl`` maps (path, size, mtime) to the content
@@ -592,8 +610,9 @@ def prepare(paths, settings: PseudoGTSettings | None = None, cache_dir=None, wor
     summary = summarize(out)
     for r in out:
         if not r.used:
-            log.info("skipped %s: %s%s", r.path, r.reason, f" ({r.detail})" if r.detail else "")
-    log.info("%s", format_summary(summary))
+            log.debug("skipped %s: %s%s", r.path, r.reason, f" ({r.detail})" if r.detail else "")
+    if log_summary:
+        log.info("%s\n  per file: %s", format_summary(summary), manifest)
     return out, summary
 
 

@@ -8,8 +8,9 @@ image, pixel centres at ``-1 + (2j + 1) / W``).  Larger z is nearer.
 How it works, all in batched tensor ops:
 
 1. keep front-facing triangles (counter-clockwise in x-right/y-up), over the whole batch;
-2. every (triangle, pixel centre inside its bounding box) pair becomes one row, made
-   with ``repeat_interleave``, and is tested with the triangle's edge functions;
+2. every (triangle, pixel centre inside its bounding box) pair is tested with the
+   triangle's edge functions, in "slots": slot s holds the s-th centre of every box
+   that has one, so the bulk (slot 0) needs no gathering;
 3. the z-buffer is a ``scatter_reduce(amax)`` over keys that pack quantised depth above
    the triangle id, so the nearest triangle wins in one pass;
 4. the winners' barycentric coordinates interpolate the per-vertex attributes.
@@ -23,7 +24,8 @@ import torch
 _ID_BITS = 20  # triangle ids below 2**20
 _DEPTH_LEVELS = 2**38  # depth quantisation over [-DEPTH_RANGE, DEPTH_RANGE]
 _DEPTH_RANGE = 16.0
-MAX_WINDOW = 16  # triangles wider than this many pixels are refused (refine the mesh)
+MAX_WINDOW = 64  # triangles wider than this many pixels are refused (refine the mesh)
+_SLOTS = 6  # pixel centres per box tested slot by slot; larger boxes are expanded row by row
 
 
 def pose_matrix(pose_deg: torch.Tensor) -> torch.Tensor:
@@ -57,14 +59,21 @@ def to_camera(vertices: torch.Tensor, pose_deg: torch.Tensor, scale: torch.Tenso
     return cam + torch.nn.functional.pad(shift.to(vertices.dtype), (0, 1))[:, None, :]
 
 
+def normalize(v: torch.Tensor, dim: int, eps: float = 1e-12) -> torch.Tensor:
+    """Unit vectors along ``dim`` (zero vectors stay zero); plain ops, faster than F.normalize on CPU."""
+    return v * torch.rsqrt((v * v).sum(dim, keepdim=True).clamp_min(eps * eps))
+
+
 def vertex_normals(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
     """Area-weighted unit vertex normals ``[B, V, 3]`` (outward for counter-clockwise faces)."""
-    v0, v1, v2 = (vertices[:, faces[:, k]] for k in range(3))
-    fn = torch.linalg.cross(v1 - v0, v2 - v0)  # [B, T, 3], length = 2 * area
-    n = torch.zeros_like(vertices)
+    B, V, _ = vertices.shape
+    vt = vertices.permute(1, 0, 2).reshape(V, B * 3)  # vertex-major: gathers copy contiguous rows
+    v0, v1, v2 = (vt.index_select(0, faces[:, k]).view(-1, B, 3) for k in range(3))
+    fn = torch.linalg.cross(v1 - v0, v2 - v0, dim=-1).reshape(-1, B * 3)  # [T, B*3], length = 2 * area
+    n = torch.zeros_like(vt)
     for k in range(3):
-        n.index_add_(1, faces[:, k], fn)
-    return torch.nn.functional.normalize(n, dim=-1, eps=1e-12)
+        n.index_add_(0, faces[:, k], fn)
+    return normalize(n.view(V, B, 3), -1).permute(1, 0, 2)
 
 
 def rasterize(vertices_cam: torch.Tensor, faces: torch.Tensor, resolution: int) -> dict:
@@ -78,56 +87,85 @@ def rasterize(vertices_cam: torch.Tensor, faces: torch.Tensor, resolution: int) 
         raise ValueError(f"vertices_cam must be [B,V,3], got {tuple(vertices_cam.shape)}")
     if faces.dim() != 2 or faces.shape[1] != 3 or faces.shape[0] >= 2**_ID_BITS:
         raise ValueError(f"faces must be [T,3] with T < {2**_ID_BITS}, got {tuple(faces.shape)}")
-    B, H = vertices_cam.shape[0], resolution
-    W = H
+    B, V, _ = vertices_cam.shape
+    H = W = resolution
+    T = faces.shape[0]
     dev, dt = vertices_cam.device, vertices_cam.dtype
-    # Pixel coordinates with y up: pixel (col j, row H-1-i) has its centre at integer (j, i).
-    xy = (vertices_cam[..., :2] + 1) * (0.5 * W) - 0.5
-    tri = xy[:, faces]  # [B, T, 3, 2]
-    e1, e2 = tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0]
-    area2 = e1[..., 0] * e2[..., 1] - e1[..., 1] * e2[..., 0]  # twice the signed area
-    lo = tri.amin(2).ceil().clamp_min(0)
-    hi = torch.minimum(tri.amax(2).floor(), torch.tensor([W - 1.0, H - 1.0], dtype=dt, device=dev))
-    n = (hi - lo + 1).clamp_min(0)
-    count = torch.where(area2 > 1e-9, n[..., 0] * n[..., 1], 0).long()  # pixel centres in the bounding box
-    b_idx, t_idx = count.nonzero(as_tuple=True)
+    # Vertex-major planes [V, B]; pixel coordinates with y up: pixel (col j, row H-1-i) has its centre at (j, i).
+    vt = vertices_cam.permute(2, 1, 0)  # [3, V, B]
+    x = ((vt[0] + 1) * (0.5 * W) - 0.5).contiguous()
+    y = ((vt[1] + 1) * (0.5 * H) - 0.5).contiguous()
+    z = vt[2].contiguous()
+    X = [x.index_select(0, faces[:, k]) for k in range(3)]  # [T, B] each
+    Y = [y.index_select(0, faces[:, k]) for k in range(3)]
+    area2 = (X[1] - X[0]) * (Y[2] - Y[0]) - (Y[1] - Y[0]) * (X[2] - X[0])  # twice the signed area
+    x_lo = torch.minimum(torch.minimum(X[0], X[1]), X[2]).ceil_().clamp_min_(0)
+    y_lo = torch.minimum(torch.minimum(Y[0], Y[1]), Y[2]).ceil_().clamp_min_(0)
+    nx = (torch.maximum(torch.maximum(X[0], X[1]), X[2]).floor_().clamp_max_(W - 1) - x_lo + 1).clamp_min_(0)
+    ny = (torch.maximum(torch.maximum(Y[0], Y[1]), Y[2]).floor_().clamp_max_(H - 1) - y_lo + 1).clamp_min_(0)
+    count = (nx * ny).masked_fill_(area2 <= 1e-9, 0).long().view(-1)  # pixel centres in each box
+    k = count.nonzero().squeeze(1)  # flat (triangle, image) ids, t * B + b
     face_id = torch.full((B * H * W,), -1, dtype=torch.long, device=dev)
-    if b_idx.numel() == 0:
-        e = torch.zeros(0, dtype=torch.long, device=dev)
-        return {"face_id": face_id.reshape(B, H, W), "batch": e, "pixel": e, "face": e, "bary": torch.zeros(0, 3, dtype=dt, device=dev)}
-    if int(n.amax()) > MAX_WINDOW:
-        raise ValueError(f"a triangle spans {int(n.amax())} pixels; the rasterizer expects a mesh finer than {MAX_WINDOW} px")
-    # Edge functions w_k(x, y) = A_k x + B_k y + C_k (normalised barycentrics), one triangle per row.
-    p = tri[b_idx, t_idx]  # [N, 3, 2]
-    a2 = area2[b_idx, t_idx][:, None]
-    x0, y0 = p[..., 0], p[..., 1]
-    x1, y1, x2, y2 = x0.roll(-1, 1), y0.roll(-1, 1), x0.roll(-2, 1), y0.roll(-2, 1)
-    coef = torch.stack([(y1 - y2) / a2, (x2 - x1) / a2, (x1 * y2 - x2 * y1) / a2], -1)  # [N, 3, 3]
-    # One row per (triangle, pixel centre in its box): exactly the candidates, no padding.
-    cnt = count[b_idx, t_idx]
-    rep = torch.repeat_interleave(torch.arange(cnt.numel(), device=dev), cnt)
-    start = torch.cumsum(cnt, 0) - cnt
-    local = torch.arange(rep.numel(), device=dev) - start[rep]
-    nx = n[b_idx, t_idx, 0].long()[rep]
-    lo_k = lo[b_idx, t_idx].long()[rep]
-    px, py = lo_k[:, 0] + local % nx, lo_k[:, 1] + local // nx
-    c = coef[rep]  # [P, 3, 3]
-    w = c[..., 0] * px[:, None].to(dt) + c[..., 1] * py[:, None].to(dt) + c[..., 2]  # [P, 3]
-    inside = w.amin(1) >= -1e-6
-    w, rep, px, py = w[inside], rep[inside], px[inside], py[inside]
-    tri_b, tri_t = b_idx[rep], t_idx[rep]
-    depth = (w * vertices_cam[..., 2][:, faces][tri_b, tri_t]).sum(1)
-    pix = tri_b * (H * W) + (H - 1 - py) * W + px
+    empty = torch.zeros(0, dtype=torch.long, device=dev)
+    if k.numel() == 0:
+        return {"face_id": face_id.view(B, H, W), "batch": empty, "pixel": empty, "face": empty,
+                "bary": torch.zeros(0, 3, dtype=dt, device=dev)}
+    big = int(torch.maximum(nx.max(), ny.max()))
+    if big > MAX_WINDOW:
+        raise ValueError(f"a triangle spans {big} pixels; the rasterizer expects a mesh finer than {MAX_WINDOW} px")
+    # Edge functions w_j = A_j x + B_j y + C_j (barycentrics) and depth z = A_z x + B_z y + C_z,
+    # one row per kept triangle; x, y at the triangle's box origin.
+    x0, x1, x2, y0, y1, y2 = (v.view(-1).index_select(0, k) for v in (*X, *Y))
+    inv = 1.0 / area2.view(-1).index_select(0, k)
+    zt = [z.index_select(0, faces[:, j]).view(-1).index_select(0, k) for j in range(3)]
+    A = [(y1 - y2) * inv, (y2 - y0) * inv, (y0 - y1) * inv]
+    Bc = [(x2 - x1) * inv, (x0 - x2) * inv, (x1 - x0) * inv]
+    xl, yl, nxk = x_lo.view(-1).index_select(0, k), y_lo.view(-1).index_select(0, k), nx.view(-1).index_select(0, k)
+    C = [(x1 * y2 - x2 * y1) * inv, (x2 * y0 - x0 * y2) * inv, (x0 * y1 - x1 * y0) * inv]
+    lin = [(A[0], Bc[0], C[0]), (A[1], Bc[1], C[1]), (A[2], Bc[2], C[2])]
+    lin.append(tuple(a * zt[0] + b * zt[1] + c * zt[2] for a, b, c in zip(*lin)))
+    # Slot s tests the s-th pixel centre of each box that has one: slot 0 covers every kept
+    # triangle without any gathering; later slots only the few larger triangles.
+    cnt = count.index_select(0, k)
+    cand = []
+
+    def test(sel, slot):  # the `slot`-th centre of the boxes `sel`
+        take = (lambda v: v) if sel is None else (lambda v: v.index_select(0, sel))
+        n_ = take(nxk)
+        px = take(xl) + torch.remainder(slot, n_)
+        py = take(yl) + torch.div(slot, n_, rounding_mode="floor")
+        w = [take(a) * px + take(b) * py + take(c) for a, b, c in lin]  # w0 w1 w2 z
+        ok = ((w[0] >= -1e-6) & (w[1] >= -1e-6) & (w[2] >= -1e-6)).nonzero().squeeze(1)
+        ids = ok if sel is None else sel.index_select(0, ok)
+        cand.append((ids, px.index_select(0, ok), py.index_select(0, ok), *(v.index_select(0, ok) for v in w)))
+
+    test(None, torch.zeros_like(nxk))
+    sel = torch.arange(cnt.numel(), device=dev)
+    for slot in range(1, min(int(cnt.max()), _SLOTS)):
+        sel = sel.index_select(0, (cnt.index_select(0, sel) > slot).nonzero().squeeze(1))
+        test(sel, torch.full((sel.numel(),), float(slot), dtype=dt, device=dev))
+    big = (cnt > _SLOTS).nonzero().squeeze(1)
+    if big.numel():  # the rare large boxes: all their remaining centres at once
+        extra = cnt.index_select(0, big) - _SLOTS
+        row = torch.repeat_interleave(extra)
+        first = torch.cumsum(extra, 0) - extra
+        slot = (torch.arange(row.numel(), device=dev) - first.index_select(0, row) + _SLOTS).to(dt)
+        test(big.index_select(0, row), slot)
+    rep, px, py, w0, w1, w2, depth = (torch.cat(c) for c in zip(*cand))
+    kk = k.index_select(0, rep)
+    tri_t, tri_b = kk // B, kk % B
+    pix = tri_b * (H * W) + (H - 1 - py.long()) * W + px.long()
     # z-buffer: nearest (largest z) wins; the key packs quantised depth above the triangle id.
     zq = ((depth.double().clamp(-_DEPTH_RANGE, _DEPTH_RANGE) + _DEPTH_RANGE) * (_DEPTH_LEVELS / (2 * _DEPTH_RANGE))).long()
+    key = (zq << _ID_BITS) | tri_t
     zbuf = torch.full((B * H * W,), -1, dtype=torch.long, device=dev)
-    zbuf.scatter_reduce_(0, pix, (zq << _ID_BITS) | tri_t, reduce="amax")
-    win = zbuf[pix] == ((zq << _ID_BITS) | tri_t)
-    win_pix, win_t = pix[win], tri_t[win]
+    zbuf.scatter_reduce_(0, pix, key, reduce="amax")
+    win = (zbuf.index_select(0, pix) == key).nonzero().squeeze(1)
+    win_pix, win_t = pix.index_select(0, win), tri_t.index_select(0, win)
     face_id[win_pix] = win_t
-    bary = w[win].clamp_min(0)
+    bary = torch.stack([w0.index_select(0, win), w1.index_select(0, win), w2.index_select(0, win)], 1).clamp_min(0)
     bary = bary / bary.sum(1, keepdim=True)
-    return {"face_id": face_id.reshape(B, H, W), "batch": win_pix // (H * W), "pixel": win_pix % (H * W),
+    return {"face_id": face_id.view(B, H, W), "batch": win_pix // (H * W), "pixel": win_pix % (H * W),
             "face": win_t, "bary": bary}
 
 
@@ -135,11 +173,30 @@ def interpolate(attr: torch.Tensor, faces: torch.Tensor, raster: dict) -> torch.
     """Per-vertex ``attr [B, V, C]`` (or shared ``[V, C]``) -> per-pixel ``[B, C, H, W]`` (0 on background)."""
     B, H, W = raster["face_id"].shape
     bi, pi = raster["batch"], raster["pixel"]
-    corner = faces[raster["face"]]  # [M, 3]
-    vals = attr[corner] if attr.dim() == 2 else attr[bi[:, None], corner]  # [M, 3, C]
-    out = torch.zeros(B, H * W, attr.shape[-1], dtype=attr.dtype, device=attr.device)
-    out[bi, pi] = torch.einsum("mkc,mk->mc", vals, raster["bary"].to(attr.dtype))
-    return out.reshape(B, H, W, -1).permute(0, 3, 1, 2)
+    corner = faces.index_select(0, raster["face"])  # [M, 3]
+    C = attr.shape[-1]
+    if attr.dim() == 2:
+        flat, rows = attr, corner
+    else:
+        flat, rows = attr.reshape(-1, C), corner + (bi * attr.shape[1])[:, None]
+    bary = raster["bary"].to(attr.dtype)
+    mixed = sum(flat.index_select(0, rows[:, j]) * bary[:, j:j + 1] for j in range(3))  # [M, C]
+    out = torch.zeros(B * H * W, C, dtype=attr.dtype, device=attr.device)
+    out.index_copy_(0, bi * (H * W) + pi, mixed)
+    return out.view(B, H, W, C).permute(0, 3, 1, 2)
+
+
+def grid_vertex_normals(vertices: torch.Tensor, grid_shape: tuple[int, int]) -> torch.Tensor:
+    """Unit vertex normals ``[B, V, 3]`` of a mesh that is a regular ``rows x cols`` grid
+    (row-major, rows running down, columns to the right), from central differences on
+    the grid: the fast path for the face model; same orientation as :func:`vertex_normals`."""
+    B, V, _ = vertices.shape
+    gv, gu = grid_shape
+    P = vertices.view(B, gv, gu, 3)
+    du = torch.cat([P[:, :, 1:2] - P[:, :, :1], P[:, :, 2:] - P[:, :, :-2], P[:, :, -1:] - P[:, :, -2:-1]], 2)
+    dv = torch.cat([P[:, 1:2] - P[:, :1], P[:, 2:] - P[:, :-2], P[:, -1:] - P[:, -2:-1]], 1)
+    n = torch.linalg.cross(dv, du, dim=-1)
+    return normalize(n, -1).view(B, V, 3)
 
 
 def render_face(vertices_cam: torch.Tensor, faces: torch.Tensor, uv: torch.Tensor, resolution: int,
@@ -164,7 +221,7 @@ def render_face(vertices_cam: torch.Tensor, faces: torch.Tensor, uv: torch.Tenso
     mask = (r["face_id"] >= 0)[:, None].to(vertices_cam.dtype)
     attrs = torch.cat([vertex_normal, vertices_cam[..., 2:], uv.to(vertices_cam.dtype).expand(vertices_cam.shape[0], -1, -1)], -1)
     pix = interpolate(attrs, faces, r)
-    normal = torch.nn.functional.normalize(pix[:, :3], dim=1, eps=1e-12) * mask
+    normal = normalize(pix[:, :3], 1) * mask
     return {"mask": mask, "normal": normal, "depth": pix[:, 3:4], "uv": pix[:, 4:6],
             "normal_uv": grid_to_uv_map(vertex_normal, resolution), "face_id": r["face_id"]}
 
@@ -184,8 +241,8 @@ def grid_to_uv_map(vertex_attr: torch.Tensor, resolution: int, grid_shape: tuple
     grid = vertex_attr.reshape(B, gv, gu, C).permute(0, 3, 1, 2)
     out = torch.nn.functional.interpolate(grid, size=(resolution, resolution), mode="bilinear", align_corners=True)
     if C == 3:
-        out = torch.nn.functional.normalize(out, dim=1, eps=1e-12)
+        out = normalize(out, 1)
     return out
 
 
-__all__ = ["pose_matrix", "to_camera", "vertex_normals", "rasterize", "interpolate", "render_face", "grid_to_uv_map", "MAX_WINDOW"]
+__all__ = ["pose_matrix", "to_camera", "normalize", "vertex_normals", "grid_vertex_normals", "rasterize", "interpolate", "render_face", "grid_to_uv_map", "MAX_WINDOW"]

@@ -5,14 +5,13 @@
 * ``attr_logits [B,4]``: smiling, beard, eyeglasses, senior (edit **success**);
 * ``sh [B,3,9]`` and ``pose [B,3]`` (yaw, pitch, roll in degrees): lighting and pose
   estimates in the data's units (edit **leakage**);
-* ``embedding [B,E]``: unit-norm identity embedding, trained by a cosine classifier over the
-  training identities (identity leakage); absent when trained without identities.
+* ``identity [B,D]``: the generator's identity parameters (face shape coefficients and skin
+  colour), each standardised over the training set (identity leakage); absent when trained
+  without them.
 
 It is independent of the face models being measured: it never sees their codes.
 """
 from __future__ import annotations
-
-import math
 
 import torch
 import torch.nn.functional as F
@@ -22,9 +21,9 @@ from disent.edit.traversal import ATTRIBUTES
 
 
 class MeasureNet(nn.Module):
-    def __init__(self, resolution: int = 64, width: int = 16, n_identities: int = 0, embed_dim: int = 32):
+    def __init__(self, resolution: int = 64, width: int = 16, identity_dim: int = 0):
         super().__init__()
-        self.resolution, self.n_identities = resolution, n_identities
+        self.resolution, self.identity_dim = resolution, identity_dim
         chans = [3, width, 2 * width, 4 * width, 4 * width]
         layers = []
         for cin, cout in zip(chans[:-1], chans[1:]):  # four stride-2 blocks: 64 -> 4
@@ -32,21 +31,20 @@ class MeasureNet(nn.Module):
         self.features = nn.Sequential(*layers, nn.AdaptiveAvgPool2d(2), nn.Flatten())
         F_dim = 4 * chans[-1]
         self.attrs = nn.Linear(F_dim, len(ATTRIBUTES))
-        self.light_pose = nn.Linear(F_dim, 27 + 3)
-        self.embed = nn.Linear(F_dim, embed_dim) if n_identities else None
-        self.id_classes = nn.Parameter(torch.randn(n_identities, embed_dim) * 0.1) if n_identities else None
-        # targets are standardised for training; outputs come back in the data's units
-        self.register_buffer("target_mean", torch.zeros(30))
-        self.register_buffer("target_std", torch.ones(30))
+        self.regress = nn.Linear(F_dim, 27 + 3 + identity_dim)  # light, pose, identity
+        # targets are standardised for training; light and pose come back in the data's units
+        self.register_buffer("target_mean", torch.zeros(30 + identity_dim))
+        self.register_buffer("target_std", torch.ones(30 + identity_dim))
 
     def forward(self, image: torch.Tensor) -> dict:
         if image.dim() != 4 or image.shape[1] != 3:
             raise ValueError(f"image must be [B,3,H,W], got {tuple(image.shape)}")
         h = self.features(image)
-        lp = self.light_pose(h) * self.target_std + self.target_mean
-        out = {"attr_logits": self.attrs(h), "sh": lp[:, :27].reshape(-1, 3, 9), "pose": lp[:, 27:]}
-        if self.embed is not None:
-            out["embedding"] = F.normalize(self.embed(h), dim=1)
+        z = self.regress(h)
+        lp = z[:, :30] * self.target_std[:30] + self.target_mean[:30]
+        out = {"attr_logits": self.attrs(h), "sh": lp[:, :27].reshape(-1, 3, 9), "pose": lp[:, 27:30]}
+        if self.identity_dim:
+            out["identity"] = z[:, 30:]  # in standard deviations of the training set
         return out
 
 
@@ -54,21 +52,18 @@ def fit_measure_net(images: torch.Tensor, attrs: torch.Tensor, sh: torch.Tensor,
                     identity: torch.Tensor | None = None, steps: int = 1500, batch_size: int = 64,
                     lr: float = 2e-3, width: int = 16, seed: int = 0, log_every: int = 0) -> MeasureNet:
     """Train a :class:`MeasureNet` on ``images [N,3,H,W]`` with their true ``attrs [N,4]`` (0/1),
-    ``sh [N,3,9]``, ``pose [N,3]`` and (optionally) ``identity [N]`` integer labels.
+    ``sh [N,3,9]``, ``pose [N,3]`` and (optionally) ``identity [N,D]`` identity parameters.
 
-    Loss: BCE on the attributes + MSE on the standardised light and pose + cosine-softmax
-    cross-entropy on the identities (scale 16).  Adam, cosine learning-rate decay, flips off
-    (a flip would change the pose and light).
+    Loss: BCE on the attributes + MSE on the standardised light, pose and identity.  Adam,
+    cosine learning-rate decay, no flips (a flip would change the pose and light).
     """
     N = len(images)
-    if not (len(attrs) == len(sh) == len(pose) == N):
-        raise ValueError("images, attrs, sh and pose must have the same length")
+    if not (len(attrs) == len(sh) == len(pose) == N) or (identity is not None and len(identity) != N):
+        raise ValueError("images, attrs, sh, pose (and identity) must have the same length")
     torch.manual_seed(seed)
-    ids = None
-    if identity is not None:
-        _, ids = torch.unique(identity, return_inverse=True)
-    net = MeasureNet(images.shape[-1], width, int(ids.max()) + 1 if ids is not None else 0)
-    target = torch.cat([sh.reshape(N, 27), pose], 1).float()
+    parts = [sh.reshape(N, 27), pose] + ([identity.reshape(N, -1)] if identity is not None else [])
+    target = torch.cat(parts, 1).float()
+    net = MeasureNet(images.shape[-1], width, target.shape[1] - 30)
     net.target_mean.copy_(target.mean(0))
     net.target_std.copy_(target.std(0).clamp_min(1e-6))
     z_target = (target - net.target_mean) / net.target_std
@@ -80,10 +75,7 @@ def fit_measure_net(images: torch.Tensor, attrs: torch.Tensor, sh: torch.Tensor,
         idx = torch.randint(0, N, (batch_size,), generator=g)
         h = net.features(images[idx])
         loss = F.binary_cross_entropy_with_logits(net.attrs(h), attrs[idx].float())
-        loss = loss + F.mse_loss(net.light_pose(h), z_target[idx])
-        if ids is not None:
-            e = F.normalize(net.embed(h), dim=1)
-            loss = loss + F.cross_entropy(16 * e @ F.normalize(net.id_classes, dim=1).T, ids[idx])
+        loss = loss + F.mse_loss(net.regress(h), z_target[idx])
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -96,7 +88,7 @@ def fit_measure_net(images: torch.Tensor, attrs: torch.Tensor, sh: torch.Tensor,
 @torch.no_grad()
 def measure_accuracy(net: MeasureNet, images, attrs, sh, pose, identity=None, batch_size: int = 128) -> dict:
     """Held-out quality of the measuring net: attribute accuracy, light RMSE, pose MAE (deg),
-    and, with identities, the same-vs-different identity embedding distance gap."""
+    and the identity RMSE in training standard deviations (1 = no better than the mean)."""
     outs = [net(images[i:i + batch_size]) for i in range(0, len(images), batch_size)]
     out = {k: torch.cat([o[k] for o in outs]) for k in outs[0]}
     acc = ((out["attr_logits"] > 0).float() == attrs.float()).float().mean(0)
@@ -105,23 +97,19 @@ def measure_accuracy(net: MeasureNet, images, attrs, sh, pose, identity=None, ba
     res["sh_std"] = sh.std(0).pow(2).mean().sqrt().item()
     res["pose_mae_deg"] = (out["pose"] - pose).abs().mean().item()
     res["pose_std_deg"] = pose.std(0).mean().item()
-    if identity is not None and "embedding" in out:
-        d = torch.cdist(out["embedding"], out["embedding"])
-        same = identity[:, None] == identity[None]
-        off = ~torch.eye(len(identity), dtype=torch.bool)
-        res["id_dist_same"] = d[same & off].mean().item() if (same & off).any() else math.nan
-        res["id_dist_diff"] = d[~same].mean().item()
+    if identity is not None and "identity" in out:
+        z = (identity.reshape(len(identity), -1) - net.target_mean[30:]) / net.target_std[30:]
+        res["identity_rmse_std"] = (out["identity"] - z).pow(2).mean().sqrt().item()
     return res
 
 
 def save_measure_net(net: MeasureNet, path, info: dict | None = None) -> None:
     torch.save({"state": net.state_dict(), "resolution": net.resolution, "width": net.features[0].out_channels,
-                "n_identities": net.n_identities, "embed_dim": net.embed.out_features if net.embed else 32,
-                "info": info or {}}, path)
+                "identity_dim": net.identity_dim, "info": info or {}}, path)
 
 
 def load_measure_net(path) -> MeasureNet:
     ck = torch.load(path, map_location="cpu", weights_only=False)
-    net = MeasureNet(ck["resolution"], ck["width"], ck["n_identities"], ck["embed_dim"])
+    net = MeasureNet(ck["resolution"], ck["width"], ck["identity_dim"])
     net.load_state_dict(ck["state"])
     return net.eval()

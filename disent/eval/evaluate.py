@@ -8,7 +8,7 @@ from __future__ import annotations
 import time
 
 import torch
-from torch.utils.data import DataLoader, Subset
+from torch.utils.data import DataLoader, Subset, default_collate
 
 from disent.eval.metrics import normal_angular_error, reconstruction_metrics, scale_invariant_mse, sh_error
 
@@ -25,6 +25,18 @@ def batches(dataset, batch_size: int = 64, limit: int | None = None, indices=Non
     if indices is None:
         indices = range(len(dataset) if limit is None else min(limit, len(dataset)))
     return DataLoader(Subset(dataset, list(indices)), batch_size=batch_size, shuffle=False, num_workers=0)
+
+
+def render(dataset, indices, **overrides) -> dict:
+    """Collated items ``indices`` with generator overrides (``pose=``, ``sh=`` per item or shared...):
+    one vectorized ``dataset.get_batch`` when the dataset has it, else ``dataset.sample`` per item."""
+    indices = [int(i) for i in indices]
+    if hasattr(dataset, "get_batch"):
+        return dataset.get_batch(indices, **overrides)
+    sh = overrides.pop("sh", None)
+    per_item = sh is not None and sh.dim() == 3  # one light per item
+    return default_collate([dataset.sample(i, **overrides, **({"sh": sh[j] if per_item else sh} if sh is not None else {}))
+                            for j, i in enumerate(indices)])
 
 
 @torch.no_grad()
@@ -91,4 +103,4 @@ def evaluate_model(model, dataset, limit: int = 256, batch_size: int = 64) -> di
     return {**metrics_from_outputs(out, gt), "infer_images_per_s": ips, "n_eval": len(gt["image"])}
 
 
-__all__ = ["FACE_THRESHOLD", "face_mask", "batches", "predict", "model_outputs", "metrics_from_outputs", "evaluate_model"]
+__all__ = ["FACE_THRESHOLD", "face_mask", "batches", "render", "predict", "model_outputs", "metrics_from_outputs", "evaluate_model"]

@@ -9,7 +9,7 @@ Scale conventions (intrinsic images are defined only up to scale, Grosse et al. 
   scalar per image **and per channel** before the MSE;
 * lighting: :func:`sh_error` rescales the predicted SH by the least-squares optimal scalar
   per image (one scalar for all 3 x 9 coefficients; ``per_channel=True`` uses one per channel,
-  matching the albedo convention).
+  matching the albedo convention), then divides the squared error by the truth's squared norm.
 """
 from __future__ import annotations
 
@@ -128,16 +128,19 @@ def scale_invariant_mse(pred: torch.Tensor, target: torch.Tensor, mask: torch.Te
 
 
 def sh_error(pred_sh: torch.Tensor, true_sh: torch.Tensor, per_channel: bool = False, reduction: str = "mean"):
-    """MSE of SH coefficients ``[B,C,9]`` after the least-squares scale alignment of ``pred_sh``.
+    """Relative squared error of SH coefficients ``[B,C,9]`` after the least-squares scale alignment.
 
-    One scale per image (default) or per image and channel (``per_channel=True``).
-    ``reduction="none"`` returns ``[B]``, ``"mean"`` a float.
+    Per image: ``||s pred - true||^2 / ||true||^2`` with ``s`` the optimal scale, one per image
+    (default) or per image and channel (``per_channel=True``).  0 is perfect; 1 is what a
+    prediction orthogonal to the truth (or zero) scores, so the number is free of the light's
+    overall brightness.  ``reduction="none"`` returns ``[B]``, ``"mean"`` a float.
     """
     if pred_sh.shape != true_sh.shape or pred_sh.dim() != 3 or pred_sh.shape[-1] != 9:
         raise ValueError(f"SH must both be [B,C,9], got {tuple(pred_sh.shape)} and {tuple(true_sh.shape)}")
     p, t = pred_sh.detach().double(), true_sh.detach().double()
     s = optimal_scale(p, t, torch.ones_like(p), (2,) if per_channel else (1, 2))
-    return _reduce(((s * p - t) ** 2).mean((1, 2)), reduction)
+    err = ((s * p - t) ** 2).sum((1, 2)) / t.pow(2).sum((1, 2)).clamp_min(1e-300)
+    return _reduce(err, reduction)
 
 
 def _reduce(per_image: torch.Tensor, reduction: str):

@@ -6,8 +6,8 @@
    and against the training batch size over which BWS averages.
 2. ``conditioning``: the least-squares L-hat against yaw (frontal to profile) and against the
    face-mask size: condition number of the normal design ``A^T A`` and SH error.  The yaw
-   or mask fraction where the median condition number first exceeds ``BLOWUP`` x its
-   frontal / full-mask value is reported as the blow-up point.
+   or mask fraction where the median condition number (and, separately, the median SH error)
+   first exceeds ``BLOWUP`` x its frontal / full-mask value is reported as the blow-up point.
 3. ``ood``: error against severity for each SynthFaces effect (``specular, cast_shadow,
    noise, occluder``) and for lights outside the prior (``light``: the light turned about
    the camera's x axis by ``severity x 180`` degrees, from above towards below and behind),
@@ -25,9 +25,8 @@ import math
 from pathlib import Path
 
 import torch
-from torch.utils.data import default_collate
 
-from disent.eval.evaluate import batches, face_mask, metrics_from_outputs, predict
+from disent.eval.evaluate import batches, face_mask, metrics_from_outputs, predict, render
 from disent.eval.metrics import sh_error
 from disent.render import design_condition, fit_sh, rotate_sh
 
@@ -37,6 +36,8 @@ MASK_FRACTIONS = (1.0, 0.7, 0.5, 0.3, 0.2, 0.1, 0.05, 0.02)
 SEVERITIES = (0.0, 0.25, 0.5, 0.75, 1.0)
 EFFECTS = ("specular", "cast_shadow", "noise", "occluder", "light")
 MIN_PIXELS = 9  # 9 unknowns per channel
+ORACLE_NOISE = 0.02  # sensor noise of the oracle fit (images in [0, 1])
+LS_ESTIMATORS = ("ls_pseudo", "ls_true", "ls_oracle_noisy")
 
 
 def _median(x: torch.Tensor) -> float:
@@ -44,12 +45,23 @@ def _median(x: torch.Tensor) -> float:
 
 
 def _ls_errors(batch: dict, pseudo_mask=None, true_mask=None) -> dict:
-    """Design condition and aligned SH error of L-hat with pseudo and with true normals."""
+    """Design condition and aligned SH error of L-hat for three set-ups:
+
+    ``ls_pseudo`` (pseudo normals and mask, constant albedo: the paper's L-hat), ``ls_true``
+    (true normals, face mask, constant albedo) and ``ls_oracle_noisy`` (true normals and true
+    albedo, the image plus Gaussian noise of ``ORACLE_NOISE``): the last isolates how the
+    design's conditioning amplifies noise, since the noise-free oracle fit is exact.
+    """
     pm = batch["mask_pseudo"] if pseudo_mask is None else pseudo_mask
     tm = face_mask(batch["matte"]) if true_mask is None else true_mask
+    g = torch.Generator().manual_seed(0)
+    noisy = batch["image"] + ORACLE_NOISE * torch.randn(batch["image"].shape, generator=g)
     out = {}
-    for name, normal, mask in (("ls_pseudo", batch["normal_pseudo"], pm), ("ls_true", batch["normal"], tm)):
-        sh, _ = fit_sh(batch["image"], normal, mask, min_pixels=MIN_PIXELS)
+    for name, image, normal, mask, albedo in (
+            ("ls_pseudo", batch["image"], batch["normal_pseudo"], pm, None),
+            ("ls_true", batch["image"], batch["normal"], tm, None),
+            ("ls_oracle_noisy", noisy, batch["normal"], tm, batch["albedo"])):
+        sh, _ = fit_sh(image, normal, mask, albedo=albedo, min_pixels=MIN_PIXELS)
         out[f"{name}_cond"] = design_condition(normal.double(), mask.double())
         out[f"{name}_sh_error"] = sh_error(sh, batch["sh"], reduction="none")
     return out
@@ -73,7 +85,7 @@ def conditioning_vs_yaw(dataset, yaws=YAWS, n: int = 16) -> dict:
     rows = []
     for yaw in yaws:
         try:
-            batch = default_collate([dataset.sample(i, pose=torch.tensor([float(yaw), 0.0, 0.0])) for i in range(n)])
+            batch = render(dataset, range(n), pose=torch.tensor([float(yaw), 0.0, 0.0]))
         except (ValueError, NotImplementedError) as e:  # a generator that refuses a pose beyond its range
             rows.append({"yaw": yaw, "error": str(e)})
             continue
@@ -81,10 +93,10 @@ def conditioning_vs_yaw(dataset, yaws=YAWS, n: int = 16) -> dict:
                      **_summarize(_ls_errors(batch))})
     ok = [r for r in rows if "error" not in r]
     res = {"rows": rows, "n": n, "blowup_factor": BLOWUP}
-    for est in ("ls_pseudo", "ls_true"):
-        if ok:
-            res[f"{est}_blowup_yaw"] = _blowup([r["yaw"] for r in ok], [r[f"{est}_cond"]["median"] for r in ok],
-                                               ok[0][f"{est}_cond"]["median"])
+    for est in LS_ESTIMATORS:
+        for q in ("cond", "sh_error") if ok else ():
+            res[f"{est}_blowup_yaw" + ("" if q == "cond" else "_error")] = _blowup(
+                [r["yaw"] for r in ok], [r[f"{est}_{q}"]["median"] for r in ok], ok[0][f"{est}_{q}"]["median"])
     return res
 
 
@@ -117,10 +129,10 @@ def conditioning_vs_mask(dataset, fractions=MASK_FRACTIONS, n: int = 32) -> dict
         rows.append({"fraction": f, "face_pixels": _median(tm.flatten(1).sum(1)), **stats})
     ok = [r for r in rows if "error" not in r]
     res = {"rows": rows, "n": n, "blowup_factor": BLOWUP}
-    for est in ("ls_pseudo", "ls_true"):
-        if ok:
-            res[f"{est}_blowup_fraction"] = _blowup([r["fraction"] for r in ok], [r[f"{est}_cond"]["median"] for r in ok],
-                                                    ok[0][f"{est}_cond"]["median"])
+    for est in LS_ESTIMATORS:
+        for q in ("cond", "sh_error") if ok else ():
+            res[f"{est}_blowup_fraction" + ("" if q == "cond" else "_error")] = _blowup(
+                [r["fraction"] for r in ok], [r[f"{est}_{q}"]["median"] for r in ok], ok[0][f"{est}_{q}"]["median"])
     return res
 
 
@@ -136,11 +148,9 @@ def ood_batch(dataset_cls, effect: str, severity: float, n: int, resolution: int
     """``n`` test items with one effect at ``severity`` (``light``: the tilted light)."""
     if effect == "light":
         ds = dataset_cls(split="test", resolution=resolution, seed=0)
-        base = default_collate([ds[i] for i in range(n)])
-        sh = tilt_light(base["sh"], severity)
-        return default_collate([ds.sample(i, sh=sh[i]) for i in range(n)])
+        return render(ds, range(n), sh=tilt_light(render(ds, range(n))["sh"], severity))
     ds = dataset_cls(split="test", resolution=resolution, seed=0, effects={effect: severity} if severity > 0 else None)
-    return default_collate([ds[i] for i in range(n)])
+    return render(ds, range(n))
 
 
 OOD_KEYS = ("recon_face_mse", "normal_mean", "albedo_si_mse", "sh_error")
@@ -154,7 +164,7 @@ def ood_curves(dataset_cls, models: dict, effects=EFFECTS, severities=SEVERITIES
         for s in severities:
             batch = ood_batch(dataset_cls, effect, s, n, resolution)
             ls = _ls_errors(batch)
-            for est in ("ls_pseudo", "ls_true"):
+            for est in LS_ESTIMATORS:
                 curves.setdefault(est, {}).setdefault("sh_error", []).append(ls[f"{est}_sh_error"].mean().item())
             for name, model in models.items():
                 out = predict(model, batch["image"])
@@ -243,12 +253,12 @@ def plot_conditioning(yaw: dict, mask: dict, path) -> None:
     for col, (res, key, label) in enumerate(((yaw, "yaw", "yaw (degrees)"), (mask, "fraction", "share of face mask kept"))):
         ok = [r for r in res["rows"] if "error" not in r]
         xs = [r[key] for r in ok]
-        for est, style in (("ls_pseudo", "o-"), ("ls_true", "s--")):
+        for k, (est, style) in enumerate(zip(LS_ESTIMATORS, ("o-", "s--", "^:"))):
             axes[0, col].plot(xs, [r[f"{est}_cond"]["median"] for r in ok], style, label=est)
             axes[1, col].plot(xs, [r[f"{est}_sh_error"]["median"] for r in ok], style, label=est)
             b = res.get(f"{est}_blowup_{key if key == 'yaw' else 'fraction'}")
             if b is not None:
-                axes[0, col].axvline(b, color="C0" if est == "ls_pseudo" else "C1", lw=0.8, ls=":")
+                axes[0, col].axvline(b, color=f"C{k}", lw=0.8, ls=":")
         axes[0, col].set_yscale("log")
         axes[1, col].set_yscale("log")
         axes[0, col].set_ylabel("cond(A^T A), median")
@@ -350,8 +360,10 @@ def main(argv=None):
         yaw, mask = conditioning_vs_yaw(test, n=a.n // 2), conditioning_vs_mask(test, n=a.n)
         write("conditioning", {"yaw": yaw, "mask": mask})
         plot_conditioning(yaw, mask, out / "conditioning.png")
-        for est in ("ls_pseudo", "ls_true"):
-            print(f"{est}: blow-up yaw {yaw.get(est + '_blowup_yaw')}, mask fraction {mask.get(est + '_blowup_fraction')}")
+        for est in LS_ESTIMATORS:
+            print(f"{est}: x{BLOWUP:g} condition at yaw {yaw.get(est + '_blowup_yaw')}, mask fraction "
+                  f"{mask.get(est + '_blowup_fraction')}; x{BLOWUP:g} SH error at yaw {yaw.get(est + '_blowup_yaw_error')}, "
+                  f"mask fraction {mask.get(est + '_blowup_fraction_error')}")
     if "ood" in a.studies:
         res = ood_curves(SynthFaces, load_models(runs), n=a.n, resolution=a.resolution)
         write("ood", res)

@@ -1,4 +1,36 @@
-"""Uncertainty of the lighting fit L-hat and the choice of lighting model order."""
+"""Uncertainty of the lighting fit L-hat (an emcee posterior) and the choice of its model order.
+
+``python -m disent.lighting`` (conf/lighting.yaml) samples the posterior of one image or a
+split; ``python -m disent.bench lighting`` times the least-squares fit and the posterior.
+"""
+from disent.lighting.order import select_order  # noqa: F401
 from disent.lighting.posterior import (  # noqa: F401
     N_COEFFS, LightingData, LogPosterior, Posterior, gaussian_posterior, prepare, sample_posterior,
 )
+
+
+def bench_lighting(args) -> dict:
+    """L-hat by least squares (batched, per image) and the posterior (27 parameters, 64x64)."""
+    import torch
+
+    from disent.bench import print_table
+    from disent.lighting.experiments import speed
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # the posterior's target is one core
+    try:
+        out = speed(batch=args.batch, rounds=args.rounds)
+    finally:
+        torch.set_num_threads(threads)
+    print_table(f"lighting: L-hat least squares (batch {out['ls_batch']}) and emcee posterior "
+                f"({out['n_pixels']} face pixels at 64x64, 1 thread)", out)
+    return out
+
+
+def _register() -> None:
+    from disent.bench import register
+
+    register("lighting", bench_lighting)
+
+
+_register()

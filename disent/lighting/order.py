@@ -51,56 +51,56 @@ def n_params(order: int, gray: bool, n_channels: int) -> int:
     return K + n_channels - 1 if gray and order > 0 else K * n_channels
 
 
-def _predict(theta, A, C, gray):
-    """Pixels ``[P, C]`` and the Jacobian ``[P*C, d]`` (channel-major rows) of a candidate."""
-    P, K = A.shape
+def _predict(theta, A, gray):
+    """Pixels ``[P, C]`` and the Jacobian ``[C*P, d]`` (channel-major rows) of a candidate.
+
+    ``A [C, P, K]`` is the design (:meth:`LightingData.design`)."""
+    C, P, K = A.shape
     if not gray:
         L = theta.reshape(C, K)
         J = np.zeros((C, P, C, K))
         for c in range(C):
-            J[c, :, c] = A
-        return A @ L.T, J.reshape(C * P, C * K)
+            J[c, :, c] = A[c]
+        return np.einsum("cpk,ck->pc", A, L), J.reshape(C * P, C * K)
     l, g = theta[:K], np.concatenate([[1.0], theta[K:]])
-    s = A @ l  # [P] shading of the one light
+    s = A @ l  # [C, P]: the one light through each channel's design
     J = np.zeros((C, P, K + C - 1))
     for c in range(C):
-        J[c, :, :K] = g[c] * A
+        J[c, :, :K] = g[c] * A[c]
         if c > 0:
-            J[c, :, K + c - 1] = s
-    return np.outer(s, g), J.reshape(C * P, K + C - 1)
+            J[c, :, K + c - 1] = s[c]
+    return (s * g[:, None]).T, J.reshape(C * P, K + C - 1)
 
 
 def _initial(A, y, gray):
-    """Least-squares fit; for gray light the best rank-one fit (SVD in the whitened design)."""
-    L = np.linalg.lstsq(A, y, rcond=None)[0].T  # [C, K]
+    """Least squares per channel; for gray light, channel 0's light and the channels' gains."""
+    L = np.stack([np.linalg.lstsq(A[c], y[:, c], rcond=None)[0] for c in range(A.shape[0])])  # [C, K]
     if not gray:
         return L.reshape(-1)
-    Q, R = np.linalg.qr(A)
-    U, s, Vt = np.linalg.svd(R @ L.T, full_matrices=False)  # best rank one of Q^T y = R L^T
-    l = np.linalg.solve(R, U[:, 0] * s[0]) * Vt[0, 0]
-    return np.concatenate([l, Vt[0, 1:] / Vt[0, 0]])
+    return np.concatenate([L[0], L[1:] @ L[0] / (L[0] @ L[0])])
 
 
 def score(data: LightingData, order: int, gray: bool = False, prior_scale: float = 2.0,
-          iterations: int = 5) -> dict:
+          iterations: int | None = None) -> dict:
     """Maximised log-likelihood, BIC and Laplace log evidence of one candidate."""
     A, y = data.design(order), data.y
     C = y.shape[1]
     gray = gray and order > 0 and C > 1
     N = y.size
     theta = _initial(A, y, gray)
+    iterations = iterations or (8 if gray else 2)  # linear models need one step per sigma update
     d = theta.size
     prior_mean = np.zeros(d)
     prior_prec = np.full(d, 1.0 / prior_scale**2)
     if gray:
         prior_mean[N_COEFFS[order]:], prior_prec[N_COEFFS[order]:] = 1.0, 1.0
     for _ in range(iterations):  # Gauss-Newton on the log posterior, sigma at its conditional mode
-        pred, J = _predict(theta, A, C, gray)
+        pred, J = _predict(theta, A, gray)
         r = (y - pred).T.reshape(-1)
         s2 = max(r @ r / N, 1e-300)
         H = J.T @ J / s2 + np.diag(prior_prec)
         theta = theta + np.linalg.solve(H, J.T @ r / s2 - prior_prec * (theta - prior_mean))
-    pred, J = _predict(theta, A, C, gray)
+    pred, J = _predict(theta, A, gray)
     r = (y - pred).T.reshape(-1)
     sse = r @ r
     s2 = sse / N

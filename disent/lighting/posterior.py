@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import emcee
 import numpy as np
 import torch
+from scipy.optimize import minimize
 from scipy.special import gammaln
 
 from disent.render import C4, sh_basis
@@ -39,9 +40,10 @@ class LightingData:
     """The masked pixels of one image, ready for a lighting fit."""
 
     basis: np.ndarray  # [P, 9] SH basis at each masked pixel's normal (float64)
-    y: np.ndarray  # [P, C] pixel values (image, or image / albedo)
+    y: np.ndarray  # [P, C] pixel values
     index: np.ndarray  # [P] flat pixel index into H*W, to paint maps back
     shape: tuple  # (H, W)
+    albedo: np.ndarray | None = None  # [P, C] a known albedo (else constant, absorbed into L)
 
     @property
     def n_pixels(self) -> int:
@@ -52,7 +54,11 @@ class LightingData:
         return self.y.shape[1]
 
     def design(self, order: int = 2) -> np.ndarray:
-        return self.basis[:, : N_COEFFS[order]]
+        """``[C, P, K]``: d pixel / d L_k per channel, ``albedo * basis_k`` (Eqs. 2, 4)."""
+        basis = self.basis[None, :, : N_COEFFS[order]]
+        if self.albedo is None:
+            return np.repeat(basis, self.n_channels, 0)
+        return self.albedo.T[:, :, None] * basis
 
 
 def prepare(image, normal, mask, albedo=None, *, gray: bool = False, threshold: float = 0.5,
@@ -60,8 +66,9 @@ def prepare(image, normal, mask, albedo=None, *, gray: bool = False, threshold: 
     """Masked pixels of one image: ``image [C,H,W]``, ``normal [3,H,W]``, ``mask [1,H,W]`` or ``[H,W]``.
 
     Pixels with ``mask > threshold`` are used (a matte's soft edge mixes in background).  With
-    ``albedo [3,H,W]`` the target is ``image / albedo`` (pixels with albedo below 1e-3 dropped),
-    as in :func:`disent.render.fit_sh`.  ``gray=True`` averages the channels first (9 parameters).
+    a known ``albedo [3,H,W]`` the model is ``image = albedo * S(n, L)`` (pixels with albedo below
+    1e-3 dropped), so L is the light itself; without, a constant albedo is absorbed into L.
+    ``gray=True`` averages the channels first (9 parameters).
     """
     image, normal = torch.as_tensor(image), torch.as_tensor(normal)
     if image.dim() != 3 or normal.dim() != 3 or normal.shape[0] != 3 or image.shape[1:] != normal.shape[1:]:
@@ -73,7 +80,7 @@ def prepare(image, normal, mask, albedo=None, *, gray: bool = False, threshold: 
     if albedo is not None:
         albedo = torch.as_tensor(albedo).double()
         mask = mask & (albedo > 1e-3).all(0)
-        target = target / albedo.clamp_min(1e-3)
+        albedo = albedo.mean(0, keepdim=True) if gray else albedo
     if gray:
         target = target.mean(0, keepdim=True)
     index = torch.nonzero(mask.flatten()).flatten()
@@ -83,7 +90,8 @@ def prepare(image, normal, mask, albedo=None, *, gray: bool = False, threshold: 
     if not torch.isfinite(y).all():
         raise ValueError("image has NaN or Inf inside the mask")
     basis = sh_basis(normal.double().flatten(1)[:, index], 0).T
-    return LightingData(basis.numpy().copy(), y.numpy().copy(), index.numpy(), (H, W))
+    a = None if albedo is None else albedo.flatten(1)[:, index].T.numpy().copy()
+    return LightingData(basis.numpy().copy(), y.numpy().copy(), index.numpy(), (H, W), a)
 
 
 # ----------------------------------------------------------------------------- log posterior
@@ -106,10 +114,12 @@ class LogPosterior:
     def __post_init__(self):
         if self.likelihood not in ("gaussian", "student_t"):
             raise ValueError(f"likelihood must be 'gaussian' or 'student_t', got {self.likelihood!r}")
-        self.A = self.data.design(self.order)  # [P, K]
-        self.K, self.C = self.A.shape[1], self.data.n_channels
+        self.A = self.data.design(self.order)  # [C, P, K]
+        self.C, self.P, self.K = self.A.shape
+        self.At = np.ascontiguousarray(self.A.transpose(0, 2, 1))  # [C, K, P]
         self.yT = np.ascontiguousarray(self.data.y.T)  # [C, P]
-        self.yy, self.Aty, self.AtA = (self.yT**2).sum(), self.yT @ self.A, self.A.T @ self.A
+        self.yy = (self.yT**2).sum()
+        self.Aty, self.AtA = np.einsum("cpk,cp->ck", self.A, self.yT), np.einsum("cpk,cpl->ckl", self.A, self.A)
 
     @property
     def ndim(self) -> int:
@@ -122,18 +132,18 @@ class LogPosterior:
         return L, log_sigma
 
     def shading(self, L: np.ndarray) -> np.ndarray:
-        """Predicted pixels ``[W, C, P]`` for lights ``L [W, C, K]`` (Eq. 4)."""
-        shape = (*L.shape[:2], self.A.shape[0])
+        """Predicted pixels ``[W, C, P]`` for lights ``L [W, C, K]`` (Eqs. 2, 4); same sign as the shading."""
+        shape = (len(L), self.C, 1, self.P)
         if getattr(self, "_buffer", np.empty(0)).shape != shape:  # reused: large temporaries are slow to map
             self._buffer = np.empty(shape)
-        return np.matmul(L, self.A.T, out=self._buffer)
+        return np.matmul(L[:, :, None, :], self.At, out=self._buffer)[:, :, 0]
 
     def log_likelihood(self, L: np.ndarray, log_sigma: np.ndarray, pred: np.ndarray | None = None) -> np.ndarray:
         """Sum over pixels and channels; ``pred`` (= :meth:`shading`, overwritten) saves a product."""
-        n = self.C * self.A.shape[0]
+        n = self.C * self.P
         s2 = np.exp(2 * log_sigma)
         if self.likelihood == "gaussian":  # sufficient statistics: |y - A l|^2 = y'y - 2 l'A'y + l'A'A l
-            sse = self.yy - 2 * np.einsum("wck,ck->w", L, self.Aty) + np.einsum("wck,kl,wcl->w", L, self.AtA, L)
+            sse = self.yy - 2 * np.einsum("wck,ck->w", L, self.Aty) + np.einsum("wck,ckl,wcl->w", L, self.AtA, L)
             return -n * (log_sigma + 0.5 * math.log(2 * math.pi)) - 0.5 * sse / s2
         r = self.shading(L) if pred is None else pred
         np.subtract(r, self.yT, out=r)
@@ -170,29 +180,29 @@ class LogPosterior:
 def robust_fit(logpost: LogPosterior, iterations: int = 20):
     """Least-squares (Gaussian) or IRLS/EM (Student-t) fit and its Gaussian approximation.
 
-    Returns ``(mode [D], covariance [D, D])``: the fit, made feasible under the positivity
-    prior by raising the ambient term L1 where needed, and the inverse Hessian of the
-    log-posterior there (Gauss-Newton; the constraint is ignored in the covariance).
+    Returns ``(mode [D], covariance [D, D])``: the fit (under the positivity prior, the
+    constrained fit where the free one shades some face normal negative) and the inverse
+    Hessian of the log-posterior there (Gauss-Newton; the constraint is ignored in it).
     """
     A, y, C, K = logpost.A, logpost.data.y, logpost.C, logpost.K
-    P = A.shape[0]
+    P = A.shape[1]
     w = np.ones((P, C))
     for _ in range(iterations if logpost.likelihood == "student_t" else 1):
-        AtWA = np.einsum("pk,pc,pl->ckl", A, w, A) + np.eye(K) / logpost.prior_scale**2 * 1e-9
-        AtWy = np.einsum("pk,pc,pc->ck", A, w, y)
+        AtWA = np.einsum("cpk,pc,cpl->ckl", A, w, A)
+        AtWy = np.einsum("cpk,pc,pc->ck", A, w, y)
         L = np.linalg.solve(AtWA, AtWy[..., None])[..., 0]  # [C, K]
-        r = y - A @ L.T
+        r = y - np.einsum("cpk,ck->pc", A, L)
         if logpost.known_sigma is not None:
             s2 = logpost.known_sigma**2
         else:
             s2 = max((w * r**2).sum() / r.size, 1e-12)  # EM update of the scale
         if logpost.likelihood == "student_t":
             w = (logpost.nu + 1) / (logpost.nu + r**2 / s2)
-    deficit = -(A @ L.T).min(0)  # per channel; shading must be >= 0 at every face normal
-    if logpost.positivity:
-        L[:, 0] += np.clip(deficit, 0, None) / C4 * 1.001  # basis of L1 is the constant c4
+    basis = logpost.data.basis[:, :K]
+    if logpost.positivity and (basis @ L.T).min() < 0:
+        L = np.stack([_nonnegative_fit(A[c], y[:, c], w[:, c], L[c], basis) for c in range(C)])
     # Gauss-Newton Hessian: A^T W A / s2 (+ prior) per channel; Fisher information of log sigma
-    info = np.einsum("pk,pc,pl->ckl", A, w if logpost.likelihood == "gaussian" else
+    info = np.einsum("cpk,pc,cpl->ckl", A, w if logpost.likelihood == "gaussian" else
                      np.full_like(w, (logpost.nu + 1) / (logpost.nu + 3)), A) / s2
     info += np.eye(K) / logpost.prior_scale**2
     cov_L = np.linalg.inv(info)  # [C, K, K]
@@ -206,6 +216,19 @@ def robust_fit(logpost: LogPosterior, iterations: int = 20):
         cov[-1, -1] = 1.0 / (fisher * P * C)
         mode = np.append(mode, 0.5 * math.log(s2))
     return mode, cov
+
+
+def _nonnegative_fit(A, y, w, start, basis):
+    """Weighted least squares ``min sum w (y - A l)^2`` subject to shading ``basis l >= 0``
+    (SLSQP), from a feasible point (``start`` with the ambient term L1 raised)."""
+    start = start.copy()
+    start[0] += max(0.0, -(basis @ start).min()) / C4 * 1.001  # basis of L1 is the constant c4
+    Aw, yw = A * np.sqrt(w)[:, None], y * np.sqrt(w)
+    res = minimize(lambda l: 0.5 * np.sum((Aw @ l - yw) ** 2), start, jac=lambda l: Aw.T @ (Aw @ l - yw),
+                   constraints=[{"type": "ineq", "fun": lambda l: basis @ l, "jac": lambda l: basis}],
+                   method="SLSQP", options={"maxiter": 200, "ftol": 1e-12})
+    l = res.x if (basis @ res.x).min() >= 0 else start
+    return l
 
 
 def independence_move(mean: np.ndarray, cov: np.ndarray, df: float = 30.0, inflate: float = 1.05):
@@ -303,27 +326,30 @@ def sample_posterior(data: LightingData, *, order: int = 2, likelihood: str = "g
                      prior_scale: float = 2.0, positivity: bool = True, known_sigma: float | None = None,
                      n_walkers: int | None = None, check_every: int = 50, min_tau_factor: float = 50.0,
                      tau_rtol: float = 0.01, max_steps: int = 3000, seed: int = 0) -> Posterior:
-    """Sample ``p(L, log sigma | data)`` with emcee, stopping per emcee's autocorrelation rule.
+    """Sample ``p(L, log sigma | data)`` with emcee, stopping by emcee's autocorrelation rule.
 
-    Moves: a differential-evolution move mixed with an independence proposal from the
-    Gaussian approximation at the (IRLS) fit.  Every ``check_every`` steps the integrated
-    autocorrelation time ``tau`` is estimated; sampling stops once the chain is longer than
-    ``min_tau_factor * tau`` for every parameter and ``tau`` changed by less than ``tau_rtol``,
-    or at ``max_steps`` (then ``diagnostics["converged"]`` is False).  The first ``2 * tau``
-    steps are discarded and the rest thinned by ``tau / 2``.
+    Moves: a differential-evolution move (20 %) mixed with an independence proposal from the
+    Gaussian approximation at the (IRLS, constrained) fit (80 %).  Every ``check_every`` steps
+    the integrated autocorrelation time is estimated; with ``tau`` its largest value over the
+    parameters, sampling stops once the chain is longer than ``min_tau_factor * tau`` and
+    ``tau`` changed by less than ``tau_rtol`` since the last check, or at ``max_steps`` (then
+    ``diagnostics["converged"]`` is False).  The first ``2 * tau`` steps are discarded and the
+    rest thinned by ``tau / 2``.  Where the positivity prior cuts deep into the Gaussian
+    approximation (many face normals at zero shading) the independence proposal is mostly
+    rejected and the chain mixes slowly; ``tau`` and ``converged`` then say so.
     """
     if order not in N_COEFFS:
         raise ValueError(f"order must be 0, 1 or 2, got {order}")
     t0, c0 = time.perf_counter(), time.process_time()
     logpost = LogPosterior(data, order, likelihood, nu, prior_scale, positivity, known_sigma)
     mode, cov = robust_fit(logpost)
+    rng = np.random.default_rng(seed)
     D = logpost.ndim
     n_walkers = n_walkers or max(2 * D + 2, 32)
-    rng = np.random.default_rng(seed)
     start = mode + 0.1 * rng.standard_normal((n_walkers, D)) @ np.linalg.cholesky(cov).T  # a small ball
     if positivity:  # push infeasible walkers back with the ambient term, as robust_fit does
         L, _ = logpost.split(start)
-        deficit = np.clip(-logpost.shading(L).min(2), 0, None)  # [W, C]
+        deficit = np.clip(-(L @ logpost.data.basis[:, : logpost.K].T).min(2), 0, None)  # [W, C] shading
         start[:, : logpost.C * logpost.K: logpost.K] += deficit / C4 * 1.001
     moves = [(emcee.moves.DEMove(), 0.2), (independence_move(mode, cov), 0.8)]
     sampler = emcee.EnsembleSampler(n_walkers, D, logpost, moves=moves, vectorize=True)
@@ -331,7 +357,8 @@ def sample_posterior(data: LightingData, *, order: int = 2, likelihood: str = "g
     state, old_tau, converged, tau = start, np.inf, False, np.full(D, np.nan)
     while sampler.iteration < max_steps:
         state = sampler.run_mcmc(state, check_every, progress=False)
-        tau = sampler.get_autocorr_time(tol=0)
+        with np.errstate(invalid="ignore"):  # a walker that never moved in a chunk has no autocorrelation
+            tau = sampler.get_autocorr_time(tol=0)
         converged = bool(min_tau_factor * tau.max() < sampler.iteration and abs(old_tau - tau.max()) < tau_rtol * tau.max())
         if converged:
             break
@@ -358,13 +385,13 @@ def sample_posterior(data: LightingData, *, order: int = 2, likelihood: str = "g
 def gaussian_posterior(data: LightingData, sigma: float, *, order: int = 2, prior_scale: float = math.inf):
     """Closed form of the linear-Gaussian case (known noise, no positivity constraint).
 
-    ``L_c ~ N(mu_c, Sigma)`` with ``Sigma = (A^T A / sigma^2 + I / prior_scale^2)^-1`` and
-    ``mu_c = Sigma A^T y_c / sigma^2``.  Returns ``(mu [C, K], Sigma [K, K])``.
+    ``L_c ~ N(mu_c, Sigma_c)`` with ``Sigma_c = (A_c^T A_c / sigma^2 + I / prior_scale^2)^-1`` and
+    ``mu_c = Sigma_c A_c^T y_c / sigma^2``.  Returns ``(mu [C, K], Sigma [C, K, K])``.
     """
     A = data.design(order)
-    prec = A.T @ A / sigma**2 + np.eye(A.shape[1]) / prior_scale**2
+    prec = np.einsum("cpk,cpl->ckl", A, A) / sigma**2 + np.eye(A.shape[2]) / prior_scale**2
     cov = np.linalg.inv(prec)
-    mu = (cov @ A.T @ data.y / sigma**2).T
+    mu = np.einsum("ckl,cpl,pc->ck", cov, A, data.y) / sigma**2
     return mu, cov
 
 

@@ -1,0 +1,87 @@
+"""``python -m disent.lighting``: the lighting posterior of one image or a split (conf/lighting.yaml)."""
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import hydra
+import torch
+from omegaconf import DictConfig
+
+from disent.lighting.experiments import figures_for, noisy, run_all
+from disent.lighting.order import select_order
+from disent.lighting.posterior import prepare, sample_posterior
+
+log = logging.getLogger(__name__)
+
+
+def load_photo(path: str, resolution: int) -> dict:
+    """A photo with its pseudo ground truth (:mod:`disent.data.pseudo_gt`)."""
+    from disent.data.pseudo_gt import PseudoGTSettings, load_cached
+    from disent.data.pseudo_gt import prepare as pseudo_gt
+
+    (rec,), _ = pseudo_gt([path], PseudoGTSettings(resolution=resolution), progress=False)
+    if not rec.used:
+        raise ValueError(f"no usable face in {path}: {rec.reason} {rec.detail}")
+    return {k: torch.as_tensor(v).float() for k, v in load_cached(rec).items()}
+
+
+def items(cfg: DictConfig):
+    if cfg.image:
+        yield Path(cfg.image).stem, load_photo(cfg.image, cfg.data.resolution)
+        return
+    from disent.data import SynthFaces
+
+    ds = SynthFaces(cfg.split, cfg.data.resolution, cfg.data.seed, effects=cfg.data.effects)
+    for i in range(cfg.n_images) if cfg.n_images > 1 else [cfg.index]:
+        yield f"{cfg.split}_{i:05d}", ds[i]
+
+
+def posterior_of(cfg: DictConfig, name: str, item: dict) -> dict:
+    normals = "normal_pseudo" if cfg.image else cfg.normals
+    mask = item["mask_pseudo"] if normals == "normal_pseudo" else item["matte"]
+    albedo = item["albedo"] if cfg.known_albedo and "albedo" in item else None
+    data = prepare(noisy(item["image"], cfg.noise, cfg.seed), item[normals], mask, albedo, gray=cfg.gray)
+    post = sample_posterior(data, order=cfg.order, likelihood=cfg.likelihood, nu=cfg.nu, seed=cfg.seed,
+                            max_steps=cfg.max_steps)
+    result = {"name": name, "normals": normals, "known_albedo": albedo is not None} | post.summary()
+    result["order_choice"] = {k: v for k, v in select_order(data).items() if k != "criterion"}
+    if "sh" in item:
+        truth = item["sh"].double().numpy()
+        result["true_sh"] = truth.tolist()
+        if albedo is not None and not cfg.gray:
+            for level in (0.68, 0.95):
+                lo, hi = post.interval(level)
+                result[f"true_inside{int(level * 100)}"] = float(((truth >= lo) & (truth <= hi)).mean())
+    return result, post, data
+
+
+@hydra.main(version_base="1.3", config_path="../../conf", config_name="lighting")
+def main(cfg: DictConfig) -> None:
+    torch.set_num_threads(1)
+    if cfg.task == "report":
+        run_all(cfg.split, cfg.data.resolution, cfg.data.seed)
+        return
+    if cfg.task != "posterior":
+        raise ValueError(f"task must be 'posterior' or 'report', got {cfg.task!r}")
+    out = Path(hydra.utils.to_absolute_path(cfg.out))
+    out.mkdir(parents=True, exist_ok=True)
+    results = []
+    for k, (name, item) in enumerate(items(cfg)):
+        result, post, data = posterior_of(cfg, name, item)
+        if cfg.figures and k < 4:
+            result["figures"] = [str(p) for p in figures_for(post, item, data, out / name,
+                                                             "normal_pseudo" if cfg.image else cfg.normals)]
+        d = result["diagnostics"]
+        log.info("%s: %d pixels, %d steps, tau %.1f, acceptance %.2f, ESS %.0f, converged %s, %.2f s; order choice %s",
+                 name, d["n_pixels"], d["n_steps"], d["tau_max"], d["acceptance_fraction"], d["ess_min"],
+                 d["converged"], d["seconds"], result["order_choice"]["choice"])
+        results.append(result)
+    path = out / "posterior.json"
+    path.write_text(json.dumps(results if len(results) > 1 else results[0], indent=2))
+    log.info("wrote %s", path)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,299 @@
+"""Experiments on SynthFaces for the report: posterior width, calibration, order choice, speed.
+
+Every experiment fits the known-albedo model ``image = albedo * S(n, L) + noise`` on the true
+normals and matte, so that the sampled L is the scene's SH light and can be checked against
+it; i.i.d. Gaussian noise of std ``noise`` is added to the image with a fixed seed.  Outputs
+go to ``reports/lighting/`` (JSON and PNG).
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from disent.lighting.order import select_order
+from disent.lighting.posterior import N_COEFFS, prepare, sample_posterior
+from disent.render import C4, fit_sh, sh_basis
+
+OUT = Path("reports/lighting")
+BANDS = {0: [0], 1: [1, 2, 3], 2: [4, 5, 6, 7, 8]}
+
+
+def noisy(image: torch.Tensor, noise: float, seed: int) -> torch.Tensor:
+    g = torch.Generator().manual_seed(seed)
+    return image.double() + noise * torch.randn(image.shape, generator=g, dtype=torch.float64)
+
+
+def item_data(item: dict, noise: float = 0.02, seed: int = 0, mask=None, known_albedo: bool = True, gray=False):
+    mask = item["matte"] if mask is None else mask
+    return prepare(noisy(item["image"], noise, seed), item["normal"], mask,
+                   item["albedo"] if known_albedo else None, gray=gray)
+
+
+def band_width(post, level: float = 0.68) -> dict:
+    """Mean credible-interval width per SH band, over channels."""
+    lo, hi = post.interval(level)
+    w = hi - lo
+    return {f"band{b}": float(w[:, k].mean()) for b, k in BANDS.items()}
+
+
+def save_json(name: str, obj) -> Path:
+    OUT.mkdir(parents=True, exist_ok=True)
+    path = OUT / f"{name}.json"
+    path.write_text(json.dumps(obj, indent=2))
+    return path
+
+
+# ----------------------------------------------------------------------------- widths
+def central_mask(matte: torch.Tensor, fraction: float) -> torch.Tensor:
+    """The ``fraction`` of matte pixels nearest the matte's centroid."""
+    m = matte[0] > 0.5
+    ys, xs = torch.nonzero(m, as_tuple=True)
+    d = (ys - ys.float().mean()) ** 2 + (xs - xs.float().mean()) ** 2
+    keep = d <= torch.quantile(d.float(), fraction)
+    out = torch.zeros_like(m)
+    out[ys[keep], xs[keep]] = True
+    return out[None].float()
+
+
+def widths(ds, n_faces: int = 3, noise: float = 0.02) -> dict:
+    """68 % interval width per SH band against yaw, mask fraction and noise (Gaussian likelihood)."""
+    res = {"yaw": {}, "mask_fraction": {}, "noise": {}}
+    for face in range(n_faces):
+        for yaw in (0, 20, 40, 60, 80):
+            item = ds.sample(face, pose=(float(yaw), 0.0, 0.0))
+            res["yaw"].setdefault(yaw, []).append(band_width(sample_posterior(item_data(item, noise, face))))
+        item = ds.sample(face)
+        for frac in (1.0, 0.5, 0.25, 0.1):
+            post = sample_posterior(item_data(item, noise, face, mask=central_mask(item["matte"], frac)))
+            res["mask_fraction"].setdefault(frac, []).append(band_width(post))
+        for sigma in (0.005, 0.01, 0.02, 0.05):
+            res["noise"].setdefault(sigma, []).append(band_width(sample_posterior(item_data(item, sigma, face))))
+    return {axis: {str(k): {b: float(np.mean([r[b] for r in v])) for b in v[0]} for k, v in d.items()}
+            for axis, d in res.items()}
+
+
+def plot_widths(w: dict, path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.4))
+    for ax, (axis, label) in zip(axes, [("yaw", "yaw (deg)"), ("mask_fraction", "mask fraction"),
+                                        ("noise", "noise std")]):
+        xs = [float(k) for k in w[axis]]
+        for b in ("band0", "band1", "band2"):
+            ax.plot(xs, [w[axis][k][b] for k in w[axis]], "o-", label=f"SH band {b[-1]}")
+        ax.set_xlabel(label)
+        ax.set_yscale("log")
+        if axis == "noise":
+            ax.set_xscale("log")
+    axes[0].set_ylabel("mean 68% interval width")
+    axes[0].legend()
+    fig.suptitle("Posterior width of the SH light (known albedo, Gaussian likelihood)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+# ----------------------------------------------------------------------------- calibration
+def calibration(ds, n_images: int = 12, noise: float = 0.02, effects_severity: float = 0.5) -> dict:
+    """Share of true SH coefficients inside the 68 % / 95 % intervals."""
+    out = {}
+    for effects in (None, {"specular": effects_severity, "cast_shadow": effects_severity}):
+        for likelihood in ("gaussian", "student_t"):
+            inside = {0.68: [], 0.95: []}
+            z, conv = [], []
+            for i in range(n_images):
+                item = ds.sample(i, effects=effects) if effects else ds[i]
+                post = sample_posterior(item_data(item, noise, i), likelihood=likelihood, seed=i)
+                truth = item["sh"].double().numpy()
+                for level in inside:
+                    lo, hi = post.interval(level)
+                    inside[level].append(((truth >= lo) & (truth <= hi)).ravel())
+                z.append(((post.mean - truth) / post.std).ravel())
+                conv.append(post.diagnostics["converged"])
+            key = f"{'effects' if effects else 'lambertian'}/{likelihood}"
+            z = np.concatenate(z)
+            out[key] = {"inside68": float(np.concatenate(inside[0.68]).mean()),
+                        "inside95": float(np.concatenate(inside[0.95]).mean()),
+                        "z_rms": float(np.sqrt(np.mean(z**2))), "n_coefficients": int(z.size),
+                        "converged": float(np.mean(conv))}
+    out["settings"] = {"n_images": n_images, "noise": noise, "effects": {"specular": effects_severity,
+                                                                         "cast_shadow": effects_severity}}
+    return out
+
+
+def plot_calibration(c: dict, path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    keys = [k for k in c if k != "settings"]
+    fig, ax = plt.subplots(figsize=(7, 3.4))
+    x = np.arange(len(keys))
+    ax.bar(x - 0.2, [c[k]["inside68"] for k in keys], 0.4, label="inside 68% interval")
+    ax.bar(x + 0.2, [c[k]["inside95"] for k in keys], 0.4, label="inside 95% interval")
+    ax.axhline(0.68, color="C0", ls="--", lw=1)
+    ax.axhline(0.95, color="C1", ls="--", lw=1)
+    ax.set_xticks(x, [k.replace("/", "\n") for k in keys])
+    ax.set_ylim(0, 1)
+    ax.set_ylabel("share of true coefficients")
+    ax.legend(loc="lower left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+# ----------------------------------------------------------------------------- order choice
+def light_of_order(sh: torch.Tensor, order: int) -> torch.Tensor:
+    """The scene's light cut to SH band ``order``; ambient raised so the front-facing normals
+    (n_z >= -0.3, as the generator checks) stay at least 4 % of the peak shading."""
+    sh = sh.double().clone()
+    sh[:, N_COEFFS[order]:] = 0
+    g = torch.Generator().manual_seed(0)
+    n = torch.nn.functional.normalize(torch.randn(4096, 3, generator=g, dtype=torch.float64), dim=1)
+    B = sh_basis(n[n[:, 2] >= -0.3].T.contiguous(), 0)  # [9, M]
+    s = sh @ B
+    sh[:, 0] += (0.04 * s.amax(1) - s.amin(1)).clamp_min(0) / C4
+    return sh.float()
+
+
+def order_confusion(ds, n_per_order: int = 30, noise: float = 0.02, known_albedo: bool = True) -> dict:
+    """Confusion matrices (true order x chosen order) for the evidence and for BIC."""
+    conf = {"evidence": np.zeros((3, 3), int), "bic": np.zeros((3, 3), int)}
+    colour = {"evidence": {}, "bic": {}}
+    for order in range(3):
+        for i in range(n_per_order):
+            sh = light_of_order(ds[i]["sh"], order)
+            item = ds.sample(i, sh=sh)
+            data = item_data(item, noise, 1000 * order + i, known_albedo=known_albedo)
+            for crit in conf:
+                r = select_order(data, crit)
+                conf[crit][order, r["order"]] += 1
+                colour[crit][r["choice"]] = colour[crit].get(r["choice"], 0) + 1
+    return {crit: {"confusion": m.tolist(), "accuracy": float(np.trace(m) / m.sum()),
+                   "per_order_recall": (np.diag(m) / m.sum(1)).tolist(), "chosen_models": colour[crit]}
+            for crit, m in conf.items()} | {"settings": {"n_per_order": n_per_order, "noise": noise,
+                                                        "known_albedo": known_albedo}}
+
+
+def plot_confusion(result: dict, path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(7.5, 3.4))
+    for ax, crit in zip(axes, ("evidence", "bic")):
+        m = np.asarray(result[crit]["confusion"])
+        ax.imshow(m, cmap="Blues")
+        for i in range(3):
+            for j in range(3):
+                ax.text(j, i, m[i, j], ha="center", va="center")
+        ax.set_xticks(range(3), ["0", "1", "2"])
+        ax.set_yticks(range(3), ["0", "1", "2"])
+        ax.set_xlabel("chosen order")
+        ax.set_ylabel("true order")
+        ax.set_title(f"{crit} (accuracy {result[crit]['accuracy']:.0%})")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+# ----------------------------------------------------------------------------- one image
+def figures_for(post, item: dict, data, stem: Path, normal_key: str = "normal") -> list[Path]:
+    """Corner plot (channel-summed light and log sigma) and the shading uncertainty map."""
+    import corner
+    import matplotlib.pyplot as plt
+
+    K = N_COEFFS[post.order]
+    names = [f"L{k + 1}" for k in range(K)]
+    samples = np.column_stack([post.sh[:, :, :K].sum(1), post.log_sigma])
+    fig = corner.corner(samples, labels=[f"$\\Sigma_c {n}$" for n in names] + [r"$\log\sigma$"],
+                        truths=None if "sh" not in item else list(item["sh"].double().sum(0)[:K].numpy()) + [None],
+                        quantiles=[0.16, 0.5, 0.84], show_titles=False)
+    corner_path = stem.with_name(stem.name + "_corner.png")
+    fig.savefig(corner_path, dpi=80)
+    plt.close(fig)
+    mean, sd = post.shading_map(item[normal_key])
+    inside = np.zeros(data.shape[0] * data.shape[1], bool)
+    inside[data.index] = True
+    inside = inside.reshape(data.shape)
+    fig, axes = plt.subplots(1, 3, figsize=(9, 3.2))
+    axes[0].imshow(item["image"].permute(1, 2, 0).clamp(0, 1).numpy())
+    axes[0].set_title("image")
+    axes[1].imshow(np.where(inside, mean.mean(0), np.nan), cmap="gray")
+    axes[1].set_title("posterior mean shading")
+    im = axes[2].imshow(np.where(inside, sd.mean(0), np.nan), cmap="magma")
+    axes[2].set_title("posterior sd of shading")
+    fig.colorbar(im, ax=axes[2], fraction=0.046)
+    for ax in axes:
+        ax.axis("off")
+    fig.tight_layout()
+    map_path = stem.with_name(stem.name + "_shading_sd.png")
+    fig.savefig(map_path, dpi=100)
+    plt.close(fig)
+    return [corner_path, map_path]
+
+
+# ----------------------------------------------------------------------------- speed
+def speed(ds=None, batch: int = 256, rounds: int = 3) -> dict:
+    """Least-squares L-hat per image (batched ``fit_sh``) and the posterior (27 params, 64x64)."""
+    from disent.bench import median_time
+    from disent.data import SynthFaces
+
+    ds = ds or SynthFaces("test", 64)
+    item = ds[0]
+    image = item["image"][None].expand(batch, -1, -1, -1).contiguous()
+    normal = item["normal"][None].expand(batch, -1, -1, -1).contiguous()
+    matte = item["matte"][None].expand(batch, -1, -1, -1).contiguous()
+    ls = median_time(lambda: fit_sh(image, normal, matte), rounds)
+    data = item_data(item, 0.02, 0)
+    out = {"threads": torch.get_num_threads(), "ls_batch": batch, "ls_ms_per_image": 1000 * ls / batch,
+           "n_pixels": data.n_pixels}
+    for likelihood in ("gaussian", "student_t"):
+        diag = [sample_posterior(data, likelihood=likelihood, seed=s).diagnostics for s in range(rounds)]
+        out[f"posterior_{likelihood}_s"] = float(np.median([d["seconds"] for d in diag]))
+        out[f"posterior_{likelihood}_cpu_s"] = float(np.median([d["cpu_seconds"] for d in diag]))
+        out[f"posterior_{likelihood}_steps"] = float(np.median([d["n_steps"] for d in diag]))
+    return out
+
+
+# ----------------------------------------------------------------------------- all of it
+def run_all(split: str = "test", resolution: int = 64, seed: int = 0, quick: bool = False) -> dict:
+    """Every experiment of the report section; writes ``reports/lighting/*``."""
+    from disent.data import SynthFaces
+
+    torch.set_num_threads(1)
+    ds = SynthFaces(split, resolution, seed)
+    OUT.mkdir(parents=True, exist_ok=True)
+    summary, t0 = {}, time.perf_counter()
+    n = 2 if quick else 1
+
+    item = ds[0]
+    data = item_data(item, 0.02, 0)
+    post = sample_posterior(data)
+    figures_for(post, item, data, OUT / "example")
+    summary["example"] = post.summary() | {"true_sh": item["sh"].tolist()}
+    save_json("example", summary["example"])
+
+    summary["widths"] = widths(ds, n_faces=2 // n)
+    save_json("widths", summary["widths"])
+    plot_widths(summary["widths"], OUT / "widths.png")
+
+    summary["calibration"] = calibration(ds, n_images=10 // n)
+    save_json("calibration", summary["calibration"])
+    plot_calibration(summary["calibration"], OUT / "calibration.png")
+
+    summary["order"] = order_confusion(ds, n_per_order=20 // n)
+    summary["order_constant_albedo"] = order_confusion(ds, n_per_order=20 // n, known_albedo=False)
+    save_json("order", {"known_albedo": summary["order"], "constant_albedo": summary["order_constant_albedo"]})
+    plot_confusion(summary["order"], OUT / "order_confusion.png")
+    plot_confusion(summary["order_constant_albedo"], OUT / "order_confusion_constant_albedo.png")
+
+    summary["speed"] = speed(ds)
+    save_json("speed", summary["speed"])
+    summary["seconds"] = time.perf_counter() - t0
+    save_json("summary", {k: v for k, v in summary.items() if k != "example"})
+    return summary
+
+
+__all__ = ["item_data", "widths", "calibration", "order_confusion", "light_of_order", "figures_for", "speed",
+           "run_all", "central_mask", "band_width"]
