@@ -18,6 +18,7 @@ from typing import Callable
 import torch
 
 BENCH_JSON = Path("reports/bench.json")
+DEVICE = "cpu"  # set by --device
 
 
 def median_time(fn: Callable[[], object], rounds: int = 5, warmup: int = 1) -> float:
@@ -49,16 +50,22 @@ def machine_info() -> dict:
     return {
         "torch": torch.__version__,
         "threads": torch.get_num_threads(),
-        "device": torch.cuda.get_device_name() if torch.cuda.is_available() else platform.processor() or platform.machine(),
+        "device": DEVICE if DEVICE == "cpu" else f"{DEVICE} ({torch.cuda.get_device_name(DEVICE)})",
+        "cpu": platform.processor() or platform.machine(),
         "cpu_count": os.cpu_count(),
     }
 
 
 def save(section: str, figures: dict, path: Path = BENCH_JSON) -> None:
-    """Merge ``figures`` under ``section`` into the benchmark JSON (atomic write)."""
+    """Merge ``figures`` under ``section`` into the benchmark JSON (atomic write).
+
+    A ``"top"`` entry of ``figures`` is merged into the top level instead (e.g. ``peak_gflops``).
+    """
     path.parent.mkdir(parents=True, exist_ok=True)
     data = json.loads(path.read_text()) if path.exists() else {}
     data.update(machine_info())
+    figures = dict(figures)
+    data.update(figures.pop("top", {}))
     data[section] = figures
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(data, indent=2, sort_keys=True))
@@ -101,9 +108,9 @@ def bench_render(args) -> dict:
 
 
 def bench_peak(args) -> dict:
-    out = {"peak_gflops": measure_peak_gflops(rounds=args.rounds)}
+    out = {"peak_gflops": measure_peak_gflops(rounds=args.rounds, device=args.device)}
     print_table("fp32 matmul peak", out)
-    return out
+    return {**out, "top": out}
 
 
 SUBCOMMANDS: dict[str, Callable] = {"peak": bench_peak, "render": bench_render}
@@ -139,7 +146,14 @@ def main(argv=None) -> None:
     p.add_argument("--batch", type=int, default=256)
     p.add_argument("--size", type=int, default=64)
     p.add_argument("--out", type=Path, default=BENCH_JSON)
+    p.add_argument("--device", default="cpu", help="cpu | cuda | cuda:N")
+    p.add_argument("--amp", action="store_true", help="mixed precision (bf16 CPU / fp16 CUDA; shading in fp32)")
+    p.add_argument("--no-channels-last", action="store_true", help="NCHW instead of NHWC activations")
+    p.add_argument("--models", nargs="*", default=None, help="models to benchmark (default: all)")
+    p.add_argument("--run", default=None, help="run folder for time_to_accuracy (default: newest under outputs/)")
     args = p.parse_args(argv)
+    global DEVICE
+    DEVICE = args.device
     if args.threads:
         torch.set_num_threads(args.threads)
     for name in args.which or list(SUBCOMMANDS):

@@ -107,10 +107,9 @@ def generator_losses(out: dict, batch: dict, weights: dict, energy_fake=None, bw
             if energy_fake is None:
                 raise ValueError("the adv term needs energy_fake (a discriminator)")
             losses[t] = energy_fake.mean()
-        elif t == "BWS":
-            losses[t] = BWS(out, batch, bws_c)
         else:
-            losses[t] = TERM_FUNCTIONS[t](out, batch)
+            fn = TERM_FUNCTIONS[t]
+            losses[t] = fn(out, batch, bws_c) if t == "BWS" else fn(out, batch)
     losses["total"] = sum(weights[t] * v for t, v in losses.items())
     return losses
 

@@ -315,26 +315,29 @@ def sec_speed(rep: Report, runs: list[Run]) -> None:
         rep.note("no finished run logged its training images/s.")
         return
     plt = _plt()
-    fig, axes = plt.subplots(1, 2, figsize=(9, 3.4))
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    colour = {v: f"C{k % 10}" for k, v in enumerate(sorted({p[0].variant for p in pts}))}
     for ax, j, label in ((axes[0], 2, "normal error (deg)"), (axes[1], 3, "reconstruction MSE")):
         sel = [p for p in pts if p[j] is not None]
-        variants = sorted({p[0].variant for p in sel})
-        for k, v in enumerate(variants):
+        for v in sorted({p[0].variant for p in sel}):
             vs = [p for p in sel if p[0].variant == v]
-            ax.scatter([p[1] for p in vs], [p[j] for p in vs], s=18, color=f"C{k % 10}", label=v,
+            ax.scatter([p[1] for p in vs], [p[j] for p in vs], s=18, color=colour[v], label=v,
                        marker="o" if "+" not in v else "x")
         if sel:
             front = pareto_front([p[1] for p in sel], [p[j] for p in sel])
-            ax.plot([sel[i][1] for i in front], [sel[i][j] for i in front], "k--", lw=0.8, label="Pareto front")
+            ax.plot([sel[i][1] for i in front], [sel[i][j] for i in front], "k--", lw=0.8, marker="s", ms=9, mfc="none",
+                    label="Pareto front")
         ax.set_xlabel("training images/s")
         ax.set_ylabel(label)
-    axes[0].legend(fontsize=5, ncol=2)
+        ax.legend(fontsize=5, ncol=2)
     fig.suptitle("Speed against accuracy, one point per run (up-left is worse; the front: fastest for its error)", fontsize=8)
     fig.tight_layout()
     path = rep.fig / "speed_accuracy.png"
     fig.savefig(path, dpi=120)
     plt.close(fig)
     rep.image(path, "speed versus accuracy")
+    rep.add("_Training images/s is the median of the per-step rates each run logged, on whatever machine and load "
+            "it ran (see the runs table); the Pareto front joins the runs no other run beats on both axes._\n")
     if not any(p[2] is not None for p in pts):
         rep.note("no run has a normal error (baseline-only runs).")
 

@@ -49,9 +49,10 @@ class MetricsLog:
             f.write(json.dumps(clean) + "\n")
 
     def truncate_after(self, step: int) -> None:
-        """Drop records past ``step`` (a resumed run rewrites them exactly)."""
+        """Drop records past ``step`` and earlier evaluations (a resumed run rewrites them exactly)."""
         if self.path.exists():
-            keep = [l for l in self.path.read_text().splitlines() if l.strip() and json.loads(l).get("step", 0) <= step]
+            recs = [json.loads(l) for l in self.path.read_text().splitlines() if l.strip()]
+            keep = [json.dumps(r) for r in recs if r.get("step", 0) <= step and "eval" not in r]
             tmp = self.path.with_suffix(".jsonl.tmp")
             tmp.write_text("".join(l + "\n" for l in keep))
             os.replace(tmp, self.path)

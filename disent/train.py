@@ -99,6 +99,7 @@ def evaluate(model, cfg, n: int) -> dict:
 
 def run(cfg, run_dir) -> dict:
     run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
     t = cfg.train
     if t.threads:
         torch.set_num_threads(t.threads)
@@ -143,10 +144,14 @@ def run(cfg, run_dir) -> dict:
             "cfg": OmegaConf.to_container(cfg, resolve=True)})
 
     bar = tqdm(total=total_steps, initial=step, disable=not t.progress, unit="step", dynamic_ncols=True)
-    last_saved = step
+    last_saved, stopped, batch = step, "steps", None
     while step < total_steps:
+        if t.time_limit_min and wall > 60 * t.time_limit_min:  # budget spent: keep what we have, evaluate
+            stopped = "time_limit"
+            checkpoint()
+            break
         epoch, i = divmod(step, steps_per_epoch)
-        lr = t.lr * t.lr_decay ** epoch  # x0.99 per epoch
+        lr = t.lr * t.lr_decay ** epoch * min(1.0, (step + 1) / max(t.warmup_steps, 1))  # x0.99 per epoch
         for opt in (opt_g, opt_d):
             for g in (opt.param_groups if opt is not None else []):
                 g["lr"] = lr
@@ -176,9 +181,11 @@ def run(cfg, run_dir) -> dict:
     bar.close()
 
     model.eval()
+    if batch is None:  # no step ran in this process (a resumed run that was already done)
+        batch = to_device(get_batch(data, range(min(8, len(data)))), device, t.channels_last)
     with torch.no_grad():
         save_samples(run_dir / "samples" / "final.png", batch, model(batch["image"]))
-    metrics = evaluate(model, cfg, t.eval_size)
+    metrics = {**evaluate(model, cfg, t.eval_size), "steps": step, "stopped_by": stopped, "train_seconds": wall}
     log.write({"step": step, "epoch": step / steps_per_epoch, "wall": wall, "eval": metrics})
     (run_dir / "eval.json").write_text(json.dumps(metrics, indent=2))
     print_eval(metrics, run_dir)

@@ -107,3 +107,18 @@ def test_metrics_from_outputs_baseline_has_only_recon():
     gt = default_collate([ds[i] for i in range(2)])
     m = metrics_from_outputs({"recon": gt["image"] * 0.5}, gt)
     assert set(m) == {f"{p}_{k}" for p in ("recon", "recon_face") for k in ("mse", "psnr", "ssim")}
+
+
+def test_plots_write_pngs(tmp_path):
+    from disent.eval.protocols import plot_sh_variance
+
+    ds = FakeFaces("test", size=4)
+    yaw = st.conditioning_vs_yaw(ds, yaws=(0, 90), n=2)
+    mask = st.conditioning_vs_mask(ds, fractions=(1.0, 0.5), n=2)
+    st.plot_conditioning(yaw, mask, tmp_path / "c.png")
+    st.plot_ood(st.ood_curves(FakeFaces, {}, effects=("noise",), severities=(0.0, 1.0), n=2, resolution=16), tmp_path / "o.png")
+    gt = default_collate([ds[i] for i in range(2)])
+    row = {"bws": True, "batch_size": 20, **st.bws_stats({"shading": gt["shading"], "albedo": gt["albedo"]}, gt)}
+    st.plot_bws({"rows": [row, {**row, "bws": False}]}, tmp_path / "b.png")
+    plot_sh_variance(sh_variance_protocol(FakeFaces("lightbank")), tmp_path / "v.png")
+    assert all((tmp_path / f).stat().st_size > 5000 for f in ("c.png", "o.png", "b.png", "v.png"))

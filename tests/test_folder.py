@@ -59,7 +59,7 @@ def bad_corpus(folder: Path) -> dict[str, tuple[Path, str]]:
         "rgba.png": (encode(Image.fromarray(np.dstack([rgb, np.full(rgb.shape[:2], 128, np.uint8)])), "PNG"),
                      "use:RGBA->RGB over white"),
         "gray16.png": (png16(rgb[..., 1].astype(np.uint16) * 257), "use:I;16->8-bit"),
-        "rgb16.png": (png16(rgb.astype(np.uint16) * 257), "use:"),
+        "rgb16.png": (png16(rgb.astype(np.uint16) * 257), "use:16-bit->8-bit"),
         "cmyk.jpg": (encode(Image.fromarray(rgb).convert("CMYK"), "JPEG", quality=95), "use:CMYK->RGB"),
         "one_pixel.png": (encode(Image.new("RGB", (1, 1), (200, 100, 50)), "PNG"), "skip:too small"),
         "no_face.png": (encode(Image.new("RGB", (80, 80), (90, 90, 90)), "PNG"), "skip:no face found"),
@@ -301,7 +301,7 @@ def test_folder_faces_celeba_layout(tmp_path):
     assert {k: float(v) for k, v in item["attrs"].items() if not k.endswith("strength")} == \
         {"smiling": 0.0, "beard": 0.0, "eyeglasses": 0.0, "senior": 0.0}
     pool = FolderFaces(root, "pool_smiling", **kw)  # test split: 000009..000012, smiling on 9 and 11
-    assert len(pool) == 4 and sorted(float(pool[i]["attrs"]["smiling"]) for i in range(4)) == [0, 0, 1, 1]
+    assert [float(pool[i]["attrs"]["smiling"]) for i in range(len(pool))] == [1, 0, 1, 0]
     with pytest.raises(ValueError, match="unknown split"):
         FolderFaces(root, "lightbank", **kw)
 
@@ -356,18 +356,19 @@ def test_end_to_end_on_bundled_photos(tmp_path):
 
     s = _dlib_settings()
     photos = bundled_photos(tmp_path / "photos")
-    astro = np.asarray(Image.open(photos["astronaut"][0]))
-    grace = np.asarray(Image.open(photos["grace_hopper"][0]).convert("RGB"))
-    two = np.zeros((600, 512 + 512, 3), np.uint8)
-    two[:512, :512], two[:, 512:] = astro, grace  # the astronaut's face is the smaller one
-    Image.fromarray(two).save(tmp_path / "two_faces.png")
-    files = photos["astronaut"] + photos["grace_hopper"] + photos["lfw_faces"][:8] + photos["lfw_nonfaces"][:4] \
+    astro = Image.open(photos["astronaut"][0]).reduce(2)
+    grace = Image.open(photos["grace_hopper"][0]).convert("RGB").reduce(2)
+    two = Image.new("RGB", (512, 300))
+    two.paste(astro, (0, 0))
+    two.paste(grace, (256, 0))  # the astronaut's face is the smaller one
+    two.save(tmp_path / "two_faces.png")
+    files = photos["astronaut"] + photos["grace_hopper"] + photos["lfw_faces"][:6] + photos["lfw_nonfaces"][:3] \
         + [tmp_path / "two_faces.png"]
     records, summary = pg.prepare(files, s, tmp_path / "cache", progress=False)
     by_name = {Path(r.path).stem: r for r in records}
     assert by_name["astronaut"].used and by_name["grace_hopper"].used
-    assert sum(by_name[f"lfw_{i:03d}"].used for i in range(8)) >= 4  # 25x25 faces: most are found
-    assert all(by_name[f"lfw_{i:03d}"].reason == "no face found" for i in range(100, 104))
+    assert sum(by_name[f"lfw_{i:03d}"].used for i in range(6)) >= 3  # 25x25 faces: most are found
+    assert all(by_name[f"lfw_{i:03d}"].reason == "no face found" for i in range(100, 103))
     two_rec = by_name["two_faces"]
     assert two_rec.used and "several faces: kept the largest" in two_rec.notes
     # the kept face is Grace Hopper's (right half): its landmarks, mapped back to the photo, match hers
@@ -376,8 +377,8 @@ def test_end_to_end_on_bundled_photos(tmp_path):
         M = np.linalg.inv(z["align"].astype(float))
         return z["landmarks"] @ M[:2, :2].T + M[:2, 2]
 
-    shift = photo_landmarks(two_rec).mean(0) - photo_landmarks(by_name["grace_hopper"]).mean(0)
-    assert np.abs(shift - [512, 0]).max() < 5  # pixels of a 1024x600 photo
+    shift = photo_landmarks(two_rec).mean(0) - photo_landmarks(by_name["grace_hopper"]).mean(0) / 2
+    assert np.abs(shift - [256, 0]).max() < 4  # pixels of the 512x300 composite
     for name in ("astronaut", "grace_hopper"):
         z = pg.load_cached(by_name[name])
         mask = z["mask_pseudo"][0] > 0
@@ -422,3 +423,57 @@ def test_pipeline_on_synthfaces_with_exact_landmarks():
         err.append(np.degrees(out["params"][:2]) - scene["pose"][i, :2].numpy())
         assert abs(np.degrees(out["params"][2])) < 2  # aligned: upright
     assert np.abs(err).mean() < 2.0, err
+
+
+def test_fitter_camera_matches_the_rasterizer():
+    """The fit's pixel projection and disent.data.raster.to_camera agree on every landmark."""
+    import torch
+
+    from disent.data.raster import to_camera
+
+    fitter = pg.face_model_fitter(PseudoGTSettings())
+    p, lm = known_face(5, fitter, resolution=128)
+    cam = fitter.to_raster(p, 128)
+    K = fitter.n_identity
+    verts = fitter.model.shape(torch.tensor(p[None, 6:6 + K]), torch.tensor(p[None, 6 + K:])).double()
+    xy = to_camera(verts[:, fitter.model.landmarks], torch.tensor(cam["pose"][None]), torch.tensor([cam["scale"]]),
+                   torch.tensor(cam["shift"][None]))[0, :, :2].numpy()
+    assert np.allclose(fitter.raster_to_pixels(xy, 128), lm, atol=1e-6)
+    back = fitter.from_raster(cam["pose"], cam["scale"], cam["shift"], 128)
+    assert np.allclose(back[:6], p[:6])
+
+
+def test_align_is_consistent_across_photo_sizes():
+    """A photo and the same photo 16x larger (each pixel a 16x16 block; pixel centres map as
+    x -> 16 x + 7.5) give the same crop: the box-reduction path keeps the coordinates."""
+    rng = np.random.default_rng(1)
+    small = portrait(96, seed=3)
+    template = rng.uniform(8, 24, (68, 2))
+    landmarks = 2.0 * template + 10.0  # crop scale 0.5: the small photo is blurred, the big one reduced
+    big = np.kron(small, np.ones((16, 16, 1), np.uint8))
+    a, la, _ = pg.align(small, landmarks, template, 32)
+    b, lb, _ = pg.align(big, 16 * landmarks + 7.5, template, 32)
+    assert np.allclose(la, lb) and np.allclose(la, template)
+    assert np.abs(a.astype(int) - b).max() <= 1
+
+
+def test_models_on_photo_records(tmp_path):
+    """The models-on-photos code path: gap numbers and figures from cached photo records."""
+    from disent.data.photos_models import figures, gap_metrics, photo_batch
+    from disent.models import build_model
+
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    for i in range(3):
+        Image.fromarray(portrait(64, seed=i)).save(folder / f"{i}.png")
+    s = PseudoGTSettings(resolution=32)
+    records, _ = pg.prepare(sorted(folder.iterdir()), s, tmp_path / "cache", progress=False, detector=TemplateDetector(s))
+    torch.manual_seed(0)
+    model = build_model({"name": "explicit", "resolution": 32, "code_dim": 16, "matting": True}).eval()
+    batch = photo_batch(records)
+    assert batch["image"].shape == (3, 3, 32, 32) and batch["sh_pseudo"].shape == (3, 3, 9)
+    gap = gap_metrics(model, batch)
+    assert gap["n"] == 3 and all(np.isfinite(v) for v in gap.values())
+    assert 0 <= gap["matte_iou_mask_pseudo"] <= gap["matte_covers_mask_pseudo"] <= 1
+    figures(model, batch, ["a", "b", "c"], tmp_path, "untrained")
+    assert (tmp_path / "decomposition_untrained.png").is_file() and (tmp_path / "relight_untrained.png").is_file()

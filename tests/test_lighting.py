@@ -62,9 +62,18 @@ def test_linear_gaussian_posterior_matches_closed_form():
     assert np.abs(Ww @ np.cov(samples.T) @ Ww.T - np.eye(9)).max() > tol
 
 
-def test_log_posterior_vectorised_matches_plain_formulas():
+def textured_albedo(H, W, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    return 0.3 + 0.6 * torch.rand(3, H, W, generator=g, dtype=torch.float64)
+
+
+@pytest.mark.parametrize("known_albedo", [False, True])
+def test_log_posterior_vectorised_matches_plain_formulas(known_albedo):
     normal, mask = ellipsoid(12, 12)
-    data = prepare(render(normal, directional_light([0, 0, 1]), 0.02), normal, mask)
+    albedo = textured_albedo(12, 12) if known_albedo else torch.ones(3, 12, 12, dtype=torch.float64)
+    image = albedo * render(normal, directional_light([0, 0, 1]), 0.02)
+    data = prepare(image, normal, mask, albedo if known_albedo else None)
+    a = albedo.flatten(1)[:, data.index].T.numpy()  # [P, C]
     rng = np.random.default_rng(0)
     for likelihood in ("gaussian", "student_t"):
         lp = LogPosterior(data, 2, likelihood, nu=4.0, prior_scale=2.0, positivity=False)
@@ -73,7 +82,7 @@ def test_log_posterior_vectorised_matches_plain_formulas():
         got = lp(theta)
         for w in range(5):
             L, s = theta[w, :27].reshape(3, 9), math.exp(theta[w, 27])
-            r = data.y - data.basis @ L.T
+            r = data.y - a * (data.basis @ L.T)  # Eq. 2: image = albedo * shading
             if likelihood == "gaussian":
                 ll = (-0.5 * (r / s) ** 2 - math.log(s) - 0.5 * math.log(2 * math.pi)).sum()
             else:
@@ -176,3 +185,17 @@ def test_bad_input_is_refused():
         LogPosterior(data, likelihood="cauchy")
     with pytest.raises(ValueError, match="order"):
         sample_posterior(data, order=3)
+
+
+def test_known_albedo_recovers_the_light_itself():
+    """With the albedo map given, L is the scene's light (not albedo * light): LS and posterior agree."""
+    normal, mask = ellipsoid(24, 24)
+    sh, albedo = directional_light([0.3, 0.4, 1.0]), textured_albedo(24, 24, seed=1)
+    image = albedo * render(normal, sh, 0.0) + 0.01 * torch.randn(3, 24, 24, generator=torch.Generator().manual_seed(2),
+                                                                   dtype=torch.float64)
+    data = prepare(image, normal, mask, albedo)
+    mu, cov = gaussian_posterior(data, 0.01)
+    z = (mu - sh.numpy()) / np.sqrt(np.diagonal(cov, axis1=1, axis2=2))
+    assert np.abs(z).max() < 4.5  # the truth is inside the closed-form posterior
+    constant = gaussian_posterior(prepare(image, normal, mask), 0.01)[0]  # albedo ignored: biased
+    assert np.abs(constant - sh.numpy()).max() > 10 * np.sqrt(np.diagonal(cov, axis1=1, axis2=2)).max()

@@ -187,8 +187,9 @@ def _override(p: dict, **overrides) -> dict:
                 raise ValueError(f"{k} strength must be in [0, 1]")
             p[k] = v
             if k == "smiling":  # the expression follows the smile; the mouth opens for a real smile
+                fit_error = p["pseudo_expression"] - p["expression"]
                 p["expression"] = torch.stack([v, torch.where(v >= 0.5, 0.7 * v, torch.zeros_like(v))], 1)
-                p["pseudo_expression"] = p["expression"].clone()
+                p["pseudo_expression"] = (p["expression"] + fit_error).clamp(0, 1)
         else:
             raise ValueError(f"cannot override {k!r}; choose from sh, light, pose, scale, shift, {', '.join(ATTRIBUTES)}")
     return p

@@ -37,7 +37,7 @@ from functools import lru_cache
 
 import torch
 
-GRID_U, GRID_V = 40, 48
+GRID_U, GRID_V = 41, 48
 THETA_MAX = math.radians(100.0)  # azimuth range of the mesh, +-
 PHI_TOP, PHI_BOTTOM = math.radians(82.0), math.radians(-64.0)
 N_IDENTITY = 40
@@ -51,7 +51,7 @@ BROW_Y = 0.25
 NOSE_TIP_Y, NOSE_BASE_Y = -0.20, -0.27
 MOUTH_Y, MOUTH_W = -0.47, 0.17
 CHIN_Y = -0.80
-HAIRLINE_Y = 0.52
+HAIRLINE_Y = 0.47
 
 
 def _warp(s: torch.Tensor, a: float) -> torch.Tensor:
@@ -212,11 +212,13 @@ class FaceModel:
         K = alpha.shape[1]
         if K > self.identity.shape[0] or beta.shape[1] != len(EXPRESSIONS):
             raise ValueError(f"alpha [B,<= {self.identity.shape[0]}], beta [B,2]; got {tuple(alpha.shape)}, {tuple(beta.shape)}")
-        basis = torch.cat([self.identity[:K], self.expression]).flatten(1)  # [K+2, 3V]
-        v = torch.cat([alpha, beta], 1).to(basis.dtype) @ basis
+        # In float64, one row at a time in effect: a face's vertices do not depend on which
+        # other faces share its batch (float32 GEMM rounding would change with the batch size).
+        basis = torch.cat([self.identity[:K], self.expression]).flatten(1).double()  # [K+2, 3V]
+        v = torch.cat([alpha, beta], 1).double() @ basis
         if senior is not None:
-            v = v + senior.to(basis.dtype)[:, None] * self.senior.flatten()
-        return (self.mean.flatten() + v).reshape(alpha.shape[0], -1, 3)
+            v = v + senior.double()[:, None] * self.senior.flatten().double()
+        return (self.mean.flatten() + v).float().reshape(alpha.shape[0], -1, 3)
 
 
 def _expressions(lay: Layout, mean: torch.Tensor) -> torch.Tensor:
@@ -275,11 +277,11 @@ def _landmark_targets() -> list[tuple[str, float, float]]:
         ring = [(c + dx * EYE_W, EYE_Y + dy * EYE_H) for dx, dy in ring]
         pts += [("front", x, y) for x, y in ring]
     W, M = MOUTH_W, MOUTH_Y
-    outer = [(-W, 0), (-0.65 * W, 0.045), (-0.25 * W, 0.06), (0, 0.055), (0.25 * W, 0.06), (0.65 * W, 0.045),
-             (W, 0), (0.65 * W, -0.06), (0.25 * W, -0.08), (0, -0.085), (-0.25 * W, -0.08), (-0.65 * W, -0.06)]
-    pts += [("front", x, M + dy) for x, dy in outer]
-    inner = [("upper", -0.85 * W), ("upper", -0.4 * W), ("upper", 0.0), ("upper", 0.4 * W), ("upper", 0.85 * W),
-             ("lower", 0.4 * W), ("lower", 0.0), ("lower", -0.4 * W)]
+    outer = [(-W, 0), (-0.65 * W, 0.06), (-0.35 * W, 0.065), (0, 0.06), (0.35 * W, 0.065), (0.65 * W, 0.06),
+             (W, 0), (0.65 * W, -0.06), (0.3 * W, -0.08), (0, -0.085), (-0.3 * W, -0.08), (-0.65 * W, -0.06)]
+    pts += [("upper" if dy == 0 else "front", x, M + dy) for x, dy in outer]
+    inner = [("upper", -0.7 * W), ("upper", -0.35 * W), ("upper", 0.0), ("upper", 0.35 * W), ("upper", 0.7 * W),
+             ("lower", 0.35 * W), ("lower", 0.0), ("lower", -0.35 * W)]
     pts += [(k, x, M) for k, x in inner]
     return pts
 

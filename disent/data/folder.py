@@ -73,8 +73,8 @@ def hash_split(relpath: str, seed: int) -> str:
 class FolderFaces(Dataset):
     """Real photos with pseudo ground truth; see the module docstring.
 
-    ``split``: ``train``, ``val``, ``test``, or ``pool_<attr>`` (an attribute-balanced subset
-    of the test split, half positive, for the editing experiments; needs attribute labels).
+    ``split``: ``train``, ``val``, ``test``, or ``pool_<attr>`` (the test split's photos,
+    balanced: even items positive for ``<attr>``, odd negative, as in SynthFaces; needs labels).
     ``size`` keeps the first ``size`` usable photos of the split.  The remaining arguments are
     :class:`~disent.data.pseudo_gt.PseudoGTSettings` fields and the pipeline's cache, workers
     and (for tests) a ``detector`` replacing dlib.
@@ -91,6 +91,11 @@ class FolderFaces(Dataset):
         self.attributes = read_celeba_attributes(attr_file) if attr_file.is_file() else None
         files = self._split_files(split)
         self.records, self.summary = self._prepare(files, size, cache_dir, workers, progress, detector)
+        if split.startswith("pool_"):  # as SynthFaces' pools: even items positive, odd negative
+            attr = split[len("pool_"):]
+            label = lambda r: self.attributes[Path(r.path).name][attr] > 0  # noqa: E731
+            pos, neg = [r for r in self.records if label(r)], [r for r in self.records if not label(r)]
+            self.records = [r for pair in zip(pos, neg) for r in pair][:size]
         if not self.records:
             raise ValueError(f"FolderFaces: no usable face among {len(files)} images of split {split!r} "
                              f"in {self.root}\n{format_summary(self.summary)}")
@@ -126,9 +131,9 @@ class FolderFaces(Dataset):
             test = [p for p in files if split_of(p) == "test"]
             pos = [p for p in test if self.attributes[p.name][attr] > 0]
             neg = [p for p in test if self.attributes[p.name][attr] == 0]
-            n = min(len(pos), len(neg))
-            order = lambda ps: [ps[i] for i in np.random.default_rng(self.seed).permutation(len(ps))[:n]]  # noqa: E731
-            return sorted(order(pos) + order(neg))
+            rng = np.random.default_rng(self.seed)
+            pos, neg = ([ps[i] for i in rng.permutation(len(ps))] for ps in (pos, neg))
+            return [p for pair in zip(pos, neg) for p in pair]  # positive, negative, positive, ...
         raise ValueError(f"FolderFaces: unknown split {split!r}; use train, val, test or pool_<attr> "
                          f"(real photos have no light bank)")
 

@@ -39,7 +39,6 @@ log = logging.getLogger(__name__)
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".webp", ".tif", ".tiff")
 # iBUG 68-point layout: contour 0-16, brows 17-26, nose 27-35, eyes 36-47, mouth 48-67.
 CONTOUR = slice(0, 17)
-LEFT_EYE, RIGHT_EYE = slice(36, 42), slice(42, 48)  # image left / image right
 INNER = np.arange(17, 68)  # the landmarks that do not slide along the silhouette
 CACHE_VERSION = 3
 
@@ -51,7 +50,8 @@ class PseudoGTSettings:
     resolution: int = 64
     predictor: str | None = None  # 68-point shape predictor .dat; None: face_recognition_models' file
     min_side: int = 16  # smaller images are skipped ("too small")
-    detect_side: int = 320  # images whose short side is smaller are upscaled for detection
+    detect_side: int = 320  # images whose short side is smaller are upscaled for detection,
+    detect_max_side: int = 800  # and those whose short side is larger downscaled (speed)
     upsample: int = 1  # dlib's pyramid upsampling for the detector (finds smaller faces)
     multiple_faces: str = "largest"  # "largest" keeps the largest detection; "skip" skips the image
     contour_weight: float = 0.5  # weight of the 17 jaw-line landmarks in the fit (they slide with pose)
@@ -62,10 +62,13 @@ class PseudoGTSettings:
     n_identity: int = 4  # identity components fitted: SynthFaces' coarse fit (synth.PSEUDO_COMPONENTS)
 
     def key(self) -> str:
-        """A short hash of the settings (and the predictor file's identity) for the cache."""
+        """A short hash of the settings, the predictor file and the face model, naming the cache."""
         d = dataclasses.asdict(self)
-        d["predictor"] = _file_identity(self.predictor_path()) if self.predictor or _has_dlib() else None
-        d["version"] = CACHE_VERSION
+        try:
+            d["predictor"] = _file_identity(self.predictor_path())
+        except FileNotFoundError:
+            d["predictor"] = None
+        d["version"], d["face_model"] = CACHE_VERSION, _face_model_identity()
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12]
 
     def predictor_path(self) -> str:
@@ -104,12 +107,13 @@ def decode_image(data: bytes, min_side: int = 16) -> tuple[np.ndarray, list[str]
     except Exception as e:  # PIL raises OSError, SyntaxError, zlib/struct errors on cut data
         raise Skip("truncated or corrupt", f"{img.format}: {e}") from None
     notes = []
+    if img.format == "PNG" and data[24] == 16 and img.mode == "RGB":  # IHDR bit depth; PIL keeps the high byte
+        notes.append("16-bit->8-bit")
     if min(img.size) < min_side:
         raise Skip("too small", f"{img.size[0]}x{img.size[1]} < {min_side} px")
-    transposed = ImageOps.exif_transpose(img)
-    if transposed is not img and transposed.size != img.size:
+    if img.getexif().get(0x0112, 1) != 1:  # EXIF orientation: turn the pixels upright
+        img = ImageOps.exif_transpose(img)
         notes.append("EXIF rotation")
-    img = transposed
     mode = img.mode
     if mode in ("I;16", "I;16B", "I;16L", "I", "F"):  # high bit depth gray: scale, don't clip
         a = np.asarray(img).astype(np.float64)
@@ -136,12 +140,6 @@ def decode_image(data: bytes, min_side: int = 16) -> tuple[np.ndarray, list[str]
 
 
 # ----------------------------------------------------------------------------- 2. landmarks
-def _has_dlib() -> bool:
-    import importlib.util
-
-    return importlib.util.find_spec("dlib") is not None
-
-
 def default_predictor_path() -> str:
     """The 68-point predictor shipped by ``face_recognition_models`` (``pip install -e ".[photos]"``),
     else Debian's ``libdlib-data`` copy.  The package's ``__init__`` needs the removed
@@ -167,12 +165,26 @@ def _file_identity(path: str) -> str:
     return f"{Path(path).name}:{st.st_size}"
 
 
+@functools.lru_cache(maxsize=1)
+def _face_model_identity() -> str:
+    """A hash of the face model's arrays and SynthFaces' framing: a changed model invalidates the cache."""
+    from disent.data import synth
+    from disent.data.face_model import face_model
+
+    m, h = face_model(), hashlib.sha256()
+    for t in (m.mean, m.identity, m.expression, m.faces, m.uv, m.landmarks, m.face_region):
+        h.update(t.detach().cpu().numpy().tobytes())
+    h.update(repr((synth.SCALE_RANGE, synth.PSEUDO_GRID_STEP)).encode())
+    return h.hexdigest()[:12]
+
+
 class LandmarkDetector:
     """dlib face detection and 68 iBUG landmarks: ``rgb uint8 [H,W,3] -> (landmarks [68, 2], n_faces)``
     with landmarks as (x, y) pixels of ``rgb``.
 
     Images whose short side is under ``detect_side`` are upscaled (bicubic) first: dlib's
-    HOG detector misses faces smaller than about 80 pixels.  With several faces the largest
+    HOG detector misses faces smaller than about 80 pixels; above ``detect_max_side`` they are
+    downscaled, which costs no accuracy at crop resolution.  With several faces the largest
     is kept (ties broken by detector score), or the image is skipped (``multiple_faces="skip"``).
     """
 
@@ -182,17 +194,17 @@ class LandmarkDetector:
         self.settings = settings
         self.detector = dlib.get_frontal_face_detector()
         self.predictor = dlib.shape_predictor(settings.predictor_path())
-        self._rect = dlib.rectangle
 
-    def __call__(self, rgb: np.ndarray) -> np.ndarray:
-        s = self.settings
-        scale = max(1.0, s.detect_side / min(rgb.shape[:2]))
+    def __call__(self, rgb: np.ndarray) -> tuple[np.ndarray, int]:
+        from PIL import Image
+
+        s, (h, w) = self.settings, rgb.shape[:2]
+        scale = float(np.clip(min(h, w), s.detect_side, s.detect_max_side)) / min(h, w)
         work = rgb
-        if scale > 1.0:
-            from PIL import Image
-
-            h, w = rgb.shape[:2]
-            work = np.asarray(Image.fromarray(rgb).resize((round(w * scale), round(h * scale)), Image.BICUBIC))
+        if scale != 1.0:
+            size = (round(w * scale), round(h * scale))
+            work = np.asarray(Image.fromarray(rgb).resize(size, Image.BICUBIC if scale > 1 else Image.LANCZOS))
+            scale = np.array(size) / (w, h)
         rects, scores, _ = self.detector.run(work, s.upsample, 0.0)
         if len(rects) == 0:
             raise Skip("no face found")
@@ -201,7 +213,7 @@ class LandmarkDetector:
         best = max(range(len(rects)), key=lambda i: (rects[i].area(), scores[i]))
         shape = self.predictor(work, rects[best])
         pts = np.array([(p.x, p.y) for p in shape.parts()], dtype=np.float64)
-        return pts / scale, len(rects)
+        return (pts + 0.5) / scale - 0.5, len(rects)  # pixel centres at integers in both images
 
 
 # ----------------------------------------------------------------------------- 3. alignment
@@ -228,16 +240,22 @@ def align(rgb: np.ndarray, landmarks: np.ndarray, template: np.ndarray, resoluti
     Downscaling is anti-aliased by a Gaussian prefilter; where the crop reaches past the photo
     it is filled with the photo's mean colour.
     """
+    from PIL import Image
     from scipy import ndimage
     from skimage.transform import warp
 
     M = similarity_transform(landmarks[INNER], template[INNER])
-    scale = np.sqrt(abs(np.linalg.det(M[:2, :2])))
+    Mw, scale = M, np.sqrt(abs(np.linalg.det(M[:2, :2])))
+    f = int(1.0 / scale // 2)
+    if f >= 2:  # large photo: box-average f x f blocks first (pixel x' of the reduced image sits at f x' + (f-1)/2)
+        rgb = np.asarray(Image.fromarray(rgb).reduce(f))
+        Mw = M @ np.array([[f, 0, (f - 1) / 2], [0, f, (f - 1) / 2], [0, 0, 1.0]])
+        scale *= f
     img = rgb.astype(np.float64) / 255.0
     if scale < 1.0:  # photo pixels per crop pixel = 1/scale
         sigma = 0.5 * np.sqrt(max(1.0 / scale**2 - 1.0, 0.0))
         img = ndimage.gaussian_filter(img, (sigma, sigma, 0))
-    inv = np.linalg.inv(M)
+    inv = np.linalg.inv(Mw)
     crop = warp(img, inv, output_shape=(resolution, resolution), order=1, mode="edge")
     inside = warp(np.ones(img.shape[:2]), inv, output_shape=(resolution, resolution), order=1, cval=0.0)[..., None]
     crop = crop * inside + img.mean((0, 1)) * (1 - inside)
@@ -312,8 +330,6 @@ class FaceModelFitter:
 
     def synth_landmarks(self, scene: dict, resolution: int) -> np.ndarray:
         """The exact 68 landmarks ``[B, 68, 2]`` (pixels) of SynthFaces scenes (``SynthFaces.params``)."""
-        import torch
-
         from disent.data.raster import to_camera
 
         m = self.model

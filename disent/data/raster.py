@@ -195,6 +195,10 @@ def grid_vertex_normals(vertices: torch.Tensor, grid_shape: tuple[int, int]) -> 
     P = vertices.view(B, gv, gu, 3)
     du = torch.cat([P[:, :, 1:2] - P[:, :, :1], P[:, :, 2:] - P[:, :, :-2], P[:, :, -1:] - P[:, :, -2:-1]], 2)
     dv = torch.cat([P[:, 1:2] - P[:, :1], P[:, 2:] - P[:, :-2], P[:, -1:] - P[:, -2:-1]], 1)
+    # Collapsed rows (a closed mouth) have no extent along v: take a two-row stencil there.
+    r = torch.arange(gv, device=vertices.device)
+    dv2 = P[:, (r + 2).clamp(max=gv - 1)] - P[:, (r - 2).clamp(min=0)]
+    dv = torch.where((dv * dv).sum(-1, keepdim=True) < 1e-12, dv2, dv)
     n = torch.linalg.cross(dv, du, dim=-1)
     return normalize(n, -1).view(B, V, 3)
 

@@ -73,13 +73,16 @@ _CHECK_NORMALS = None
 
 
 def _check_normals() -> torch.Tensor:
-    """Normals the light must shade non-negatively: the visible hemisphere plus a margin (n_z >= -0.3)."""
+    """Normals the light must shade non-negatively: the visible hemisphere plus a margin
+    (n_z >= -0.3), a dense Fibonacci set, as SH basis values ``[9, P]``."""
     global _CHECK_NORMALS
     if _CHECK_NORMALS is None:
-        g = torch.Generator().manual_seed(0)
-        n = F.normalize(torch.randn(4096, 3, generator=g), dim=1)
-        n = n[n[:, 2] >= -0.3][:512]
-        _CHECK_NORMALS = sh_basis(n.T.contiguous(), 0)  # [9, P]
+        k = torch.arange(4000, dtype=torch.float64) + 0.5
+        z = 1 - 2 * k / 4000
+        phi = k * math.pi * (3 - math.sqrt(5))
+        r = (1 - z * z).sqrt()
+        n = torch.stack([r * phi.cos(), r * phi.sin(), z])
+        _CHECK_NORMALS = sh_basis(n[:, z >= -0.3], 0).float()
     return _CHECK_NORMALS
 
 
@@ -127,7 +130,7 @@ def sample_lights(u: torch.Tensor) -> dict:
     tints = _tint(2 * u[:, 9:12] - 1, 0.12)  # key, fill, ambient colours
     intensity = strength[..., None] * torch.stack([tints[:, 0], tints[:, 1], _tint(torch.zeros_like(u[:, 0]), 0)], 1)
     ambient = (0.05 + 0.3 * u[:, 10:11]) * tints[:, 2]
-    exposure = 0.7 + 0.3 * u[:, 11]
+    exposure = 0.8 + 0.2 * u[:, 11]
     direction = torch.stack([key, fill, rim], 1)
     return {"sh": lights_to_sh(direction, intensity, ambient, exposure), "direction": direction, "intensity": intensity}
 
@@ -206,11 +209,12 @@ def paint_layers(res: int) -> torch.Tensor:
     L["pupil"] = eye * _ellipse(ax, Y, EYE_X, EYE_Y, 0.018, 0.018, 0.2)
     L["lashes"] = front * _ring(ax, Y, EYE_X, EYE_Y, EYE_W * 1.05, EYE_H * 1.3, 0.12) * (Y > EYE_Y - 0.01)
     L["nostrils"] = front * _ellipse(ax, Y, 0.05, NOSE_BASE_Y + 0.01, 0.025, 0.014, 0.3)
-    L["teeth"] = in_slit * (slit < 0.55) * torch.sigmoid((MOUTH_W * 0.8 - ax) / 0.01)
-    L["mouth"] = in_slit * (1 - L["teeth"])
+    inside_mouth = in_slit * torch.sigmoid((MOUTH_W - 0.01 - ax) / 0.01)  # elsewhere the slit is closed skin
+    L["teeth"] = inside_mouth * (slit < 0.55) * torch.sigmoid((MOUTH_W * 0.8 - ax) / 0.01)
+    L["mouth"] = inside_mouth - L["teeth"]
     hairline = HAIRLINE_Y - 0.08 * ax
-    side = torch.sigmoid((-Z + 0.25) / 0.05)  # behind the temples
-    hair_base = torch.sigmoid((Y - hairline) / 0.02).maximum(side * torch.sigmoid((Y + 0.05) / 0.03))
+    side = torch.sigmoid((0.42 - Z) / 0.04)  # over the temples and ears
+    hair_base = torch.sigmoid((Y - hairline) / 0.02).maximum(side * torch.sigmoid((Y - 0.02) / 0.03))
     hair_base = hair_base * (0.75 + 0.25 * hair_noise)
     L["hair_short"] = hair_base * out_slit
     L["hair_long"] = torch.sigmoid((Y - hairline + 0.12) / 0.03).maximum(torch.sigmoid((-Z + 0.55) / 0.06)) * (0.8 + 0.2 * hair_noise) * out_slit
@@ -222,8 +226,8 @@ def paint_layers(res: int) -> torch.Tensor:
     L["beard_goatee"] = ((goatee + moustache).clamp(max=1) * not_lips * out_slit) * (0.55 + 0.45 * stubble)
     bridge = torch.exp(-0.5 * ((Y - EYE_Y - 0.02) / 0.012) ** 2) * (ax < EYE_X - EYE_W - 0.02)
     temple = torch.exp(-0.5 * ((Y - EYE_Y - 0.04) / 0.012) ** 2) * (ax > EYE_X + 0.13)
-    L["glasses_round"] = front * (_ring(ax, Y, EYE_X, EYE_Y, 0.15, 0.12, 0.07) + bridge + temple).clamp(max=1)
-    L["glasses_square"] = front * (_ring(ax, Y, EYE_X, EYE_Y - 0.01, 0.16, 0.1, 0.07, True) + bridge + temple).clamp(max=1)
+    L["glasses_round"] = front * (1 - L["brows"]) * (_ring(ax, Y, EYE_X, EYE_Y, 0.15, 0.12, 0.1) + bridge + temple).clamp(max=1)
+    L["glasses_square"] = front * (1 - L["brows"]) * (_ring(ax, Y, EYE_X, EYE_Y - 0.01, 0.16, 0.1, 0.1, True) + bridge + temple).clamp(max=1)
     forehead = sum(torch.exp(-0.5 * ((Y - y0 - 0.02 * torch.cos(4 * X)) / 0.006) ** 2) for y0 in (0.36, 0.41, 0.46)) * (ax < 0.35)
     crow = sum(torch.exp(-0.5 * ((Y - EYE_Y - k * (ax - EYE_X - 0.13)) / 0.006) ** 2) for k in (-0.5, 0.0, 0.5)) * ((ax - EYE_X - 0.14).abs() < 0.05)
     naso = torch.exp(-0.5 * ((ax - (0.12 + 0.5 * (NOSE_BASE_Y - Y))) / 0.012) ** 2) * (Y < NOSE_BASE_Y + 0.02) * (Y > MOUTH_Y - 0.1)
@@ -246,8 +250,8 @@ def _desaturate(c: torch.Tensor, amount: torch.Tensor) -> torch.Tensor:
     return c + amount[..., None] * (gray - c)
 
 
-SKIN_LIGHT = torch.tensor([0.86, 0.70, 0.60])
-SKIN_DARK = torch.tensor([0.34, 0.21, 0.14])
+SKIN_LIGHT = torch.tensor([0.92, 0.76, 0.66])
+SKIN_DARK = torch.tensor([0.36, 0.23, 0.15])
 HAIR_COLOURS = torch.tensor([[0.05, 0.04, 0.035], [0.18, 0.11, 0.06], [0.35, 0.22, 0.12], [0.62, 0.48, 0.28],
                              [0.45, 0.18, 0.08], [0.10, 0.07, 0.05]])
 IRIS_COLOURS = torch.tensor([[0.25, 0.14, 0.07], [0.12, 0.07, 0.04], [0.25, 0.40, 0.55], [0.30, 0.38, 0.22]])
@@ -257,8 +261,8 @@ FRAME_COLOURS = torch.tensor([[0.03, 0.03, 0.03], [0.25, 0.12, 0.05], [0.55, 0.5
 def paint_albedo(p: dict, res: int) -> torch.Tensor:
     """Albedo in UV space ``[N, 3, res, res]`` from a scene's appearance parameters.
 
-    A base skin colour plus one coloured layer per feature (``LAYERS``), summed as one
-    matrix product ``[N,3,L] @ [L,res^2]``, then a per-scene skin texture field.
+    A base skin colour plus one coloured layer per feature (``LAYERS``) and a skin
+    texture field, summed as one matrix product ``[N,3,L] @ [L,res^2]``.
     """
     layers = paint_layers(res)
     N = p["skin"].shape[0]
@@ -287,14 +291,15 @@ def paint_albedo(p: dict, res: int) -> torch.Tensor:
     put("beard_goatee", p["brow"] * 0.9, beard * p["goatee"])
     coef[:, LAYERS.index("wrinkles")] = -0.35 * senior[:, None] * skin
     coef[:, LAYERS.index("eyebags")] = -0.2 * senior[:, None] * skin
-    albedo = skin[:, :, None] + coef.transpose(1, 2) @ layers  # [N, 3, res^2]
-    # Eyeglass frames (albedo only, no geometry) are opaque paint over everything else.
-    glasses = p["eyeglasses"][:, None] * (layers[LAYERS.index("glasses_round")] * (1 - p["square"][:, None])
-                                          + layers[LAYERS.index("glasses_square")] * p["square"][:, None])
-    glasses = glasses.clamp(max=1)[:, None]
-    albedo = albedo + glasses * (p["frame"][:, :, None] - albedo)
-    tex = noise_bank(res)[p["noise_id"]].reshape(N, 1, -1)
-    albedo = albedo * (1 + 0.045 * tex)
+    # Eyeglass frames: albedo only, no geometry.
+    put("glasses_round", p["frame"], p["eyeglasses"] * (1 - p["square"]))
+    put("glasses_square", p["frame"], p["eyeglasses"] * p["square"])
+    # Skin texture: one of the fixed noise fields, scaled by the skin colour.
+    tex = torch.zeros(N, noise_bank(res).shape[0], 3)
+    tex[torch.arange(N), p["noise_id"]] = 0.045 * skin
+    coef = torch.cat([coef, tex], 1)
+    layers = torch.cat([layers, noise_bank(res).reshape(-1, res * res)])
+    albedo = torch.baddbmm(skin[:, :, None].expand(N, 3, res * res), coef.transpose(1, 2), layers.expand(N, -1, -1))
     return albedo.reshape(N, 3, res, res).clamp(0.02, 0.95)
 
 
@@ -330,40 +335,62 @@ def background_atlas(tile: int = 192) -> torch.Tensor:
     return torch.cat(rows, 1)[None]
 
 
-def paint_background(u: torch.Tensor, res: int) -> torch.Tensor:
-    """Backgrounds ``[N, 3, res, res]`` from 16 uniforms per scene: a jittered crop of a
-    picture or texture, a two-colour gradient, or a blend of both."""
+BG_CROPS = 12  # fixed random crops of each atlas tile
+
+
+@lru_cache(maxsize=2)
+def background_bank(res: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Fixed crops ``[K, 3, res*res]`` of the atlas tiles (random position and scale 30-100%,
+    flipped or not) and their channel means ``[K, 3]``; scenes pick one and recolour it."""
     atlas = background_atlas()
-    N = u.shape[0]
     tile = atlas.shape[-1] // 5
-    k = (u[:, 0] * 20).long().clamp(max=19)
-    frac = 0.3 + 0.7 * u[:, 1]  # crop side, as a fraction of the tile
-    x0 = (k % 5).float() * tile + u[:, 2] * (1 - frac) * tile
-    y0 = (k // 5).float() * tile + u[:, 3] * (1 - frac) * tile
-    flip = torch.where(u[:, 4] < 0.5, -1.0, 1.0)
+    g = torch.Generator().manual_seed(5)
+    u = torch.rand(20 * BG_CROPS, 4, generator=g)
+    k = torch.arange(20).repeat_interleave(BG_CROPS)
+    frac = 0.3 + 0.7 * u[:, 0]
+    x0 = (k % 5).float() * tile + u[:, 1] * (1 - frac) * tile
+    y0 = (k // 5).float() * tile + u[:, 2] * (1 - frac) * tile
+    flip = torch.where(u[:, 3] < 0.5, -1.0, 1.0)
     t = (torch.arange(res, dtype=torch.float32) + 0.5) / res
-    gx = x0[:, None] + frac[:, None] * tile * (0.5 + flip[:, None] * (t - 0.5))  # [N, res]
+    gx = x0[:, None] + frac[:, None] * tile * (0.5 + flip[:, None] * (t - 0.5))
     gy = y0[:, None] + frac[:, None] * tile * t
-    W, H = atlas.shape[-1], atlas.shape[-2]
-    grid = torch.stack([(gx[:, None, :].expand(N, res, res) + 0.5) / W * 2 - 1,
-                        (gy[:, :, None].expand(N, res, res) + 0.5) / H * 2 - 1], -1)
-    crop = F.grid_sample(atlas, grid.permute(1, 0, 2, 3).reshape(1, res, N * res, 2), mode="bilinear", align_corners=False)
-    crop = crop.reshape(3, res, N, res).permute(2, 0, 1, 3)
-    # Colour jitter: contrast, per-channel gain, desaturation.
-    mean = crop.mean((2, 3), keepdim=True)
-    crop = mean + (0.5 + 0.8 * u[:, 5, None, None, None]) * (crop - mean)
-    crop = crop * (0.6 + 0.6 * u[:, 6:9, None, None])
-    gray = crop.mean(1, keepdim=True)
-    crop = crop + (u[:, 9, None, None, None] * 0.7) * (gray - crop)
-    # Gradient between two colours along a random direction.
+    K, (Ha, Wa) = k.numel(), atlas.shape[-2:]
+    grid = torch.stack([(gx[:, None, :].expand(K, res, res) + 0.5) / Wa * 2 - 1,
+                        (gy[:, :, None].expand(K, res, res) + 0.5) / Ha * 2 - 1], -1)
+    crops = F.grid_sample(atlas.expand(K, -1, -1, -1), grid, mode="bilinear", align_corners=False)
+    crops = crops.reshape(K, 3, res * res).contiguous()
+    return crops, crops.mean(2)
+
+
+def paint_background(u: torch.Tensor, res: int) -> torch.Tensor:
+    """Backgrounds ``[N, 3, res, res]`` from 16 uniforms per scene: a crop of a picture or
+    texture, recoloured (contrast, per-channel gain, desaturation), a two-colour
+    gradient, or a blend of both.  The recolouring is an affine colour map and the
+    gradient is bilinear, so the whole background is one ``baddbmm``."""
+    crops, means = background_bank(res)
+    N = u.shape[0]
+    k = (u[:, 0] * crops.shape[0]).long().clamp(max=crops.shape[0] - 1)
+    contrast = 0.5 + 0.8 * u[:, 5]
+    gain = 0.6 + 0.6 * u[:, 6:9]
+    d = 0.7 * u[:, 9]
+    D = (1 - d)[:, None, None] * torch.eye(3) + (d / 3)[:, None, None]  # desaturation
+    M = D * gain[:, None, :]  # D @ diag(gain)
+    offset = (M @ ((1 - contrast)[:, None] * means[k])[..., None])[..., 0]  # contrast about the crop mean
+    M = contrast[:, None, None] * M
+    # Gradient between two colours along a random direction: its 4 corners, bilinear between.
     ang = 2 * math.pi * u[:, 10]
-    s = (t[None, :, None] - 0.5) * torch.sin(ang)[:, None, None] + (t[None, None, :] - 0.5) * torch.cos(ang)[:, None, None]
-    c0 = torch.stack([u[:, 11], u[:, 12], u[:, 13]], 1)
+    cx = torch.tensor([-0.5, 0.5, -0.5, 0.5])  # corners (top-left, top-right, bottom-left, bottom-right)
+    cy = torch.tensor([0.5, 0.5, -0.5, -0.5])
+    s = (cx * torch.cos(ang)[:, None] + cy * torch.sin(ang)[:, None] + 0.5).clamp(0, 1)  # [N, 4]
+    c0 = u[:, 11:14]
     c1 = c0 * (0.3 + 0.7 * u[:, 14:15])
-    grad = c0[:, :, None, None] + (s[:, None] + 0.5).clamp(0, 1) * (c1 - c0)[:, :, None, None]
+    corners = c0[:, :, None] + s[:, None, :] * (c1 - c0)[:, :, None]  # [N, 3, 4]
     kind = u[:, 15]  # 55% picture, 25% gradient, 20% blend
-    w = torch.where(kind < 0.55, 1.0, torch.where(kind < 0.8, 0.0, 0.5))[:, None, None, None]
-    return (w * crop + (1 - w) * grad).clamp(0, 1)
+    w = torch.where(kind < 0.55, 1.0, torch.where(kind < 0.8, 0.0, 0.5))
+    corners = w[:, None, None] * offset[:, :, None] + (1 - w)[:, None, None] * corners
+    base = F.interpolate(corners.reshape(N, 3, 2, 2), size=(res, res), mode="bilinear", align_corners=True)
+    bg = torch.baddbmm(base.reshape(N, 3, -1), w[:, None, None] * M, crops.index_select(0, k))
+    return bg.clamp_(0, 1).reshape(N, 3, res, res)
 
 
 # ----------------------------------------------------------------------------- scene parameters
@@ -462,7 +489,7 @@ def _uv_map_from_subgrid(vals: torch.Tensor, grid: tuple[int, int], res: int) ->
     B, _, C = vals.shape
     g = vals.reshape(B, gv, gu, C).permute(0, 3, 1, 2)
     # Sample the sub-grid at each texel: its UV rows/cols are not uniform, so map via searchsorted.
-    us, vs = uv.reshape(gv, gu, 2)[0, :, 0], uv.reshape(gv, gu, 2)[:, 0, 1]
+    us, vs = uv.reshape(gv, gu, 2)[0, :, 0].contiguous(), uv.reshape(gv, gu, 2)[:, 0, 1].contiguous()
     t = torch.linspace(0, 1, res, dtype=uv.dtype)
 
     def coord(knots):

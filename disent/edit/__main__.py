@@ -228,8 +228,8 @@ def main(argv=None) -> None:
     m.add_argument("--alphas", nargs="+", type=float, default=None)
     m.add_argument("--measure-net", default=None, help="a trained measuring net (default: <out>/measure_net.pt, "
                    "trained when missing)")
-    m.add_argument("--train-size", type=int, default=3000)
-    m.add_argument("--train-steps", type=int, default=1500)
+    m.add_argument("--train-size", type=int, default=4000)
+    m.add_argument("--train-steps", type=int, default=3000)
     m.add_argument("--relight-faces", type=int, default=8)
     m.add_argument("--threads", type=int, default=1)
     m.add_argument("--seed", type=int, default=0)

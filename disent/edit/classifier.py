@@ -21,15 +21,15 @@ from disent.edit.traversal import ATTRIBUTES
 
 
 class MeasureNet(nn.Module):
-    def __init__(self, resolution: int = 64, width: int = 16, identity_dim: int = 0):
+    def __init__(self, resolution: int = 64, width: int = 24, identity_dim: int = 0):
         super().__init__()
         self.resolution, self.identity_dim = resolution, identity_dim
-        chans = [3, width, 2 * width, 4 * width, 4 * width]
-        layers = []
+        chans = [width, width, 2 * width, 4 * width, 4 * width]
+        layers = [nn.Conv2d(3, width, 3, 1, 1), nn.BatchNorm2d(width), nn.ReLU()]  # full-resolution stem
         for cin, cout in zip(chans[:-1], chans[1:]):  # four stride-2 blocks: 64 -> 4
             layers += [nn.Conv2d(cin, cout, 3, 2, 1), nn.BatchNorm2d(cout), nn.ReLU()]
-        self.features = nn.Sequential(*layers, nn.AdaptiveAvgPool2d(2), nn.Flatten())
-        F_dim = 4 * chans[-1]
+        self.features = nn.Sequential(*layers, nn.AdaptiveAvgPool2d(4), nn.Flatten())
+        F_dim = 16 * chans[-1]
         self.attrs = nn.Linear(F_dim, len(ATTRIBUTES))
         self.regress = nn.Linear(F_dim, 27 + 3 + identity_dim)  # light, pose, identity
         # targets are standardised for training; light and pose come back in the data's units
@@ -50,11 +50,11 @@ class MeasureNet(nn.Module):
 
 def fit_measure_net(images: torch.Tensor, attrs: torch.Tensor, sh: torch.Tensor, pose: torch.Tensor,
                     identity: torch.Tensor | None = None, steps: int = 1500, batch_size: int = 64,
-                    lr: float = 2e-3, width: int = 16, seed: int = 0, log_every: int = 0) -> MeasureNet:
+                    lr: float = 2e-3, width: int = 24, seed: int = 0, log_every: int = 0) -> MeasureNet:
     """Train a :class:`MeasureNet` on ``images [N,3,H,W]`` with their true ``attrs [N,4]`` (0/1),
     ``sh [N,3,9]``, ``pose [N,3]`` and (optionally) ``identity [N,D]`` identity parameters.
 
-    Loss: BCE on the attributes + MSE on the standardised light, pose and identity.  Adam,
+    Loss: 2 x BCE on the attributes + MSE on the standardised light, pose and identity.  Adam,
     cosine learning-rate decay, no flips (a flip would change the pose and light).
     """
     N = len(images)
@@ -74,7 +74,7 @@ def fit_measure_net(images: torch.Tensor, attrs: torch.Tensor, sh: torch.Tensor,
     for step in range(steps):
         idx = torch.randint(0, N, (batch_size,), generator=g)
         h = net.features(images[idx])
-        loss = F.binary_cross_entropy_with_logits(net.attrs(h), attrs[idx].float())
+        loss = 2 * F.binary_cross_entropy_with_logits(net.attrs(h), attrs[idx].float())
         loss = loss + F.mse_loss(net.regress(h), z_target[idx])
         opt.zero_grad()
         loss.backward()

@@ -40,6 +40,7 @@ from disent.render import sh_shading
 
 DEFAULT_LAMBDAS = (0.2, 0.07, 0.05, 0.03, 0.01)
 DEFAULT_ALPHAS = (0.5, 1.0, 2.0)
+SEMANTIC_SHAPE = 17  # the face model's named shape components (the rest are fine random fields)
 PSNR_CAP = 100.0  # dB; float32 round-off of an exact answer lands above it
 LEAK_KEYS = ("d_light", "d_pose", "d_identity", "d_attrs", "d_bg")
 
@@ -85,9 +86,9 @@ def get_batch(data, indices, chunk: int = 256, **overrides) -> dict:
 
 
 def identity_params(data, indices) -> torch.Tensor:
-    """The generator's identity: face-shape coefficients and skin colour, ``[N, 43]``."""
+    """The generator's identity: its semantic face-shape coefficients and skin colour, ``[N, 20]``."""
     p = data.params(list(indices))
-    return torch.cat([p["alpha"], p["skin"]], 1).float()
+    return torch.cat([p["alpha"][:, :SEMANTIC_SHAPE], p["skin"]], 1).float()
 
 
 def attr_matrix(batch: dict) -> torch.Tensor:
@@ -236,7 +237,7 @@ def relight_table(model, data_cls, light_bank: dict, n_faces: int = 8, n_lights:
 
 # ----------------------------------------------------------------------------- the report
 def markdown_table(rows: list[dict], keys: list[str]) -> str:
-    fmt = lambda v: f"{v:.3f}" if isinstance(v, float) else str(v)  # noqa: E731
+    fmt = lambda v: f"{v:.4g}" if isinstance(v, float) else str(v)  # noqa: E731
     lines = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
     lines += ["| " + " | ".join(fmt(r.get(k, "")) for k in keys) + " |" for r in rows]
     return "\n".join(lines)
@@ -371,12 +372,14 @@ def run_measurements(a) -> None:
     keys = ["attribute", "manifolds", "method", "strength", "success", "gain", *LEAK_KEYS, "leakage", "gain_per_leak"]
     claims = claim_summary(rows)
     plot_success_vs_leakage(rows, out / "fig_success_vs_leakage.png")
-    rel_rows, example = relight_table(model, SynthFaces, LIGHT_BANK, a.relight_faces, seed=a.seed, resolution=R)
-    shade = lambda s: s / s.flatten(1).amax(1).clamp_min(1e-6)[:, None, None, None]  # noqa: E731
-    image_grid([example[k] if not k.startswith("S_") else shade(example[k]) for k in
-                ("target", "source", "S_target", "S_transfer", "transfer", "ratio", "decode", "truth")],
-               ["target", "source", "S target", "S transfer", "transfer", "ratio", "decode", "truth"],
-               out / "fig_relight.png")
+    rel_rows = []
+    if "L" in getattr(model, "CODE_NAMES", ()):  # a rendering model (the baseline has no light to replace)
+        rel_rows, example = relight_table(model, SynthFaces, LIGHT_BANK, a.relight_faces, seed=a.seed, resolution=R)
+        shade = lambda s: s / s.flatten(1).amax(1).clamp_min(1e-6)[:, None, None, None]  # noqa: E731
+        image_grid([example[k] if not k.startswith("S_") else shade(example[k]) for k in
+                    ("target", "source", "S_target", "S_transfer", "transfer", "ratio", "decode", "truth")],
+                   ["target", "source", "S target", "S transfer", "transfer", "ratio", "decode", "truth"],
+                   out / "fig_relight.png")
     rel_keys = ["method", "psnr", "ssim", "psnr_face", "ssim_face", "lights", "faces"]
     (out / "edit.json").write_text(json.dumps({"run": str(a.run), "measure_net": net_info, "traversal": rows,
                                                "claims": claims, "relight": rel_rows}, indent=1))
@@ -385,7 +388,7 @@ def run_measurements(a) -> None:
             "## Traversal\n", markdown_table(rows, keys),
             "\n## Success per unit leakage by manifold choice\n", markdown_table(claims, list(claims[0])),
             "\n## Relighting (PSNR dB / SSIM against the generator's render under the source light)\n",
-            markdown_table(rel_rows, rel_keys)]
+            markdown_table(rel_rows, rel_keys) if rel_rows else "(the baseline model has no lighting code)"]
     (out / "edit.md").write_text("\n".join(text) + "\n")
     print("\n".join(text))
 

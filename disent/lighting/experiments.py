@@ -89,6 +89,8 @@ def plot_widths(w: dict, path: Path) -> None:
         ax.set_yscale("log")
         if axis == "noise":
             ax.set_xscale("log")
+            ax.set_xticks(xs, [f"{x:g}" for x in xs])
+            ax.minorticks_off()
     axes[0].set_ylabel("mean 68% interval width")
     axes[0].legend()
     fig.suptitle("Posterior width of the SH light (known albedo, Gaussian likelihood)")

@@ -363,8 +363,10 @@ def sample_posterior(data: LightingData, *, order: int = 2, likelihood: str = "g
         if converged:
             break
         old_tau = tau.max()
-    tau_max = float(np.nanmax(tau))
-    burn, thin = int(math.ceil(2 * tau_max)), max(1, int(tau_max / 2))
+    tau_max = float(np.max(tau))
+    if not np.isfinite(tau_max):  # some walker never moved: no estimate, keep the second half unthinned
+        converged, tau_max = False, float(sampler.iteration)
+    burn, thin = min(int(math.ceil(2 * tau_max)), sampler.iteration // 2), max(1, int(tau_max / 2))
     flat = sampler.get_chain(discard=burn, thin=thin, flat=True)
     L, log_sigma = logpost.split(flat)
     sh = np.zeros((len(flat), logpost.C, 9))
@@ -373,7 +375,7 @@ def sample_posterior(data: LightingData, *, order: int = 2, likelihood: str = "g
     diagnostics = {
         "n_steps": int(sampler.iteration), "n_walkers": n_walkers, "ndim": D, "converged": converged,
         "tau": tau.tolist(), "tau_max": tau_max, "acceptance_fraction": float(np.mean(sampler.acceptance_fraction)),
-        "ess_min": float(n_walkers * n_kept / tau_max), "ess": (n_walkers * n_kept / tau).tolist(),
+        "ess_min": float(n_walkers * n_kept / tau_max), "ess": np.nan_to_num(n_walkers * n_kept / tau).tolist(),
         "burn": burn, "thin": thin, "n_samples": len(flat), "n_pixels": data.n_pixels,
         "seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - c0,
     }

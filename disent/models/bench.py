@@ -1,0 +1,203 @@
+"""``python -m disent.bench models`` and ``time_to_accuracy``.
+
+``models``: for each model, its FLOPs per image (torch's ``FlopCounterMode``) for a forward
+pass and for a whole training step (generator and EBGAN discriminator, forward and backward),
+then training images/s with and without the discriminator and inference images/s at batch
+1, 64 and 256, each also as a fraction of the fp32 matmul peak measured in the same run
+(``achieved FLOP/s / peak``).  Every figure is the median of several rounds; the peak is
+re-measured between models and its median used, since the machine is shared.  The data
+loader (``SynthFaces.get_batch`` on fresh indices) is timed alone at the training batch
+size, to show it outruns training.
+
+``time_to_accuracy``: minutes of training wall time until the network's normals beat the
+pseudo ground truth's (mean angular error on the test images), read from a run's
+``metrics.jsonl`` (the newest run under ``outputs/`` or ``--run DIR``).
+"""
+from __future__ import annotations
+
+import json
+import statistics
+import time
+from pathlib import Path
+
+import torch
+from omegaconf import OmegaConf
+from torch.utils.flop_counter import FlopCounterMode
+
+from disent.bench import measure_peak_gflops, median_time, print_table, register
+
+CONF = Path(__file__).resolve().parents[2] / "conf"
+MODELS = ("explicit", "implicit", "baseline")
+INFER_BATCHES = (1, 64, 256)
+TRAIN_BATCH = 64
+
+
+def model_cfg(name: str, resolution: int) -> dict:
+    cfg = OmegaConf.to_container(OmegaConf.load(CONF / "model" / f"{name}.yaml"))
+    cfg["resolution"] = resolution
+    return cfg
+
+
+def loss_cfg(adv: bool):
+    cfg = OmegaConf.load(CONF / "loss" / "default.yaml")
+    if not adv:
+        cfg.weights.adv = 0.0
+    return cfg
+
+
+def count_flops(fn) -> int:
+    with FlopCounterMode(display=False) as counter:
+        fn()
+    return counter.get_total_flops()
+
+
+class Trainer:
+    """One model (+ optional discriminator) with its optimisers, stepping on a fixed batch."""
+
+    def __init__(self, name, batch, adv, device, channels_last=True, amp=False):
+        from disent.models import Discriminator, build_model
+
+        fmt = torch.channels_last if channels_last else torch.contiguous_format
+        res = batch["image"].shape[-1]
+        torch.manual_seed(0)
+        self.model = build_model(model_cfg(name, res)).to(device, memory_format=fmt)
+        self.disc = Discriminator(res).to(device, memory_format=fmt) if adv else None
+        self.opt_g = torch.optim.RMSprop(self.model.parameters(), lr=1e-4)
+        self.opt_d = torch.optim.RMSprop(self.disc.parameters(), lr=1e-4) if adv else None
+        self.cfg = loss_cfg(adv)
+        self.batch, self.amp, self.device = batch, amp, torch.device(device)
+
+    def step(self):
+        from disent.train import train_step
+
+        with autocast(self.device, self.amp):
+            losses = train_step(self.model, self.disc, self.opt_g, self.opt_d, self.batch, self.cfg)
+        if "nonfinite" in losses:
+            raise FloatingPointError(f"benchmark step gave non-finite {losses['nonfinite']}")
+
+
+def synth_batch(n: int, resolution: int, device, channels_last: bool, start: int = 0) -> dict:
+    from disent.data import SynthFaces
+    from disent.train import TRAIN_KEYS, get_batch, to_device
+
+    ds = SynthFaces("train", resolution=resolution, seed=0)
+    return to_device(get_batch(ds, range(start, start + n), TRAIN_KEYS), device, channels_last)
+
+
+def loader_img_s(n: int, resolution: int, rounds: int) -> float:
+    """``SynthFaces.get_batch`` alone on fresh indices, at the current thread count."""
+    from disent.data import SynthFaces
+    from disent.train import get_batch
+
+    ds = SynthFaces("train", resolution=resolution, seed=0)
+    get_batch(ds, range(n))  # builds the generator's fixed tables
+    start = iter(range(n, 10**6, n))
+    return n / median_time(lambda: get_batch(ds, range(next(start), next(start) + n)), rounds, warmup=0)
+
+
+def autocast(device, enabled: bool):
+    """Mixed precision (bfloat16 on the CPU, float16 on CUDA); the shading layer stays float32."""
+    device = torch.device(device)
+    return torch.autocast(device.type, dtype=torch.bfloat16 if device.type == "cpu" else torch.float16,
+                          enabled=enabled)
+
+
+def bench_one(name: str, args, device: str, sync) -> dict:
+    """FLOPs per image and images/s of one model: training with and without D, inference."""
+    res, rounds, channels_last = args.size, args.rounds, not args.no_channels_last
+    batch = synth_batch(TRAIN_BATCH, res, device, channels_last)
+    out = {}
+    for adv in (True, False):
+        tr = Trainer(name, batch, adv, device, channels_last, args.amp)
+        key = "train" if adv else "train_no_d"
+        out[f"{key}_flops_per_image"] = count_flops(tr.step) / TRAIN_BATCH
+        tr.step()  # warm-up (allocator, RMSprop state)
+        out[f"{key}_img_s"] = TRAIN_BATCH / median_time(lambda: (tr.step(), sync()), rounds)
+    model = tr.model.eval()
+    fmt = torch.channels_last if channels_last else torch.contiguous_format
+    with torch.inference_mode():
+        out["flops_per_image"] = count_flops(lambda: model(batch["image"][:2])) / 2
+        for B in INFER_BATCHES:
+            x = batch["image"].repeat(-(-B // TRAIN_BATCH), 1, 1, 1)[:B].contiguous(memory_format=fmt)
+
+            def infer():
+                with autocast(device, args.amp):
+                    model(x)
+                sync()
+
+            key = "infer" if B == 64 else f"infer_b{B}"
+            out[f"{key}_img_s"] = B / median_time(infer, rounds if B > 1 else 20 * rounds, warmup=2)
+    return out
+
+
+def add_fractions(fig: dict, peak_gflops: float) -> None:
+    """``<key>_fraction_of_peak`` = FLOPs per image x images/s / peak FLOP/s, for every rate."""
+    for key in [k[:-len("_img_s")] for k in fig if k.endswith("_img_s")]:
+        flops = fig.get(f"{key}_flops_per_image", fig["flops_per_image"])  # inference: the forward FLOPs
+        fig[f"{key}_fraction_of_peak"] = flops * fig[f"{key}_img_s"] / 1e9 / peak_gflops
+
+
+def bench_models(args) -> dict:
+    device = args.device
+    sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
+    peaks = [measure_peak_gflops(rounds=args.rounds, device=device)]
+    figures = {}
+    for name in args.models or MODELS:
+        figures[name] = bench_one(name, args, device, sync)
+        peaks.append(measure_peak_gflops(rounds=args.rounds, device=device))  # between models: same conditions
+    peak = statistics.median(peaks)
+    for fig in figures.values():
+        add_fractions(fig, peak)
+    setup = {"peak_gflops_rounds": peaks, "threads": torch.get_num_threads(), "device": device,
+             "train_batch": TRAIN_BATCH, "resolution": args.size, "amp": args.amp,
+             "channels_last": not args.no_channels_last}
+    if "explicit" in figures and "implicit" in figures:
+        e, i = figures["explicit"], figures["implicit"]
+        setup["implicit_vs_explicit"] = {k: i[k] / e[k] for k in ("train_img_s", "train_no_d_img_s", "infer_img_s")}
+    if not device.startswith("cuda"):
+        setup["loader_img_s"] = loader_img_s(TRAIN_BATCH, args.size, args.rounds)
+        setup["loader_vs_fastest_training"] = setup["loader_img_s"] / max(f["train_no_d_img_s"] for f in figures.values())
+    for name, fig in figures.items():
+        print_table(f"{name}: {setup['threads']} threads, peak {peak:.1f} GFLOP/s, train batch {TRAIN_BATCH}", fig)
+    print_table("setup", setup)
+    return {**figures, "top": {"peak_gflops": peak, "models_setup": setup}}
+
+
+# ----------------------------------------------------------------------------- time to accuracy
+def latest_run(root: Path = Path("outputs")) -> Path | None:
+    runs = sorted(root.glob("*/*/metrics.jsonl"), key=lambda p: p.stat().st_mtime)
+    return runs[-1].parent if runs else None
+
+
+def time_to_accuracy(metrics_path: Path) -> dict:
+    """First logged evaluation whose network normal error beats the pseudo-GT's, in wall minutes."""
+    evals = []
+    for line in metrics_path.read_text().splitlines():
+        rec = json.loads(line)
+        if isinstance(rec.get("eval"), dict) and "normal_mean" in rec["eval"]:
+            evals.append(rec)
+    if not evals:
+        return {"run": str(metrics_path.parent), "minutes": None, "reason": "no evaluation with normals logged"}
+    for rec in evals:
+        e = rec["eval"]
+        if e["normal_mean"] < e["pseudo_normal_mean"]:
+            return {"run": str(metrics_path.parent), "minutes": rec["wall"] / 60, "step": rec["step"],
+                    "normal_mean": e["normal_mean"], "pseudo_normal_mean": e["pseudo_normal_mean"]}
+    e = evals[-1]["eval"]
+    return {"run": str(metrics_path.parent), "minutes": None, "reason": "normals never beat the pseudo-GT",
+            "last_wall_minutes": evals[-1]["wall"] / 60, "normal_mean": e["normal_mean"],
+            "pseudo_normal_mean": e["pseudo_normal_mean"]}
+
+
+def bench_time_to_accuracy(args) -> dict:
+    run = Path(args.run) if args.run else latest_run()
+    if run is None:
+        out = {"minutes": None, "reason": "no run with metrics.jsonl under outputs/ (train one: python -m disent)"}
+    else:
+        out = time_to_accuracy(run / "metrics.jsonl" if run.is_dir() else run)
+    print_table("time to accuracy (network normals beat the pseudo-GT)", out)
+    return out
+
+
+register("models", bench_models)
+register("time_to_accuracy", bench_time_to_accuracy)

@@ -1,0 +1,314 @@
+"""SynthFaces against its contract: the image model, ground truth, determinism, splits."""
+import math
+
+import pytest
+import torch
+
+from disent.data import ATTR_PRIOR, LIGHT_BANK, LIGHT_NAMES, SPLITS, SynthFaces
+from disent.data.face_model import GRID_U, GRID_V, face_model
+from disent.data.raster import interpolate, rasterize, render_face
+from disent.data.synth import LAYERS, fit_sh_packed, lights_to_sh, paint_layers, sample_lights, uniform
+from disent.render import composite, fit_sh, image_formation, sh_basis, sh_shading
+
+IMAGE_KEYS = ("image", "background", "albedo", "shading", "normal", "normal_uv", "albedo_uv", "normal_pseudo",
+              "normal_uv_pseudo")
+
+
+@pytest.fixture(scope="module")
+def train():
+    return SynthFaces("train", resolution=64, seed=0)
+
+
+@pytest.fixture(scope="module")
+def batch(train):
+    return train.get_batch(range(24))
+
+
+def test_item_keys_shapes_and_ranges(train, batch):
+    item = train[3]
+    H = 64
+    shapes = {"image": (3, H, H), "background": (3, H, H), "matte": (1, H, H), "normal": (3, H, H),
+              "albedo": (3, H, H), "shading": (3, H, H), "sh": (3, 9), "uv": (2, H, H), "normal_uv": (3, H, H),
+              "albedo_uv": (3, H, H), "normal_pseudo": (3, H, H), "mask_pseudo": (1, H, H), "uv_pseudo": (2, H, H),
+              "normal_uv_pseudo": (3, H, H), "sh_pseudo": (3, 9), "pose": (3,)}
+    for k, shape in shapes.items():
+        assert item[k].shape == shape, k
+        assert item[k].dtype == torch.float32, k
+        assert torch.isfinite(item[k]).all(), k
+    for k in ("image", "background", "albedo", "albedo_uv", "matte", "mask_pseudo", "uv", "uv_pseudo"):
+        assert item[k].min() >= 0 and item[k].max() <= 1, k
+    assert item["identity"].dtype == torch.int64 and item["light_id"].item() == -1
+    assert set(item["attrs"]) == {f"{a}{s}" for a in ATTR_PRIOR for s in ("", "_strength")}
+    for k, v in batch.items():  # __getitem__ (chunk cache) and get_batch agree
+        if not isinstance(v, dict):
+            assert torch.equal(v[3], item[k]), k
+
+
+def test_resolution_128_item():
+    item = SynthFaces("val", resolution=128).sample(0)
+    assert item["image"].shape == (3, 128, 128) and item["albedo_uv"].shape == (3, 128, 128)
+    assert item["matte"].sum() > 0.2 * 128 * 128
+
+
+def test_normals_unit_inside_matte_zero_outside(batch):
+    for n, m in ((batch["normal"], batch["matte"]), (batch["normal_pseudo"], batch["mask_pseudo"])):
+        norm = n.norm(dim=1)
+        inside = m[:, 0] > 0
+        assert inside.any()
+        assert torch.allclose(norm[inside], torch.ones_like(norm[inside]), atol=1e-5)
+        assert norm[~inside].abs().max() == 0
+    assert (batch["normal"][:, 2][batch["matte"][:, 0] > 0] > -0.5).all()  # visible surfaces face the camera
+    for k in ("normal_uv", "normal_uv_pseudo"):
+        assert torch.allclose(batch[k].norm(dim=1), torch.ones(1), atol=1e-4)
+
+
+def test_image_is_the_papers_model_with_effects_off(batch):
+    shading = sh_shading(batch["normal"], batch["sh"]) * batch["matte"]
+    assert torch.allclose(batch["shading"], shading, atol=1e-6)
+    image = composite(batch["matte"], image_formation(batch["albedo"], batch["shading"]), batch["background"])
+    assert (batch["image"] - image).abs().max() < 1e-6
+    # The albedo is the UV-space texture looked up at the pixel's uv.
+    m = batch["matte"][:, 0] > 0
+    assert batch["albedo"][:, 0][m].min() >= 0.02 - 1e-6
+
+
+def test_fit_sh_with_gt_normals_and_albedo_recovers_gt_light(batch):
+    sh, residual = fit_sh(batch["image"], batch["normal"], batch["matte"], albedo=batch["albedo"])
+    assert residual.max() < 1e-5
+    assert torch.allclose(sh, batch["sh"], atol=2e-4), (sh - batch["sh"]).abs().max()
+
+
+def test_sh_pseudo_is_l_hat_of_the_pseudo_normals(batch):
+    sh, _ = fit_sh(batch["image"], batch["normal_pseudo"], batch["mask_pseudo"])
+    assert torch.allclose(batch["sh_pseudo"], sh, atol=1e-5)
+    packed = fit_sh_packed(batch["image"], batch["normal_pseudo"], batch["mask_pseudo"])
+    assert torch.allclose(packed, sh, atol=1e-5)
+
+
+def test_pseudo_gt_error_in_the_stated_band():
+    b = SynthFaces("test", seed=1).get_batch(range(48))
+    both = (b["matte"] * b["mask_pseudo"])[:, 0] > 0
+    cos = (b["normal"] * b["normal_pseudo"]).sum(1).clamp(-1, 1)[both]
+    err = torch.rad2deg(torch.acos(cos)).mean().item()
+    assert 8.0 <= err <= 25.0, err
+    # The coarse fit covers the face, not the hair: its mask lies mostly inside the true matte.
+    assert (b["mask_pseudo"] * b["matte"]).sum() / b["mask_pseudo"].sum() > 0.9
+
+
+def test_same_seed_same_bytes_any_batching():
+    a = SynthFaces("val", seed=3).get_batch([5, 6, 7])
+    b = SynthFaces("val", seed=3).get_batch([7, 1, 5])
+    c = SynthFaces("val", seed=4).get_batch([5])
+    for k in ("image", "normal", "albedo", "sh", "sh_pseudo", "background", "normal_pseudo"):
+        assert a[k][0].numpy().tobytes() == b[k][2].numpy().tobytes(), k
+        assert a[k][2].numpy().tobytes() == b[k][0].numpy().tobytes(), k
+    assert not torch.equal(a["image"][0], c["image"][0])
+    assert not torch.equal(a["image"][0], a["image"][1])
+
+
+def test_counter_based_uniforms():
+    key = torch.arange(5000)
+    u = uniform(key, "pose", 4, seed=0)
+    assert u.min() > 0 and u.max() < 1
+    assert abs(u.mean().item() - 0.5) < 0.01 and abs(u.var().item() - 1 / 12) < 0.005
+    assert torch.equal(u[1234], uniform(key[1234:1235], "pose", 4, seed=0)[0])
+    assert abs(torch.corrcoef(torch.stack([u[:, 0], uniform(key, "light", 1, 0)[:, 0]]))[0, 1]) < 0.05
+
+
+def _layer(*names, res=64):
+    L = paint_layers(res)
+    return sum(L[LAYERS.index(n)] for n in names).reshape(res, res)
+
+
+@pytest.mark.parametrize("attr,layers", [("beard", ("beard_full", "beard_goatee")),
+                                         ("eyeglasses", ("glasses_round", "glasses_square"))])
+def test_albedo_attributes_change_only_their_region(train, attr, layers):
+    off, on = train.sample(2, **{attr: 0.0}), train.sample(2, **{attr: 1.0})
+    assert on["attrs"][attr] == 1 and off["attrs"][attr] == 0
+    diff = (on["albedo_uv"] - off["albedo_uv"]).abs().amax(0)
+    region = _layer(*layers) > 1e-6
+    assert diff[region].max() > 0.1
+    assert diff[~region].max() < 1e-6
+    for k in ("normal", "matte", "sh", "background", "normal_pseudo"):  # albedo only: no geometry, no light
+        assert torch.equal(on[k], off[k]), k
+
+
+def test_smiling_changes_the_expression_only(train):
+    off, on = train.sample(1, smiling=0.0), train.sample(1, smiling=1.0)
+    assert torch.equal(on["albedo_uv"], off["albedo_uv"]) and torch.equal(on["sh"], off["sh"])
+    assert torch.equal(on["background"], off["background"])
+    d = (on["normal_uv"] - off["normal_uv"]).norm(dim=0)  # in UV space: rows of the lower face only
+    rows = d.amax(1)
+    eye_row = int(0.38 * 64)
+    assert rows[eye_row + 8:].max() > 0.3 and rows[:eye_row].max() < 1e-3
+    # Teeth show when the mouth opens: the smiling image has teeth-coloured pixels in the mouth.
+    teeth = _layer("teeth") > 0.5
+    uv = (on["uv"] * 63).round().long()
+    hit = teeth[uv[1], uv[0]] & (on["matte"][0] > 0)
+    assert hit.sum() >= 2
+    uv = (off["uv"] * 63).round().long()
+    assert (teeth[uv[1], uv[0]] & (off["matte"][0] > 0)).sum() == 0
+
+
+def test_senior_changes_albedo_and_shape_not_light(train):
+    off, on = train.sample(4, senior=0.0), train.sample(4, senior=1.0)
+    assert not torch.equal(on["normal_uv"], off["normal_uv"])
+    sat = lambda a: (a.amax(0) - a.amin(0)).mean()  # noqa: E731
+    assert sat(on["albedo_uv"]) < sat(off["albedo_uv"])  # desaturated
+    assert torch.equal(on["sh"], off["sh"]) and torch.equal(on["background"], off["background"])
+
+
+def test_sample_overrides(train):
+    sh = LIGHT_BANK["flash_az-45"]
+    a = train.sample(7, sh=sh)
+    assert torch.equal(a["sh"], sh) and a["light_id"] == -1
+    b = train.sample(7, light="flash_az-45")
+    assert torch.equal(b["sh"], sh) and b["light_id"] == LIGHT_NAMES.index("flash_az-45")
+    assert torch.equal(a["image"], b["image"])
+    c = train.sample(7, pose=(0.0, 0.0, 0.0))
+    assert torch.equal(c["pose"], torch.zeros(3))
+    base = train[7]
+    assert torch.equal(train.sample(7)["image"], base["image"])
+    assert torch.equal(c["albedo_uv"], base["albedo_uv"])  # same face, new pose
+    with pytest.raises(ValueError):
+        train.sample(7, hair=1.0)
+    with pytest.raises(ValueError):
+        train.sample(7, beard=2.0)
+
+
+def test_effects_off_by_default_and_each_changes_the_image(train):
+    base = train.sample(5)
+    for e in ("specular", "cast_shadow", "noise", "occluder"):
+        lo, hi = train.sample(5, effects={e: 0.3}), train.sample(5, effects={e: 1.0})
+        d_lo, d_hi = (lo["image"] - base["image"]).abs().mean(), (hi["image"] - base["image"]).abs().mean()
+        assert 0 < d_lo < d_hi, e
+        assert torch.equal(hi["normal"], base["normal"]) and torch.equal(hi["albedo"], base["albedo"])
+        assert hi["image"].min() >= 0 and hi["image"].max() <= 1
+    with pytest.raises(ValueError):
+        SynthFaces("train", effects={"fog": 0.5})
+    with pytest.raises(ValueError):
+        train.sample(0, effects={"noise": 1.5})
+
+
+def test_light_prior_and_bank_are_plausible():
+    assert len(LIGHT_BANK) >= 20
+    g = torch.Generator().manual_seed(0)
+    n = torch.nn.functional.normalize(torch.randn(20000, 3, generator=g), dim=1)
+    n = n[n[:, 2] >= 0]  # the visible hemisphere
+    basis = sh_basis(n.T, 0)
+    sh = torch.cat([sample_lights(torch.rand(500, 12, generator=g))["sh"], torch.stack(list(LIGHT_BANK.values()))])
+    s = sh @ basis
+    assert s.min() >= 0 and s.amax((1, 2)).max() <= 1.005
+    # Colour: slightly tinted, not grey, not saturated.
+    ratio = sh[:, 0, 0] / sh[:, 2, 0]
+    assert 0.7 < ratio.min() and ratio.max() < 1.4 and ratio.std() > 0.01
+    # A single light projects to max(0, n.d) up to the order-2 truncation.
+    d = torch.tensor([[0.0, 0.0, 1.0]])
+    one = lights_to_sh(d[None], torch.ones(1, 1, 3), torch.zeros(1, 3), torch.tensor([1.0]), floor=0.0)
+    assert one[0, 0, 0] > 0
+
+
+@pytest.mark.parametrize("split", list(SPLITS))
+def test_split_sizes_and_balance(split):
+    ds = SynthFaces(split)
+    expected = {"train": 20000, "val": 1000, "test": 1000, "lightbank": len(LIGHT_NAMES) * 50 * 3}.get(split, 4000)
+    assert len(ds) == expected
+    idx = range(0, len(ds), max(1, len(ds) // 4000))
+    p = ds.params(idx)
+    if split.startswith("pool_"):
+        attr = split[5:]
+        labels = (p[attr] >= 0.5).float()
+        assert labels.sum() == len(idx) / 2 and len(ds) // 2 >= 2000
+    elif split == "lightbank":
+        p = ds.params(range(len(ds)))
+        assert torch.equal(torch.bincount(p["light_id"]), torch.full((len(LIGHT_NAMES),), 150))
+        assert p["identity"].unique().numel() == 50 and p["pose"][:, 0].unique().numel() == 3
+        same = ds.params(range(len(LIGHT_NAMES)))  # one identity and pose under every light
+        assert torch.equal(same["bg"], same["bg"][:1].expand_as(same["bg"]))
+    else:
+        for attr, prior in ATTR_PRIOR.items():
+            freq = (p[attr] >= 0.5).float().mean().item()
+            assert abs(freq - prior) < 0.05, (attr, freq)
+        assert p["pose"][:, 0].abs().max() <= 45 and p["pose"][:, 1].abs().max() <= 20 and p["pose"][:, 2].abs().max() <= 10
+    assert SynthFaces(split, size=10).params(range(10))["identity"].shape == (10,)
+
+
+def test_splits_have_disjoint_identities():
+    ids = {s: set(SynthFaces(s).params(range(0, 1000, 7))["identity"].tolist()) for s in ("train", "val", "test")}
+    assert not (ids["train"] & ids["val"]) and not (ids["train"] & ids["test"]) and not (ids["val"] & ids["test"])
+
+
+def test_bad_input_is_refused(train):
+    with pytest.raises(ValueError):
+        SynthFaces("validation")
+    with pytest.raises(ValueError):
+        SynthFaces("train", resolution=96)
+    with pytest.raises(IndexError):
+        train[len(train)]
+    with pytest.raises(IndexError):
+        train.get_batch([-1])
+
+
+def test_dataloader_renders_batches_together(train):
+    loader = torch.utils.data.DataLoader(SynthFaces("val", size=12), batch_size=6, shuffle=False)
+    first = next(iter(loader))
+    ref = SynthFaces("val", size=12).get_batch(range(6))
+    assert torch.equal(first["image"], ref["image"]) and torch.equal(first["attrs"]["beard"], ref["attrs"]["beard"])
+
+
+# ----------------------------------------------------------------------------- face model and rasterizer
+def test_face_model_sizes_and_landmarks():
+    fm = face_model()
+    assert fm.mean.shape == (GRID_U * GRID_V, 3) and fm.identity.shape[0] >= 20 and fm.expression.shape[0] == 2
+    lm = fm.landmarks
+    assert lm.shape == (68,) and lm.unique().numel() == 68
+    x = fm.mean[lm, 0]
+    for a, b in ((0, 16), (36, 45), (39, 42), (48, 54), (17, 26), (31, 35)):  # mirror pairs
+        assert x[a] < 0 < x[b] and abs(x[a] + x[b]) < 0.06, (a, b)
+    assert (x[:17].diff() > 0).all()  # jaw runs from image left to right
+    y = fm.mean[lm, 1]
+    assert y[19] > y[37] > y[30] > y[51] > y[57] > y[8]  # brow above eye above nose tip above lips above chin
+    ident = fm.identity.flatten(1).norm(dim=1)
+    assert (ident.diff() <= 1e-6).all()  # ordered by variance
+
+
+def _square(z=0.0, offset=0.0, size=1.0):
+    v = torch.tensor([[-1, 1], [1, 1], [-1, -1], [1, -1]], dtype=torch.float32) * size / 2 + offset
+    return torch.cat([v, torch.full((4, 1), z)], 1), torch.tensor([[0, 2, 1], [1, 2, 3]])
+
+
+def test_rasterizer_coverage_depth_and_barycentrics():
+    H = 32
+    va, fa = _square(z=0.0, size=1.0)
+    vb, fb = _square(z=0.5, offset=0.5, size=1.0)  # nearer, overlapping the first's top-right quarter
+    verts = torch.cat([va, vb])[None]
+    faces = torch.cat([fa, fb + 4])
+    r = rasterize(verts, faces, H)
+    mask = r["face_id"][0] >= 0
+    # The union of two half-image squares offset by a quarter image: 2 * 16^2 - 8^2 pixel centres.
+    assert mask.sum() == 2 * 16 * 16 - 8 * 8
+    near = r["face_id"][0] >= 2
+    assert near.sum() == 16 * 16  # the nearer square is entirely visible
+    # Interpolating the vertices' own x, y gives back each pixel centre (linear, orthographic).
+    pix = interpolate(verts[0], faces, r)[0]
+    centres = (torch.arange(H) * 2 + 1) / H - 1
+    assert torch.allclose(pix[0][mask], centres.expand(H, H)[mask], atol=1e-5)
+    assert torch.allclose(pix[1][mask], centres.flip(0)[:, None].expand(H, H)[mask], atol=1e-5)
+    assert torch.allclose(pix[2][near], torch.full_like(pix[2][near], 0.5))
+    # Back-facing triangles are culled.
+    flipped = rasterize(verts, faces[:, [0, 2, 1]], H)
+    assert (flipped["face_id"] < 0).all()
+
+
+def test_render_face_layers():
+    fm = face_model()
+    cam = fm.mean[None] * 0.8
+    g = render_face(cam, fm.faces, fm.uv, 64)
+    m = g["mask"][0, 0] > 0
+    assert 0.3 < m.float().mean() < 0.8
+    assert (g["normal"][0, 2][m] > -0.3).all()  # a frontal face: normals towards the camera
+    assert g["uv"][0][:, m].min() >= 0 and g["uv"][0][:, m].max() <= 1
+    # Left half of the image sees the subject's right side (u < 0.5), normals pointing left.
+    assert g["uv"][0, 0, 32, 16] < 0.5 < g["uv"][0, 0, 32, 48]
+    assert g["normal"][0, 0, 32, 16] < 0 < g["normal"][0, 0, 32, 48]
+    assert math.isclose(g["depth"][0, 0][m].max().item(), cam[0, :, 2].max().item(), rel_tol=0.05)
