@@ -7,6 +7,7 @@ directly.  Foreground terms are computed under the pseudo mask M-hat (Sec. 4.2, 
 name           term                                      needs
 =============  =======================================  ==========================
 ``recon``      E_recon = ||I_i - I_o||^2                 every model
+``recon_fg``   ||M-hat (.) (I_i - I_fg)||^2 (release)     explicit, implicit
 ``adv``        E_adv = D(I_o), the EBGAN energy          every model, a discriminator
 ``recon_N``    E_recon-N = ||N - N-hat||^2               explicit, implicit
 ``recon_L``    E_recon-L = ||Z_L - L-hat||^2             explicit, implicit
@@ -26,7 +27,9 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-TERMS = ("recon", "adv", "recon_N", "recon_L", "smooth_A", "smooth_S", "UV", "Ni", "BWS", "M")
+from disent.render import sh_shading
+
+TERMS = ("recon", "recon_fg", "adv", "recon_N", "recon_L", "smooth_A", "smooth_S", "UV", "Ni", "BWS", "M")
 
 
 def masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -44,12 +47,27 @@ def recon(out, batch):
     return F.mse_loss(out["recon"], batch["image"])
 
 
+def recon_fg(out, batch):
+    """The release's masked reconstruction: the rendered face A (.) S itself must match the image under
+    M-hat.  Without it the skip-connected background decoder can paint the face and the albedo dies."""
+    return masked_mean((out["foreground"] - batch["image"]).pow(2), batch["mask_pseudo"])
+
+
 def recon_N(out, batch):
     return masked_mean((out["normal"] - batch["normal_pseudo"]).pow(2), batch["mask_pseudo"])
 
 
-def recon_L(out, batch):
-    return F.mse_loss(out["sh"], batch["sh_pseudo"])
+def recon_L(out, batch, c: float | None = 0.75):
+    """E_recon-L.  L-hat (constant albedo) is defined up to that constant; with ``c`` set, the constant
+    is chosen per channel so that L-hat's own shading obeys BWS on the batch (mean c over the face),
+    so E_recon-L and BWS ask for the same shading scale.  ``c=None`` uses L-hat as given."""
+    target = batch["sh_pseudo"]
+    if c is not None:
+        mask = batch["mask_pseudo"]
+        s_hat = sh_shading(batch["normal_pseudo"], target) * mask
+        mean = s_hat.sum((0, 2, 3)) / mask.sum().clamp_min(1e-8)  # [C]
+        target = target * (c / mean.clamp_min(1e-3))[None, :, None]
+    return F.mse_loss(out["sh"], target.detach())
 
 
 def smooth_A(out, batch):
@@ -82,9 +100,9 @@ def M(out, batch):
     return F.mse_loss(out["matte"], batch["mask_pseudo"])
 
 
-TERM_FUNCTIONS = {"recon": recon, "recon_N": recon_N, "recon_L": recon_L, "smooth_A": smooth_A,
+TERM_FUNCTIONS = {"recon": recon, "recon_fg": recon_fg, "recon_N": recon_N, "recon_L": recon_L, "smooth_A": smooth_A,
                   "smooth_S": smooth_S, "UV": UV, "Ni": Ni, "BWS": BWS, "M": M}  # adv comes from D
-NEEDS = {"recon": "recon", "adv": "recon", "recon_N": "normal", "recon_L": "sh", "smooth_A": "albedo",
+NEEDS = {"recon": "recon", "recon_fg": "foreground", "adv": "recon", "recon_N": "normal", "recon_L": "sh", "smooth_A": "albedo",
          "smooth_S": "shading", "UV": "uv", "Ni": "normal_uv", "BWS": "shading", "M": "matte"}
 
 
@@ -96,10 +114,12 @@ def active_terms(weights: dict, out: dict) -> list[str]:
     return [t for t in TERMS if weights.get(t, 0) and NEEDS[t] in out]
 
 
-def generator_losses(out: dict, batch: dict, weights: dict, energy_fake=None, bws_c: float = 0.75) -> dict:
+def generator_losses(out: dict, batch: dict, weights: dict, energy_fake=None, bws_c: float = 0.75,
+                     lhat_white: bool = True) -> dict:
     """Unweighted value of every active term, plus ``total`` = sum of weight x term (E_o and the priors).
 
-    ``energy_fake`` is D's energy of ``out['recon']`` (``[B]``), needed when ``adv`` is active.
+    ``energy_fake`` is D's energy of ``out['recon']`` (``[B]``), needed when ``adv`` is active;
+    ``lhat_white`` scales L-hat to the BWS shading level (see :func:`recon_L`).
     """
     losses = {}
     for t in active_terms(weights, out):
@@ -109,7 +129,12 @@ def generator_losses(out: dict, batch: dict, weights: dict, energy_fake=None, bw
             losses[t] = energy_fake.mean()
         else:
             fn = TERM_FUNCTIONS[t]
-            losses[t] = fn(out, batch, bws_c) if t == "BWS" else fn(out, batch)
+            if t == "BWS":
+                losses[t] = fn(out, batch, bws_c)
+            elif t == "recon_L":
+                losses[t] = fn(out, batch, bws_c if lhat_white else None)
+            else:
+                losses[t] = fn(out, batch)
     losses["total"] = sum(weights[t] * v for t, v in losses.items())
     return losses
 

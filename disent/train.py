@@ -63,7 +63,7 @@ def train_step(model, disc, opt_g, opt_d, batch, cfg_loss) -> dict:
     weights = dict(cfg_loss.weights)
     out = model(batch["image"])
     energy_fake = disc.energy(out["recon"]) if disc is not None else None
-    losses = L.generator_losses(out, batch, weights, energy_fake, cfg_loss.bws_c)
+    losses = L.generator_losses(out, batch, weights, energy_fake, cfg_loss.bws_c, cfg_loss.lhat_white)
     if disc is not None:
         energy_real = disc.energy(batch["image"])
         losses["D"] = L.discriminator_loss(energy_real, energy_fake, cfg_loss.margin)

@@ -21,7 +21,7 @@ def train():
 
 @pytest.fixture(scope="module")
 def batch(train):
-    return train.get_batch(range(24))
+    return train.get_batch(range(12))
 
 
 def test_item_keys_shapes_and_ranges(train, batch):
@@ -86,7 +86,7 @@ def test_sh_pseudo_is_l_hat_of_the_pseudo_normals(batch):
 
 
 def test_pseudo_gt_error_in_the_stated_band():
-    b = SynthFaces("test", seed=1).get_batch(range(48))
+    b = SynthFaces("test", seed=1).get_batch(range(32))
     both = (b["matte"] * b["mask_pseudo"])[:, 0] > 0
     cos = (b["normal"] * b["normal_pseudo"]).sum(1).clamp(-1, 1)[both]
     err = torch.rad2deg(torch.acos(cos)).mean().item()
@@ -98,6 +98,9 @@ def test_pseudo_gt_error_in_the_stated_band():
 def test_same_seed_same_bytes_any_batching():
     a = SynthFaces("val", seed=3).get_batch([5, 6, 7])
     b = SynthFaces("val", seed=3).get_batch([7, 1, 5])
+    single = SynthFaces("val", seed=3).get_batch([6])  # batch size does not change a single bit
+    for k in ("image", "normal", "sh", "sh_pseudo"):
+        assert torch.equal(single[k][0], a[k][1]), k
     c = SynthFaces("val", seed=4).get_batch([5])
     for k in ("image", "normal", "albedo", "sh", "sh_pseudo", "background", "normal_pseudo"):
         assert a[k][0].numpy().tobytes() == b[k][2].numpy().tobytes(), k
@@ -198,7 +201,7 @@ def test_light_prior_and_bank_are_plausible():
     basis = sh_basis(n.T, 0)
     sh = torch.cat([sample_lights(torch.rand(500, 12, generator=g))["sh"], torch.stack(list(LIGHT_BANK.values()))])
     s = sh @ basis
-    assert s.min() >= 0 and s.amax((1, 2)).max() <= 1.005
+    assert s.min() >= 0 and s.amax((1, 2)).max() <= 1.01
     # Colour: slightly tinted, not grey, not saturated.
     ratio = sh[:, 0, 0] / sh[:, 2, 0]
     assert 0.7 < ratio.min() and ratio.max() < 1.4 and ratio.std() > 0.01
@@ -213,7 +216,7 @@ def test_split_sizes_and_balance(split):
     ds = SynthFaces(split)
     expected = {"train": 20000, "val": 1000, "test": 1000, "lightbank": len(LIGHT_NAMES) * 50 * 3}.get(split, 4000)
     assert len(ds) == expected
-    idx = range(0, len(ds), max(1, len(ds) // 4000))
+    idx = range(0, min(len(ds), 2000))  # a contiguous block: pools alternate labels exactly
     p = ds.params(idx)
     if split.startswith("pool_"):
         attr = split[5:]

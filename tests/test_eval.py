@@ -122,3 +122,15 @@ def test_plots_write_pngs(tmp_path):
     st.plot_bws({"rows": [row, {**row, "bws": False}]}, tmp_path / "b.png")
     plot_sh_variance(sh_variance_protocol(FakeFaces("lightbank")), tmp_path / "v.png")
     assert all((tmp_path / f).stat().st_size > 5000 for f in ("c.png", "o.png", "b.png", "v.png"))
+
+
+def test_sh_variance_of_a_model_and_baseline_skipped():
+    ds = FakeFaces("lightbank")
+
+    class NoLight(torch.nn.Module):  # like the baseline: recon only
+        def forward(self, image):
+            return {"recon": image}
+
+    res = sh_variance_protocol(ds, {"oracle": OracleModel(ds), "baseline": NoLight()})["estimators"]
+    assert "baseline" not in res
+    assert res["oracle"]["mean"] == pytest.approx(0, abs=1e-12) and res["oracle"]["sh_error"] < 1e-12

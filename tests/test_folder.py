@@ -457,9 +457,7 @@ def test_align_is_consistent_across_photo_sizes():
     assert np.abs(a.astype(int) - b).max() <= 1
 
 
-def test_models_on_photo_records(tmp_path):
-    """The models-on-photos code path: gap numbers and figures from cached photo records."""
-    from disent.data.photos_models import figures, gap_metrics, photo_batch
+def photo_records_and_model(tmp_path):
     from disent.models import build_model
 
     folder = tmp_path / "photos"
@@ -469,11 +467,24 @@ def test_models_on_photo_records(tmp_path):
     s = PseudoGTSettings(resolution=32)
     records, _ = pg.prepare(sorted(folder.iterdir()), s, tmp_path / "cache", progress=False, detector=TemplateDetector(s))
     torch.manual_seed(0)
-    model = build_model({"name": "explicit", "resolution": 32, "code_dim": 16, "matting": True}).eval()
+    return records, build_model({"name": "explicit", "resolution": 32, "code_dim": 16, "matting": True}).eval()
+
+
+def test_domain_gap_numbers_on_photo_records(tmp_path):
+    from disent.data.photos_models import gap_metrics, photo_batch
+
+    records, model = photo_records_and_model(tmp_path)
     batch = photo_batch(records)
     assert batch["image"].shape == (3, 3, 32, 32) and batch["sh_pseudo"].shape == (3, 3, 9)
     gap = gap_metrics(model, batch)
     assert gap["n"] == 3 and all(np.isfinite(v) for v in gap.values())
     assert 0 <= gap["matte_iou_mask_pseudo"] <= gap["matte_covers_mask_pseudo"] <= 1
-    figures(model, batch, ["a", "b", "c"], tmp_path, "untrained")
+
+
+@pytest.mark.slow
+def test_photo_figures(tmp_path):
+    from disent.data.photos_models import figures, photo_batch
+
+    records, model = photo_records_and_model(tmp_path)
+    figures(model, photo_batch(records), ["a", "b", "c"], tmp_path, "untrained")
     assert (tmp_path / "decomposition_untrained.png").is_file() and (tmp_path / "relight_untrained.png").is_file()

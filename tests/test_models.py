@@ -17,6 +17,14 @@ ABLATIONS = sorted(p.stem for p in (Path(CONF) / "ablation").glob("*.yaml"))
 R = 16  # small resolution keeps these tests fast; the networks only need a multiple of 8
 
 
+@pytest.fixture(autouse=True)
+def one_thread():
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
 def fake_batch(B=4, H=R, seed=0):
     """A batch with the keys of SynthFaces, rendered from a sphere-cap face on a noisy background."""
     g = torch.Generator().manual_seed(seed)
@@ -129,7 +137,15 @@ def test_loss_terms_closed_forms():
     out = {"normal": b["normal_pseudo"] + 0.1 * mask, "matte": mask, "recon": b["image"], "sh": b["sh_pseudo"] + 0.5}
     assert L.recon_N(out, b).item() == pytest.approx(0.01, rel=1e-5)  # only masked pixels count
     assert L.M(out, b).item() == 0 and L.recon(out, b).item() == 0
-    assert L.recon_L(out, b).item() == pytest.approx(0.25)
+    assert L.recon_L(out, b, c=None).item() == pytest.approx(0.25)
+    # with c, L-hat's unknown constant albedo is fixed by BWS: per-channel rescaling of L-hat changes nothing,
+    # and the target is the L-hat whose shading has batch mean c on the face
+    rescaled = {**b, "sh_pseudo": b["sh_pseudo"] * torch.tensor([2.0, 3.0, 0.5])[None, :, None]}
+    assert L.recon_L(out, rescaled).item() == pytest.approx(L.recon_L(out, b).item(), rel=1e-5)
+    s_hat = sh_shading(b["normal_pseudo"], b["sh_pseudo"]) * mask
+    white = b["sh_pseudo"] * (0.75 / (s_hat.sum((0, 2, 3)) / mask.sum()))[None, :, None]
+    assert L.recon_L({"sh": white}, b, c=0.75).item() == pytest.approx(0, abs=1e-10)
+    assert L.recon_fg({"foreground": b["image"] + 0.1 * mask + 0.3 * (1 - mask)}, b).item() == pytest.approx(0.01, rel=1e-5)
     with pytest.raises(KeyError, match="unknown loss terms"):
         L.generator_losses(out, b, {"recon": 1, "bwss": 1})
 

@@ -2,8 +2,8 @@
 
 The mesh is a regular grid in UV space, so the UV parametrization is fixed and the texture
 of every face lives on the same ``[0,1]^2`` map:  u runs across the head (the subject's
-right ear at u=0, the left at u=1), v runs down (top of the head at v=0, under the chin
-at v=1).  Column ``u`` is the azimuth theta, row ``v`` the elevation phi on a deformed
+right ear at u=0, the left at u=1), v runs down (top of the head at v=0, the base of the
+neck at v=1).  Column ``u`` is the azimuth theta, row ``v`` the elevation phi on a deformed
 ellipsoid; both are warped so that the grid is densest on the face.  Four rows at the
 mouth line are collapsed onto one curve in the mean shape (the closed mouth); the
 ``open`` expression pulls them apart into a cavity, so the mouth can open without
@@ -19,15 +19,17 @@ Shape (the usual linear 3DMM form)::
 with ``alpha_k ~ N(0, 1)`` (components carry their own scale, ordered by variance),
 ``beta = (smile, open)`` in [0, 1] and ``s`` the senior strength.
 
-Size: ``GRID_U x GRID_V = 48 x 56 = 2688`` vertices, 5,170 non-degenerate triangles,
-``N_IDENTITY = 40`` identity and 2 expression components.  At 64x64 a loosely cropped
-face spans about 40 pixels, and the front of the face (about 30 columns by 40 rows of
-the grid) puts roughly one vertex per pixel there, so facets are below the pixel
-footprint and normals interpolated across triangles are smooth; at 128x128 a triangle
-covers about 2x2 pixels, still below the scale of any feature the albedo paints.  Forty
-identity components (17 semantic, 23 smooth random fields) give more shape variation
-than a 64-pixel face can show; the coarse fit that makes the pseudo ground truth uses
-only the first few.
+Size: ``GRID_U x GRID_V = 41 x 53 = 2,173`` vertices (48 rows of head, 5 of neck),
+4,160 triangles (3,920 non-degenerate while the mouth is closed), ``N_IDENTITY = 40``
+identity and 2 expression components plus the senior shape.  At 64x64 a loosely
+cropped head spans about 45 pixels and the front of the face (about 30 columns by 35
+rows of the grid) puts roughly one vertex per pixel there, so facets stay below the
+pixel footprint and normals interpolated across triangles are smooth; at 128x128 a
+triangle covers about 2 pixels, still below the scale of any feature the albedo paints
+(eyes, lips, brows live in the UV texture, not in the geometry).  Forty identity
+components (17 semantic, 23 smooth random fields) give more shape variation than a
+64-pixel face can show; the coarse fit behind the pseudo ground truth uses only the
+first few.
 """
 from __future__ import annotations
 
@@ -37,7 +39,9 @@ from functools import lru_cache
 
 import torch
 
-GRID_U, GRID_V = 41, 48
+GRID_U, GRID_V = 41, 53
+NECK_ROWS = 5  # the last rows of the grid: a short neck below the head
+NECK_SPAN = math.radians(30.0)  # elevation parameter the neck rows continue over
 THETA_MAX = math.radians(100.0)  # azimuth range of the mesh, +-
 PHI_TOP, PHI_BOTTOM = math.radians(82.0), math.radians(-64.0)
 N_IDENTITY = 40
@@ -83,14 +87,19 @@ def _phi_of_t(t: torch.Tensor) -> torch.Tensor:
 
 
 def uv_to_angles(uv: torch.Tensor, slit_row: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """(theta, phi, slit_frac) of UV points ``[..., 2]`` (also used to paint textures)."""
+    """(theta, phi, slit_frac) of UV points ``[..., 2]`` (also used to paint textures).
+
+    Neck rows continue ``phi`` below ``PHI_BOTTOM`` (a parameter there, see :func:`_surface`).
+    """
     u, v = uv.unbind(-1)
     theta = THETA_MAX * _warp(2 * u - 1, 0.55)
     h = 1.0 / (GRID_V - 1)
+    v_head = (GRID_V - NECK_ROWS - 1) * h
     v0, v1 = slit_row * h, (slit_row + SLIT_ROWS - 1) * h
-    span = 1.0 - (v1 - v0)  # rows outside the slit cover the elevation range
+    span = v_head - (v1 - v0)  # rows outside the slit cover the elevation range of the head
     v_eff = torch.where(v < v0, v, torch.where(v > v1, v - (v1 - v0), torch.full_like(v, v0)))
     phi = _phi_of_t(1 - 2 * v_eff / span)
+    phi = torch.where(v > v_head, PHI_BOTTOM - NECK_SPAN * (v - v_head) / (1 - v_head), phi)
     slit = torch.where((v >= v0) & (v <= v1), (v - v0) / (v1 - v0), torch.full_like(v, -1.0))
     return theta, phi, slit
 
@@ -99,7 +108,7 @@ def uv_to_angles(uv: torch.Tensor, slit_row: int) -> tuple[torch.Tensor, torch.T
 def layout() -> Layout:
     # Put the slit where the elevation of the mouth line falls.
     h = 1.0 / (GRID_V - 1)
-    span = 1.0 - (SLIT_ROWS - 1) * h
+    span = (GRID_V - NECK_ROWS - 1) * h - (SLIT_ROWS - 1) * h
     half = 0.5 * (PHI_TOP - PHI_BOTTOM)
     t_m = _unwarp((math.asin(MOUTH_Y) - 0.5 * (PHI_TOP + PHI_BOTTOM)) / half, 0.6)
     slit_row = round((1 - t_m) / 2 * span / h)
@@ -108,6 +117,10 @@ def layout() -> Layout:
     uv = torch.stack(torch.meshgrid(u, v, indexing="xy"), -1).reshape(-1, 2)  # row-major: v rows, u cols
     theta, phi, slit = uv_to_angles(uv, slit_row)
     return Layout(theta, phi, uv, slit, slit_row)
+
+
+def is_neck(phi: torch.Tensor) -> torch.Tensor:
+    return phi < PHI_BOTTOM - 1e-9
 
 
 @lru_cache(maxsize=1)
@@ -173,8 +186,11 @@ def _surface(theta, phi, slit, p: dict) -> torch.Tensor:
     x = p["width"] * X * taper
     y = p["height"] * Y + p["chin_length"] * _smoothstep(-0.5, -0.9, Y)
     z = p["depth"] * Z + 0.06 * front
-    pos = torch.stack([x, y, z], -1)
-    return pos * (1 + h)[..., None]
+    head = torch.stack([x, y, z], -1) * (1 + h)[..., None]
+    # The neck: a cylinder under the jaw, the same for every face.
+    k = ((PHI_BOTTOM - phi) / NECK_SPAN).clamp(0, 1)
+    neck = torch.stack([0.42 * torch.sin(theta), -0.86 - 0.8 * k, -0.1 + 0.42 * torch.cos(theta)], -1)
+    return torch.where(is_neck(phi)[..., None], neck, head)
 
 
 def _smooth_fields(theta, phi, n: int, seed: int = 1234) -> torch.Tensor:
@@ -335,9 +351,12 @@ def face_model() -> FaceModel:
     senior = senior - radial * (0.012 * _g(X, 0.14) * _g(Y - MOUTH_Y, 0.05) + 0.015 * _g(X.abs() - 0.6, 0.08) * _g(Y - 0.28, 0.1)
                                 + 0.012 * _g(X.abs() - 0.33, 0.08) * _g(Y + 0.02, 0.05))[:, None]
     senior = senior * _smoothstep(0.0, 0.4, Z)[:, None]
+    body = (~is_neck(lay.phi)).to(mean.dtype)[:, None]  # identity and expression leave the neck alone
+    ident, expr, senior = ident * body, expr * body, senior * body
     face_region = ((Z > 0.2) & (Y < HAIRLINE_Y - 0.02) & (Y > CHIN_Y - 0.08) & (X.abs() < 0.78)).double()
     f = lambda t: t.float().contiguous()
     return FaceModel(f(mean), f(ident), f(expr), f(senior), faces(), f(lay.uv), _landmarks(lay), f(face_region))
 
 
-__all__ = ["FaceModel", "face_model", "faces", "layout", "uv_to_angles", "GRID_U", "GRID_V", "N_IDENTITY", "EXPRESSIONS"]
+__all__ = ["FaceModel", "face_model", "faces", "layout", "uv_to_angles", "is_neck", "GRID_U", "GRID_V", "NECK_ROWS",
+           "N_IDENTITY", "EXPRESSIONS"]

@@ -150,6 +150,28 @@ def overlay_figure(records: list, path: Path, resolution: int, cols: int = 8):
     plt.close(fig)
 
 
+def markdown(stats: dict) -> str:
+    """The report table of :func:`statistics` plus the SynthFaces landmark check."""
+    f = lambda x, d=2: "-" if x is None else f"{x:.{d}f}"  # noqa: E731
+    lines = ["| photos | images | landmarks found | fit residual, crop px (median) | photo px (median) | "
+             "fitted yaw / pitch, deg (median) |", "| --- | ---: | ---: | ---: | ---: | ---: |"]
+    for src in ("astronaut", "grace_hopper", "lfw_faces", "lfw_nonfaces"):
+        s, pose = stats[src], stats[src].get("fitted_pose_deg") or {}
+        lines.append(f"| {src} | {s['images']} | {s['used']} ({100 * s['success_rate']:.0f}%) | "
+                     f"{f(s['residual_px_median'])} | {f(s['residual_photo_px_median'])} | "
+                     f"{f(pose.get('yaw_median'), 1)} / {f(pose.get('pitch_median'), 1)} |")
+    c = stats["synthfaces_dlib_check"]
+    lines += ["", f"dlib on {c['images']} SynthFaces test renders ({stats['settings']['resolution']} px): "
+              f"{c['detected']} found ({100 * c['detection_rate']:.0f}%)."]
+    if c["detected"]:
+        d, e = c["landmark_distance_px"], c["pose_error_deg"]
+        lines.append("Distance of dlib's landmarks to the face model's landmark vertices (crop px): "
+                     + ", ".join(f"{k} {v:.1f}" for k, v in d.items())
+                     + f". Fits from dlib's landmarks vs from the exact ones: yaw {e['yaw_mean']:+.1f} ± "
+                     f"{e['yaw_std']:.1f}, pitch {e['pitch_mean']:+.1f} ± {e['pitch_std']:.1f} deg.")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="reports/photos")
@@ -176,6 +198,7 @@ def main(argv=None):
     stats["synthfaces_dlib_check"] = synth_landmark_check(settings)
     stats["settings"] = {k: getattr(settings, k) for k in settings.__dataclass_fields__}
     (out / "pseudo_gt.json").write_text(json.dumps(stats, indent=2) + "\n")
+    (out / "pseudo_gt.md").write_text(markdown(stats))
     shown = [r for src in ("astronaut", "grace_hopper", "lfw_faces") for r in by_src[src] if r.used][:24]
     overlay_figure(shown, out / "pseudo_gt.png", args.resolution)
     for src in photos:
@@ -185,7 +208,8 @@ def main(argv=None):
               f"{s['residual_photo_px_median'] or float('nan'):.2f} px (photo)  skipped: {s['skip_reasons']}")
     print("fitted pose on LFW (deg):", json.dumps(stats["lfw_faces"]["fitted_pose_deg"]))
     print("dlib on SynthFaces renders:", json.dumps(stats["synthfaces_dlib_check"]))
-    print(f"wrote {out / 'pseudo_gt.json'} and {out / 'pseudo_gt.png'}")
+    print(markdown(stats))
+    print(f"wrote {out / 'pseudo_gt.json'}, {out / 'pseudo_gt.md'} and {out / 'pseudo_gt.png'}")
     for run in args.run:
         from disent.data.photos_models import apply_run
 

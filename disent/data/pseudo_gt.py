@@ -24,11 +24,12 @@ import dataclasses
 import functools
 import hashlib
 import io
+import itertools
 import json
 import logging
 import os
 from collections import Counter
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -615,9 +616,15 @@ def prepare(paths, settings: PseudoGTSettings | None = None, cache_dir=None, wor
             import multiprocessing as mp
 
             with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_init_worker) as pool:
-                futures = {pool.submit(process_file, paths[i], str(root), settings): i for i in todo}
-                for f in as_completed(futures):
-                    done(futures[f], f.result())
+                queue, running = iter(todo), {}
+                while True:  # at most 8 tasks per worker in flight, so a huge folder needs no huge queue
+                    for i in itertools.islice(queue, 8 * workers - len(running)):
+                        running[pool.submit(process_file, paths[i], str(root), settings)] = i
+                    if not running:
+                        break
+                    finished, _ = wait(running, return_when=FIRST_COMPLETED)
+                    for f in finished:
+                        done(running.pop(f), f.result())
         else:
             for i in todo:
                 done(i, process_file(paths[i], str(root), settings, detector))

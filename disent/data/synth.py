@@ -22,7 +22,7 @@ import torch.nn.functional as F
 from disent.render import C4, composite, fit_sh, image_formation, sh_basis, sh_from_directions, sh_shading
 
 from .face_model import (BROW_Y, CHIN_Y, EYE_H, EYE_W, EYE_X, EYE_Y, GRID_U, GRID_V, HAIRLINE_Y, MOUTH_W, MOUTH_Y,
-                         NOSE_BASE_Y, NOSE_TIP_Y, SLIT_ROWS, face_model, layout, uv_to_angles)
+                         NOSE_BASE_Y, NOSE_TIP_Y, SLIT_ROWS, face_model, is_neck, layout, uv_to_angles)
 from .raster import grid_vertex_normals, interpolate, normalize, rasterize, render_face, to_camera
 
 ATTRIBUTES = ("smiling", "beard", "eyeglasses", "senior")
@@ -77,12 +77,12 @@ def _check_normals() -> torch.Tensor:
     (n_z >= -0.3), a dense Fibonacci set, as SH basis values ``[9, P]``."""
     global _CHECK_NORMALS
     if _CHECK_NORMALS is None:
-        k = torch.arange(4000, dtype=torch.float64) + 0.5
-        z = 1 - 2 * k / 4000
+        k = torch.arange(1200, dtype=torch.float64) + 0.5
+        z = 1 - 2 * k / 1200
         phi = k * math.pi * (3 - math.sqrt(5))
         r = (1 - z * z).sqrt()
         n = torch.stack([r * phi.cos(), r * phi.sin(), z])
-        _CHECK_NORMALS = sh_basis(n[:, z >= -0.3], 0).float()
+        _CHECK_NORMALS = sh_basis(n[:, z >= -0.3], 0)
     return _CHECK_NORMALS
 
 
@@ -95,14 +95,14 @@ def lights_to_sh(direction: torch.Tensor, intensity: torch.Tensor, ambient: torc
     then the light is scaled so that the brightest channel peaks at ``exposure``.  Any
     albedo in [0, 1] then gives an image in [0, 1].
     """
-    sh = sh_from_directions(direction, intensity, ambient)  # [N, 3, 9]
+    # float64: a scene's light must not depend on the batch it is drawn in (GEMM rounding).
+    sh = sh_from_directions(direction.double(), intensity.double(), torch.as_tensor(ambient).double())  # [N, 3, 9]
     basis = _check_normals()
     s = sh @ basis  # [N, 3, P]
     lo, hi = s.amin(2), s.amax(2)
-    sh = sh.clone()
     sh[..., 0] += (floor * hi - lo).clamp_min(0) / C4
     hi = (sh @ basis).amax(2).amax(1)
-    return sh * (exposure / hi)[:, None, None]
+    return (sh * (torch.as_tensor(exposure).double() / hi)[:, None, None]).float()
 
 
 def _direction(az_deg: torch.Tensor, el_deg: torch.Tensor) -> torch.Tensor:
@@ -193,7 +193,8 @@ def paint_layers(res: int) -> torch.Tensor:
     front = (Z > 0).double()
     ax = X.abs()
     in_slit = (slit >= 0).double()
-    out_slit = 1 - in_slit
+    inside_mouth = in_slit * torch.sigmoid((MOUTH_W - 0.01 - ax) / 0.01)  # elsewhere the slit is closed skin
+    out_slit = 1 - inside_mouth  # painting is continuous across the closed part of the slit
     g = torch.Generator().manual_seed(7)
     hair_noise = F.interpolate(torch.rand(1, 1, res // 2, res // 8, generator=g, dtype=torch.float64), size=(res, res), mode="bilinear", align_corners=False)[0, 0]
     stubble = torch.rand(res, res, generator=g, dtype=torch.float64)
@@ -209,7 +210,6 @@ def paint_layers(res: int) -> torch.Tensor:
     L["pupil"] = eye * _ellipse(ax, Y, EYE_X, EYE_Y, 0.018, 0.018, 0.2)
     L["lashes"] = front * _ring(ax, Y, EYE_X, EYE_Y, EYE_W * 1.05, EYE_H * 1.3, 0.12) * (Y > EYE_Y - 0.01)
     L["nostrils"] = front * _ellipse(ax, Y, 0.05, NOSE_BASE_Y + 0.01, 0.025, 0.014, 0.3)
-    inside_mouth = in_slit * torch.sigmoid((MOUTH_W - 0.01 - ax) / 0.01)  # elsewhere the slit is closed skin
     L["teeth"] = inside_mouth * (slit < 0.55) * torch.sigmoid((MOUTH_W * 0.8 - ax) / 0.01)
     L["mouth"] = inside_mouth - L["teeth"]
     hairline = HAIRLINE_Y - 0.08 * ax
@@ -233,7 +233,8 @@ def paint_layers(res: int) -> torch.Tensor:
     naso = torch.exp(-0.5 * ((ax - (0.12 + 0.5 * (NOSE_BASE_Y - Y))) / 0.012) ** 2) * (Y < NOSE_BASE_Y + 0.02) * (Y > MOUTH_Y - 0.1)
     L["wrinkles"] = front * out_slit * (forehead + crow + naso).clamp(max=1)
     L["eyebags"] = front * _ellipse(ax, Y, EYE_X, EYE_Y - 0.07, 0.09, 0.03, 0.4)
-    return torch.stack([L[n] for n in LAYERS]).reshape(len(LAYERS), -1).float()
+    head = (~is_neck(phi)).double()  # the neck is bare skin
+    return (torch.stack([L[n] for n in LAYERS]) * head).reshape(len(LAYERS), -1).float()
 
 
 @lru_cache(maxsize=4)

@@ -6,12 +6,12 @@ manifold choice, with DMT (lambda) or the barycenter (alpha), and decoded.  A
 
 * ``success``: the fraction of edited faces it calls positive, and ``gain``: the mean rise of
   its attribute probability over the unedited reconstruction;
-* leakage, each divided by its spread over the population so that they add up:
+* leakage, each divided by its spread between two random faces so that they add up:
   ``d_light`` (its SH estimate), ``d_pose`` (its yaw/pitch/roll), ``d_identity`` (its estimate
-  of the generator's identity parameters), ``d_attrs`` (the other three attribute probabilities, not divided), and
-  ``d_bg`` (mean absolute pixel change outside the true matte over the mean absolute
-  difference between two backgrounds).  ``leakage`` is their mean, and ``gain_per_leak`` the
-  ratio the paper's manifold choice should maximise.
+  of the generator's identity parameters), ``d_bg`` (mean absolute pixel change outside the
+  true matte), and ``d_attrs`` (the mean change of the other three attribute probabilities,
+  not divided).  ``leakage`` is their mean, and ``gain_per_leak`` the ratio the paper's
+  manifold choice should maximise.
 
 Every number is taken against the **unedited reconstruction**, so model error is not counted
 as leakage.  ``truth`` rows are the generator's own counterfactual (same face, attribute on):

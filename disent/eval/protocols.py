@@ -73,14 +73,16 @@ def ls_estimates(batch: dict) -> dict:
 
 def collect_sh(dataset, models: dict | None = None, limit: int | None = None, batch_size: int = 128):
     """SH estimates of every estimator on ``dataset`` -> ``({name: [N,C,9]}, sh_true [N,C,9], light_id [N])``."""
-    models = models or {}
+    models = dict(models or {})
     parts, truth, cond = {}, [], []
     for batch in batches(dataset, batch_size, limit):
         est = ls_estimates(batch)
-        for name, model in models.items():
+        for name, model in list(models.items()):
             out = predict(model, batch["image"])
-            if "sh" in out:  # the baseline autoencoder has no lighting code
-                est[name] = out["sh"]
+            if "sh" not in out:  # the baseline autoencoder has no lighting code
+                del models[name]
+                continue
+            est[name] = out["sh"]
         for k, v in est.items():
             parts.setdefault(k, []).append(v.detach().double())
         truth.append(batch["sh"].double())
@@ -99,29 +101,31 @@ def sh_variance_protocol(dataset, models: dict | None = None, limit: int | None 
     return {"estimators": out, "coefficients": list(SH_NAMES), "paper": {"ls_3dmm": 0.36, "network": 0.16}}
 
 
-def plot_sh_variance(result: dict, path, relative: bool = False) -> None:
-    """Grouped bars of per-coefficient variance, one colour per estimator (paper's supplement figure)."""
+CHECKS = ("true", "ls_oracle")  # sanity rows of the table (zero variance by construction), not plotted
+
+
+def plot_sh_variance(result: dict, path) -> None:
+    """Grouped bars of per-coefficient variance, one colour per estimator (the supplement's figure);
+    left the raw variance, right divided by each estimator's mean squared coefficient."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import numpy as np
 
-    est = {k: v for k, v in result["estimators"].items() if k != "true"}
-    names = list(est)
+    est = {k: v for k, v in result["estimators"].items() if k not in CHECKS}
     x = np.arange(9)
-    width = 0.8 / max(len(names), 1)
-    fig, ax = plt.subplots(figsize=(8, 3.2))
-    for i, name in enumerate(names):
-        v = np.array(est[name]["per_coeff"])
-        if relative:
-            v = v * est[name]["relative"] / max(est[name]["mean"], 1e-300)
-        ax.bar(x + (i - (len(names) - 1) / 2) * width, v, width,
-               label=f"{name} ({est[name]['relative' if relative else 'mean']:.3g})")
-    ax.set_xticks(x, result.get("coefficients", SH_NAMES))
-    ax.set_ylabel("relative variance" if relative else "variance within a light condition")
-    ax.set_yscale("log")
-    ax.legend(fontsize=7)
-    ax.set_title("SH coefficient variance per light condition (mean over conditions and RGB)", fontsize=9)
+    width = 0.8 / max(len(est), 1)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.4))
+    for ax, key in zip(axes, ("mean", "relative")):
+        for i, (name, v) in enumerate(est.items()):
+            bars = np.array(v["per_coeff"]) * (v[key] / v["mean"] if v["mean"] > 0 else 1.0)
+            ax.bar(x + (i - (len(est) - 1) / 2) * width, bars, width, label=f"{name} ({v[key]:.3g})")
+        ax.set_xticks(x, result.get("coefficients", SH_NAMES))
+        ax.set_yscale("log")
+        ax.set_ylabel("variance" if key == "mean" else "variance / mean squared coefficient")
+        ax.legend(fontsize=7)
+    axes[0].set_title("SH variance within a light condition (mean over conditions and RGB)", fontsize=9)
+    axes[1].set_title("the same, scale-free", fontsize=9)
     fig.tight_layout()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)

@@ -262,7 +262,7 @@ def plot_conditioning(yaw: dict, mask: dict, path) -> None:
         axes[0, col].set_yscale("log")
         axes[1, col].set_yscale("log")
         axes[0, col].set_ylabel("cond(A^T A), median")
-        axes[1, col].set_ylabel("SH error (aligned), median")
+        axes[1, col].set_ylabel("relative SH error (aligned), median")
         axes[1, col].set_xlabel(label)
         if key == "fraction":
             axes[1, col].invert_xaxis()
