@@ -7,10 +7,11 @@ directly.  Foreground terms are computed under the pseudo mask M-hat (Sec. 4.2, 
 name           term                                      needs
 =============  =======================================  ==========================
 ``recon``      E_recon = ||I_i - I_o||^2                 every model
-``recon_fg``   ||M-hat (.) (I_i - I_fg)||^2 (release)     explicit, implicit
+``recon_fg``   ||M-hat (.) (I_i - I_fg)||^2 (release)    explicit, implicit
 ``adv``        E_adv = D(I_o), the EBGAN energy          every model, a discriminator
 ``recon_N``    E_recon-N = ||N - N-hat||^2               explicit, implicit
-``recon_L``    E_recon-L = ||Z_L - L-hat||^2             explicit, implicit
+``recon_L``    E_recon-L = ||Z_L - L-hat||^2, measured   explicit, implicit
+               on shadings (see :func:`recon_L`)
 ``smooth_A``   E_smooth-A = ||grad A||_1                 explicit, implicit
 ``smooth_S``   E_smooth-S = ||grad S||^2                 explicit, implicit
 ``UV``         E_UV = ||UV - UV-hat||^2                  implicit
@@ -57,17 +58,28 @@ def recon_N(out, batch):
     return masked_mean((out["normal"] - batch["normal_pseudo"]).pow(2), batch["mask_pseudo"])
 
 
-def recon_L(out, batch, c: float | None = 0.75):
-    """E_recon-L.  L-hat (constant albedo) is defined up to that constant; with ``c`` set, the constant
-    is chosen per channel so that L-hat's own shading obeys BWS on the batch (mean c over the face),
-    so E_recon-L and BWS ask for the same shading scale.  ``c=None`` uses L-hat as given."""
-    target = batch["sh_pseudo"]
+def recon_L(out, batch, c: float | None = 0.75, space: str = "shading"):
+    """E_recon-L = ||Z_L - L-hat||^2.
+
+    L-hat (constant albedo) is defined up to that constant; with ``c`` set, the constant is chosen
+    per channel so that L-hat's own shading obeys BWS on the batch (mean c over the face), so
+    E_recon-L and BWS ask for the same shading scale (``c=None``: L-hat as given).
+    ``space="coefficients"`` is the plain L2 over the 27 numbers; ``space="shading"`` measures the
+    same difference through the face's pseudo normals, ||S(N-hat, Z_L) - S(N-hat, L-hat)||^2 under
+    M-hat, which ignores the SH directions a face's normal cone cannot tell apart (there the
+    least-squares L-hat is noise).
+    """
+    target, mask, normal = batch["sh_pseudo"], batch["mask_pseudo"], batch["normal_pseudo"]
     if c is not None:
-        mask = batch["mask_pseudo"]
-        s_hat = sh_shading(batch["normal_pseudo"], target) * mask
+        s_hat = sh_shading(normal, target) * mask
         mean = s_hat.sum((0, 2, 3)) / mask.sum().clamp_min(1e-8)  # [C]
         target = target * (c / mean.clamp_min(1e-3))[None, :, None]
-    return F.mse_loss(out["sh"], target.detach())
+    target = target.detach()
+    if space == "coefficients":
+        return F.mse_loss(out["sh"], target)
+    if space != "shading":
+        raise ValueError(f"recon_L space must be 'shading' or 'coefficients', got {space!r}")
+    return masked_mean((sh_shading(normal, out["sh"]) - sh_shading(normal, target)).pow(2), mask)
 
 
 def smooth_A(out, batch):
@@ -115,11 +127,11 @@ def active_terms(weights: dict, out: dict) -> list[str]:
 
 
 def generator_losses(out: dict, batch: dict, weights: dict, energy_fake=None, bws_c: float = 0.75,
-                     lhat_white: bool = True) -> dict:
+                     lhat_white: bool = True, recon_L_space: str = "shading") -> dict:
     """Unweighted value of every active term, plus ``total`` = sum of weight x term (E_o and the priors).
 
     ``energy_fake`` is D's energy of ``out['recon']`` (``[B]``), needed when ``adv`` is active;
-    ``lhat_white`` scales L-hat to the BWS shading level (see :func:`recon_L`).
+    ``lhat_white`` and ``recon_L_space`` choose E_recon-L's target and metric (see :func:`recon_L`).
     """
     losses = {}
     for t in active_terms(weights, out):
@@ -132,7 +144,7 @@ def generator_losses(out: dict, batch: dict, weights: dict, energy_fake=None, bw
             if t == "BWS":
                 losses[t] = fn(out, batch, bws_c)
             elif t == "recon_L":
-                losses[t] = fn(out, batch, bws_c if lhat_white else None)
+                losses[t] = fn(out, batch, bws_c if lhat_white else None, recon_L_space)
             else:
                 losses[t] = fn(out, batch)
     losses["total"] = sum(weights[t] * v for t, v in losses.items())

@@ -96,7 +96,9 @@ def sh_shading(normal: torch.Tensor, sh: torch.Tensor) -> torch.Tensor:
         raise ValueError(f"normal must be [B,3,H,W], got {tuple(normal.shape)}")
     if sh.dim() != 3 or sh.shape[-1] != 9 or sh.shape[0] != normal.shape[0]:
         raise ValueError(f"sh must be [B,C,9] with B={normal.shape[0]}, got {tuple(sh.shape)}")
-    return _SHShading.apply(normal, sh.to(normal.dtype))
+    dtype = torch.promote_types(normal.dtype, torch.float32)  # at least float32, also under mixed precision
+    with torch.autocast(normal.device.type, enabled=False):
+        return _SHShading.apply(normal.to(dtype), sh.to(dtype))
 
 
 def image_formation(albedo: torch.Tensor, shading: torch.Tensor) -> torch.Tensor:

@@ -388,8 +388,8 @@ def build(out="reports", roots=RUN_ROOTS, n_vis: int = 6, compute: bool = False,
     if compute:
         from disent.eval import protocols, stability
 
-        protocols.main(["--out", str(eval_dir)])
-        stability.main(["--out", str(eval_dir)])
+        protocols.main(["--out", str(eval_dir), "--roots", *map(str, roots)])
+        stability.main(["--out", str(eval_dir), "--roots", *map(str, roots)])
     runs = find_runs(roots)
     rep = Report(out)
     budget = _ablation.budget(runs)
@@ -399,7 +399,9 @@ def build(out="reports", roots=RUN_ROOTS, n_vis: int = 6, compute: bool = False,
             f"{', '.join(f'`{r}/`' for r in roots)}. Budget of those runs: "
             f"{', '.join(f'{k}={v}' for k, v in budget.items()) or 'none recorded'}. "
             "All numbers are measured on SynthFaces (its ground truth); nothing is copied from the paper "
-            "except where marked *paper*.\n")
+            "except where marked *paper*.\n",
+            "Regenerate: run the suite (`ablations/suite.sh EXPERIMENT`, see `ablations/README.md`), then "
+            f"`python -m disent.report --compute --roots {' '.join(map(str, roots))}`.\n")
     rep.section("Runs", sec_runs, runs)
     rep.section("Teaser: input, recon, albedo, normal, shading, matte", sec_teaser, runs, n_vis)
     rep.section("Lighting stability: SH variance (supplement protocol)", sec_sh_variance, eval_dir)

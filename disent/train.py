@@ -63,7 +63,8 @@ def train_step(model, disc, opt_g, opt_d, batch, cfg_loss) -> dict:
     weights = dict(cfg_loss.weights)
     out = model(batch["image"])
     energy_fake = disc.energy(out["recon"]) if disc is not None else None
-    losses = L.generator_losses(out, batch, weights, energy_fake, cfg_loss.bws_c, cfg_loss.lhat_white)
+    losses = L.generator_losses(out, batch, weights, energy_fake, cfg_loss.bws_c,
+                                cfg_loss.get("lhat_white", True), cfg_loss.get("recon_L_space", "shading"))
     if disc is not None:
         energy_real = disc.energy(batch["image"])
         losses["D"] = L.discriminator_loss(energy_real, energy_fake, cfg_loss.margin)
@@ -158,7 +159,8 @@ def run(cfg, run_dir) -> dict:
         idx = epoch_order(cfg.seed, epoch, len(data))[i * t.batch_size:(i + 1) * t.batch_size]
         t0 = time.perf_counter()
         batch = to_device(get_batch(data, idx), device, t.channels_last)
-        losses = train_step(model, disc, opt_g, opt_d, batch, cfg.loss)
+        with torch.autocast(device.type, dtype=torch.bfloat16, enabled=t.get("amp", False)):  # shading stays float32
+            losses = train_step(model, disc, opt_g, opt_d, batch, cfg.loss)
         if "nonfinite" in losses:
             bar.close()
             raise NonFiniteLoss(

@@ -216,7 +216,7 @@ def test_split_sizes_and_balance(split):
     ds = SynthFaces(split)
     expected = {"train": 20000, "val": 1000, "test": 1000, "lightbank": len(LIGHT_NAMES) * 50 * 3}.get(split, 4000)
     assert len(ds) == expected
-    idx = range(0, min(len(ds), 2000))  # a contiguous block: pools alternate labels exactly
+    idx = range(0, min(len(ds), 2000 if split in ("train", "val", "test") else 1000))  # a contiguous block
     p = ds.params(idx)
     if split.startswith("pool_"):
         attr = split[5:]
@@ -231,7 +231,8 @@ def test_split_sizes_and_balance(split):
     else:
         for attr, prior in ATTR_PRIOR.items():
             freq = (p[attr] >= 0.5).float().mean().item()
-            assert abs(freq - prior) < 0.05, (attr, freq)
+            n = len(idx) if attr == "smiling" else p["identity"].unique().numel()  # identity-level draws
+            assert abs(freq - prior) < 4 * math.sqrt(prior * (1 - prior) / n), (attr, freq)
         assert p["pose"][:, 0].abs().max() <= 45 and p["pose"][:, 1].abs().max() <= 20 and p["pose"][:, 2].abs().max() <= 10
     assert SynthFaces(split, size=10).params(range(10))["identity"].shape == (10,)
 

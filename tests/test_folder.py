@@ -488,3 +488,12 @@ def test_photo_figures(tmp_path):
     records, model = photo_records_and_model(tmp_path)
     figures(model, photo_batch(records), ["a", "b", "c"], tmp_path, "untrained")
     assert (tmp_path / "decomposition_untrained.png").is_file() and (tmp_path / "relight_untrained.png").is_file()
+
+
+def test_folder_config_lists_every_setting():
+    from omegaconf import OmegaConf
+
+    cfg = OmegaConf.load(Path(__file__).parents[1] / "conf" / "data" / "folder.yaml")
+    dataset_keys = {"name", "root", "resolution", "train_size", "test_size", "seed", "cache_dir", "workers"}
+    assert set(cfg) - dataset_keys == set(PseudoGTSettings.__dataclass_fields__) - {"resolution"}
+    assert cfg.name == "folder" and OmegaConf.is_missing(cfg, "root")

@@ -9,7 +9,7 @@ from hydra import compose, initialize_config_dir
 from disent import losses as L
 from disent.models import Discriminator, build_model
 from disent.models.implicit import sample_uv
-from disent.render import composite, image_formation, sh_from_directions, sh_shading
+from disent.render import C4, composite, image_formation, sh_from_directions, sh_shading
 from disent.train import train_step
 
 CONF = str(Path(__file__).resolve().parents[1] / "conf")
@@ -137,7 +137,10 @@ def test_loss_terms_closed_forms():
     out = {"normal": b["normal_pseudo"] + 0.1 * mask, "matte": mask, "recon": b["image"], "sh": b["sh_pseudo"] + 0.5}
     assert L.recon_N(out, b).item() == pytest.approx(0.01, rel=1e-5)  # only masked pixels count
     assert L.M(out, b).item() == 0 and L.recon(out, b).item() == 0
-    assert L.recon_L(out, b, c=None).item() == pytest.approx(0.25)
+    assert L.recon_L(out, b, c=None, space="coefficients").item() == pytest.approx(0.25)
+    # in shading space: 0.5 more on L1 alone shades every face pixel C4 * 0.5 brighter
+    lift = {"sh": b["sh_pseudo"] + 0.5 * F.one_hot(torch.tensor(0), 9)}
+    assert L.recon_L(lift, b, c=None).item() == pytest.approx((C4 * 0.5) ** 2, rel=1e-5)
     # with c, L-hat's unknown constant albedo is fixed by BWS: per-channel rescaling of L-hat changes nothing,
     # and the target is the L-hat whose shading has batch mean c on the face
     rescaled = {**b, "sh_pseudo": b["sh_pseudo"] * torch.tensor([2.0, 3.0, 0.5])[None, :, None]}

@@ -26,6 +26,7 @@ from collections import OrderedDict
 import torch
 from torch.utils.data import Dataset
 
+from .face_model import single_thread
 from .synth import (ATTR_PRIOR, ATTRIBUTES, EFFECTS, LIGHT_BANK, LIGHT_NAMES, render_scenes, scene_params)
 
 SPLITS = {"train": 20_000, "val": 1_000, "test": 1_000, "lightbank": None,
@@ -100,7 +101,8 @@ class SynthFaces(Dataset):
             labels = {self.split[5:]: (idx % 2 == 0)}
         else:
             identity = code * _ID_OFFSET + idx // IMAGES_PER_IDENTITY[self.split]
-        p = scene_params(key, identity, self.seed, labels)
+        with single_thread():
+            p = scene_params(key, identity, self.seed, labels)
         if self.split == "lightbank":
             light = idx % len(LIGHT_NAMES)
             pose = torch.tensor(LIGHTBANK_POSES)[(idx // len(LIGHT_NAMES)) % len(LIGHTBANK_POSES)]
@@ -120,7 +122,7 @@ class SynthFaces(Dataset):
         """Render ``indices`` as one vectorized batch: the collated dict of items."""
         p = self.params(indices, **overrides)
         eff = self.effects if effects is None else effects
-        with _single_thread():
+        with single_thread():
             out = render_scenes(p, self.resolution, effects=eff)
         out = {k: v.float().contiguous() for k, v in out.items()}
         out["attrs"] = {}
@@ -197,19 +199,6 @@ def _override(p: dict, **overrides) -> dict:
 
 def _unbatch(batch: dict, k: int) -> dict:
     return {n: ({a: t[k] for a, t in v.items()} if isinstance(v, dict) else v[k]) for n, v in batch.items()}
-
-
-class _single_thread:
-    """Generation is tuned for one core; many threads on a shared machine only slow it down."""
-
-    def __enter__(self):
-        self.n = torch.get_num_threads()
-        if self.n != 1:
-            torch.set_num_threads(1)
-
-    def __exit__(self, *exc):
-        if self.n != 1:
-            torch.set_num_threads(self.n)
 
 
 __all__ = ["SynthFaces", "LIGHT_BANK", "LIGHT_NAMES", "SPLITS", "ATTRIBUTES", "ATTR_PRIOR", "EFFECTS", "RESOLUTIONS"]

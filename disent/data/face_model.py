@@ -34,6 +34,7 @@ first few.
 from __future__ import annotations
 
 import math
+from contextlib import ContextDecorator
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -56,6 +57,20 @@ NOSE_TIP_Y, NOSE_BASE_Y = -0.20, -0.27
 MOUTH_Y, MOUTH_W = -0.47, 0.17
 CHIN_Y = -0.80
 HAIRLINE_Y = 0.47
+
+
+class single_thread(ContextDecorator):
+    """Run torch on one thread inside (generation is written for one core: on a shared
+    machine, intra-op threads only add synchronisation to these small tensor ops)."""
+
+    def __enter__(self):
+        self.n = torch.get_num_threads()
+        if self.n != 1:
+            torch.set_num_threads(1)
+
+    def __exit__(self, *exc):
+        if self.n != 1:
+            torch.set_num_threads(self.n)
 
 
 def _warp(s: torch.Tensor, a: float) -> torch.Tensor:
@@ -322,6 +337,7 @@ def _landmarks(lay: Layout) -> torch.Tensor:
 
 
 @lru_cache(maxsize=1)
+@single_thread()
 def face_model() -> FaceModel:
     """The model (float32), built once from the parametric definitions above."""
     lay = layout()

@@ -178,7 +178,9 @@ def main(argv=None):
     ap.add_argument("--resolution", type=int, default=64)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--cache-dir", default=None)
-    ap.add_argument("--run", nargs="*", default=[], help="trained run folders to apply to the crops")
+    ap.add_argument("--run", nargs="*", default=[],
+                    help="trained run folders to apply to the crops; 'auto': the plain explicit and implicit "
+                         "runs under outputs/ and multirun/ (disent.eval.runs.pick_runs)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     out = Path(args.out)
@@ -210,7 +212,13 @@ def main(argv=None):
     print("dlib on SynthFaces renders:", json.dumps(stats["synthfaces_dlib_check"]))
     print(markdown(stats))
     print(f"wrote {out / 'pseudo_gt.json'}, {out / 'pseudo_gt.md'} and {out / 'pseudo_gt.png'}")
-    for run in args.run:
+    runs = args.run
+    if runs == ["auto"]:
+        from disent.eval.runs import find_runs, pick_runs
+
+        runs = [r.path for k, r in pick_runs(find_runs()).items() if k in ("explicit", "implicit")]
+        print("runs:", [str(r) for r in runs] or "none found")
+    for run in runs:
         from disent.data.photos_models import apply_run
 
         apply_run(run, [r for r in records if r.used], out)

@@ -58,7 +58,7 @@ def _show(x: torch.Tensor, kind: str) -> np.ndarray:
 
 
 @torch.no_grad()
-def figures(model, batch: dict, names: list[str], out: Path, tag: str):
+def figures(model, batch: dict, names: list[str], out: Path, tag: str, budget: str = ""):
     """``decomposition_<tag>.png`` and (models with a light code) ``relight_<tag>.png``."""
     import matplotlib
 
@@ -82,7 +82,7 @@ def figures(model, batch: dict, names: list[str], out: Path, tag: str):
             if i == 0:
                 axes[i, j].set_title(title, fontsize=7)
         axes[i, 0].text(-2, 32, names[i], fontsize=5, ha="right", va="center")
-    fig.suptitle(f"{tag} on real photos (trained on SynthFaces)", fontsize=8)
+    fig.suptitle(f"{tag} on real photos (trained on SynthFaces{budget})", fontsize=8)
     fig.tight_layout()
     fig.savefig(out / f"decomposition_{tag}.png", dpi=150)
     plt.close(fig)
@@ -108,18 +108,21 @@ def apply_run(run_dir, records: list, out: Path, n_show: int = 8) -> dict:
     from disent.models import load_run
 
     model, cfg = load_run(run_dir)
-    tag = f"{cfg.model.name}_{Path(run_dir).name}"
+    tag = f"{cfg.model.name}_" + "-".join(Path(run_dir).resolve().parts[-2:])
     res = int(cfg.data.resolution)
     if pg.load_cached(records[0])["image"].shape[0] != res:
         raise ValueError(f"run {run_dir} is at {res} px; rerun the photos at --resolution {res}")
     photos = photo_batch(records)
     synth = SynthFaces("test", res, size=len(records)).get_batch(range(len(records)))
-    gap = {"run": str(run_dir), "model": cfg.model.name, "trained_on": cfg.data.name,
+    budget = {k: cfg.data.get("train_size") if k == "train_size" else cfg.train.get(k)
+              for k in ("train_size", "epochs", "max_steps")}
+    gap = {"run": str(run_dir), "model": cfg.model.name, "trained_on": cfg.data.name, "training": budget,
            "photos": gap_metrics(model, photos), "synthfaces_test": gap_metrics(model, synth)}
     (out / f"domain_gap_{tag}.json").write_text(json.dumps(gap, indent=2) + "\n")
     show = [r for r in records if not Path(r.path).stem.startswith("lfw")][:2] + \
         [r for r in records if Path(r.path).stem.startswith("lfw")][: n_show - 2]
-    figures(model, photo_batch(show), [Path(r.path).stem for r in show], out, tag)
+    figures(model, photo_batch(show), [Path(r.path).stem for r in show], out, tag,
+            f": {budget['train_size']} images, {budget['epochs']} epochs")
     for dom in ("photos", "synthfaces_test"):
         print(f"{tag} {dom:16s} " + "  ".join(f"{k} {v:.4g}" for k, v in gap[dom].items()))
     return gap

@@ -17,8 +17,6 @@ How it works, all in batched tensor ops:
 """
 from __future__ import annotations
 
-import math
-
 import torch
 
 _ID_BITS = 20  # triangle ids below 2**20
@@ -89,7 +87,6 @@ def rasterize(vertices_cam: torch.Tensor, faces: torch.Tensor, resolution: int) 
         raise ValueError(f"faces must be [T,3] with T < {2**_ID_BITS}, got {tuple(faces.shape)}")
     B, V, _ = vertices_cam.shape
     H = W = resolution
-    T = faces.shape[0]
     dev, dt = vertices_cam.device, vertices_cam.dtype
     # Vertex-major planes [V, B]; pixel coordinates with y up: pixel (col j, row H-1-i) has its centre at (j, i).
     vt = vertices_cam.permute(2, 1, 0)  # [3, V, B]

@@ -53,7 +53,7 @@ def contact_sheet(resolution: int = 64, seed: int = 0) -> tuple[torch.Tensor, li
     tiles = []
     for a in ATTRIBUTES:  # each attribute off / on, everything else fixed
         for s in (0.0, 1.0):
-            tiles.append(train.sample(3, light="flash_az+0", **{a: s})["image"])
+            tiles.append(train.sample(8, light="flash_az+0", **{a: s})["image"])
     rows.append(_row(tiles))
     labels.append("attributes off/on: " + ", ".join(ATTRIBUTES))
     bank = SynthFaces("lightbank", resolution, seed)

@@ -22,7 +22,7 @@ import torch.nn.functional as F
 from disent.render import C4, composite, fit_sh, image_formation, sh_basis, sh_from_directions, sh_shading
 
 from .face_model import (BROW_Y, CHIN_Y, EYE_H, EYE_W, EYE_X, EYE_Y, GRID_U, GRID_V, HAIRLINE_Y, MOUTH_W, MOUTH_Y,
-                         NOSE_BASE_Y, NOSE_TIP_Y, SLIT_ROWS, face_model, is_neck, layout, uv_to_angles)
+                         NOSE_BASE_Y, SLIT_ROWS, face_model, is_neck, layout, single_thread, uv_to_angles)
 from .raster import grid_vertex_normals, interpolate, normalize, rasterize, render_face, to_camera
 
 ATTRIBUTES = ("smiling", "beard", "eyeglasses", "senior")
@@ -77,8 +77,8 @@ def _check_normals() -> torch.Tensor:
     (n_z >= -0.3), a dense Fibonacci set, as SH basis values ``[9, P]``."""
     global _CHECK_NORMALS
     if _CHECK_NORMALS is None:
-        k = torch.arange(1200, dtype=torch.float64) + 0.5
-        z = 1 - 2 * k / 1200
+        k = torch.arange(600, dtype=torch.float64) + 0.5
+        z = 1 - 2 * k / 600
         phi = k * math.pi * (3 - math.sqrt(5))
         r = (1 - z * z).sqrt()
         n = torch.stack([r * phi.cos(), r * phi.sin(), z])
@@ -135,6 +135,7 @@ def sample_lights(u: torch.Tensor) -> dict:
     return {"sh": lights_to_sh(direction, intensity, ambient, exposure), "direction": direction, "intensity": intensity}
 
 
+@single_thread()
 def _light_bank() -> tuple[list[str], dict]:
     """At least 20 named conditions: a Multi-PIE-like arc of flashes, elevated lights and moods."""
     specs = []  # name, [(az, el, intensity, tint)], ambient, ambient tint
@@ -184,6 +185,7 @@ def _ring(X, Y, cx, cy, rx, ry, width, square=False):
 
 
 @lru_cache(maxsize=4)
+@single_thread()
 def paint_layers(res: int) -> torch.Tensor:
     """The fixed masks ``[L, res*res]`` in UV space (texel centres, align-corners grid)."""
     t = torch.linspace(0, 1, res, dtype=torch.float64)
@@ -238,6 +240,7 @@ def paint_layers(res: int) -> torch.Tensor:
 
 
 @lru_cache(maxsize=4)
+@single_thread()
 def noise_bank(res: int, n: int = 16, seed: int = 11) -> torch.Tensor:
     """Fixed fields ``[n, res, res]`` of fine skin texture (std about 1), shared by every scene."""
     g = torch.Generator().manual_seed(seed)
@@ -310,11 +313,11 @@ _BG_NAMES = ("brick", "chelsea", "clock", "coffee", "coins", "grass", "gravel", 
 
 
 @lru_cache(maxsize=1)
+@single_thread()
 def background_atlas(tile: int = 192) -> torch.Tensor:
     """scikit-image's bundled pictures and textures (no faces), plus smooth noise, as a 5x4 atlas ``[1,3,H,W]``."""
     import numpy as np
     import skimage.data
-    from skimage.transform import resize
 
     tiles = []
     for name in _BG_NAMES:
@@ -322,12 +325,11 @@ def background_atlas(tile: int = 192) -> torch.Tensor:
             im = getattr(skimage.data, name)()
         except Exception:  # a picture missing from this scikit-image build
             continue
-        im = np.asarray(im, dtype=np.float32) / (255.0 if im.dtype == np.uint8 else 1.0)
-        if im.ndim == 2:
-            im = np.repeat(im[..., None], 3, -1)
-        s = min(im.shape[:2])
-        im = im[:s, :s, :3]
-        tiles.append(torch.from_numpy(resize(im, (tile, tile), anti_aliasing=True, preserve_range=True).astype(np.float32)).permute(2, 0, 1))
+        im = torch.from_numpy(np.asarray(im, dtype=np.float32) / (255.0 if im.dtype == np.uint8 else 1.0))
+        im = (im[..., None].expand(-1, -1, 3) if im.dim() == 2 else im[..., :3]).permute(2, 0, 1)
+        s = min(im.shape[1:])
+        im = F.interpolate(im[None, :, :s, :s], size=(tile, tile), mode="bilinear", antialias=True, align_corners=False)
+        tiles.append(im[0].clamp(0, 1))
     g = torch.Generator().manual_seed(3)
     while len(tiles) < 20:  # smooth colour noise
         tiles.append(F.interpolate(torch.rand(1, 3, 6, 6, generator=g), size=(tile, tile), mode="bicubic", align_corners=False)[0].clamp(0, 1))
@@ -340,6 +342,7 @@ BG_CROPS = 12  # fixed random crops of each atlas tile
 
 
 @lru_cache(maxsize=2)
+@single_thread()
 def background_bank(res: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Fixed crops ``[K, 3, res*res]`` of the atlas tiles (random position and scale 30-100%,
     flipped or not) and their channel means ``[K, 3]``; scenes pick one and recolour it."""
@@ -424,25 +427,19 @@ def scene_params(item_key: torch.Tensor, identity: torch.Tensor, seed: int, labe
     p["frame"] = FRAME_COLOURS[(u[:, 13] * len(FRAME_COLOURS)).long().clamp(max=len(FRAME_COLOURS) - 1)]
     p["noise_id"] = (u[:, 14] * 16).long().clamp(max=15)
     # Attributes: beard, eyeglasses, senior belong to the identity, smiling to the image.
-    ua = torch.cat([uniform(pid, "attrs", 6, seed)[:, :3], uniform(item_key, "attrs", 6, seed)[:, 3:4]], 1)
-    us = torch.cat([uniform(pid, "attrs", 6, seed)[:, 4:6], uniform(item_key, "expr", 4, seed)[:, :2]], 1)
-    strength_u = uniform(pid, "style", 4, seed)
-    strength_u[:, 0] = uniform(item_key, "style", 1, seed)[:, 0]  # smiling strength varies per image
-    order = ("beard", "eyeglasses", "senior", "smiling")
-    for k, name in enumerate(order):
-        on = (ua[:, k] < ATTR_PRIOR[name]).float()
-        if labels is not None and name in labels:
-            on = labels[name].float()
-        su = strength_u[:, (k + 1) % 4]
-        if name == "smiling":
-            su = strength_u[:, 0]
-        if name in ("beard", "eyeglasses"):
-            s = on * (0.5 + 0.5 * su)
-        else:  # senior and smiling vary a little below the threshold too
-            s = torch.where(on > 0, 0.5 + 0.5 * su, 0.3 * su)
-        p[name] = s
-    ue = uniform(item_key, "expr", 4, seed)
-    p["expression"] = torch.stack([p["smiling"], torch.where(p["smiling"] >= 0.5, 0.4 + 0.6 * ue[:, 2], 0.25 * ue[:, 3] ** 2) * p["smiling"].clamp(min=0.3)], 1)
+    # Label = (strength >= 0.5): positives have strengths in [0.5, 1], negatives 0 (beard,
+    # eyeglasses) or a little below the threshold (senior: age; smiling: a faint smile).
+    u_id, u_img = uniform(pid, "attrs", 6, seed), uniform(item_key, "attrs", 2, seed)
+    draws = {"beard": (u_id[:, 0], u_id[:, 3]), "eyeglasses": (u_id[:, 1], u_id[:, 4]),
+             "senior": (u_id[:, 2], u_id[:, 5]), "smiling": (u_img[:, 0], u_img[:, 1])}
+    for name, (u_on, u_s) in draws.items():
+        on = labels[name] if labels is not None and name in labels else u_on < ATTR_PRIOR[name]
+        below = torch.zeros_like(u_s) if name in ("beard", "eyeglasses") else 0.3 * u_s
+        p[name] = torch.where(on.bool(), 0.5 + 0.5 * u_s, below)
+    ue = uniform(item_key, "expr", 2, seed)
+    smile = p["smiling"]  # a real smile opens the mouth and shows teeth; otherwise lips part a little
+    opening = torch.where(smile >= 0.5, (0.4 + 0.6 * ue[:, 0]) * smile, 0.1 * ue[:, 1] ** 2)
+    p["expression"] = torch.stack([smile, opening], 1)
     up = uniform(item_key, "pose", 8, seed)
     tri = lambda a, b: a + b - 1  # triangular on [-1, 1]
     p["pose"] = torch.stack([POSE_RANGE[0] * tri(up[:, 0], up[:, 1]), POSE_RANGE[1] * tri(up[:, 2], up[:, 3]),
@@ -507,7 +504,6 @@ def _uv_map_from_subgrid(vals: torch.Tensor, grid: tuple[int, int], res: int) ->
 def render_scenes(p: dict, res: int, effects: dict | None = None, pseudo: bool = True) -> dict:
     """Render a batch of scenes ``p`` (from :func:`scene_params`) at ``res`` x ``res``."""
     fm = face_model()
-    N = p["alpha"].shape[0]
     verts = fm.shape(p["alpha"], p["expression"], p["senior"])
     cam = to_camera(verts, p["pose"], p["scale"], p["shift"])
     vn = grid_vertex_normals(cam, (GRID_V, GRID_U))

@@ -76,6 +76,7 @@ def ablation_table(runs: list[Run]) -> dict:
                "failed": {s: sum(r.status == s for r in rs) for s in ("nan", "diverged", "incomplete") if any(r.status == s for r in rs)}}
         for key, _, _ in COLUMNS:
             row[key] = _stats([r.value(key) for r in ok])
+        row["train_images_per_s"] = _stats([r.value("images_per_s") for r in ok])
         rows.append(row)
     return {"rows": rows, "budget": budget(runs)}
 
@@ -95,6 +96,8 @@ def to_markdown(table: dict) -> str:
         return "_No runs found: run the suite (see `ablations/README.md`)._\n"
     best = {}
     for key, _, low in COLUMNS:
+        if key.startswith("pseudo_"):  # a reference (the supervision's own error), not a contestant
+            continue
         vals = [r[key]["mean"] for r in rows if r[key]]
         if vals:
             best[key] = min(vals) if low else max(vals)

@@ -134,17 +134,17 @@ def plot_sh_variance(result: dict, path) -> None:
 
 def main(argv=None):
     from disent.data import SynthFaces
-    from disent.eval.runs import find_runs
-    from disent.eval.runs import load_models
+    from disent.eval.runs import RUN_ROOTS, find_runs, load_models
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", default="reports/eval")
     p.add_argument("--limit", type=int, default=None, help="first N lightbank images (default: all)")
     p.add_argument("--resolution", type=int, default=64)
-    p.add_argument("--runs", nargs="*", default=None, help="run folders (default: best run of each model found)")
+    p.add_argument("--roots", nargs="*", default=None, help="folders searched for runs (default: outputs/ multirun/)")
+    p.add_argument("--runs", nargs="*", default=None, help="run folders (default: seed-0 run of each model under --roots)")
     a = p.parse_args(argv)
     torch.manual_seed(0)
-    models = load_models(a.runs if a.runs is not None else find_runs())
+    models = load_models(a.runs if a.runs is not None else find_runs(a.roots or RUN_ROOTS))
     ds = SynthFaces(split="lightbank", resolution=a.resolution, seed=0)
     res = sh_variance_protocol(ds, models, a.limit)
     res["split"], res["resolution"] = "lightbank", a.resolution

@@ -336,18 +336,19 @@ def plot_training(res: dict, path) -> None:
 
 # ----------------------------------------------------------------------------- command
 def main(argv=None):
-    from disent.eval.runs import find_runs, load_models
+    from disent.eval.runs import RUN_ROOTS, find_runs, load_models
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("studies", nargs="*", default=["conditioning", "ood", "bws", "training"])
     p.add_argument("--out", default="reports/eval")
     p.add_argument("--n", type=int, default=32, help="images per point")
     p.add_argument("--resolution", type=int, default=64)
+    p.add_argument("--roots", nargs="*", default=list(RUN_ROOTS), help="folders searched for runs")
     a = p.parse_args(argv)
     torch.manual_seed(0)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    runs = find_runs()
+    runs = find_runs(a.roots)
 
     def write(name, res):
         (out / f"{name}.json").write_text(json.dumps(res, indent=1))

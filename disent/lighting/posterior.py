@@ -325,7 +325,8 @@ class Posterior:
 def sample_posterior(data: LightingData, *, order: int = 2, likelihood: str = "gaussian", nu: float = 4.0,
                      prior_scale: float = 2.0, positivity: bool = True, known_sigma: float | None = None,
                      n_walkers: int | None = None, check_every: int = 50, min_tau_factor: float = 50.0,
-                     tau_rtol: float = 0.01, max_steps: int = 3000, seed: int = 0) -> Posterior:
+                     tau_rtol: float = 0.01, max_steps: int = 3000, min_acceptance: float = 0.2,
+                     adapt_rounds: int = 6, seed: int = 0) -> Posterior:
     """Sample ``p(L, log sigma | data)`` with emcee, stopping by emcee's autocorrelation rule.
 
     Moves: a differential-evolution move (20 %) mixed with an independence proposal from the
@@ -334,9 +335,11 @@ def sample_posterior(data: LightingData, *, order: int = 2, likelihood: str = "g
     parameters, sampling stops once the chain is longer than ``min_tau_factor * tau`` and
     ``tau`` changed by less than ``tau_rtol`` since the last check, or at ``max_steps`` (then
     ``diagnostics["converged"]`` is False).  The first ``2 * tau`` steps are discarded and the
-    rest thinned by ``tau / 2``.  Where the positivity prior cuts deep into the Gaussian
-    approximation (many face normals at zero shading) the independence proposal is mostly
-    rejected and the chain mixes slowly; ``tau`` and ``converged`` then say so.
+    rest thinned by ``tau / 2``.  Where the positivity prior cuts into the Gaussian
+    approximation (face normals at zero shading) the proposal is mostly rejected: while the
+    acceptance fraction of a chunk is below ``min_acceptance`` (at most ``adapt_rounds`` times)
+    the proposal is refitted to the chunk's samples and a new chain started with it fixed
+    (the old one is dropped).  Such posteriors still mix more slowly (larger ``tau``).
     """
     if order not in N_COEFFS:
         raise ValueError(f"order must be 0, 1 or 2, got {order}")
@@ -351,18 +354,31 @@ def sample_posterior(data: LightingData, *, order: int = 2, likelihood: str = "g
         L, _ = logpost.split(start)
         deficit = np.clip(-(L @ logpost.data.basis[:, : logpost.K].T).min(2), 0, None)  # [W, C] shading
         start[:, : logpost.C * logpost.K: logpost.K] += deficit / C4 * 1.001
-    moves = [(emcee.moves.DEMove(), 0.2), (independence_move(mode, cov), 0.8)]
-    sampler = emcee.EnsembleSampler(n_walkers, D, logpost, moves=moves, vectorize=True)
-    sampler.random_state = np.random.RandomState(int(rng.integers(2**31))).get_state()  # seeded moves
-    state, old_tau, converged, tau = start, np.inf, False, np.full(D, np.nan)
-    while sampler.iteration < max_steps:
+
+    def new_sampler(mean, cov):
+        moves = [(emcee.moves.DEMove(), 0.2), (independence_move(mean, cov), 0.8)]
+        sampler = emcee.EnsembleSampler(n_walkers, D, logpost, moves=moves, vectorize=True)
+        sampler.random_state = np.random.RandomState(int(rng.integers(2**31))).get_state()  # seeded moves
+        return sampler
+
+    sampler = new_sampler(mode, cov)
+    state = sampler.run_mcmc(start, check_every, progress=False)
+    adapted = 0
+    while sampler.acceptance_fraction.mean() < min_acceptance and adapted < adapt_rounds:
+        # the proposal misses the posterior (a binding positivity prior): refit it to the last
+        # half chunk, start a new chain with it fixed and drop the old one
+        flat = sampler.get_chain(discard=check_every // 2, flat=True)
+        sampler, adapted = new_sampler(flat.mean(0), np.cov(flat.T) + 1e-12 * np.eye(D)), adapted + 1
         state = sampler.run_mcmc(state, check_every, progress=False)
+    old_tau, converged, tau = np.inf, False, np.full(D, np.nan)
+    while True:
         with np.errstate(invalid="ignore"):  # a walker that never moved in a chunk has no autocorrelation
             tau = sampler.get_autocorr_time(tol=0)
         converged = bool(min_tau_factor * tau.max() < sampler.iteration and abs(old_tau - tau.max()) < tau_rtol * tau.max())
-        if converged:
+        if converged or sampler.iteration >= max_steps:
             break
         old_tau = tau.max()
+        state = sampler.run_mcmc(state, check_every, progress=False)
     tau_max = float(np.max(tau))
     if not np.isfinite(tau_max):  # some walker never moved: no estimate, keep the second half unthinned
         converged, tau_max = False, float(sampler.iteration)
@@ -374,6 +390,7 @@ def sample_posterior(data: LightingData, *, order: int = 2, likelihood: str = "g
     n_kept = sampler.iteration - burn
     diagnostics = {
         "n_steps": int(sampler.iteration), "n_walkers": n_walkers, "ndim": D, "converged": converged,
+        "adapted": adapted,
         "tau": tau.tolist(), "tau_max": tau_max, "acceptance_fraction": float(np.mean(sampler.acceptance_fraction)),
         "ess_min": float(n_walkers * n_kept / tau_max), "ess": np.nan_to_num(n_walkers * n_kept / tau).tolist(),
         "burn": burn, "thin": thin, "n_samples": len(flat), "n_pixels": data.n_pixels,

@@ -28,8 +28,6 @@ from disent.bench import measure_peak_gflops, median_time, print_table, register
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 MODELS = ("explicit", "implicit", "baseline")
-INFER_BATCHES = (1, 64, 256)
-TRAIN_BATCH = 64
 
 
 def model_cfg(name: str, resolution: int) -> dict:
@@ -96,29 +94,27 @@ def loader_img_s(n: int, resolution: int, rounds: int) -> float:
 
 
 def autocast(device, enabled: bool):
-    """Mixed precision (bfloat16 on the CPU, float16 on CUDA); the shading layer stays float32."""
-    device = torch.device(device)
-    return torch.autocast(device.type, dtype=torch.bfloat16 if device.type == "cpu" else torch.float16,
-                          enabled=enabled)
+    """bfloat16 mixed precision, as ``train.amp`` (no loss scaling needed); the shading layer stays float32."""
+    return torch.autocast(torch.device(device).type, dtype=torch.bfloat16, enabled=enabled)
 
 
 def bench_one(name: str, args, device: str, sync) -> dict:
     """FLOPs per image and images/s of one model: training with and without D, inference."""
-    res, rounds, channels_last = args.size, args.rounds, not args.no_channels_last
-    batch = synth_batch(TRAIN_BATCH, res, device, channels_last)
+    res, rounds, channels_last, n = args.size, args.rounds, not args.no_channels_last, args.train_batch
+    batch = synth_batch(n, res, device, channels_last)
     out = {}
     for adv in (True, False):
         tr = Trainer(name, batch, adv, device, channels_last, args.amp)
         key = "train" if adv else "train_no_d"
-        out[f"{key}_flops_per_image"] = count_flops(tr.step) / TRAIN_BATCH
+        out[f"{key}_flops_per_image"] = count_flops(tr.step) / n
         tr.step()  # warm-up (allocator, RMSprop state)
-        out[f"{key}_img_s"] = TRAIN_BATCH / median_time(lambda: (tr.step(), sync()), rounds)
+        out[f"{key}_img_s"] = n / median_time(lambda: (tr.step(), sync()), rounds)
     model = tr.model.eval()
     fmt = torch.channels_last if channels_last else torch.contiguous_format
     with torch.inference_mode():
         out["flops_per_image"] = count_flops(lambda: model(batch["image"][:2])) / 2
-        for B in INFER_BATCHES:
-            x = batch["image"].repeat(-(-B // TRAIN_BATCH), 1, 1, 1)[:B].contiguous(memory_format=fmt)
+        for B in args.infer_batches:
+            x = batch["image"].repeat(-(-B // n), 1, 1, 1)[:B].contiguous(memory_format=fmt)
 
             def infer():
                 with autocast(device, args.amp):
@@ -140,25 +136,25 @@ def add_fractions(fig: dict, peak_gflops: float) -> None:
 def bench_models(args) -> dict:
     device = args.device
     sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
-    peaks = [measure_peak_gflops(rounds=args.rounds, device=device)]
+    peaks = [measure_peak_gflops(args.peak_n, rounds=args.rounds, device=device)]
     figures = {}
     for name in args.models or MODELS:
         figures[name] = bench_one(name, args, device, sync)
-        peaks.append(measure_peak_gflops(rounds=args.rounds, device=device))  # between models: same conditions
+        peaks.append(measure_peak_gflops(args.peak_n, rounds=args.rounds, device=device))  # between models: same conditions
     peak = statistics.median(peaks)
     for fig in figures.values():
         add_fractions(fig, peak)
     setup = {"peak_gflops_rounds": peaks, "threads": torch.get_num_threads(), "device": device,
-             "train_batch": TRAIN_BATCH, "resolution": args.size, "amp": args.amp,
-             "channels_last": not args.no_channels_last}
+             "train_batch": args.train_batch, "resolution": args.size, "amp": args.amp,
+             "channels_last": not args.no_channels_last, "malloc_tuned": getattr(args, "malloc_tuned", False)}
     if "explicit" in figures and "implicit" in figures:
         e, i = figures["explicit"], figures["implicit"]
         setup["implicit_vs_explicit"] = {k: i[k] / e[k] for k in ("train_img_s", "train_no_d_img_s", "infer_img_s")}
     if not device.startswith("cuda"):
-        setup["loader_img_s"] = loader_img_s(TRAIN_BATCH, args.size, args.rounds)
+        setup["loader_img_s"] = loader_img_s(args.train_batch, args.size, args.rounds)
         setup["loader_vs_fastest_training"] = setup["loader_img_s"] / max(f["train_no_d_img_s"] for f in figures.values())
     for name, fig in figures.items():
-        print_table(f"{name}: {setup['threads']} threads, peak {peak:.1f} GFLOP/s, train batch {TRAIN_BATCH}", fig)
+        print_table(f"{name}: {setup['threads']} threads, peak {peak:.1f} GFLOP/s, train batch {args.train_batch}", fig)
     print_table("setup", setup)
     return {**figures, "top": {"peak_gflops": peak, "models_setup": setup}}
 
