@@ -134,19 +134,17 @@ class IllConditionedFit(ValueError):
     """Raised by :func:`fit_sh` when the lighting fit is not determined by the data."""
 
 
-def _normal_equations(normal, mask, weight=None):
-    """A^T W A of the masked SH design (float64), the pixel counts, and the basis."""
-    basis = sh_basis(normal.double(), 1).flatten(2)  # [B,9,P]
-    w = mask.double().flatten(1)  # [B,P]
-    if weight is not None:
-        w = w * weight
-    AtA = torch.einsum("bkp,bp,blp->bkl", basis, w, basis)
+def _normal_equations(normal, mask, dtype):
+    """A^T W A of the masked SH design, the pixel weights and the basis, in ``dtype``."""
+    basis = sh_basis(normal.to(dtype), 1).flatten(2)  # [B,9,P]
+    w = mask.to(dtype).flatten(1)  # [B,P]
+    AtA = torch.bmm(basis * w[:, None], basis.transpose(1, 2))
     return AtA, w, basis
 
 
 def design_condition(normal: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """Condition number of the least-squares normal matrix A^T A of L-hat, per image ``[B]``."""
-    AtA, _, _ = _normal_equations(normal, mask.reshape(normal.shape[0], 1, *normal.shape[2:]))
+    AtA, _, _ = _normal_equations(normal, mask.reshape(normal.shape[0], 1, *normal.shape[2:]), torch.float64)
     ev = torch.linalg.eigvalsh(AtA)
     return (ev[:, -1] / ev[:, 0].clamp_min(1e-300)).to(normal.dtype)
 
@@ -174,12 +172,13 @@ def fit_sh(image, normal, mask, albedo=None, *, min_pixels: int = 16, max_cond: 
       ``"raise"`` an :class:`IllConditionedFit` names the offending images.
     """
     B, C = image.shape[:2]
-    mask = mask.reshape(B, 1, *image.shape[2:])
-    target = image.double()
+    dtype = torch.float64 if image.dtype == torch.float64 else torch.float32  # pixel sums; the 9x9 solve is float64
+    mask = mask.reshape(B, 1, *image.shape[2:]).to(dtype)
+    target = image.to(dtype)
     if albedo is not None:
-        keep = (albedo.double() > 1e-3).all(1, keepdim=True)
+        keep = (albedo.to(dtype) > 1e-3).all(1, keepdim=True)
         mask = mask * keep
-        target = target / albedo.double().clamp_min(1e-3)
+        target = target / albedo.to(dtype).clamp_min(1e-3)
     counts = (mask.flatten(1) > 0).sum(1)
     if (counts < min_pixels).any():
         bad = torch.nonzero(counts < min_pixels).flatten().tolist()
@@ -190,9 +189,9 @@ def fit_sh(image, normal, mask, albedo=None, *, min_pixels: int = 16, max_cond: 
     if not torch.isfinite(y).all(1)[inside].all():
         raise ValueError("fit_sh: image has NaN or Inf inside the mask")
     y = torch.where(inside[:, None], y, 0.0)
-    AtA, w, basis = _normal_equations(normal, mask)
-    Aty = torch.einsum("bkp,bp,bcp->bkc", basis, w, y)
-    ev, V = torch.linalg.eigh(AtA)
+    AtA, w, basis = _normal_equations(normal, mask, dtype)
+    Aty = torch.bmm(basis * w[:, None], y.transpose(1, 2)).double()  # [B,9,C]
+    ev, V = torch.linalg.eigh(AtA.double())
     cond = ev[:, -1] / ev[:, 0].clamp_min(1e-300)
     ill = cond > max_cond
     if ill.any() and on_ill_conditioned == "raise":
@@ -201,7 +200,7 @@ def fit_sh(image, normal, mask, albedo=None, *, min_pixels: int = 16, max_cond: 
     delta = torch.where(ill, ev[:, -1] / max_cond - ev[:, 0], torch.zeros_like(cond)).clamp_min(0)
     inv = 1.0 / (ev + delta[:, None]).clamp_min(1e-300)
     sh = torch.einsum("bkj,bj,blj,blc->bck", V, inv, V, Aty)  # (A^T A + delta I)^-1 A^T y
-    pred = torch.einsum("bck,bkp->bcp", sh, basis)
+    pred = torch.bmm(sh.to(dtype), basis)  # [B,C,P]
     residual = ((pred - y).pow(2) * w[:, None]).sum(2) / w.sum(1, keepdim=True)
     return sh.to(image.dtype), residual.sqrt().to(image.dtype)
 

@@ -96,7 +96,7 @@ def figures(model, batch: dict, names: list[str], out: Path, tag: str, budget: s
             axes[i, j].axis("off")
             if i == 0:
                 axes[i, j].set_title(title, fontsize=7)
-    fig.suptitle(f"{tag}: lighting transfer with detailed albedo (Sec. 5.3) onto real photos", fontsize=8)
+    fig.suptitle(f"{tag}{budget}: lighting transfer with detailed albedo (Sec. 5.3) onto real photos", fontsize=8)
     fig.tight_layout()
     fig.savefig(out / f"relight_{tag}.png", dpi=150)
     plt.close(fig)
