@@ -213,10 +213,14 @@ def sec_sh_variance(rep: Report, eval_dir: Path) -> None:
     rep.add(f"Protocol of the paper's supplement on the `{res.get('split', 'lightbank')}` split: for every light "
             "condition the variance of each SH coefficient across identities and poses, averaged over conditions "
             "and RGB. Paper: 0.36 (3DMM least squares) and 0.16 (network). *relative* divides by the estimator's "
-            "mean squared coefficient (scale-free); SH error is after per-image scale alignment.\n",
-            "| estimator | variance | relative | SH error | conditions | images |", "|---|---|---|---|---|---|")
+            "mean squared coefficient (scale-free); *within share* is the within-condition variance over the variance "
+            "across all images (1: the estimate ignores the light); SH error is relative, after per-image scale "
+            "alignment (0 perfect, 1 uninformative). A constant estimate has zero variance, so read the variance "
+            "beside the last two columns. `ls_oracle` (true normals and albedo) and `true` are checks.\n",
+            "| estimator | variance | relative | within share | SH error | conditions | images |", "|---|---|---|---|---|---|---|")
     for k, v in res["estimators"].items():
-        rep.add(f"| {k} | {v['mean']:.4g} | {v['relative']:.4g} | {v['sh_error']:.4g} | {v['n_conditions']} | {v['n_images']} |")
+        rep.add(f"| {k} | {v['mean']:.4g} | {v['relative']:.4g} | {v.get('within_share', float('nan')):.3g} | "
+                f"{v['sh_error']:.4g} | {v['n_conditions']} | {v['n_images']} |")
     rep.add("")
     from disent.eval.protocols import plot_sh_variance
 

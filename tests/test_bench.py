@@ -90,3 +90,12 @@ def test_time_to_accuracy_reads_metrics(tmp_path):
     assert r["minutes"] == 2.5 and r["step"] == 20
     log.write_text(json.dumps(evals[0]))
     assert time_to_accuracy(log)["minutes"] is None
+
+
+@pytest.mark.parametrize("fmt", [torch.contiguous_format, torch.channels_last])
+def test_unit_equals_normalize(fmt):
+    from disent.models.networks import unit
+
+    x = torch.randn(2, 3, 5, 5, dtype=torch.float64).contiguous(memory_format=fmt)
+    x[0, :, 0, 0] = 0  # F.normalize's eps: a zero vector stays zero
+    torch.testing.assert_close(unit(x), F.normalize(x, dim=1))

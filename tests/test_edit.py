@@ -402,8 +402,11 @@ def test_edit_and_relight_tables_run_end_to_end_on_a_toy_generator():
     assert len(rows) == 2 + 5 * 3
     assert all(math.isfinite(r[k]) for r in rows for k in ("success", "gain", "leakage"))
     assert shown[("paper:UV+Ni", "dmt", 0.03)].shape == (3, 3, 16, 16)
+    bary = [r for r in rows if r["method"] == "barycenter"]
+    assert all(r["step"] == pytest.approx(1.0, rel=1e-4) for r in bary)  # alpha = 1 moves one mean difference
     claims = claim_summary(rows[2:])
-    assert {c["method"] for c in claims} == {"dmt", "barycenter"} and all(1 <= c["paper_rank"] <= 5 for c in claims)
+    assert len(claims) == 2 * 5 and {c["method"] for c in claims} == {"dmt", "barycenter"}
+    assert sorted(c["rank"] for c in claims if c["method"] == "dmt") == [1, 2, 3, 4, 5]
     bank = {"left": sh_from_directions(torch.tensor([[-1.0, 0, 1]]), torch.full((1, 3), 0.6), 0.2),
             "right": sh_from_directions(torch.tensor([[1.0, 0.2, 1]]), torch.full((1, 3), 0.6), 0.2)}
     rel, example = relight_table(model, FakeSynth, bank, n_faces=2, n_lights=2, resolution=16)

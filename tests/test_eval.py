@@ -21,6 +21,10 @@ def test_sh_variance_matches_groupwise_var():
     assert torch.allclose(torch.tensor(r["per_coeff"], dtype=torch.float64), expected)
     assert r["mean"] == pytest.approx(expected.mean().item())
     assert r["n_conditions"] == 4 and r["n_images"] == 29
+    pooled = sh[:29].var(0).mean()
+    assert r["within_share"] == pytest.approx(expected.mean().item() / pooled.item())
+    # estimates that depend on the condition only: zero within-condition variance, share 0
+    assert sh_variance(sh[cond.clamp_max(3)], cond.clamp_max(3))["within_share"] == pytest.approx(0, abs=1e-12)
     # scaling the estimates scales the variance by s^2 but leaves the relative number alone
     r2 = sh_variance(3 * sh, cond)
     assert r2["mean"] == pytest.approx(9 * r["mean"]) and r2["relative"] == pytest.approx(r["relative"])

@@ -51,8 +51,8 @@ SLIT_ROWS = 4  # rows collapsed at the mouth line: upper inner lip, 2 interior, 
 
 # Facial anchors in front coordinates X = sin(theta) cos(phi), Y = sin(phi) of the unit
 # sphere; geometry, the painted albedo and the landmarks all read them from here.
-EYE_X, EYE_Y, EYE_W, EYE_H = 0.30, 0.10, 0.105, 0.034
-BROW_Y = 0.25
+EYE_X, EYE_Y, EYE_W, EYE_H = 0.38, 0.10, 0.115, 0.036
+BROW_X, BROW_Y = EYE_X, 0.25  # brow arch peak
 NOSE_TIP_Y, NOSE_BASE_Y = -0.20, -0.27
 MOUTH_Y, MOUTH_W = -0.47, 0.17
 CHIN_Y = -0.80
@@ -285,18 +285,33 @@ def _expressions(lay: Layout, mean: torch.Tensor) -> torch.Tensor:
     return torch.stack([smile, opn]) * _smoothstep(0.0, 0.4, Z)[None, :, None]
 
 
+# The iBUG jaw contour, points 0-8 (subject right to the chin), as the 300-W mean shape places
+# it: (x, y) in eye-to-eye units from the midpoint of the eye centres, y down.  0 sits at the
+# eye line at the face's outline, 3-4 at the nose base and mouth corners, 8 the chin.  The
+# other half mirrors it.  Placed on the mean face by :func:`_jaw_targets`.
+JAW_IBUG = [(-1.11, -0.03), (-1.10, 0.28), (-1.06, 0.58), (-0.99, 0.87), (-0.87, 1.14), (-0.68, 1.37),
+            (-0.45, 1.55), (-0.18, 1.69), (0.0, 1.71)]
+
+
+def _jaw_targets() -> list[tuple[float, float]]:
+    """``JAW_IBUG`` in front coordinates (X, Y) of the mean head: one eye-to-eye unit is
+    ``2 EYE_X`` across (``width``) and the same length down (``height``)."""
+    w, h = SHAPE_PARAMS["width"][0], SHAPE_PARAMS["height"][0]
+    e = 2 * EYE_X * w  # the eye-to-eye distance in model units
+    return [(x * e / w, EYE_Y - y * e / h) for x, y in JAW_IBUG]
+
+
 def _landmark_targets() -> list[tuple[str, float, float]]:
     """The 68 iBUG points as (kind, X, Y); kind 'upper'/'lower' pins inner-lip rows."""
     pts = []
-    for k in range(17):  # jaw, image left (subject right, x<0) to image right
-        s = (k - 8) / 8
-        th, ph = math.radians(82 * s), math.radians(-8 - 52 * (1 - abs(s) ** 1.7))
-        pts.append(("theta", th, ph))
+    jaw = _jaw_targets()
+    for x, y in jaw + [(-x, y) for x, y in jaw[-2::-1]]:  # jaw 0-16, image left (subject right, x<0) to image right
+        pts.append(("front", x, y))
     for xs in (-1, 1):  # brows 17-21 (x<0), 22-26
-        xs_list = [0.50, 0.41, 0.31, 0.21, 0.12]
+        xs_list = [BROW_X + d for d in (0.20, 0.11, 0.01, -0.09, -0.18)]
         seq = xs_list if xs < 0 else xs_list[::-1]
         for x in seq:
-            pts.append(("front", xs * x, BROW_Y + 0.035 - 0.18 * (abs(x) - 0.3) ** 2))
+            pts.append(("front", xs * x, BROW_Y + 0.035 - 0.18 * (abs(x) - BROW_X) ** 2))
     for y in (0.17, 0.06, -0.06, NOSE_TIP_Y):
         pts.append(("front", 0.0, y))
     for x, dy in ((-0.1, 0.0), (-0.05, -0.015), (0.0, -0.02), (0.05, -0.015), (0.1, 0.0)):

@@ -21,7 +21,7 @@ import torch.nn.functional as F
 
 from disent.render import C4, composite, fit_sh, image_formation, sh_basis, sh_from_directions, sh_shading
 
-from .face_model import (BROW_Y, CHIN_Y, EYE_H, EYE_W, EYE_X, EYE_Y, GRID_U, GRID_V, HAIRLINE_Y, MOUTH_W, MOUTH_Y,
+from .face_model import (BROW_X, BROW_Y, CHIN_Y, EYE_H, EYE_W, EYE_X, EYE_Y, GRID_U, GRID_V, HAIRLINE_Y, MOUTH_W, MOUTH_Y,
                          NOSE_BASE_Y, SLIT_ROWS, face_model, is_neck, layout, single_thread, uv_to_angles)
 from .raster import grid_vertex_normals, interpolate, normalize, rasterize, render_face, to_camera
 
@@ -204,8 +204,8 @@ def paint_layers(res: int) -> torch.Tensor:
     L["lips"] = out_slit * front * (_ellipse(X, Y, 0, MOUTH_Y + 0.025, MOUTH_W * 0.95, 0.045, 0.3)
                                      + _ellipse(X, Y, 0, MOUTH_Y - 0.04, MOUTH_W * 0.85, 0.055, 0.3)).clamp(max=1)
     L["blush"] = front * (_ellipse(ax, Y, 0.38, -0.12, 0.14, 0.1, 0.6))
-    brow_c = BROW_Y + 0.035 - 0.18 * (ax - 0.3) ** 2
-    L["brows"] = front * torch.sigmoid((0.028 - (Y - brow_c).abs()) / 0.008) * torch.sigmoid((0.11 - (ax - 0.31).abs() * (1 + 0.3 * (ax < 0.31))) / 0.015)
+    brow_c = BROW_Y + 0.035 - 0.18 * (ax - BROW_X) ** 2
+    L["brows"] = front * torch.sigmoid((0.028 - (Y - brow_c).abs()) / 0.008) * torch.sigmoid((0.11 - (ax - BROW_X - 0.01).abs() * (1 + 0.3 * (ax < BROW_X + 0.01))) / 0.015)
     eye = _ellipse(ax, Y, EYE_X, EYE_Y, EYE_W, EYE_H, 0.12) * front
     L["sclera"] = eye
     L["iris"] = eye * _ellipse(ax, Y, EYE_X, EYE_Y, 0.045, 0.045, 0.15)

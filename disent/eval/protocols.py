@@ -16,7 +16,10 @@ Estimators, side by side:
 
 The raw variance depends on each estimator's scale (constant-albedo fits absorb skin tone,
 Z_L has its own scale), so ``relative`` divides it by the estimator's mean squared
-coefficient over the whole split: a scale-free companion number.
+coefficient over the whole split: a scale-free companion number.  A constant estimator has
+zero variance and says nothing about the light, so two more numbers sit beside it:
+``within_share``, the within-condition variance over the variance across all images (1: the
+estimate ignores the light; 0: it depends on the light only), and the SH error against the truth.
 
 ``python -m disent.eval.protocols`` writes ``reports/eval/sh_variance.json`` and its bar chart.
 """
@@ -56,7 +59,9 @@ def sh_variance(sh: torch.Tensor, condition: torch.Tensor) -> dict:
     per_coeff = var.mean((0, 1))
     mean = per_coeff.mean().item()
     scale = x.pow(2).mean().item()
+    total = x[keep[inv]].var(0).mean().item()  # variance over all images, conditions pooled
     return {"per_coeff": per_coeff.tolist(), "mean": mean, "relative": mean / scale if scale > 0 else float("nan"),
+            "within_share": mean / total if total > 0 else float("nan"),
             "n_images": int(counts[keep].sum()), "n_conditions": int(keep.sum())}
 
 
@@ -153,7 +158,7 @@ def main(argv=None):
     (out / "sh_variance.json").write_text(json.dumps(res, indent=1))
     plot_sh_variance(res, out / "sh_variance.png")
     for k, v in res["estimators"].items():
-        print(f"{k:28s} variance {v['mean']:.4g}  relative {v['relative']:.4g}  sh_error {v['sh_error']:.4g}  "
+        print(f"{k:28s} variance {v['mean']:.4g}  relative {v['relative']:.4g}  within {v['within_share']:.3g}  sh_error {v['sh_error']:.4g}  "
               f"({v['n_conditions']} conditions, {v['n_images']} images)")
 
 

@@ -6,10 +6,9 @@ S_e = f_shading(N_e, L) (Eqs. 3-5), I_fg = A_e (.) S_e (Eq. 2), I_o = M (.) I_fg
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as F
 from torch import nn
 
-from disent.models.networks import CodeHeads, Decoder, Encoder
+from disent.models.networks import CodeHeads, Decoder, Encoder, unit
 from disent.render import composite, image_formation, sh_shading
 
 
@@ -30,7 +29,7 @@ class Explicit(nn.Module):
         self.dec_A = Decoder(3, resolution, code_dim)
 
     def decode_foreground(self, codes: dict) -> dict:
-        return {"normal": F.normalize(self.dec_N(codes["Ne"]), dim=1),
+        return {"normal": unit(self.dec_N(codes["Ne"])),
                 "albedo": torch.sigmoid(self.dec_A(codes["Ae"]))}
 
     def encode(self, image: torch.Tensor) -> dict:

@@ -15,7 +15,7 @@ import torch
 import torch.nn.functional as F
 
 from disent.models.explicit import Explicit
-from disent.models.networks import Decoder
+from disent.models.networks import Decoder, unit
 
 
 def sample_uv(uv_map: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
@@ -35,7 +35,7 @@ class Implicit(Explicit):
         B = codes["Ni"].shape[0]
         uv = torch.sigmoid(self.dec_UV(codes["UV"]))
         na = self.dec_NA(torch.cat([codes["Ni"], codes["Ai"]]))  # one pass, shared weights
-        normal_uv, albedo_uv = F.normalize(na[:B], dim=1), torch.sigmoid(na[B:])
+        normal_uv, albedo_uv = unit(na[:B]), torch.sigmoid(na[B:])
         return {"uv": uv, "normal_uv": normal_uv, "albedo_uv": albedo_uv,
-                "normal": F.normalize(sample_uv(normal_uv, uv), dim=1),
+                "normal": unit(sample_uv(normal_uv, uv)),
                 "albedo": sample_uv(albedo_uv, uv)}
