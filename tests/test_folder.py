@@ -421,7 +421,10 @@ def test_pipeline_on_synthfaces_with_exact_landmarks():
         out = pg.pseudo_gt_from_landmarks(img, landmarks[i], s)
         assert out["residual_px"] < 1.0  # only senior shape and identity beyond 4 components are unmodelled
         err.append(np.degrees(out["params"][:2]) - scene["pose"][i, :2].numpy())
-        assert abs(np.degrees(out["params"][2])) < 2  # aligned: upright
+        # The alignment turns the image by theta (pixel frame, y down); roll is the last rotation
+        # (R = R_roll R_pitch R_yaw), so the crop's roll is exactly the scene's minus theta.
+        theta = np.degrees(np.arctan2(out["align"][1, 0], out["align"][0, 0]))
+        assert abs(np.degrees(out["params"][2]) - (scene["pose"][i, 2].item() - theta)) < 1.0
     assert np.abs(err).mean() < 2.0, err
 
 

@@ -112,7 +112,6 @@ def test_robust_likelihood_resists_highlights():
     normal, mask = ellipsoid(24, 24)
     sh = directional_light([0.4, 0.3, 1.0])
     image = render(normal, sh, 0.01)
-    g = torch.Generator().manual_seed(3)
     half = torch.nn.functional.normalize(torch.tensor([0.2, 0.15, 1.0], dtype=torch.float64), dim=0)
     spots = ((normal * half[:, None, None]).sum(0, keepdim=True) > 0.97).double()  # a highlight
     image = image + 0.6 * spots

@@ -369,7 +369,8 @@ def face_model() -> FaceModel:
     radial = mean / mean.norm(dim=-1, keepdim=True)
     n_rand = N_IDENTITY - len(comps)
     comps += list(_smooth_fields(lay.theta, lay.phi, n_rand)[..., None] * radial)
-    ident = torch.stack(comps)
+    body = (~is_neck(lay.phi)).to(mean.dtype)[:, None]  # identity and expression leave the neck alone
+    ident = torch.stack(comps) * body
     order = ident.flatten(1).norm(dim=1).argsort(descending=True)  # by variance, as PCA would order them
     ident = ident[order]
     expr = _expressions(lay, mean)
@@ -382,8 +383,7 @@ def face_model() -> FaceModel:
     senior = senior - radial * (0.012 * _g(X, 0.14) * _g(Y - MOUTH_Y, 0.05) + 0.015 * _g(X.abs() - 0.6, 0.08) * _g(Y - 0.28, 0.1)
                                 + 0.012 * _g(X.abs() - 0.33, 0.08) * _g(Y + 0.02, 0.05))[:, None]
     senior = senior * _smoothstep(0.0, 0.4, Z)[:, None]
-    body = (~is_neck(lay.phi)).to(mean.dtype)[:, None]  # identity and expression leave the neck alone
-    ident, expr, senior = ident * body, expr * body, senior * body
+    expr, senior = expr * body, senior * body
     face_region = ((Z > 0.2) & (Y < HAIRLINE_Y - 0.02) & (Y > CHIN_Y - 0.08) & (X.abs() < 0.78)).double()
     f = lambda t: t.float().contiguous()
     return FaceModel(f(mean), f(ident), f(expr), f(senior), faces(), f(lay.uv), _landmarks(lay), f(face_region))

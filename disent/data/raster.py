@@ -9,8 +9,9 @@ How it works, all in batched tensor ops:
 
 1. keep front-facing triangles (counter-clockwise in x-right/y-up), over the whole batch;
 2. every (triangle, pixel centre inside its bounding box) pair is tested with the
-   triangle's edge functions, in "slots": slot s holds the s-th centre of every box
-   that has one, so the bulk (slot 0) needs no gathering;
+   triangle's edge functions: the first centre of every box in one pass that needs no
+   gathering (most triangles are about a pixel), the other centres of the larger boxes
+   in a second pass;
 3. the z-buffer is a ``scatter_reduce(amax)`` over keys that pack quantised depth above
    the triangle id, so the nearest triangle wins in one pass;
 4. the winners' barycentric coordinates interpolate the per-vertex attributes.
@@ -23,7 +24,6 @@ _ID_BITS = 20  # triangle ids below 2**20
 _DEPTH_LEVELS = 2**38  # depth quantisation over [-DEPTH_RANGE, DEPTH_RANGE]
 _DEPTH_RANGE = 16.0
 MAX_WINDOW = 64  # triangles wider than this many pixels are refused (refine the mesh)
-_SLOTS = 6  # pixel centres per box tested slot by slot; larger boxes are expanded row by row
 
 
 def pose_matrix(pose_deg: torch.Tensor) -> torch.Tensor:
@@ -121,8 +121,8 @@ def rasterize(vertices_cam: torch.Tensor, faces: torch.Tensor, resolution: int) 
     C = [(x1 * y2 - x2 * y1) * inv, (x2 * y0 - x0 * y2) * inv, (x0 * y1 - x1 * y0) * inv]
     lin = [(A[0], Bc[0], C[0]), (A[1], Bc[1], C[1]), (A[2], Bc[2], C[2])]
     lin.append(tuple(a * zt[0] + b * zt[1] + c * zt[2] for a, b, c in zip(*lin)))
-    # Slot s tests the s-th pixel centre of each box that has one: slot 0 covers every kept
-    # triangle without any gathering; later slots only the few larger triangles.
+    # Slot s is the s-th pixel centre of a box: slot 0 covers every kept triangle without
+    # any gathering; the later slots of the larger boxes follow in one gathered pass.
     cnt = count.index_select(0, k)
     cand = []
 
@@ -137,17 +137,13 @@ def rasterize(vertices_cam: torch.Tensor, faces: torch.Tensor, resolution: int) 
         cand.append((ids, px.index_select(0, ok), py.index_select(0, ok), *(v.index_select(0, ok) for v in w)))
 
     test(None, torch.zeros_like(nxk))
-    sel = torch.arange(cnt.numel(), device=dev)
-    for slot in range(1, min(int(cnt.max()), _SLOTS)):
-        sel = sel.index_select(0, (cnt.index_select(0, sel) > slot).nonzero().squeeze(1))
-        test(sel, torch.full((sel.numel(),), float(slot), dtype=dt, device=dev))
-    big = (cnt > _SLOTS).nonzero().squeeze(1)
-    if big.numel():  # the rare large boxes: all their remaining centres at once
-        extra = cnt.index_select(0, big) - _SLOTS
+    more = (cnt > 1).nonzero().squeeze(1)
+    if more.numel():  # the boxes with more centres: all their remaining (box, slot) pairs at once
+        extra = cnt.index_select(0, more) - 1
         row = torch.repeat_interleave(extra)
         first = torch.cumsum(extra, 0) - extra
-        slot = (torch.arange(row.numel(), device=dev) - first.index_select(0, row) + _SLOTS).to(dt)
-        test(big.index_select(0, row), slot)
+        slot = (torch.arange(row.numel(), device=dev) - first.index_select(0, row) + 1).to(dt)
+        test(more.index_select(0, row), slot)
     rep, px, py, w0, w1, w2, depth = (torch.cat(c) for c in zip(*cand))
     kk = k.index_select(0, rep)
     tri_t, tri_b = kk // B, kk % B

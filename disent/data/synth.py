@@ -555,7 +555,9 @@ def fit_sh_packed(image: torch.Tensor, normal: torch.Tensor, mask: torch.Tensor)
     def pack(x):
         return torch.gather(x.reshape(B, x.shape[1], -1), 2, order[:, None].expand(-1, x.shape[1], -1))[..., None]
 
-    return fit_sh(pack(image), pack(normal), pack(mask))[0]
+    # float64 pixel sums: in float32 the rounding of A^T A depends on the batch (its padded
+    # length P), and the solve amplifies it to ~1e-4 in L-hat; an item must not depend on its batch.
+    return fit_sh(pack(image.double()), pack(normal.double()), pack(mask.double()))[0].float()
 
 
 def apply_effects(out: dict, p: dict, effects: dict) -> torch.Tensor:

@@ -189,8 +189,10 @@ def cmd_measure(a) -> None:
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(prog="python -m disent.edit", description=__doc__.split("\n")[0])
     sub = p.add_subparsers(dest="cmd", required=True)
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--threads", type=int, default=1, help="torch CPU threads")
 
-    t = sub.add_parser("traverse", help="move faces along an attribute (DMT or barycenter)")
+    t = sub.add_parser("traverse", parents=[common], help="move faces along an attribute (DMT or barycenter)")
     t.add_argument("run", help="run folder or checkpoint")
     t.add_argument("inputs", nargs="+", help="image files, folders, or synth:INDEX")
     t.add_argument("--attribute", required=True, choices=ATTRIBUTES)
@@ -205,7 +207,7 @@ def main(argv=None) -> None:
     t.add_argument("--seed", type=int, default=0)
     t.set_defaults(fn=cmd_traverse)
 
-    r = sub.add_parser("relight", help="relight faces (transfer with detailed albedo, ratio, decode)")
+    r = sub.add_parser("relight", parents=[common], help="relight faces (transfer with detailed albedo, ratio, decode)")
     r.add_argument("run")
     r.add_argument("inputs", nargs="+", help="target image files, folders, or synth:INDEX")
     r.add_argument("--source", help="image whose estimated light is transferred")
@@ -218,7 +220,7 @@ def main(argv=None) -> None:
     r.add_argument("--seed", type=int, default=0)
     r.set_defaults(fn=cmd_relight)
 
-    m = sub.add_parser("measure", help="the measured traversal and relighting tables on SynthFaces")
+    m = sub.add_parser("measure", parents=[common], help="the measured traversal and relighting tables on SynthFaces")
     m.add_argument("run")
     m.add_argument("--out", default="reports/edit")
     m.add_argument("--attributes", nargs="+", default=list(ATTRIBUTES), choices=ATTRIBUTES)
@@ -231,7 +233,6 @@ def main(argv=None) -> None:
     m.add_argument("--train-size", type=int, default=4000)
     m.add_argument("--train-steps", type=int, default=3000)
     m.add_argument("--relight-faces", type=int, default=8)
-    m.add_argument("--threads", type=int, default=1)
     m.add_argument("--seed", type=int, default=0)
     m.set_defaults(fn=cmd_measure)
 

@@ -40,7 +40,7 @@ from disent.edit.traversal import ATTRIBUTES, FACE_CODES, DEFAULT_MANIFOLDS, enc
 from disent.eval.metrics import reconstruction_metrics
 from disent.render import sh_shading
 
-DEFAULT_LAMBDAS = (0.2, 0.07, 0.05, 0.03, 0.01)
+DEFAULT_LAMBDAS = (1.0, 0.3, 0.07, 0.05, 0.03, 0.01)  # the paper's 0.07-0.01, and two smaller steps
 DEFAULT_ALPHAS = (0.5, 1.0, 2.0)
 SEMANTIC_SHAPE = 17  # the face model's named shape components (the rest are fine random fields)
 IDENTITY_READABLE = 0.7  # held-out identity RMSE (in std) below which d_identity is trusted

@@ -276,19 +276,23 @@ def plot_ood(res: dict, path) -> None:
     effects = list(res["effects"])
     keys = ("sh_error", "normal_mean", "albedo_si_mse", "recon_face_mse")
     fig, axes = plt.subplots(len(keys), len(effects), figsize=(2.6 * len(effects), 2.0 * len(keys)), squeeze=False)
+    names = list(dict.fromkeys(n for e in effects for n in res["effects"][e]))
+    colour = {n: f"C{i % 10}" for i, n in enumerate(names)}  # one colour per estimator in every panel
     for j, e in enumerate(effects):
         for i, k in enumerate(keys):
             ax = axes[i, j]
             for name, c in res["effects"][e].items():
                 if k in c:
-                    ax.plot(res["severities"], c[k], "o-", ms=3, label=name)
+                    ax.plot(res["severities"], c[k], "o-", ms=3, color=colour[name], label=name)
             if i == 0:
                 ax.set_title(e, fontsize=9)
             if j == 0:
                 ax.set_ylabel(k, fontsize=8)
             if i == len(keys) - 1:
                 ax.set_xlabel("severity")
-    axes[0, 0].legend(fontsize=6)
+    for i in range(len(keys)):
+        if axes[i, 0].get_legend_handles_labels()[0]:
+            axes[i, 0].legend(fontsize=6)
     _save(fig, path)
 
 

@@ -3,10 +3,13 @@
 ``python -m disent.lighting`` (conf/lighting.yaml) samples the posterior of one image or a
 split; ``python -m disent.bench lighting`` times the least-squares fit and the posterior.
 """
-from disent.lighting.order import select_order  # noqa: F401
-from disent.lighting.posterior import (  # noqa: F401
+from disent.lighting.order import select_order
+from disent.lighting.posterior import (
     N_COEFFS, LightingData, LogPosterior, Posterior, gaussian_posterior, prepare, sample_posterior,
 )
+
+__all__ = ["select_order", "N_COEFFS", "LightingData", "LogPosterior", "Posterior", "gaussian_posterior", "prepare",
+           "sample_posterior", "bench_lighting"]
 
 
 def bench_lighting(args) -> dict:

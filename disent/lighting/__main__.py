@@ -24,7 +24,9 @@ def load_photo(path: str, resolution: int) -> dict:
     (rec,), _ = pseudo_gt([path], PseudoGTSettings(resolution=resolution), progress=False)
     if not rec.used:
         raise ValueError(f"no usable face in {path}: {rec.reason} {rec.detail}")
-    return {k: torch.as_tensor(v).float() for k, v in load_cached(rec).items()}
+    item = {k: torch.as_tensor(v).float() for k, v in load_cached(rec).items() if v.dtype.kind in "fiub"}
+    item["image"] = item["image"].permute(2, 0, 1) / 255.0  # stored as HxWx3 uint8
+    return item
 
 
 def items(cfg: DictConfig):
