@@ -159,7 +159,7 @@ def main(argv=None) -> None:
         SUBCOMMANDS.update(disent.bench.SUBCOMMANDS)
     p = argparse.ArgumentParser(prog="python -m disent.bench", description=__doc__)
     p.add_argument("which", nargs="*", default=[], help=f"subcommands (default: all): {', '.join(SUBCOMMANDS)}")
-    p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
+    p.add_argument("--threads", type=int, default=None, help="torch threads (default: the count with the highest matmul peak)")
     p.add_argument("--rounds", type=int, default=5, help="timed rounds; the median is reported")
     p.add_argument("--batch", type=int, default=256)
     p.add_argument("--size", type=int, default=64)
@@ -179,6 +179,14 @@ def main(argv=None) -> None:
     DEVICE = args.device
     if args.threads:
         torch.set_num_threads(args.threads)
+    else:  # the fastest thread count, by the matmul peak (on a shared machine fewer threads can win)
+        by_threads = {}
+        for t in range(1, (os.cpu_count() or 1) + 1):
+            torch.set_num_threads(t)
+            by_threads[t] = measure_peak_gflops(1024, rounds=3, device=args.device)
+        torch.set_num_threads(max(by_threads, key=by_threads.get))
+        print(f"threads: {torch.get_num_threads()} (matmul GFLOP/s by thread count: "
+              + ", ".join(f"{t}: {g:.0f}" for t, g in by_threads.items()) + ")")
     for name in args.which or list(SUBCOMMANDS):
         if name not in SUBCOMMANDS:
             p.error(f"unknown benchmark {name!r}; choose from {', '.join(SUBCOMMANDS)}")

@@ -61,7 +61,8 @@ def test_bandwidth_gives_mean_kernel_half_and_scales_with_codes():
     off = K[~torch.eye(len(X), dtype=torch.bool)]
     assert abs(off.mean().item() - 0.5) < 1e-6
     assert choose_bandwidth(7.0 * X) == pytest.approx(7.0 * sigma, rel=1e-6)
-    assert abs(rbf_kernel(X, X, choose_bandwidth(X, 0.2))[~torch.eye(len(X), dtype=torch.bool)].mean().item() - 0.2) < 1e-6
+    K = rbf_kernel(X, X, choose_bandwidth(X, 0.2))
+    assert abs(K[~torch.eye(len(X), dtype=torch.bool)].mean().item() - 0.2) < 1e-6
 
 
 def test_bandwidth_rejects_bad_input():
@@ -364,7 +365,8 @@ class FakeSynth(torch.utils.data.Dataset):
         for i, a in enumerate(strengths):
             albedo[i % 3, 3 + 3 * i:5 + 3 * i, 4:12] *= 1 - 0.7 * strengths[a]
         if sh is None:
-            sh = sh_from_directions(torch.randn(1, 3, generator=g) + torch.tensor([0, 0, 2.0]), torch.full((1, 3), 0.6), 0.3)
+            d = torch.randn(1, 3, generator=g) + torch.tensor([0, 0, 2.0])
+            sh = sh_from_directions(d, torch.full((1, 3), 0.6), 0.3)
         sh = torch.as_tensor(sh).reshape(1, 3, 9).float()
         shading = sh_shading(normal[None], sh)[0]
         return {"image": composite(matte, albedo * shading, bg).clamp(0, 1), "background": bg, "matte": matte,
@@ -479,7 +481,8 @@ def test_transfer_on_synthfaces_truth_reproduces_the_generators_relit_render():
     for name in ("flash_az-90", "overcast"):
         sh = torch.as_tensor(LIGHT_BANK[name]).float()
         truth = data.get_batch(range(4), sh=sh)["image"]
-        out = transfer_lighting(b["image"], b["normal"], b["shading"], b["matte"], sh[None].expand(4, -1, -1), b["albedo"])
+        out = transfer_lighting(b["image"], b["normal"], b["shading"], b["matte"], sh[None].expand(4, -1, -1),
+                                b["albedo"])
         assert (out.clamp(0, 1) - truth).abs().max() < 1e-5
         naive = ratio_relight(b["image"], b["normal"], b["sh"], sh[None].expand(4, -1, -1))
         assert reconstruction_metrics(naive.clamp(0, 1), truth)["psnr"] < 60  # relights the background too

@@ -285,10 +285,11 @@ def _expressions(lay: Layout, mean: torch.Tensor) -> torch.Tensor:
     return torch.stack([smile, opn]) * _smoothstep(0.0, 0.4, Z)[None, :, None]
 
 
-# The iBUG jaw contour, points 0-8 (subject right to the chin), as the 300-W mean shape places
-# it: (x, y) in eye-to-eye units from the midpoint of the eye centres, y down.  0 sits at the
-# eye line at the face's outline, 3-4 at the nose base and mouth corners, 8 the chin.  The
-# other half mirrors it.  Placed on the mean face by :func:`_jaw_targets`.
+# The iBUG jaw contour, points 0-8 (subject right to the chin), about where the 300-W mean
+# shape places it: (x, y) in eye-to-eye units from the midpoint of the eye centres, y down
+# (real faces: jaw ends near +-1.1, chin near 1.7).  0 sits at the eye line on the face's
+# outline, 3-4 at the nose base and mouth corners, 8 the chin; the other half mirrors it.
+# Placed on the mean face by :func:`_jaw_targets`.
 JAW_IBUG = [(-1.11, -0.03), (-1.10, 0.28), (-1.06, 0.58), (-0.99, 0.87), (-0.87, 1.14), (-0.68, 1.37),
             (-0.45, 1.55), (-0.18, 1.69), (0.0, 1.71)]
 
@@ -302,7 +303,7 @@ def _jaw_targets() -> list[tuple[float, float]]:
 
 
 def _landmark_targets() -> list[tuple[str, float, float]]:
-    """The 68 iBUG points as (kind, X, Y); kind 'upper'/'lower' pins inner-lip rows."""
+    """The 68 iBUG points as (kind, X, Y) in front coordinates; kind 'upper'/'lower' pins inner-lip rows."""
     pts = []
     jaw = _jaw_targets()
     for x, y in jaw + [(-x, y) for x, y in jaw[-2::-1]]:  # jaw 0-16, image left (subject right, x<0) to image right
@@ -337,10 +338,7 @@ def _landmarks(lay: Layout) -> torch.Tensor:
     rows = torch.arange(X.shape[0]) // GRID_U
     idx = []
     for kind, a, b in _landmark_targets():
-        if kind == "theta":
-            d = (lay.theta - a) ** 2 + (lay.phi - b) ** 2
-        else:
-            d = (X - a) ** 2 + (Y - b) ** 2 + 10.0 * (Z < 0)
+        d = (X - a) ** 2 + (Y - b) ** 2 + 10.0 * (Z < 0)
         if kind == "upper":
             d = d + 10.0 * (rows != lay.slit_row)
         elif kind == "lower":

@@ -23,7 +23,6 @@ CelebA-style folder (``list_attr_celeba.txt``, read by :class:`disent.data.folde
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 

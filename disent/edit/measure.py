@@ -307,7 +307,7 @@ def plot_success_vs_leakage(rows: list[dict], path) -> None:
         ax.set_xlabel("leakage (mean normalised change)")
         ax.set_ylabel("gain in P(attribute)")
         ax.grid(alpha=0.3)
-    axes[0, -1].legend(fontsize=6, loc="best")
+        ax.legend(fontsize=5, loc="best")  # manifold choices differ per attribute
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -409,7 +409,12 @@ def run_measurements(a) -> None:
                                                "claims": claims, "relight": rel_rows}, indent=1))
     text = [f"# Editing measured on SynthFaces\n\nrun: `{a.run}`; pools of {a.pool_size}, {a.sources} source "
             f"faces per attribute; measuring net (held-out): `{json.dumps(net_info.get('val', {}))}`\n",
-            "## Traversal\n", markdown_table(rows, keys),
+            "## Traversal\n",
+            "Gains and leakage are against the unedited reconstruction (`reconstruction` rows); the reader "
+            "was trained on the generator's sharp renders, so on a blurry reconstruction read the *changes*, "
+            "not the absolute success. `truth` rows: the generator's own edit of the input, same reader. "
+            "`step`: move along the pools' mean difference (barycenter: = alpha).\n",
+            markdown_table(rows, keys),
             "\n## Success per unit leakage by manifold choice (the paper's claim: `paper:` ranks first)\n",
             markdown_table(claims, list(claims[0])),
             "\n## Relighting (PSNR dB / SSIM against the generator's render under the source light)\n",

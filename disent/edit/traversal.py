@@ -113,7 +113,7 @@ def dmt(z0: torch.Tensor, source: torch.Tensor, target: torch.Tensor, lam: float
     independent problems, solved jointly since the objective is their sum).  ``lam = inf``
     returns ``z0``.
     """
-    if z0.dim() != 2 or source.dim() != 2 or target.dim() != 2 or not (z0.shape[1] == source.shape[1] == target.shape[1]):
+    if any(t.dim() != 2 for t in (z0, source, target)) or not (z0.shape[1] == source.shape[1] == target.shape[1]):
         raise ValueError(f"dmt needs z0 [B,D], source [N,D], target [M,D]; got {tuple(z0.shape)}, "
                          f"{tuple(source.shape)}, {tuple(target.shape)}")
     if not lam > 0:

@@ -1,16 +1,13 @@
 """A lighting model no larger than the scene needs: SH order 0/1/2, gray or RGB light.
 
-Candidates for an RGB image (constant albedo a_c absorbed into the light, as in L-hat):
+Candidates for an RGB image (constant albedo a_c absorbed into the light, as in L-hat),
+from the smallest:
 
-=========  ==========================  =======================
-name       light                       coefficients
-=========  ==========================  =======================
-order0     ambient L1 per channel      3
-order1_gray  L_c = g_c * l, l in R^4   4 + 2 (g_1 = 1)
-order2_gray  L_c = g_c * l, l in R^9   9 + 2
-order1_rgb   L_c free, R^4 each        12
-order2_rgb   L_c free, R^9 each        27
-=========  ==========================  =======================
+* ``order0``: ambient L1 per channel (3 coefficients);
+* ``order1_gray``: ``L_c = g_c * l`` with ``l`` in R^4 and ``g_1 = 1`` (4 + 2);
+* ``order2_gray``: the same with ``l`` in R^9 (9 + 2);
+* ``order1_rgb``: ``L_c`` free in R^4 per channel (12);
+* ``order2_rgb``: ``L_c`` free in R^9 per channel (27).
 
 "Gray" light has one colour for every direction, so with a constant albedo each channel is
 a scaled copy of one SH light (rank one); RGB light may change colour with direction.  For a

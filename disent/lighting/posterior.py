@@ -1,7 +1,8 @@
 """How uncertain is the least-squares light L-hat: an emcee posterior over the SH lighting.
 
 Model, per colour channel c and masked pixel p (Eq. 2 with a constant albedo a_c absorbed
-into the light, so ``L_c = a_c * L``, as the paper's L-hat of Sec. 4.2 assumes):
+into the light, so ``L_c = a_c * L``, as the paper's L-hat of Sec. 4.2 assumes; or, given a
+known albedo map, ``I_c(p) = a_c(p) S(n_p, L_c) + e`` and L is the light itself):
 
     I_c(p) = S(n_p, L_c) + e,   S(n, L) = sum_k basis_k(n) L_k  (Eq. 4, linear in L)
 
@@ -14,7 +15,8 @@ into the light, so ``L_c = a_c * L``, as the paper's L-hat of Sec. 4.2 assumes):
 
 Sampled with ``emcee.EnsembleSampler`` (log-probability vectorised over walkers), started in
 a small ball around the least-squares fit; the stopping rule is emcee's: the chain is longer
-than ``50 * tau`` for every parameter and the estimate of ``tau`` changed by less than 1 %.
+than ``50 * tau`` (``tau`` the largest over the parameters) and the estimate of ``tau``
+changed by less than 1 % since the last check.
 """
 from __future__ import annotations
 
