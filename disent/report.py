@@ -289,11 +289,27 @@ def sec_stability(rep: Report, eval_dir: Path) -> None:
         plot(res, path)
         rep.image(path, name)
         if name == "bws":
-            rep.add("| variant | seed | batch | shading mean r,g,b | cast | corr(albedo, true shading) |", "|---|---|---|---|---|---|")
+            rep.add(f"Mean ± std over seeds on {res['n']} test images. BWS pulls each channel's shading mean to 0.75; "
+                    "*cast* is the spread of the three channel means; the last column is the correlation of the "
+                    "estimated albedo with the true shading (0: albedo free of shading).\n",
+                    "| variant | batch | seeds | shading mean r, g, b | cast | corr(albedo, true shading) |", "|---|---|---|---|---|---|")
+            groups = {}
             for r in res["rows"]:
-                rep.add(f"| {r['variant']} | {r['seed']} | {r['batch_size']} | "
-                        f"{', '.join(f'{v:.3f}' for v in r['shading_mean_rgb'])} | {r['shading_cast']:.3f} | {r['albedo_shading_corr']:.3f} |")
+                groups.setdefault((r["variant"], r["batch_size"]), []).append(r)
+            for (variant, bs), rs in sorted(groups.items(), key=lambda kv: (len(kv[0][0]), kv[0][0], kv[0][1] or 0)):
+                def ms(vals):
+                    m = float(np.mean(vals))
+                    return f"{m:.3f} ± {float(np.std(vals, ddof=1)) if len(vals) > 1 else 0.0:.3f}"
+                rgb = ", ".join(f"{float(np.mean([r['shading_mean_rgb'][c] for r in rs])):.2f}" for c in range(3))
+                rep.add(f"| {variant} | {bs} | {len(rs)} | {rgb} | {ms([r['shading_cast'] for r in rs])} | "
+                        f"{ms([r['albedo_shading_corr'] for r in rs])} |")
             rep.add("")
+        if name == "bws" and len({r["batch_size"] for r in res["rows"]}) < 2:
+            rep.note("the BWS batch-size sweep (one batch size only in these runs); run the `multirun/bws` sweeps of "
+                     "`ablations/README.md` for the curve against batch size.")
+        if name == "training" and len({r["lr"] for r in res["rows"]}) < 2:
+            rep.note("the learning-rate sweep (one learning rate only in these runs); run the `multirun/lr` sweeps of "
+                     "`ablations/README.md` for NaN / divergence rate against learning rate.")
         if name == "training":
             rep.add("| model | adversarial | lr | runs | NaN rate | diverged rate |", "|---|---|---|---|---|---|")
             for r in res["rows"]:
@@ -351,15 +367,24 @@ def sec_bench(rep: Report, out: Path) -> None:
     if not bench:
         rep.note("`reports/bench.json`; run `python -m disent.bench`.")
         return
+    def fmt(v):
+        return f"{v:.4g}" if isinstance(v, float) else json.dumps(v)[:120]
+
+    def flat(d, prefix=""):
+        for k, v in d.items():
+            if isinstance(v, dict):
+                yield from flat(v, f"{prefix}{k}.")
+            else:
+                yield f"{prefix}{k}", v
+
     env = {k: v for k, v in bench.items() if not isinstance(v, dict)}
     if env:
-        rep.add("Machine: " + ", ".join(f"{k}={v}" for k, v in env.items()) + "\n")
+        rep.add("Machine: " + ", ".join(f"{k}={fmt(v)}" for k, v in env.items()) + "\n")
     for section, vals in bench.items():
         if not isinstance(vals, dict):
             continue
         rep.add(f"**{section}**\n", "| quantity | value |", "|---|---|")
-        for k, v in vals.items():
-            rep.add(f"| {k} | {v:.4g} |" if isinstance(v, float) else f"| {k} | {json.dumps(v)[:120]} |")
+        rep.add(*(f"| {k} | {fmt(v)} |" for k, v in flat(vals)))
         rep.add("")
 
 

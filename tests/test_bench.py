@@ -35,7 +35,7 @@ def test_bench_json_schema(tiny_run):
             assert m[rate] > 0, (name, rate)
             frac = rate.replace("_img_s", "_fraction_of_peak")
             flops = m["flops_per_image"] if rate.startswith("infer") else m[rate.replace("img_s", "flops_per_image")]
-            assert m[frac] == pytest.approx(flops * m[rate] / 1e9 / d["peak_gflops"])
+            assert m[frac] == pytest.approx(flops * m[rate] / 1e9 / m[rate.replace("img_s", "peak_gflops")])
         assert "infer_b1_img_s" in m and "infer_b256_img_s" not in m  # only the batches asked for
         # FLOPs: a training step (forward + backward) costs more than the forward, D adds to it
         assert 0 < m["flops_per_image"] < m["train_no_d_flops_per_image"] < m["train_flops_per_image"]

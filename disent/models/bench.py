@@ -4,8 +4,9 @@
 pass and for a whole training step (generator and EBGAN discriminator, forward and backward),
 then training images/s with and without the discriminator and inference images/s at batch
 1, 64 and 256, each also as a fraction of the fp32 matmul peak measured in the same run
-(``achieved FLOP/s / peak``).  Every figure is the median of several rounds; the peak is
-re-measured between models and its median used, since the machine is shared.  The data
+(``achieved FLOP/s / peak``).  Every figure is the median of several rounds; the machine is
+shared, so the peak is measured right before and after each rate and that rate is stated
+against their mean (``<rate>_peak_gflops``); ``peak_gflops`` is the median of all of them.  The data
 loader (``SynthFaces.get_batch`` on fresh indices) is timed alone at the training batch
 size, to show it outruns training.
 
@@ -98,6 +99,14 @@ def autocast(device, enabled: bool):
     return torch.autocast(torch.device(device).type, dtype=torch.bfloat16, enabled=enabled)
 
 
+def beside_peak(args, device, measure):
+    """``(measure(), peak)``: the matmul peak is taken right before and right after the rate,
+    and their mean returned, so that a rate and its peak share the machine's load of the moment."""
+    before = measure_peak_gflops(args.peak_n, rounds=args.rounds, device=device)
+    rate = measure()
+    return rate, (before + measure_peak_gflops(args.peak_n, rounds=args.rounds, device=device)) / 2
+
+
 def bench_one(name: str, args, device: str, sync) -> dict:
     """FLOPs per image and images/s of one model: training with and without D, inference."""
     res, rounds, channels_last, n = args.size, args.rounds, not args.no_channels_last, args.train_batch
@@ -108,7 +117,8 @@ def bench_one(name: str, args, device: str, sync) -> dict:
         key = "train" if adv else "train_no_d"
         out[f"{key}_flops_per_image"] = count_flops(tr.step) / n
         tr.step()  # warm-up (allocator, RMSprop state)
-        out[f"{key}_img_s"] = n / median_time(lambda: (tr.step(), sync()), rounds)
+        out[f"{key}_img_s"], out[f"{key}_peak_gflops"] = beside_peak(
+            args, device, lambda: n / median_time(lambda: (tr.step(), sync()), rounds))
     model = tr.model.eval()
     fmt = torch.channels_last if channels_last else torch.contiguous_format
     with torch.inference_mode():
@@ -122,29 +132,29 @@ def bench_one(name: str, args, device: str, sync) -> dict:
                 sync()
 
             key = "infer" if B == 64 else f"infer_b{B}"
-            out[f"{key}_img_s"] = B / median_time(infer, rounds if B > 1 else 20 * rounds, warmup=2)
+            out[f"{key}_img_s"], out[f"{key}_peak_gflops"] = beside_peak(
+                args, device, lambda: B / median_time(infer, rounds if B > 1 else 20 * rounds, warmup=2))
     return out
 
 
 def add_fractions(fig: dict, peak_gflops: float) -> None:
-    """``<key>_fraction_of_peak`` = FLOPs per image x images/s / peak FLOP/s, for every rate."""
+    """``<key>_fraction_of_peak`` = FLOPs per image x images/s / peak FLOP/s, for every rate, against
+    the peak measured beside that rate (``<key>_peak_gflops``), else ``peak_gflops``."""
     for key in [k[:-len("_img_s")] for k in fig if k.endswith("_img_s")]:
         flops = fig.get(f"{key}_flops_per_image", fig["flops_per_image"])  # inference: the forward FLOPs
-        fig[f"{key}_fraction_of_peak"] = flops * fig[f"{key}_img_s"] / 1e9 / peak_gflops
+        peak = fig.get(f"{key}_peak_gflops", peak_gflops)
+        fig[f"{key}_fraction_of_peak"] = flops * fig[f"{key}_img_s"] / 1e9 / peak
 
 
 def bench_models(args) -> dict:
     device = args.device
     sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
-    peaks = [measure_peak_gflops(args.peak_n, rounds=args.rounds, device=device)]
-    figures = {}
-    for name in args.models or MODELS:
-        figures[name] = bench_one(name, args, device, sync)
-        peaks.append(measure_peak_gflops(args.peak_n, rounds=args.rounds, device=device))  # between models: same conditions
+    figures = {name: bench_one(name, args, device, sync) for name in args.models or MODELS}
+    peaks = [v for fig in figures.values() for k, v in fig.items() if k.endswith("_peak_gflops")]
     peak = statistics.median(peaks)
     for fig in figures.values():
         add_fractions(fig, peak)
-    setup = {"peak_gflops_rounds": peaks, "threads": torch.get_num_threads(), "device": device,
+    setup = {"peak_gflops_min_max": [min(peaks), max(peaks)], "threads": torch.get_num_threads(), "device": device,
              "train_batch": args.train_batch, "resolution": args.size, "amp": args.amp,
              "channels_last": not args.no_channels_last, "malloc_tuned": getattr(args, "malloc_tuned", False)}
     if "explicit" in figures and "implicit" in figures:
