@@ -13,15 +13,6 @@ from disent.edit.traversal import (AttributePool, barycenter, choose_bandwidth, 
 from disent.render import composite, sh_from_directions, sh_shading
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Small problems: extra threads only contend on a shared machine."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 def gaussian_sets(D=5, n=40, shift=3.0, seed=0):
     g = torch.Generator().manual_seed(seed)
     neg = torch.randn(n, D, generator=g, dtype=torch.float64)

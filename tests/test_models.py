@@ -17,14 +17,6 @@ ABLATIONS = sorted(p.stem for p in (Path(CONF) / "ablation").glob("*.yaml"))
 R = 16  # small resolution keeps these tests fast; the networks only need a multiple of 8
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 def fake_batch(B=4, H=R, seed=0):
     """A batch with the keys of SynthFaces, rendered from a sphere-cap face on a noisy background."""
     g = torch.Generator().manual_seed(seed)

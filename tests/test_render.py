@@ -121,11 +121,12 @@ def test_fit_sh_recovers_light_exactly():
 
 
 def test_fit_sh_with_albedo_and_float32():
+    g = torch.Generator().manual_seed(0)
     n = hemisphere_normals(2, 16, 16, dtype=torch.float32)
-    sh = torch.randn(2, 3, 9)
-    albedo = 0.2 + 0.6 * torch.rand(2, 3, 16, 16)
+    sh = torch.randn(2, 3, 9, generator=g)
+    albedo = 0.2 + 0.6 * torch.rand(2, 3, 16, 16, generator=g)
     fit, _ = fit_sh(image_formation(albedo, sh_shading(n, sh)), n, torch.ones(2, 1, 16, 16), albedo=albedo)
-    torch.testing.assert_close(fit, sh, rtol=1e-4, atol=1e-4)
+    torch.testing.assert_close(fit, sh, rtol=1e-5, atol=1e-5)  # float32 input rounding only (sums are float64)
 
 
 def test_fit_sh_ignores_pixels_outside_mask():

@@ -19,14 +19,6 @@ TINY = ["+experiment=smoke", "data.train_size=8", "data.test_size=4", "train.eva
         "train.batch_size=4", "train.threads=1"]
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 def cfg_of(*overrides):
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
         return compose(config_name="config", overrides=list(overrides))
