@@ -288,11 +288,15 @@ def sec_stability(rep: Report, eval_dir: Path) -> None:
         path = rep.fig / f"{name}.png"
         plot(res, path)
         rep.image(path, name)
+        if "budget" in res:
+            rep.add(f"_Budget of these runs (their configs): {st.budget_text(res['budget'])}._\n")
         if name == "bws":
             rep.add(f"Mean ± std over seeds on {res['n']} test images. BWS pulls each channel's shading mean to 0.75; "
                     "*cast* is the spread of the three channel means; the last column is the correlation of the "
-                    "estimated albedo with the true shading (0: albedo free of shading).\n",
-                    "| variant | batch | seeds | shading mean r, g, b | cast | corr(albedo, true shading) |", "|---|---|---|---|---|---|")
+                    "estimated albedo with the true shading (0: albedo free of shading). At a fixed number of "
+                    "training images a larger batch takes fewer steps (*steps*).\n",
+                    "| variant | batch | steps | seeds | shading mean r, g, b | cast | corr(albedo, true shading) |",
+                    "|---|---|---|---|---|---|---|")
             groups = {}
             for r in res["rows"]:
                 groups.setdefault((r["variant"], r["batch_size"]), []).append(r)
@@ -301,7 +305,8 @@ def sec_stability(rep: Report, eval_dir: Path) -> None:
                     m = float(np.mean(vals))
                     return f"{m:.3f} ± {float(np.std(vals, ddof=1)) if len(vals) > 1 else 0.0:.3f}"
                 rgb = ", ".join(f"{float(np.mean([r['shading_mean_rgb'][c] for r in rs])):.2f}" for c in range(3))
-                rep.add(f"| {variant} | {bs} | {len(rs)} | {rgb} | {ms([r['shading_cast'] for r in rs])} | "
+                steps = "/".join(sorted({str(r.get("steps", "–")) for r in rs}))
+                rep.add(f"| {variant} | {bs} | {steps} | {len(rs)} | {rgb} | {ms([r['shading_cast'] for r in rs])} | "
                         f"{ms([r['albedo_shading_corr'] for r in rs])} |")
             rep.add("")
         if name == "bws" and len({r["batch_size"] for r in res["rows"]}) < 2:
@@ -311,9 +316,14 @@ def sec_stability(rep: Report, eval_dir: Path) -> None:
             rep.note("the learning-rate sweep (one learning rate only in these runs); run the `multirun/lr` sweeps of "
                      "`ablations/README.md` for NaN / divergence rate against learning rate.")
         if name == "training":
-            rep.add("| model | adversarial | lr | runs | NaN rate | diverged rate |", "|---|---|---|---|---|---|")
+            rep.add("A run is *NaN* when a loss term became non-finite (training stops, `status.json` says so) and "
+                    "*diverged* when its last logged total loss is above 2x its first; the last column is the median "
+                    "of that ratio over the group's runs that logged one.\n",
+                    "| model | adversarial | lr | runs | NaN rate | diverged rate | last / first loss |", "|---|---|---|---|---|---|---|")
             for r in res["rows"]:
-                rep.add(f"| {r['model']} | {r['adversarial']} | {r['lr']} | {r['runs']} | {r['nan_rate']:.2f} | {r['diverged_rate']:.2f} |")
+                lr_ = r.get("loss_ratio")
+                rep.add(f"| {r['model']} | {r['adversarial']} | {r['lr']} | {r['runs']} | {r['nan_rate']:.2f} | "
+                        f"{r['diverged_rate']:.2f} | {'–' if lr_ is None else f'{lr_:.3g}'} |")
             rep.add("")
 
 

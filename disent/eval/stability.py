@@ -15,7 +15,10 @@
 4. ``training``: NaN and divergence rate over seeds against learning rate, per model, with
    and without the adversarial loss, read from run folders.
 
-``python -m disent.eval.stability [conditioning ood bws training]`` (default: all).
+``python -m disent.eval.stability [conditioning ood bws training]`` (default: all).  ``bws`` and
+``training`` read their own sweeps (``BWS_ROOTS``, ``TRAINING_ROOTS``: the commands are in
+``ablations/README.md``), so runs of other budgets or learning rates never mix into their curves;
+each result carries the budget read from its runs' configs.
 """
 from __future__ import annotations
 
@@ -38,6 +41,8 @@ EFFECTS = ("specular", "cast_shadow", "noise", "occluder", "light")
 MIN_PIXELS = 9  # 9 unknowns per channel
 ORACLE_NOISE = 0.02  # sensor noise of the oracle fit (images in [0, 1])
 LS_ESTIMATORS = ("ls_pseudo", "ls_true", "ls_oracle_noisy")
+BWS_ROOTS = ("multirun/bws", "multirun/bws_off")  # explicit model against train.batch_size, with / without BWS
+TRAINING_ROOTS = ("multirun/lr", "multirun/lr_no_adv")  # every model against train.lr, with / without adversary
 
 
 def _median(x: torch.Tensor) -> float:
@@ -201,9 +206,10 @@ def bws_stats(out: dict, gt: dict) -> dict:
 
 def bws_study(runs, dataset, n: int = 64) -> dict:
     """:func:`bws_stats` for every finished run of the explicit/implicit models, with its BWS setting and batch size."""
+    from disent.eval.ablation import budget
     from disent.eval.runs import load_models
 
-    rows = []
+    rows, used = [], []
     batch = next(iter(batches(dataset, n, n)))
     for r in runs:
         if r.model not in ("explicit", "implicit") or r.checkpoint is None or r.status != "ok":
@@ -213,23 +219,40 @@ def bws_study(runs, dataset, n: int = 64) -> dict:
             continue
         out = predict(model, batch["image"])
         bs = r.cfg.get("train", {}).get("batch_size") if isinstance(r.cfg.get("train"), dict) else None
+        steps = (r.eval or {}).get("steps")
         rows.append({"run": str(r.path), "variant": r.variant, "model": r.model, "seed": r.seed,
-                     "bws": "no_bws" not in r.ablations, "batch_size": bs, **bws_stats(out, batch)})
-    return {"rows": rows, "n": n}
+                     "bws": "no_bws" not in r.ablations, "batch_size": bs, "steps": steps, **bws_stats(out, batch)})
+        used.append(r)
+    return {"rows": rows, "n": n, "budget": budget(used)}
 
 
 # ----------------------------------------------------------------------------- 4. training
+def loss_ratio(run):
+    """Last over first logged total loss of a run (None when fewer than two finite values were logged)."""
+    key = "total" if any("total" in r for r in run.metrics) else "loss"
+    losses = [r[key] for r in run.metrics if isinstance(r.get(key), (int, float)) and math.isfinite(r[key])]
+    return losses[-1] / losses[0] if len(losses) >= 2 and losses[0] > 0 else None
+
+
 def training_stability(runs) -> dict:
-    """NaN / divergence rate over seeds for each (model, adversarial on/off, learning rate)."""
+    """NaN / divergence rate over seeds for each (model, adversarial on/off, learning rate), with the
+    median last/first total-loss ratio of the runs that logged one (how near the divergence line,
+    2, a group is even when no seed crossed it)."""
+    from disent.eval.ablation import budget
+
     groups = {}
     for r in runs:
         if r.status == "incomplete" or r.ablations not in ([], ["no_adv"]):
             continue
-        key = (r.model, r.adversarial, r.lr)
-        groups.setdefault(key, []).append(r.status)
-    rows = [{"model": m, "adversarial": adv, "lr": lr, "runs": len(s), "nan_rate": s.count("nan") / len(s),
-             "diverged_rate": s.count("diverged") / len(s)} for (m, adv, lr), s in sorted(groups.items(), key=str)]
-    return {"rows": rows}
+        groups.setdefault((r.model, r.adversarial, r.lr), []).append(r)
+    rows = []
+    for (m, adv, lr), rs in sorted(groups.items(), key=str):
+        s = [r.status for r in rs]
+        ratios = sorted(x for r in rs if (x := loss_ratio(r)) is not None)
+        rows.append({"model": m, "adversarial": adv, "lr": lr, "runs": len(s), "nan_rate": s.count("nan") / len(s),
+                     "diverged_rate": s.count("diverged") / len(s),
+                     "loss_ratio": ratios[len(ratios) // 2] if ratios else None})
+    return {"rows": rows, "budget": budget([r for rs in groups.values() for r in rs])}
 
 
 # ----------------------------------------------------------------------------- plots
@@ -238,6 +261,13 @@ def _plt():
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     return plt
+
+
+def budget_text(budget) -> str:
+    """``key=value, ...`` of a result's ``budget`` (the runs' own configs), for titles and captions."""
+    if not budget:
+        return "budget not recorded"
+    return ", ".join(f"{k.split('.')[-1]}={'/'.join(map(str, v)) if isinstance(v, list) else v}" for k, v in budget.items())
 
 
 def _save(fig, path):
@@ -317,24 +347,35 @@ def plot_bws(res: dict, path) -> None:
         ax.set_xlabel("training batch size (BWS averages over it)")
         ax.set_title(t, fontsize=8)
         ax.legend(fontsize=6)
+    fig.suptitle(f"BWS against batch size ({budget_text(res.get('budget'))}; {res.get('n', '?')} test images)", fontsize=8)
     _save(fig, path)
 
 
 def plot_training(res: dict, path) -> None:
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(5, 3))
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(9, 3.4))
     models = sorted({r["model"] for r in res["rows"]})
     for k, m in enumerate(models):
         for adv, ls in ((True, "-"), (False, "--")):
             sel = sorted((r for r in res["rows"] if r["model"] == m and r["adversarial"] == adv and r["lr"]), key=lambda r: r["lr"])
             if sel:
+                label = f"{m} {'adv' if adv else 'no adv'}"
                 ax.plot([r["lr"] for r in sel], [r["nan_rate"] + r["diverged_rate"] for r in sel], "o" + ls,
-                        color=f"C{k}", label=f"{m} {'adv' if adv else 'no adv'}")
+                        color=f"C{k}", label=label)
+                fin = [r for r in sel if r.get("loss_ratio") is not None]
+                ax2.plot([r["lr"] for r in fin], [r["loss_ratio"] for r in fin], "o" + ls, color=f"C{k}", label=label)
     ax.set_xscale("log")
     ax.set_xlabel("learning rate")
     ax.set_ylabel("share of seeds NaN or diverged")
     ax.set_ylim(-0.05, 1.05)
     ax.legend(fontsize=6)
+    ax2.axhline(2.0, color="k", lw=0.6, ls=":")
+    ax2.set_xscale("log")
+    ax2.set_yscale("log")
+    ax2.set_xlabel("learning rate")
+    ax2.set_ylabel("last / first logged total loss (median)")
+    ax2.set_title("dotted: divergence line (2x)", fontsize=8)
+    fig.suptitle(f"Training stability ({budget_text(res.get('budget'))})", fontsize=8)
     _save(fig, path)
 
 
@@ -347,12 +388,14 @@ def main(argv=None):
     p.add_argument("--out", default="reports/eval")
     p.add_argument("--n", type=int, default=32, help="images per point")
     p.add_argument("--resolution", type=int, default=64)
-    p.add_argument("--roots", nargs="*", default=list(RUN_ROOTS), help="folders searched for runs")
+    p.add_argument("--roots", nargs="*", default=list(RUN_ROOTS), help="folders searched for runs (ood: the models)")
+    p.add_argument("--bws-roots", nargs="*", default=list(BWS_ROOTS), help="the BWS batch-size sweeps")
+    p.add_argument("--training-roots", nargs="*", default=list(TRAINING_ROOTS), help="the learning-rate sweeps")
     a = p.parse_args(argv)
     torch.manual_seed(0)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    runs = find_runs(a.roots)
+    runs = find_runs(a.roots) if "ood" in a.studies else []
 
     def write(name, res):
         (out / f"{name}.json").write_text(json.dumps(res, indent=1))
@@ -374,12 +417,12 @@ def main(argv=None):
         write("ood", res)
         plot_ood(res, out / "ood.png")
     if "bws" in a.studies:
-        res = bws_study(runs, SynthFaces(split="test", resolution=a.resolution, seed=0), n=2 * a.n)
+        res = bws_study(find_runs(a.bws_roots), SynthFaces(split="test", resolution=a.resolution, seed=0), n=2 * a.n)
         write("bws", res)
         if res["rows"]:
             plot_bws(res, out / "bws.png")
     if "training" in a.studies:
-        res = training_stability(runs)
+        res = training_stability(find_runs(a.training_roots))
         write("training", res)
         if res["rows"]:
             plot_training(res, out / "training.png")
