@@ -232,9 +232,17 @@ def sec_sh_variance(rep: Report, eval_dir: Path) -> None:
 
 
 def sec_ablation(rep: Report, runs: list[Run]) -> None:
-    table = _ablation.ablation_table(runs)
-    rep.add(_ablation.to_markdown(table))
-    (rep.out / "ablation.json").write_text(json.dumps(table, indent=1))
+    """One table per budget (the runs' ``+experiment=``), so runs of different budgets never share a mean."""
+    groups = {}
+    for r in runs:
+        groups.setdefault(str(r.choices.get("experiment") or "none (conf defaults)"), []).append(r)
+    tables = {}
+    for exp, rs in sorted(groups.items()) or [("none", [])]:
+        tables[exp] = _ablation.ablation_table(rs)
+        if len(groups) > 1:
+            rep.add(f"### experiment: {exp}\n")
+        rep.add(_ablation.to_markdown(tables[exp]))
+    (rep.out / "ablation.json").write_text(json.dumps(tables if len(tables) > 1 else next(iter(tables.values()), {}), indent=1))
 
 
 def sec_stability(rep: Report, eval_dir: Path) -> None:
@@ -299,7 +307,8 @@ def sec_stability(rep: Report, eval_dir: Path) -> None:
                     "|---|---|---|---|---|---|---|")
             groups = {}
             for r in res["rows"]:
-                groups.setdefault((r["variant"], r["batch_size"]), []).append(r)
+                variant = r["variant"] + ("" if r.get("lhat_white", True) else " (raw L-hat target)")
+                groups.setdefault((variant, r["batch_size"]), []).append(r)
             for (variant, bs), rs in sorted(groups.items(), key=lambda kv: (len(kv[0][0]), kv[0][0], kv[0][1] or 0)):
                 def ms(vals):
                     m = float(np.mean(vals))
@@ -316,14 +325,24 @@ def sec_stability(rep: Report, eval_dir: Path) -> None:
             rep.note("the learning-rate sweep (one learning rate only in these runs); run the `multirun/lr` sweeps of "
                      "`ablations/README.md` for NaN / divergence rate against learning rate.")
         if name == "training":
-            rep.add("A run is *NaN* when a loss term became non-finite (training stops, `status.json` says so) and "
-                    "*diverged* when its last logged total loss is above 2x its first; the last column is the median "
-                    "of that ratio over the group's runs that logged one.\n",
-                    "| model | adversarial | lr | runs | NaN rate | diverged rate | last / first loss |", "|---|---|---|---|---|---|---|")
+            rep.add(f"Outcomes (`disent.eval.stability.outcome`): *NaN*, a loss term became non-finite (training stops, "
+                    "`status.json` says so); *diverged*, the last logged total loss above 2x the first; *exploded*, a "
+                    f"logged total loss above {res.get('spike', st.SPIKE):g}x the run's smallest (a blow-up before the first "
+                    "log escapes the previous rule); *collapsed*, the checkpoint's reconstructions vary across "
+                    f"{res.get('n', 'the')} test images by less than {st.COLLAPSE:g}x the images' own spread (the output "
+                    "ignores the input). Loss ratios, test recon MSE, normal error and input dependence are medians "
+                    "over the group's seeds"
+                    + (f"; the mean test image scores recon MSE {res['reference_mse']:.4f}" if res.get("reference_mse") else "")
+                    + ".\n",
+                    "| model | adversarial | lr | runs | NaN | diverged | exploded | collapsed | largest / smallest loss | "
+                    "last / first loss | test recon MSE | normal err (deg) | input dependence |", "|" + "---|" * 13)
+            def g(v, fmt=".3g"):
+                return "–" if v is None else format(v, fmt)
             for r in res["rows"]:
-                lr_ = r.get("loss_ratio")
-                rep.add(f"| {r['model']} | {r['adversarial']} | {r['lr']} | {r['runs']} | {r['nan_rate']:.2f} | "
-                        f"{r['diverged_rate']:.2f} | {'–' if lr_ is None else f'{lr_:.3g}'} |")
+                rep.add(f"| {r['model']} | {r['adversarial']} | {r['lr']} | {r['runs']} | "
+                        + " | ".join(f"{r.get(f + '_rate', 0.0):.2f}" for f in st.FAILURES)
+                        + f" | {g(r.get('loss_spread'))} | {g(r.get('loss_ratio'))} | {g(r.get('recon_mse'), '.4f')} | "
+                        f"{g(r.get('normal_mean'), '.1f')} | {g(r.get('input_dependence'))} |")
             rep.add("")
 
 

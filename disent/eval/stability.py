@@ -41,7 +41,9 @@ EFFECTS = ("specular", "cast_shadow", "noise", "occluder", "light")
 MIN_PIXELS = 9  # 9 unknowns per channel
 ORACLE_NOISE = 0.02  # sensor noise of the oracle fit (images in [0, 1])
 LS_ESTIMATORS = ("ls_pseudo", "ls_true", "ls_oracle_noisy")
-BWS_ROOTS = ("multirun/bws", "multirun/bws_off")  # explicit model against train.batch_size, with / without BWS
+# explicit model against train.batch_size: with BWS, without, and without BWS and with the raw L-hat target
+# (loss.lhat_white=false: E_recon-L's default target is L-hat scaled to BWS's shading mean, a second whitening)
+BWS_ROOTS = ("multirun/bws", "multirun/bws_off", "multirun/bws_off_raw")
 TRAINING_ROOTS = ("multirun/lr", "multirun/lr_no_adv")  # every model against train.lr, with / without adversary
 
 
@@ -220,13 +222,55 @@ def bws_study(runs, dataset, n: int = 64) -> dict:
         out = predict(model, batch["image"])
         bs = r.cfg.get("train", {}).get("batch_size") if isinstance(r.cfg.get("train"), dict) else None
         steps = (r.eval or {}).get("steps")
-        rows.append({"run": str(r.path), "variant": r.variant, "model": r.model, "seed": r.seed,
-                     "bws": "no_bws" not in r.ablations, "batch_size": bs, "steps": steps, **bws_stats(out, batch)})
+        loss = r.cfg.get("loss") if isinstance(r.cfg.get("loss"), dict) else {}
+        bws = "no_bws" not in r.ablations and bool((loss.get("weights") or {}).get("BWS", 1.0))
+        rows.append({"run": str(r.path), "variant": r.variant, "model": r.model, "seed": r.seed, "bws": bws,
+                     "lhat_white": bool(loss.get("lhat_white", True)), "batch_size": bs, "steps": steps,
+                     **bws_stats(out, batch)})
         used.append(r)
     return {"rows": rows, "n": n, "budget": budget(used)}
 
 
 # ----------------------------------------------------------------------------- 4. training
+SPIKE = 1e3  # a logged total loss this many times the run's smallest one marks an explosion
+COLLAPSE = 0.01  # output spread across images below this share of the input's: the output ignores the input
+
+
+def mean_image_mse(dataset, n: int) -> float:
+    """Reconstruction MSE of the mean image of the first ``n`` items, the best constant output: a run
+    no better than it on the same test images has collapsed (it learnt nothing about its input)."""
+    img = next(iter(batches(dataset, n, n)))["image"].double()
+    return ((img - img.mean(0, keepdim=True)) ** 2).mean().item()
+
+
+def input_dependence(model, images: torch.Tensor) -> float:
+    """Spread of ``model``'s reconstructions across ``images`` over the images' own spread (std over the
+    batch, averaged over pixels): about 1 for a model that follows its input, 0 for a dead one."""
+    recon = predict(model, images)["recon"].double()
+    return (recon.std(0).mean() / images.double().std(0).mean().clamp_min(1e-12)).item()
+
+
+def outcome(run, dependence=None) -> str:
+    """How a training run ended: ``nan`` / ``diverged`` (:attr:`Run.status`), ``exploded`` (finite,
+    but a logged total loss reached ``SPIKE`` x the run's smallest: the blow-up can happen before the
+    first log, which the last-over-first rule then misses), ``collapsed`` (finished, but its output no
+    longer depends on its input: ``dependence`` from :func:`input_dependence` below ``COLLAPSE``),
+    ``ok``, or ``incomplete``."""
+    st = run.status
+    if st != "ok":
+        return st
+    key = "total" if any("total" in r for r in run.metrics) else "loss"
+    losses = [r[key] for r in run.metrics if isinstance(r.get(key), (int, float)) and math.isfinite(r[key])]
+    if losses and min(losses) > 0 and max(losses) > SPIKE * min(losses):
+        return "exploded"
+    if dependence is not None and dependence < COLLAPSE:
+        return "collapsed"
+    return "ok"
+
+
+FAILURES = ("nan", "diverged", "exploded", "collapsed")
+
+
 def loss_ratio(run):
     """Last over first logged total loss of a run (None when fewer than two finite values were logged)."""
     key = "total" if any("total" in r for r in run.metrics) else "loss"
@@ -234,11 +278,25 @@ def loss_ratio(run):
     return losses[-1] / losses[0] if len(losses) >= 2 and losses[0] > 0 else None
 
 
-def training_stability(runs) -> dict:
-    """NaN / divergence rate over seeds for each (model, adversarial on/off, learning rate), with the
-    median last/first total-loss ratio of the runs that logged one (how near the divergence line,
-    2, a group is even when no seed crossed it)."""
+def _median_or_none(xs):
+    xs = sorted(x for x in xs if x is not None and math.isfinite(x))
+    return xs[len(xs) // 2] if xs else None
+
+
+def training_stability(runs, images=None, reference_mse=None) -> dict:
+    """Failure rates over seeds for each (model, adversarial on/off, learning rate): ``nan_rate``,
+    ``diverged_rate``, ``exploded_rate``, ``collapsed_rate`` (:func:`outcome`; the last needs test
+    ``images`` to run each checkpoint on), with medians of the last/first and largest/smallest logged
+    total loss, of the test recon MSE and of the input dependence.  ``reference_mse`` (the mean test
+    image's recon MSE) is kept for the plot."""
     from disent.eval.ablation import budget
+    from disent.models import load_run
+
+    def dependence(r):
+        if images is None or r.checkpoint is None or r.status != "ok":
+            return None
+        model, _ = load_run(r.path)
+        return input_dependence(model.eval(), images)
 
     groups = {}
     for r in runs:
@@ -247,12 +305,23 @@ def training_stability(runs) -> dict:
         groups.setdefault((r.model, r.adversarial, r.lr), []).append(r)
     rows = []
     for (m, adv, lr), rs in sorted(groups.items(), key=str):
-        s = [r.status for r in rs]
-        ratios = sorted(x for r in rs if (x := loss_ratio(r)) is not None)
-        rows.append({"model": m, "adversarial": adv, "lr": lr, "runs": len(s), "nan_rate": s.count("nan") / len(s),
-                     "diverged_rate": s.count("diverged") / len(s),
-                     "loss_ratio": ratios[len(ratios) // 2] if ratios else None})
-    return {"rows": rows, "budget": budget([r for rs in groups.values() for r in rs])}
+        dep = [dependence(r) for r in rs]
+        s = [outcome(r, d) for r, d in zip(rs, dep)]
+
+        def spread(r):  # largest over smallest logged total loss: the quantity the explosion rule thresholds
+            key = "total" if any("total" in x for x in r.metrics) else "loss"
+            ls = [x[key] for x in r.metrics if isinstance(x.get(key), (int, float)) and math.isfinite(x[key])]
+            return max(ls) / min(ls) if len(ls) >= 2 and min(ls) > 0 else None
+
+        rows.append({"model": m, "adversarial": adv, "lr": lr, "runs": len(s),
+                     **{f"{f}_rate": s.count(f) / len(s) for f in FAILURES},
+                     "loss_ratio": _median_or_none(loss_ratio(r) for r in rs),
+                     "loss_spread": _median_or_none(spread(r) for r in rs),
+                     "recon_mse": _median_or_none(r.value("recon_mse") for r in rs),
+                     "normal_mean": _median_or_none(r.value("normal_mean") for r in rs),
+                     "input_dependence": _median_or_none(dep)})
+    return {"rows": rows, "budget": budget([r for rs in groups.values() for r in rs]), "reference_mse": reference_mse,
+            "spike": SPIKE}
 
 
 # ----------------------------------------------------------------------------- plots
@@ -265,9 +334,16 @@ def _plt():
 
 def budget_text(budget) -> str:
     """``key=value, ...`` of a result's ``budget`` (the runs' own configs), for titles and captions."""
+    def num(v):
+        try:
+            return (0, float(v), "")
+        except ValueError:
+            return (1, 0.0, str(v))
+
     if not budget:
         return "budget not recorded"
-    return ", ".join(f"{k.split('.')[-1]}={'/'.join(map(str, v)) if isinstance(v, list) else v}" for k, v in budget.items())
+    return ", ".join(f"{k.split('.')[-1]}={'/'.join(sorted(map(str, v), key=num)) if isinstance(v, list) else v}"
+                     for k, v in budget.items())
 
 
 def _save(fig, path):
@@ -328,53 +404,71 @@ def plot_ood(res: dict, path) -> None:
 
 def plot_bws(res: dict, path) -> None:
     plt = _plt()
-    fig, axes = plt.subplots(1, 3, figsize=(10, 3))
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.8))
     rows = res["rows"]
-    for bws, marker in ((True, "o"), (False, "x")):
-        sel = [r for r in rows if r["bws"] == bws and r["batch_size"] is not None]
+    arms = ((True, True, "o", "-", "with BWS"), (False, True, "x", "--", "without BWS (L-hat target still white)"),
+            (False, False, "^", ":", "without BWS, raw L-hat target"))
+    for bws, white, marker, ls, label in arms:
+        sel = [r for r in rows if r["bws"] == bws and r.get("lhat_white", True) == white and r["batch_size"] is not None]
+        if not sel:
+            continue
         sel.sort(key=lambda r: r["batch_size"])
         bs = [r["batch_size"] for r in sel]
-        label = "with BWS" if bws else "without BWS"
         for c, color in enumerate(("r", "g", "b")):
-            axes[0].plot(bs, [r["shading_mean_rgb"][c] for r in sel], marker + ("-" if bws else "--"), color=color,
-                         label=f"{label} {color}" if c == 0 else None)
-        axes[1].plot(bs, [r["shading_cast"] for r in sel], marker + "-", label=label)
-        axes[2].plot(bs, [r["albedo_shading_corr"] for r in sel], marker + "-", label=label)
+            axes[0].plot(bs, [r["shading_mean_rgb"][c] for r in sel], marker + ls, color=color,
+                         label=f"{label} ({color})" if c == 0 else None)
+        axes[1].plot(bs, [r["shading_cast"] for r in sel], marker + ls, label=label)
+        axes[2].plot(bs, [r["albedo_shading_corr"] for r in sel], marker + ls, label=label)
     axes[0].axhline(0.75, color="k", lw=0.6, ls=":")
+    steps = {r["batch_size"]: r.get("steps") for r in rows if r["batch_size"] is not None}
+    steps_text = ", ".join(f"{b}:{steps[b]}" for b in sorted(steps) if steps[b] is not None)
     for ax, t in zip(axes, ("shading mean per channel (BWS target 0.75)", "colour cast (max - min channel mean)",
                             "corr(albedo, true shading)")):
         ax.set_xscale("log")
-        ax.set_xlabel("training batch size (BWS averages over it)")
+        ax.set_xlabel("training batch size (BWS averages over it)" + (f"\nsteps per batch size: {steps_text}" if steps_text else ""),
+                      fontsize=7)
         ax.set_title(t, fontsize=8)
         ax.legend(fontsize=6)
     fig.suptitle(f"BWS against batch size ({budget_text(res.get('budget'))}; {res.get('n', '?')} test images)", fontsize=8)
     _save(fig, path)
 
 
+def failure_rate(row: dict) -> float:
+    """Share of a group's runs that failed in any way (:data:`FAILURES`)."""
+    return sum(row.get(f"{f}_rate", 0.0) for f in FAILURES)
+
+
 def plot_training(res: dict, path) -> None:
     plt = _plt()
-    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(9, 3.4))
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.6))
     models = sorted({r["model"] for r in res["rows"]})
+    panels = ((None, "share of seeds failed\n(NaN, diverged, exploded or collapsed)"),
+              ("loss_spread", "largest / smallest logged total loss (median)"), ("recon_mse", "test recon MSE (median)"))
     for k, m in enumerate(models):
         for adv, ls in ((True, "-"), (False, "--")):
             sel = sorted((r for r in res["rows"] if r["model"] == m and r["adversarial"] == adv and r["lr"]), key=lambda r: r["lr"])
-            if sel:
-                label = f"{m} {'adv' if adv else 'no adv'}"
-                ax.plot([r["lr"] for r in sel], [r["nan_rate"] + r["diverged_rate"] for r in sel], "o" + ls,
-                        color=f"C{k}", label=label)
-                fin = [r for r in sel if r.get("loss_ratio") is not None]
-                ax2.plot([r["lr"] for r in fin], [r["loss_ratio"] for r in fin], "o" + ls, color=f"C{k}", label=label)
-    ax.set_xscale("log")
-    ax.set_xlabel("learning rate")
-    ax.set_ylabel("share of seeds NaN or diverged")
-    ax.set_ylim(-0.05, 1.05)
-    ax.legend(fontsize=6)
-    ax2.axhline(2.0, color="k", lw=0.6, ls=":")
-    ax2.set_xscale("log")
-    ax2.set_yscale("log")
-    ax2.set_xlabel("learning rate")
-    ax2.set_ylabel("last / first logged total loss (median)")
-    ax2.set_title("dotted: divergence line (2x)", fontsize=8)
+            if not sel:
+                continue
+            label = f"{m} {'adv' if adv else 'no adv'}"
+            for ax, (key, _) in zip(axes, panels):
+                shift = 1 + 0.05 * (2 * k + (not adv) - len(models))  # side by side where curves coincide
+                pts = [(r["lr"] * shift, failure_rate(r) if key is None else r.get(key)) for r in sel]
+                pts = [p for p in pts if p[1] is not None]
+                ax.plot([p[0] for p in pts], [p[1] for p in pts], ("o" if adv else "x") + ls, color=f"C{k}", label=label)
+    for ax, (key, ylabel) in zip(axes, panels):
+        ax.set_xscale("log")
+        ax.set_xlabel("learning rate")
+        ax.set_ylabel(ylabel, fontsize=8)
+        if key is not None:
+            ax.set_yscale("log")
+    axes[0].set_ylim(-0.05, 1.05)
+    axes[0].legend(fontsize=6)
+    axes[1].axhline(res.get("spike", SPIKE), color="k", lw=0.6, ls=":")
+    if res.get("reference_mse"):
+        axes[2].axhline(res["reference_mse"], color="k", lw=0.6, ls=":")
+        axes[2].set_title("dotted: mean test image (collapse line)", fontsize=8)
+    axes[1].set_title("dotted: explosion line", fontsize=8)
+    axes[0].set_title(f"collapsed: output spread < {COLLAPSE:g} x input spread", fontsize=8)
     fig.suptitle(f"Training stability ({budget_text(res.get('budget'))})", fontsize=8)
     _save(fig, path)
 
@@ -422,7 +516,13 @@ def main(argv=None):
         if res["rows"]:
             plot_bws(res, out / "bws.png")
     if "training" in a.studies:
-        res = training_stability(find_runs(a.training_roots))
+        from disent.data import SynthFaces
+
+        truns = find_runs(a.training_roots)
+        n_eval = sorted({int(r.eval["n_eval"]) for r in truns if r.eval and r.eval.get("n_eval")})
+        test = SynthFaces(split="test", resolution=a.resolution, seed=0)
+        ref = mean_image_mse(test, n_eval[0]) if len(n_eval) == 1 else None
+        res = {**training_stability(truns, next(iter(batches(test, a.n, a.n)))["image"], ref), "n": a.n}
         write("training", res)
         if res["rows"]:
             plot_training(res, out / "training.png")
