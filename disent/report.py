@@ -302,7 +302,10 @@ def sec_stability(rep: Report, eval_dir: Path) -> None:
             rep.add(f"Mean ± std over seeds on {res['n']} test images. BWS pulls each channel's shading mean to 0.75; "
                     "*cast* is the spread of the three channel means; the last column is the correlation of the "
                     "estimated albedo with the true shading (0: albedo free of shading). At a fixed number of "
-                    "training images a larger batch takes fewer steps (*steps*).\n",
+                    "training images a larger batch takes fewer steps (*steps*). By default E_recon-L's target "
+                    "L-hat is itself scaled so that its shading has batch mean c (`loss.lhat_white`), a second "
+                    "whitening that stays on without BWS; *raw L-hat target* turns it off too "
+                    "(`loss.lhat_white=false`).\n",
                     "| variant | batch | steps | seeds | shading mean r, g, b | cast | corr(albedo, true shading) |",
                     "|---|---|---|---|---|---|---|")
             groups = {}
@@ -312,7 +315,7 @@ def sec_stability(rep: Report, eval_dir: Path) -> None:
             for (variant, bs), rs in sorted(groups.items(), key=lambda kv: (len(kv[0][0]), kv[0][0], kv[0][1] or 0)):
                 def ms(vals):
                     m = float(np.mean(vals))
-                    return f"{m:.3f} ± {float(np.std(vals, ddof=1)) if len(vals) > 1 else 0.0:.3f}"
+                    return f"{m:.3f} ± {float(np.std(vals, ddof=1)):.3f}" if len(vals) > 1 else f"{m:.3f}"
                 rgb = ", ".join(f"{float(np.mean([r['shading_mean_rgb'][c] for r in rs])):.2f}" for c in range(3))
                 steps = "/".join(sorted({str(r.get("steps", "–")) for r in rs}))
                 rep.add(f"| {variant} | {bs} | {steps} | {len(rs)} | {rgb} | {ms([r['shading_cast'] for r in rs])} | "

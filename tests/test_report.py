@@ -111,3 +111,28 @@ def test_run_status_callback_marks_nan(tmp_path):
     ret = JobReturn(hydra_cfg=hydra_cfg, status=JobStatus.FAILED, _return_value=RuntimeError("out of memory"))
     RunStatus().on_job_end(None, ret)
     assert Run.load(d).status == "failed"
+
+
+def test_outcome_catches_early_explosion_and_dead_output(tmp_path):
+    import torch
+    from disent.eval.stability import FAILURES, input_dependence, outcome
+
+    # the blow-up came before the first log, then the loss fell: last/first says "ok", the spread says "exploded"
+    r = find_runs([make_run(tmp_path, "0", losses=(2e4, 5.0, 1.9), eval_={"recon_mse": 0.05})])[0]
+    assert r.status == "ok" and outcome(r) == "exploded"
+    ok = find_runs([make_run(tmp_path, "1", losses=(3.0, 2.0, 1.0), eval_={"recon_mse": 0.05})])[0]
+    assert outcome(ok) == "ok" and outcome(ok, dependence=1e-4) == "collapsed" and outcome(ok, dependence=0.5) == "ok"
+    images = torch.rand(4, 3, 8, 8, generator=torch.Generator().manual_seed(0))
+
+    class Const(torch.nn.Module):
+        def forward(self, x):
+            return {"recon": torch.full_like(x, 0.3)}
+
+    class Identity(torch.nn.Module):
+        def forward(self, x):
+            return {"recon": x.clone()}
+
+    assert input_dependence(Const(), images) == 0.0
+    assert input_dependence(Identity(), images) == pytest.approx(1.0)
+    rows = training_stability(find_runs([tmp_path]))["rows"]
+    assert len(rows) == 1 and rows[0]["exploded_rate"] == 0.5 and sum(rows[0][f + "_rate"] for f in FAILURES) == 0.5

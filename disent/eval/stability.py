@@ -409,16 +409,23 @@ def plot_bws(res: dict, path) -> None:
     arms = ((True, True, "o", "-", "with BWS"), (False, True, "x", "--", "without BWS (L-hat target still white)"),
             (False, False, "^", ":", "without BWS, raw L-hat target"))
     for bws, white, marker, ls, label in arms:
-        sel = [r for r in rows if r["bws"] == bws and r.get("lhat_white", True) == white and r["batch_size"] is not None]
-        if not sel:
+        by_bs = {}
+        for r in rows:
+            if r["bws"] == bws and r.get("lhat_white", True) == white and r["batch_size"] is not None:
+                by_bs.setdefault(r["batch_size"], []).append(r)
+        if not by_bs:
             continue
-        sel.sort(key=lambda r: r["batch_size"])
-        bs = [r["batch_size"] for r in sel]
+        bs = sorted(by_bs)
+
+        def mean(key, c=None):  # over seeds
+            return [sum(r[key] if c is None else r[key][c] for r in by_bs[b]) / len(by_bs[b]) for b in bs]
+
+        seeds = max(len(v) for v in by_bs.values())
+        label += f", {seeds} seed{'s' if seeds > 1 else ''}"
         for c, color in enumerate(("r", "g", "b")):
-            axes[0].plot(bs, [r["shading_mean_rgb"][c] for r in sel], marker + ls, color=color,
-                         label=f"{label} ({color})" if c == 0 else None)
-        axes[1].plot(bs, [r["shading_cast"] for r in sel], marker + ls, label=label)
-        axes[2].plot(bs, [r["albedo_shading_corr"] for r in sel], marker + ls, label=label)
+            axes[0].plot(bs, mean("shading_mean_rgb", c), marker + ls, color=color, label=f"{label} ({color})" if c == 0 else None)
+        axes[1].plot(bs, mean("shading_cast"), marker + ls, label=label)
+        axes[2].plot(bs, mean("albedo_shading_corr"), marker + ls, label=label)
     axes[0].axhline(0.75, color="k", lw=0.6, ls=":")
     steps = {r["batch_size"]: r.get("steps") for r in rows if r["batch_size"] is not None}
     steps_text = ", ".join(f"{b}:{steps[b]}" for b in sorted(steps) if steps[b] is not None)
@@ -429,7 +436,8 @@ def plot_bws(res: dict, path) -> None:
                       fontsize=7)
         ax.set_title(t, fontsize=8)
         ax.legend(fontsize=6)
-    fig.suptitle(f"BWS against batch size ({budget_text(res.get('budget'))}; {res.get('n', '?')} test images)", fontsize=8)
+    fig.suptitle(f"BWS against batch size, mean over seeds ({budget_text(res.get('budget'))}; {res.get('n', '?')} test images)",
+                 fontsize=8)
     _save(fig, path)
 
 
@@ -466,7 +474,7 @@ def plot_training(res: dict, path) -> None:
     axes[1].axhline(res.get("spike", SPIKE), color="k", lw=0.6, ls=":")
     if res.get("reference_mse"):
         axes[2].axhline(res["reference_mse"], color="k", lw=0.6, ls=":")
-        axes[2].set_title("dotted: mean test image (collapse line)", fontsize=8)
+        axes[2].set_title("dotted: the mean test image's MSE (reference)", fontsize=8)
     axes[1].set_title("dotted: explosion line", fontsize=8)
     axes[0].set_title(f"collapsed: output spread < {COLLAPSE:g} x input spread", fontsize=8)
     fig.suptitle(f"Training stability ({budget_text(res.get('budget'))})", fontsize=8)
