@@ -136,3 +136,16 @@ def test_outcome_catches_early_explosion_and_dead_output(tmp_path):
     assert input_dependence(Identity(), images) == pytest.approx(1.0)
     rows = training_stability(find_runs([tmp_path]))["rows"]
     assert len(rows) == 1 and rows[0]["exploded_rate"] == 0.5 and sum(rows[0][f + "_rate"] for f in FAILURES) == 0.5
+
+
+def test_pick_runs_prefers_the_longest_trained_run(tmp_path):
+    from disent.eval.runs import pick_runs
+
+    short = make_run(tmp_path, "short", "explicit", seed=0, eval_={"steps": 30})
+    long = make_run(tmp_path, "long", "explicit", seed=1, eval_={"steps": 700})
+    ablated = make_run(tmp_path, "abl", "explicit", ["no_bws"], seed=0, eval_={"steps": 900})
+    for d in (short, long, ablated):
+        (d / "checkpoints").mkdir()
+        (d / "checkpoints" / "last.pt").write_bytes(b"")
+    chosen = pick_runs(find_runs([tmp_path]))
+    assert set(chosen) == {"explicit"} and chosen["explicit"].path.name == "long"

@@ -194,12 +194,17 @@ def find_runs(roots=RUN_ROOTS) -> list[Run]:
 
 
 def pick_runs(runs, variants=None) -> dict[str, Run]:
-    """One finished run with a checkpoint per variant (lowest seed first).
+    """One finished run with a checkpoint per variant: the longest trained, then the lowest seed.
 
     ``variants`` defaults to the plain models (runs without ablations)."""
     runs = [r if isinstance(r, Run) else Run.load(r) for r in runs]
     chosen = {}
-    for r in sorted(runs, key=lambda r: (r.seed if isinstance(r.seed, int) else 1 << 30, str(r.path))):
+
+    def order(r):
+        steps = r.value("steps")
+        return (-(steps if isinstance(steps, (int, float)) else 0), r.seed if isinstance(r.seed, int) else 1 << 30, str(r.path))
+
+    for r in sorted(runs, key=order):
         if r.checkpoint is None or r.status != "ok":
             continue
         if (variants is None and not r.ablations) or (variants is not None and r.variant in variants):
