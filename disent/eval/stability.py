@@ -98,12 +98,18 @@ def conditioning_vs_yaw(dataset, yaws=YAWS, n: int = 16) -> dict:
             continue
         rows.append({"yaw": yaw, "face_pixels": _median(face_mask(batch["matte"]).flatten(1).sum(1)),
                      **_summarize(_ls_errors(batch))})
+    return _with_blowups(rows, "yaw", n)
+
+
+def _with_blowups(rows: list, axis: str, n: int) -> dict:
+    """The study's rows plus, per LS estimator, where its condition number and SH error first reach
+    ``BLOWUP`` times their value at the first row of ``axis``."""
     ok = [r for r in rows if "error" not in r]
     res = {"rows": rows, "n": n, "blowup_factor": BLOWUP}
     for est in LS_ESTIMATORS:
         for q in ("cond", "sh_error") if ok else ():
-            res[f"{est}_blowup_yaw" + ("" if q == "cond" else "_error")] = _blowup(
-                [r["yaw"] for r in ok], [r[f"{est}_{q}"]["median"] for r in ok], ok[0][f"{est}_{q}"]["median"])
+            res[f"{est}_blowup_{axis}" + ("" if q == "cond" else "_error")] = _blowup(
+                [r[axis] for r in ok], [r[f"{est}_{q}"]["median"] for r in ok], ok[0][f"{est}_{q}"]["median"])
     return res
 
 
@@ -134,13 +140,7 @@ def conditioning_vs_mask(dataset, fractions=MASK_FRACTIONS, n: int = 32) -> dict
             rows.append({"fraction": f, "error": str(e)})
             continue
         rows.append({"fraction": f, "face_pixels": _median(tm.flatten(1).sum(1)), **stats})
-    ok = [r for r in rows if "error" not in r]
-    res = {"rows": rows, "n": n, "blowup_factor": BLOWUP}
-    for est in LS_ESTIMATORS:
-        for q in ("cond", "sh_error") if ok else ():
-            res[f"{est}_blowup_fraction" + ("" if q == "cond" else "_error")] = _blowup(
-                [r["fraction"] for r in ok], [r[f"{est}_{q}"]["median"] for r in ok], ok[0][f"{est}_{q}"]["median"])
-    return res
+    return _with_blowups(rows, "fraction", n)
 
 
 # ----------------------------------------------------------------------------- 3. out of distribution
