@@ -85,9 +85,9 @@ def save(section: str, figures: dict, path: Path = BENCH_JSON) -> None:
     figures = dict(figures)
     data.update(figures.pop("top", {}))
     data[section] = figures
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(data, indent=2, sort_keys=True))
-    os.replace(tmp, path)
+    from disent.runs import atomic_write
+
+    atomic_write(path, lambda f: f.write(json.dumps(data, indent=2, sort_keys=True).encode()))
 
 
 def print_table(title: str, rows: dict) -> None:

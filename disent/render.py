@@ -46,6 +46,12 @@ def sh_basis(normal: torch.Tensor, dim: int = 1) -> torch.Tensor:
     )
 
 
+def unit(v: torch.Tensor, dim: int = 1, eps: float = 1e-12) -> torch.Tensor:
+    """Unit vectors along ``dim`` (``F.normalize`` semantics, zero stays zero), as ``v * rsqrt(sum v^2)``:
+    elementwise over channel planes, many times faster on the CPU than ``F.normalize``'s strided norm."""
+    return v * torch.rsqrt((v * v).sum(dim, keepdim=True).clamp_min(eps * eps))
+
+
 def sh_matrix(sh: torch.Tensor) -> torch.Tensor:
     """The symmetric 4x4 matrix K of Eq. 5, ``[..., 9] -> [..., 4, 4]``."""
     L1, L2, L3, L4, L5, L6, L7, L8, L9 = sh.unbind(-1)
@@ -226,7 +232,7 @@ def rotate_sh(sh: torch.Tensor, R: torch.Tensor, n_samples: int = 512) -> torch.
 
 
 __all__ = [
-    "C1", "C2", "C3", "C4", "C5", "SH_NAMES", "SH_ORDER_OF", "sh_basis", "sh_matrix", "sh_shading",
+    "C1", "C2", "C3", "C4", "C5", "SH_NAMES", "SH_ORDER_OF", "unit", "sh_basis", "sh_matrix", "sh_shading",
     "sh_shading_reference", "image_formation", "composite", "sh_from_directions", "fit_sh",
     "design_condition", "IllConditionedFit", "sample_sphere", "rotate_sh",
 ]

@@ -53,18 +53,23 @@ class MetricsLog:
         if self.path.exists():
             recs = [json.loads(l) for l in self.path.read_text().splitlines() if l.strip()]
             keep = [json.dumps(r) for r in recs if r.get("step", 0) <= step and "eval" not in r]
-            tmp = self.path.with_suffix(".jsonl.tmp")
-            tmp.write_text("".join(l + "\n" for l in keep))
-            os.replace(tmp, self.path)
+            atomic_write(self.path, lambda f: f.write("".join(l + "\n" for l in keep).encode()))
+
+
+def atomic_write(path, write) -> None:
+    """Write ``path`` through ``write(binary_file)`` into a temp file beside it, then rename it into place:
+    a crash mid-write leaves the previous file intact (per-process temp name: workers may race)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f"{path.name}.tmp{os.getpid()}")
+    with tmp.open("wb") as f:
+        write(f)
+    os.replace(tmp, path)
 
 
 def save_checkpoint(path: Path, state: dict) -> None:
     """Atomic ``torch.save``: a crash mid-write leaves the previous checkpoint intact."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(state, tmp)
-    os.replace(tmp, path)
+    atomic_write(path, lambda f: torch.save(state, f))
 
 
 def load_checkpoint(path: Path) -> dict:

@@ -94,7 +94,7 @@ def test_time_to_accuracy_reads_metrics(tmp_path):
 
 @pytest.mark.parametrize("fmt", [torch.contiguous_format, torch.channels_last])
 def test_unit_equals_normalize(fmt):
-    from disent.models.networks import unit
+    from disent.render import unit
 
     x = torch.randn(2, 3, 5, 5, dtype=torch.float64).contiguous(memory_format=fmt)
     x[0, :, 0, 0] = 0  # F.normalize's eps: a zero vector stays zero

@@ -35,6 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
+from disent.runs import atomic_write
+
 log = logging.getLogger(__name__)
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".webp", ".tif", ".tiff")
@@ -498,13 +500,6 @@ def _init_worker():
     torch.set_num_threads(1)
 
 
-def _atomic_savez(path: Path, arrays: dict):
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(f".tmp{os.getpid()}.npz")
-    np.savez(tmp, **arrays)
-    os.replace(tmp, path)
-
-
 def process_file(path: str, cache_root: str, settings: PseudoGTSettings, detector=None) -> Record:
     """One file through the pipeline or from the cache; never raises for a bad image."""
     try:
@@ -528,7 +523,7 @@ def process_file(path: str, cache_root: str, settings: PseudoGTSettings, detecto
     except Exception as e:  # an unexpected failure on one image must not stop the batch
         log.exception("pseudo-GT failed on %s", path)
         arrays = {"skip": np.array("error"), "detail": np.array(f"{type(e).__name__}: {e}")}
-    _atomic_savez(out, arrays)
+    atomic_write(out, lambda f: np.savez(f, **arrays))
     return _record_from_cache(rec, arrays)
 
 

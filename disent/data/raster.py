@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import torch
 
+from disent.render import unit
+
 _ID_BITS = 20  # triangle ids below 2**20
 _DEPTH_LEVELS = 2**38  # depth quantisation over [-DEPTH_RANGE, DEPTH_RANGE]
 _DEPTH_RANGE = 16.0
@@ -57,11 +59,6 @@ def to_camera(vertices: torch.Tensor, pose_deg: torch.Tensor, scale: torch.Tenso
     return cam + torch.nn.functional.pad(shift.to(vertices.dtype), (0, 1))[:, None, :]
 
 
-def normalize(v: torch.Tensor, dim: int, eps: float = 1e-12) -> torch.Tensor:
-    """Unit vectors along ``dim`` (zero vectors stay zero); plain ops, faster than F.normalize on CPU."""
-    return v * torch.rsqrt((v * v).sum(dim, keepdim=True).clamp_min(eps * eps))
-
-
 def vertex_normals(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
     """Area-weighted unit vertex normals ``[B, V, 3]`` (outward for counter-clockwise faces)."""
     B, V, _ = vertices.shape
@@ -71,7 +68,7 @@ def vertex_normals(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
     n = torch.zeros_like(vt)
     for k in range(3):
         n.index_add_(0, faces[:, k], fn)
-    return normalize(n.view(V, B, 3), -1).permute(1, 0, 2)
+    return unit(n.view(V, B, 3), -1).permute(1, 0, 2)
 
 
 def rasterize(vertices_cam: torch.Tensor, faces: torch.Tensor, resolution: int) -> dict:
@@ -193,7 +190,7 @@ def grid_vertex_normals(vertices: torch.Tensor, grid_shape: tuple[int, int]) -> 
     dv2 = P[:, (r + 2).clamp(max=gv - 1)] - P[:, (r - 2).clamp(min=0)]
     dv = torch.where((dv * dv).sum(-1, keepdim=True) < 1e-12, dv2, dv)
     n = torch.linalg.cross(dv, du, dim=-1)
-    return normalize(n, -1).view(B, V, 3)
+    return unit(n, -1).view(B, V, 3)
 
 
 def render_face(vertices_cam: torch.Tensor, faces: torch.Tensor, uv: torch.Tensor, resolution: int,
@@ -218,7 +215,7 @@ def render_face(vertices_cam: torch.Tensor, faces: torch.Tensor, uv: torch.Tenso
     mask = (r["face_id"] >= 0)[:, None].to(vertices_cam.dtype)
     attrs = torch.cat([vertex_normal, vertices_cam[..., 2:], uv.to(vertices_cam.dtype).expand(vertices_cam.shape[0], -1, -1)], -1)
     pix = interpolate(attrs, faces, r)
-    normal = normalize(pix[:, :3], 1) * mask
+    normal = unit(pix[:, :3], 1) * mask
     return {"mask": mask, "normal": normal, "depth": pix[:, 3:4], "uv": pix[:, 4:6],
             "normal_uv": grid_to_uv_map(vertex_normal, resolution), "face_id": r["face_id"]}
 
@@ -238,7 +235,7 @@ def grid_to_uv_map(vertex_attr: torch.Tensor, resolution: int, grid_shape: tuple
     grid = vertex_attr.reshape(B, gv, gu, C).permute(0, 3, 1, 2)
     out = torch.nn.functional.interpolate(grid, size=(resolution, resolution), mode="bilinear", align_corners=True)
     if C == 3:
-        out = normalize(out, 1)
+        out = unit(out, 1)
     return out
 
 

@@ -19,11 +19,11 @@ from functools import lru_cache
 import torch
 import torch.nn.functional as F
 
-from disent.render import C4, composite, fit_sh, image_formation, sh_basis, sh_from_directions, sh_shading
+from disent.render import C4, composite, fit_sh, image_formation, sh_basis, sh_from_directions, sh_shading, unit
 
 from .face_model import (BROW_X, BROW_Y, CHIN_Y, EYE_H, EYE_W, EYE_X, EYE_Y, GRID_U, GRID_V, HAIRLINE_Y, MOUTH_W, MOUTH_Y,
                          NOSE_BASE_Y, SLIT_ROWS, face_model, is_neck, layout, single_thread, uv_to_angles)
-from .raster import grid_vertex_normals, interpolate, normalize, rasterize, render_face, to_camera
+from .raster import grid_vertex_normals, interpolate, rasterize, render_face, to_camera
 
 ATTRIBUTES = ("smiling", "beard", "eyeglasses", "senior")
 EFFECTS = ("specular", "cast_shadow", "noise", "occluder")
@@ -498,7 +498,7 @@ def _uv_map_from_subgrid(vals: torch.Tensor, grid: tuple[int, int], res: int) ->
     gx, gy = coord(us), coord(vs)
     samp = torch.stack(torch.meshgrid(gx, gy, indexing="xy"), -1).expand(B, res, res, 2)
     out = F.grid_sample(g, samp, mode="bilinear", align_corners=True)
-    return normalize(out, 1) if C == 3 else out
+    return unit(out, 1) if C == 3 else out
 
 
 def render_scenes(p: dict, res: int, effects: dict | None = None, pseudo: bool = True) -> dict:
@@ -538,7 +538,7 @@ def render_pseudo(image: torch.Tensor, p: dict, res: int) -> dict:
     r = rasterize(cam, faces, res)
     pix = interpolate(torch.cat([attrs, uv.expand(cam.shape[0], -1, -1)], -1), faces, r)
     mask = ((r["face_id"] >= 0)[:, None] & (pix[:, 3:4] > 0.5)).float()
-    normal = normalize(pix[:, :3], 1) * mask
+    normal = unit(pix[:, :3], 1) * mask
     sh_pseudo = fit_sh_packed(image, normal, mask)
     return {"normal_pseudo": normal, "mask_pseudo": mask, "uv_pseudo": pix[:, 4:6] * mask,
             "normal_uv_pseudo": _uv_map_from_subgrid(vn, grid, res), "sh_pseudo": sh_pseudo}

@@ -8,8 +8,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from disent.models.networks import CodeHeads, Decoder, Encoder, unit
-from disent.render import composite, image_formation, sh_shading
+from disent.models.networks import CodeHeads, Decoder, Encoder
+from disent.render import composite, image_formation, sh_shading, unit
 
 
 class Explicit(nn.Module):

@@ -15,7 +15,8 @@ import torch
 import torch.nn.functional as F
 
 from disent.models.explicit import Explicit
-from disent.models.networks import Decoder, unit
+from disent.models.networks import Decoder
+from disent.render import unit
 
 
 def sample_uv(uv_map: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:

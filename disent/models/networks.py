@@ -34,13 +34,6 @@ def upsample_conv(x: torch.Tensor, conv: nn.Conv2d) -> torch.Tensor:
     return F.pixel_shuffle(F.conv2d(x, w, conv.bias.repeat_interleave(4), padding=1), 2)
 
 
-def unit(x: torch.Tensor, eps: float = 1e-12) -> torch.Tensor:
-    """``F.normalize(x, dim=1)`` (unit vectors along the channels, ``x / max(|x|, eps)``) written as
-    ``x * rsqrt(sum x^2)``: elementwise over channel planes, many times faster on the CPU than
-    the strided norm reduction behind ``F.normalize``."""
-    return x * (x * x).sum(1, keepdim=True).clamp_min(eps * eps).rsqrt()
-
-
 def check_resolution(resolution: int) -> int:
     if resolution < 8 or resolution % 8:
         raise ValueError(f"resolution must be a positive multiple of 8 (three 2x2 poolings), got {resolution}")
