@@ -46,24 +46,6 @@ def measure_peak_gflops(n: int = 2048, rounds: int = 5, device: str = "cpu") -> 
     return 2 * n**3 / median_time(mm, rounds) / 1e9
 
 
-def tune_malloc() -> bool:
-    """Keep freed memory in glibc's heap instead of returning it to the kernel.
-
-    glibc serves blocks above its mmap threshold (at most 32 MB, one ``[64,32,64,64]``
-    float32 activation) with fresh ``mmap`` pages, so every large activation page-faults
-    on first touch.  With mmap off and no trimming they are reused.  No-op off glibc.
-    """
-    import ctypes
-    import ctypes.util
-
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        M_TRIM_THRESHOLD, M_MMAP_MAX = -1, -4  # <malloc.h>
-        return bool(libc.mallopt(M_MMAP_MAX, 0) and libc.mallopt(M_TRIM_THRESHOLD, 2**31 - 1))
-    except (OSError, AttributeError):
-        return False
-
-
 def machine_info() -> dict:
     return {
         "torch": torch.__version__,
@@ -166,6 +148,8 @@ def main(argv=None) -> None:
     p.add_argument("--out", type=Path, default=BENCH_JSON)
     p.add_argument("--device", default="cpu", help="cpu | cuda | cuda:N")
     p.add_argument("--amp", action="store_true", help="bfloat16 mixed precision (the shading layer stays float32)")
+    p.add_argument("--no-bf16", dest="bf16", action="store_false",
+                   help="skip the bfloat16 autocast figures measured beside the float32 ones")
     p.add_argument("--no-channels-last", action="store_true", help="NCHW instead of NHWC activations")
     p.add_argument("--models", nargs="*", default=None, help="models to benchmark (default: all)")
     p.add_argument("--run", default=None, help="run folder for time_to_accuracy (default: newest under outputs/)")
@@ -174,6 +158,8 @@ def main(argv=None) -> None:
     p.add_argument("--infer-batches", type=int, nargs="+", default=[1, 64, 256], help="inference batches (64 is the headline)")
     p.add_argument("--no-malloc-tuning", action="store_true", help="leave glibc's malloc as it is (see tune_malloc)")
     args = p.parse_args(argv)
+    from disent.train import tune_malloc  # the same setting as training (train.malloc_tuning)
+
     args.malloc_tuned = False if args.no_malloc_tuning else tune_malloc()
     global DEVICE
     DEVICE = args.device

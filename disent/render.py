@@ -197,6 +197,16 @@ def fit_sh(image, normal, mask, albedo=None, *, min_pixels: int = 16, max_cond: 
     y = torch.where(inside[:, None], y, 0.0)
     AtA, w, basis = _normal_equations(normal, mask, dtype)
     Aty = torch.bmm(basis * w[:, None], y.transpose(1, 2)).double()  # [B,9,C]
+    sh = solve_normal_equations(AtA, Aty, max_cond, on_ill_conditioned)
+    pred = torch.bmm(sh.to(dtype), basis)  # [B,C,P]
+    residual = ((pred - y).pow(2) * w[:, None]).sum(2) / w.sum(1, keepdim=True)
+    return sh.to(image.dtype), residual.sqrt().to(image.dtype)
+
+
+def solve_normal_equations(AtA: torch.Tensor, Aty: torch.Tensor, max_cond: float = 1e7,
+                           on_ill_conditioned: str = "regularize") -> torch.Tensor:
+    """L-hat from the normal equations of :func:`fit_sh`: ``AtA [B,9,9]``, ``Aty [B,9,C]`` -> ``sh [B,C,9]``
+    (float64), with the ridge (or :class:`IllConditionedFit`) that :func:`fit_sh` documents."""
     ev, V = torch.linalg.eigh(AtA.double())
     cond = ev[:, -1] / ev[:, 0].clamp_min(1e-300)
     ill = cond > max_cond
@@ -205,10 +215,7 @@ def fit_sh(image, normal, mask, albedo=None, *, min_pixels: int = 16, max_cond: 
                                 f"for images {torch.nonzero(ill).flatten().tolist()} (normals span too narrow a cone)")
     delta = torch.where(ill, ev[:, -1] / max_cond - ev[:, 0], torch.zeros_like(cond)).clamp_min(0)
     inv = 1.0 / (ev + delta[:, None]).clamp_min(1e-300)
-    sh = torch.einsum("bkj,bj,blj,blc->bck", V, inv, V, Aty)  # (A^T A + delta I)^-1 A^T y
-    pred = torch.bmm(sh.to(dtype), basis)  # [B,C,P]
-    residual = ((pred - y).pow(2) * w[:, None]).sum(2) / w.sum(1, keepdim=True)
-    return sh.to(image.dtype), residual.sqrt().to(image.dtype)
+    return torch.einsum("bkj,bj,blj,blc->bck", V, inv, V, Aty.double())  # (A^T A + delta I)^-1 A^T y
 
 
 def sample_sphere(n: int, generator: torch.Generator | None = None, dtype=torch.float64) -> torch.Tensor:
@@ -234,5 +241,5 @@ def rotate_sh(sh: torch.Tensor, R: torch.Tensor, n_samples: int = 512) -> torch.
 __all__ = [
     "C1", "C2", "C3", "C4", "C5", "SH_NAMES", "SH_ORDER_OF", "unit", "sh_basis", "sh_matrix", "sh_shading",
     "sh_shading_reference", "image_formation", "composite", "sh_from_directions", "fit_sh",
-    "design_condition", "IllConditionedFit", "sample_sphere", "rotate_sh",
+    "design_condition", "IllConditionedFit", "solve_normal_equations", "sample_sphere", "rotate_sh",
 ]

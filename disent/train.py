@@ -4,12 +4,15 @@ One step (Sec. 4.2): the model renders I_o; the EBGAN discriminator D scores it;
 minimises sum_k w_k E_k (disent/losses.py) and D its margin loss, both from the same forward
 pass.  RMSprop, lr decayed per epoch.  The data order of epoch e is a permutation seeded by
 (seed, e), so a run resumed from ``checkpoints/last.pt`` replays exactly the steps it missed.
+Batches are rendered ``train.prefetch`` steps ahead in a background thread (``Prefetcher``), in
+that same order; every ``train.val_every`` steps a fixed validation subset is scored (``validate``).
 """
 from __future__ import annotations
 
 import importlib
 import json
-import math
+import queue
+import threading
 import time
 from pathlib import Path
 
@@ -53,9 +56,94 @@ def epoch_order(seed: int, epoch: int, n: int) -> torch.Tensor:
     return torch.randperm(n, generator=torch.Generator().manual_seed(seed * 100_003 + epoch))
 
 
+def step_indices(seed: int, step: int, steps_per_epoch: int, batch_size: int, n: int) -> torch.Tensor:
+    """The data indices of training step ``step`` (0-based): its slice of its epoch's permutation."""
+    epoch, i = divmod(step, steps_per_epoch)
+    return epoch_order(seed, epoch, n)[i * batch_size:(i + 1) * batch_size]
+
+
 def to_device(batch: dict, device, channels_last: bool) -> dict:
     fmt = torch.channels_last if channels_last else torch.contiguous_format
     return {k: (v.to(device).contiguous(memory_format=fmt) if v.dim() == 4 else v.to(device)) for k, v in batch.items()}
+
+
+class Prefetcher:
+    """``make_batch(step)`` for ``steps`` in order, computed up to ``depth`` steps ahead in a
+    background thread while the training step runs (torch ops release the GIL).  ``get(step)``
+    returns the batch of ``step`` and checks that the steps are consumed in the order given, so
+    prefetching never changes which images a step sees.  ``depth=0``: ``make_batch`` in the caller.
+    An exception in the thread is raised again by ``get``.
+    """
+
+    def __init__(self, make_batch, steps, depth: int = 2):
+        self.make_batch, self.depth = make_batch, depth
+        self.steps = iter(steps)
+        if depth > 0:
+            # torch initialises a thread's OpenMP count lazily from the last set_num_threads of ANY
+            # thread; initialise this one now, so the worker's set_num_threads(1) leaves it alone
+            torch.get_num_threads()
+            self.queue: queue.Queue = queue.Queue(maxsize=depth)
+            self.stopped = threading.Event()
+            self.thread = threading.Thread(target=self._work, name="prefetch", daemon=True)
+            self.thread.start()
+
+    def _work(self) -> None:
+        torch.set_num_threads(1)  # rendering on one core; the training thread keeps its own count
+        try:
+            for step in self.steps:
+                item = (step, self.make_batch(step))
+                while not self.stopped.is_set():
+                    try:
+                        self.queue.put(item, timeout=0.1)
+                        break
+                    except queue.Full:
+                        pass
+                if self.stopped.is_set():
+                    return
+        except BaseException as e:  # handed to the training thread
+            self.queue.put((None, e))
+
+    def get(self, step: int) -> dict:
+        if self.depth == 0:
+            want = next(self.steps)
+            got, batch = want, self.make_batch(want)
+        else:
+            got, batch = self.queue.get()
+            if got is None:
+                raise batch
+            want = step
+        if got != step or want != step:
+            raise RuntimeError(f"prefetcher out of order: asked for step {step}, has step {got}")
+        return batch
+
+    def close(self) -> None:
+        if self.depth > 0:
+            self.stopped.set()
+            while self.thread.is_alive():
+                try:
+                    self.queue.get(timeout=0.1)
+                except queue.Empty:
+                    pass
+            self.thread.join()
+
+
+def tune_malloc() -> bool:
+    """Keep freed memory in glibc's heap instead of returning it to the kernel (process-wide).
+
+    glibc serves blocks above its mmap threshold (at most 32 MB, one ``[64,32,64,64]``
+    float32 activation) with fresh ``mmap`` pages, so every large activation page-faults
+    on first touch.  With mmap off and no trimming they are reused.  No-op off glibc.
+    Used by training (``train.malloc_tuning``) and by ``python -m disent.bench``.
+    """
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        M_TRIM_THRESHOLD, M_MMAP_MAX = -1, -4  # <malloc.h>
+        return bool(libc.mallopt(M_MMAP_MAX, 0) and libc.mallopt(M_TRIM_THRESHOLD, 2**31 - 1))
+    except (OSError, AttributeError):
+        return False
 
 
 def train_step(model, disc, opt_g, opt_d, batch, cfg_loss) -> dict:
@@ -84,6 +172,21 @@ def train_step(model, disc, opt_g, opt_d, batch, cfg_loss) -> dict:
     return losses
 
 
+def validate(model, batch: dict) -> dict:
+    """The cheap periodic check: on a fixed validation batch, the network's mean normal angular
+    error and the pseudo-GT's on the same pixels (degrees), and the reconstruction PSNR (dB)."""
+    from disent.eval.evaluate import face_mask, predict
+    from disent.eval.metrics import normal_angular_error, reconstruction_metrics
+
+    out = predict(model, batch["image"])
+    m = {"recon_psnr": reconstruction_metrics(out["recon"].float().clamp(0, 1), batch["image"])["psnr"]}
+    if "normal" in out and "normal" in batch:
+        both = face_mask(batch["matte"]) * (batch["mask_pseudo"] > 0.5)
+        m["normal_mean"] = normal_angular_error(out["normal"].float(), batch["normal"], both)["mean"]
+        m["pseudo_normal_mean"] = normal_angular_error(batch["normal_pseudo"], batch["normal"], both)["mean"]
+    return m
+
+
 def evaluate(model, cfg, n: int) -> dict:
     """Test metrics on the first ``n`` test images (disent.eval.evaluate), on the CPU."""
     from disent.eval.evaluate import evaluate_model, model_outputs
@@ -104,6 +207,8 @@ def run(cfg, run_dir) -> dict:
     t = cfg.train
     if t.threads:
         torch.set_num_threads(t.threads)
+    if t.get("malloc_tuning", True):
+        tune_malloc()
     torch.manual_seed(cfg.seed)
     device = torch.device(cfg.device)
     fmt = torch.channels_last if t.channels_last else torch.contiguous_format
@@ -116,6 +221,12 @@ def run(cfg, run_dir) -> dict:
     if steps_per_epoch == 0:
         raise ValueError(f"train.batch_size={t.batch_size} exceeds the {len(data)} training images")
     total_steps = steps_per_epoch * t.epochs if t.max_steps is None else min(t.max_steps, steps_per_epoch * t.epochs)
+    val_every, val_size = t.get("val_every", 0), t.get("val_size", 64)
+    val_every = val_every if val_every and val_every <= total_steps else 0
+    if val_every:  # rendered once, before the prefetch thread starts using the data code
+        val_data = make_dataset(cfg.data, "val", val_size)
+        val_batch = to_device(get_batch(val_data, range(min(val_size, len(val_data))), (*TRAIN_KEYS, "normal", "matte")),
+                              device, t.channels_last)
 
     model = build_model(cfg.model).to(device, memory_format=fmt)
     disc = Discriminator(cfg.model.resolution).to(device, memory_format=fmt) if cfg.loss.weights.adv else None
@@ -144,43 +255,54 @@ def run(cfg, run_dir) -> dict:
             "step": step, "epoch": step / steps_per_epoch, "wall": wall, "rng": rng_state(),
             "cfg": OmegaConf.to_container(cfg, resolve=True)})
 
+    def make_batch(s):  # on the CPU; the prefetch thread runs it
+        idx = step_indices(cfg.seed, s, steps_per_epoch, t.batch_size, len(data))
+        return to_device(get_batch(data, idx), "cpu", t.channels_last)
+
+    prefetch = Prefetcher(make_batch, range(step, total_steps), t.get("prefetch", 0))
     bar = tqdm(total=total_steps, initial=step, disable=not t.progress, unit="step", dynamic_ncols=True)
     last_saved, stopped, batch = step, "steps", None
-    while step < total_steps:
-        if t.time_limit_min and wall > 60 * t.time_limit_min:  # budget spent: keep what we have, evaluate
-            stopped = "time_limit"
-            checkpoint()
-            break
-        epoch, i = divmod(step, steps_per_epoch)
-        lr = t.lr * t.lr_decay ** epoch * min(1.0, (step + 1) / max(t.warmup_steps, 1))  # x0.99 per epoch
-        for opt in (opt_g, opt_d):
-            for g in (opt.param_groups if opt is not None else []):
-                g["lr"] = lr
-        idx = epoch_order(cfg.seed, epoch, len(data))[i * t.batch_size:(i + 1) * t.batch_size]
-        t0 = time.perf_counter()
-        batch = to_device(get_batch(data, idx), device, t.channels_last)
-        with torch.autocast(device.type, dtype=torch.bfloat16, enabled=t.get("amp", False)):  # shading stays float32
-            losses = train_step(model, disc, opt_g, opt_d, batch, cfg.loss)
-        if "nonfinite" in losses:
-            bar.close()
-            raise NonFiniteLoss(
-                f"loss term {', '.join(repr(k) for k in losses['nonfinite'])} is not finite at step {step} "
-                f"(epoch {epoch}); stopped. Last good checkpoint: {ckpt_path} (step {last_saved})")
-        dt = time.perf_counter() - t0
-        wall += dt
-        step += 1
-        ips = len(idx) / dt
-        bar.update(1)
-        bar.set_postfix(loss=f"{losses['total'].item():.4f}", img_s=f"{ips:.0f}", epoch=epoch)
-        if step % t.log_every == 0 or step == total_steps:
-            log.write({"step": step, "epoch": epoch, "wall": wall, "lr": lr, "images_per_s": ips,
-                       **{k: v.item() for k, v in losses.items()}})
-        if t.sample_every and step % t.sample_every == 0:
-            save_samples(run_dir / "samples" / f"step{step:06d}.png", batch, model(batch["image"]))
-        if step % t.checkpoint_every == 0 or step % steps_per_epoch == 0 or step == total_steps:
-            checkpoint()
-            last_saved = step
-    bar.close()
+    try:
+        while step < total_steps:
+            if t.time_limit_min and wall > 60 * t.time_limit_min:  # budget spent: keep what we have, evaluate
+                stopped = "time_limit"
+                checkpoint()
+                break
+            epoch = step // steps_per_epoch
+            lr = t.lr * t.lr_decay ** epoch * min(1.0, (step + 1) / max(t.warmup_steps, 1))  # x0.99 per epoch
+            for opt in (opt_g, opt_d):
+                for g in (opt.param_groups if opt is not None else []):
+                    g["lr"] = lr
+            t0 = time.perf_counter()
+            batch = to_device(prefetch.get(step), device, t.channels_last)
+            with torch.autocast(device.type, dtype=torch.bfloat16, enabled=t.get("amp", False)):  # shading stays float32
+                losses = train_step(model, disc, opt_g, opt_d, batch, cfg.loss)
+            if "nonfinite" in losses:
+                raise NonFiniteLoss(
+                    f"loss term {', '.join(repr(k) for k in losses['nonfinite'])} is not finite at step {step} "
+                    f"(epoch {epoch}); stopped. Last good checkpoint: {ckpt_path} (step {last_saved})")
+            dt = time.perf_counter() - t0
+            wall += dt
+            step += 1
+            ips = len(batch["image"]) / dt
+            bar.update(1)
+            bar.set_postfix(loss=f"{losses['total'].item():.4f}", img_s=f"{ips:.0f}", epoch=epoch)
+            if step % t.log_every == 0 or step == total_steps:
+                log.write({"step": step, "epoch": epoch, "wall": wall, "lr": lr, "images_per_s": ips,
+                           **{k: v.item() for k, v in losses.items()}})
+            if val_every and step % val_every == 0:  # wall: training seconds only
+                t1 = time.perf_counter()
+                val = validate(model, val_batch)
+                log.write({"step": step, "epoch": epoch, "wall": wall, "minutes": wall / 60,
+                           "val": {**val, "n": len(val_batch["image"]), "seconds": time.perf_counter() - t1}})
+            if t.sample_every and step % t.sample_every == 0:
+                save_samples(run_dir / "samples" / f"step{step:06d}.png", batch, model(batch["image"]))
+            if step % t.checkpoint_every == 0 or step % steps_per_epoch == 0 or step == total_steps:
+                checkpoint()
+                last_saved = step
+    finally:
+        prefetch.close()
+        bar.close()
 
     model.eval()
     if batch is None:  # no step ran in this process (a resumed run that was already done)

@@ -72,6 +72,43 @@ def test_upsample_conv_equals_conv_of_nearest_upsampling(c, o):
         torch.testing.assert_close(a, b)
 
 
+@pytest.mark.parametrize("o", [1, 3, 12])
+def test_narrow_conv_equals_conv2d_with_gradients(o):
+    from disent.models.networks import narrow_conv
+
+    torch.manual_seed(0)
+    x = torch.randn(2, 5, 6, 7, dtype=torch.float64).contiguous(memory_format=torch.channels_last).requires_grad_()
+    w = torch.randn(o, 5, 3, 3, dtype=torch.float64, requires_grad=True)
+    b = torch.randn(o, dtype=torch.float64, requires_grad=True)
+    ref = F.conv2d(x, w, b, padding=1)
+    out = narrow_conv(x, w, b)
+    torch.testing.assert_close(out, ref)
+    g = torch.randn_like(ref)
+    for a, r in zip(torch.autograd.grad(out, (x, w, b), g), torch.autograd.grad(ref, (x, w, b), g)):
+        torch.testing.assert_close(a, r)
+
+
+def test_inference_fast_paths_leave_the_outputs_unchanged():
+    """The explicit model with and without narrow_conv at inference: the same outputs."""
+    import disent.models.networks as N
+    from disent.models import build_model
+    from disent.models.bench import model_cfg
+
+    torch.manual_seed(0)
+    model = build_model(model_cfg("explicit", 16)).eval().to(memory_format=torch.channels_last)
+    x = torch.rand(3, 3, 16, 16).contiguous(memory_format=torch.channels_last)
+    with torch.no_grad():
+        fast = model(x)
+        narrow, N.NARROW_MAX = N.NARROW_MAX, 0
+        try:
+            plain = model(x)
+        finally:
+            N.NARROW_MAX = narrow
+    assert narrow > 0
+    for k in ("recon", "background", "matte", "normal", "albedo"):
+        torch.testing.assert_close(fast[k], plain[k], rtol=1e-5, atol=1e-6)
+
+
 def test_shading_stays_float32_under_mixed_precision():
     normal = F.normalize(torch.randn(2, 3, 4, 4), dim=1)
     sh = torch.randn(2, 3, 9)
@@ -82,13 +119,25 @@ def test_shading_stays_float32_under_mixed_precision():
 
 
 def test_time_to_accuracy_reads_metrics(tmp_path):
+    """Minutes of training wall time until the first validation (or the final evaluation) whose
+    network normal error beats the pseudo-GT's; else null with the best error and when."""
     log = tmp_path / "metrics.jsonl"
-    evals = [{"step": 10, "wall": 60.0, "eval": {"normal_mean": 30.0, "pseudo_normal_mean": 20.0}},
-             {"step": 20, "wall": 150.0, "eval": {"normal_mean": 19.0, "pseudo_normal_mean": 20.0}}]
-    log.write_text("\n".join(json.dumps(r) for r in [{"step": 5, "wall": 1.0, "total": 1.0}, *evals]))
+    train = {"step": 5, "wall": 1.0, "total": 1.0}
+    val = lambda step, wall, err: {"step": step, "wall": wall, "minutes": wall / 60,
+                                   "val": {"normal_mean": err, "pseudo_normal_mean": 20.0, "recon_psnr": 20.0}}
+    final = {"step": 40, "wall": 300.0, "eval": {"normal_mean": 18.0, "pseudo_normal_mean": 19.0}}
+    write = lambda *recs: log.write_text("\n".join(json.dumps(r) for r in recs) + "\n")
+    write(train, val(10, 60.0, 30.0), val(20, 150.0, 19.5), val(30, 240.0, 25.0), final)
     r = time_to_accuracy(log)
-    assert r["minutes"] == 2.5 and r["step"] == 20
-    log.write_text(json.dumps(evals[0]))
+    assert r["minutes"] == 2.5 and r["step"] == 20 and r["source"] == "val"
+    write(train, val(10, 60.0, 30.0), val(20, 150.0, 22.0), val(30, 240.0, 25.0), final)
+    r = time_to_accuracy(log)  # only the final evaluation beats it
+    assert r["minutes"] == 5.0 and r["step"] == 40 and r["source"] == "eval"
+    write(train, val(10, 60.0, 30.0), val(20, 150.0, 22.0), val(30, 240.0, 25.0))
+    r = time_to_accuracy(log)
+    assert r["minutes"] is None and r["best_normal_mean"] == 22.0 and r["best_step"] == 20
+    assert r["best_minutes"] == 2.5 and r["last_minutes"] == 4.0
+    write(train)
     assert time_to_accuracy(log)["minutes"] is None
 
 

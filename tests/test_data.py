@@ -6,9 +6,10 @@ import torch
 
 from disent.data import ATTR_PRIOR, LIGHT_BANK, LIGHT_NAMES, SPLITS, SynthFaces
 from disent.data.face_model import GRID_U, GRID_V, face_model
-from disent.data.raster import interpolate, rasterize, render_face
-from disent.data.synth import LAYERS, fit_sh_packed, lights_to_sh, paint_layers, sample_lights, uniform
-from disent.render import composite, fit_sh, image_formation, sh_basis, sh_shading
+from disent.data.raster import grid_faces, interpolate, rasterize, rasterize_grids, render_face, to_camera
+from disent.data.synth import (LAYERS, _pseudo_geometry, dominant_light, fit_sh_packed, lights_to_sh, paint_layers,
+                               pseudo_mesh, pseudo_quads, sample_lights, uniform)
+from disent.render import composite, fit_sh, image_formation, sh_basis, sh_from_directions, sh_shading
 
 IMAGE_KEYS = ("image", "background", "albedo", "shading", "normal", "normal_uv", "albedo_uv", "normal_pseudo",
               "normal_uv_pseudo")
@@ -196,6 +197,28 @@ def test_effects_off_by_default_and_each_changes_the_image(train):
         train.sample(0, effects={"noise": 1.5})
 
 
+def test_specular_follows_the_light_given_to_sample(train):
+    """The highlight comes from the scene's SH light, so an overridden light moves it."""
+    def highlight_x(sh):
+        on = train.sample(9, sh=sh, pose=(0.0, 0.0, 0.0), effects={"specular": 1.0})
+        off = train.sample(9, sh=sh, pose=(0.0, 0.0, 0.0))
+        h = (on["image"] - off["image"]).sum(0).clamp_min(0)
+        assert h.sum() > 0.5
+        return (h * torch.arange(64.0)).sum() / h.sum()
+    left, right = highlight_x(LIGHT_BANK["flash_az-60"]), highlight_x(LIGHT_BANK["flash_az+60"])
+    assert right - left > 8, (left, right)  # light from image right: highlight on the right
+    none = train.sample(9, sh=LIGHT_BANK["ambient"], effects={"specular": 1.0})
+    assert torch.equal(none["image"], train.sample(9, sh=LIGHT_BANK["ambient"])["image"])  # no direction, no highlight
+
+
+def test_dominant_light_of_one_distant_light():
+    d = torch.nn.functional.normalize(torch.tensor([[0.3, 0.5, 0.8], [-0.6, -0.1, 0.4]]), dim=1)
+    intensity = torch.tensor([[0.7, 0.8, 0.9], [1.0, 1.0, 0.5]])
+    sh = sh_from_directions(d[:, None].double(), intensity[:, None].double(), 0.2).float()
+    direction, key = dominant_light(sh)
+    assert torch.allclose(direction, d, atol=1e-5) and torch.allclose(key, intensity, atol=1e-4)
+
+
 def test_light_prior_and_bank_are_plausible():
     assert len(LIGHT_BANK) >= 20
     g = torch.Generator().manual_seed(0)
@@ -319,3 +342,42 @@ def test_render_face_layers():
     assert g["uv"][0, 0, 32, 16] < 0.5 < g["uv"][0, 0, 32, 48]
     assert g["normal"][0, 0, 32, 16] < 0 < g["normal"][0, 0, 32, 48]
     assert math.isclose(g["depth"][0, 0][m].max().item(), cam[0, :, 2].max().item(), rel_tol=0.05)
+
+
+def test_grid_rasterizer_matches_the_triangle_rasterizer():
+    """rasterize_grids (quads, several meshes at once) and rasterize (triangles) see the same pixels."""
+    fm = face_model()
+    p = SynthFaces("val", seed=2).params(range(6))
+    cam = to_camera(fm.shape(p["alpha"], p["expression"], p["senior"]), p["pose"], p["scale"], p["shift"])
+    fit = _pseudo_geometry(p)
+    idx, faces, _, grid = pseudo_mesh()
+    assert torch.equal(grid_faces(GRID_V, GRID_U), fm.faces)
+    for res in (64, 128):
+        grids = rasterize_grids([(cam, (GRID_V, GRID_U)), (fit["cam"], grid)], res)
+        for g, (verts, f) in zip(grids, ((cam, fm.faces), (fit["cam"], faces))):
+            t = rasterize(verts.contiguous(), f, res)
+            assert ((g["face_id"] >= 0) != (t["face_id"] >= 0)).sum() <= 2  # a centre exactly on an outline edge
+            same = g["face_id"] == t["face_id"]
+            assert same.float().mean() > 0.9995
+            a, b = interpolate(verts, f, g), interpolate(verts, f, t)  # x, y: the pixel centres; z: depth
+            centres = (torch.arange(res) * 2 + 1) / res - 1
+            covered = g["face_id"] >= 0
+            assert (a[:, 0] - centres)[covered].abs().max() < 1e-3 and (a[:, 1] - centres.flip(0)[:, None])[covered].abs().max() < 1e-3
+            assert (a - b).abs().amax(1)[same].max() < 1e-3  # slivers of the closed mouth: rounding of tiny areas
+
+
+def test_pseudo_fit_draws_only_its_face_quads():
+    """Only quads touching the face region can enter mask_pseudo; drawing only those changes no pixel."""
+    p = SynthFaces("train", seed=5).params(range(32))
+    fit = _pseudo_geometry(p)
+    idx, faces, _, grid = pseudo_mesh()
+    region = face_model().face_region[idx, None]
+    masks = []
+    for mesh in ((fit["cam"], grid), (fit["cam"], grid, pseudo_quads())):
+        r = rasterize_grids([mesh], 64)[0]
+        pix = interpolate([fit["vn"], region], faces, r)
+        masks.append(((r["face_id"] >= 0) & (pix[:, 3] > 0.5), pix[:, :3]))
+    assert 0.3 < pseudo_quads().float().mean() < 0.8
+    assert torch.equal(masks[0][0], masks[1][0]) and masks[0][0].any()
+    m = masks[0][0][:, None].expand(-1, 3, -1, -1)
+    assert torch.equal(masks[0][1][m], masks[1][1][m])

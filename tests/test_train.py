@@ -1,7 +1,9 @@
-"""Training under Hydra: run folders, exact resume, NaN stops, config errors, a multirun of the three models."""
+"""Training under Hydra: run folders, exact resume, NaN stops, config errors, prefetching in the seeded
+order, periodic validation, a multirun of the three models."""
 import json
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import pytest
@@ -12,7 +14,8 @@ from hydra.errors import ConfigCompositionException, MissingConfigException
 from disent import losses as L
 from disent.models import load_run
 from disent.runs import load_checkpoint
-from disent.train import NonFiniteLoss, run
+from disent import train as T
+from disent.train import NonFiniteLoss, Prefetcher, run, step_indices
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ["+experiment=smoke", "data.train_size=8", "data.test_size=4", "train.eval_size=4",
@@ -47,7 +50,8 @@ def test_ablations_compose():
 
 def test_resume_equals_an_uninterrupted_run(tmp_path):
     """2 epochs of 2 steps; one run stops mid-epoch 1 and resumes: weights, optimisers and logs agree bitwise."""
-    common = [*TINY, "train.epochs=2", "train.max_steps=null", "train.checkpoint_every=100", "train.warmup_steps=2"]
+    common = [*TINY, "train.epochs=2", "train.max_steps=null", "train.checkpoint_every=100", "train.warmup_steps=2",
+              "train.prefetch=2", "train.val_every=1", "train.val_size=4"]
     run(cfg_of(*common), tmp_path / "full")
     run(cfg_of(*common, "train.max_steps=3"), tmp_path / "cut")
     run(cfg_of(*common), tmp_path / "cut")  # same folder: continues from checkpoints/last.pt
@@ -57,10 +61,86 @@ def test_resume_equals_an_uninterrupted_run(tmp_path):
         for k in a[part]:
             assert torch.equal(a[part][k], b[part][k]), (part, k)
     assert torch.equal(a["opt_g"]["state"][0]["square_avg"], b["opt_g"]["state"][0]["square_avg"])
-    strip = lambda rs: [{k: v for k, v in r.items() if k not in ("wall", "images_per_s", "eval")} for r in rs]
+    strip = lambda rs: [{k: ({a: b for a, b in v.items() if a != "seconds"} if k == "val" else v)
+                         for k, v in r.items() if k not in ("wall", "minutes", "images_per_s", "eval")} for r in rs]
     assert strip(records(tmp_path / "full")) == strip(records(tmp_path / "cut"))
+    assert [r["step"] for r in records(tmp_path / "cut") if "val" in r] == [1, 2, 3, 4]
     assert json.loads((tmp_path / "full" / "eval.json").read_text())["recon_mse"] == \
         json.loads((tmp_path / "cut" / "eval.json").read_text())["recon_mse"]
+
+
+def test_prefetcher_yields_make_batch_in_step_order_and_keeps_the_callers_threads():
+    seen = []
+
+    def make_batch(step):
+        seen.append(torch.get_num_threads())
+        return {"image": torch.full((1,), float(step))}
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        for depth in (0, 1, 3):
+            p = Prefetcher(make_batch, range(5, 12), depth)
+            assert [p.get(s)["image"].item() for s in range(5, 12)] == list(range(5, 12))
+            p.close()
+            assert torch.get_num_threads() == 2  # the worker renders on one thread, the caller keeps two
+        assert seen == [2] * 7 + [1] * 14  # depth 0 renders in the caller
+        p = Prefetcher(make_batch, range(3), 2)
+        with pytest.raises(RuntimeError, match="out of order: asked for step 1, has step 0"):
+            p.get(1)
+        p.close()
+    finally:
+        torch.set_num_threads(threads)
+
+
+def test_prefetcher_reraises_the_workers_error_and_close_stops_it():
+    def make_batch(step):
+        if step == 2:
+            raise ValueError("bad image 2")
+        return {"step": step}
+
+    p = Prefetcher(make_batch, range(10), 2)
+    assert p.get(0)["step"] == 0 and p.get(1)["step"] == 1
+    with pytest.raises(ValueError, match="bad image 2"):
+        p.get(2)
+    p.close()
+    started = threading.Event()
+    p = Prefetcher(lambda s: started.set() or {"step": s}, range(10**6), 2)  # endless: close must stop the worker
+    started.wait(5)
+    p.close()
+    assert not p.thread.is_alive()
+
+
+@pytest.mark.parametrize("prefetch", [0, 2])
+def test_training_sees_the_seeded_data_order_with_and_without_prefetch(tmp_path, monkeypatch, prefetch):
+    """Every step trains on its slice of the epoch's seeded permutation, whatever train.prefetch is
+    (resume replays these exact steps)."""
+    seen = []
+    get_batch = T.get_batch
+
+    def recording(dataset, indices, *a):
+        if dataset.split == "train" and len(indices) == 4:
+            seen.append(torch.as_tensor(indices).tolist())
+        return get_batch(dataset, indices, *a)
+
+    monkeypatch.setattr(T, "get_batch", recording)
+    run(cfg_of(*TINY, "train.epochs=2", "train.max_steps=null", f"train.prefetch={prefetch}", "seed=3"), tmp_path)
+    expected = [step_indices(3, s, 2, 4, 8).tolist() for s in range(4)]
+    assert seen == expected
+    assert expected[0] != expected[2] and sorted(expected[0] + expected[1]) == list(range(8))  # a new order each epoch
+
+
+def test_validation_records_normal_errors_and_psnr(tmp_path):
+    run(cfg_of(*TINY, "train.epochs=3", "train.max_steps=null", "train.val_every=2", "train.val_size=4"), tmp_path)
+    vals = [r for r in records(tmp_path) if "val" in r]
+    assert [r["step"] for r in vals] == [2, 4, 6]
+    for r in vals:
+        v = r["val"]
+        assert r["minutes"] == pytest.approx(r["wall"] / 60) and r["wall"] > 0
+        assert 0 < v["normal_mean"] < 180 and 0 < v["pseudo_normal_mean"] < 180 and v["recon_psnr"] > 0
+        assert v["n"] == 4 and v["seconds"] > 0
+    assert vals[0]["val"]["pseudo_normal_mean"] == vals[-1]["val"]["pseudo_normal_mean"]  # one fixed val subset
+    assert vals[0]["val"]["normal_mean"] != vals[-1]["val"]["normal_mean"]  # the network moved
 
 
 def test_nonfinite_loss_stops_naming_the_term_and_keeps_the_last_good_checkpoint(tmp_path, monkeypatch):

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import math
 from contextlib import ContextDecorator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 
 import torch
@@ -141,10 +141,9 @@ def is_neck(phi: torch.Tensor) -> torch.Tensor:
 @lru_cache(maxsize=1)
 def faces() -> torch.Tensor:
     """Triangles ``[T, 3]`` (int64), counter-clockwise seen from outside (x right, y up)."""
-    r, c = torch.meshgrid(torch.arange(GRID_V - 1), torch.arange(GRID_U - 1), indexing="ij")
-    a = (r * GRID_U + c).flatten()
-    b, cc, d = a + 1, a + GRID_U, a + GRID_U + 1
-    return torch.cat([torch.stack([a, cc, b], 1), torch.stack([b, cc, d], 1)])
+    from .raster import grid_faces
+
+    return grid_faces(GRID_V, GRID_U)
 
 
 def _g(x: torch.Tensor, s: float) -> torch.Tensor:
@@ -233,6 +232,7 @@ class FaceModel:
     uv: torch.Tensor  # [V, 2]
     landmarks: torch.Tensor  # [68] vertex indices (iBUG / dlib order)
     face_region: torch.Tensor  # [V] 1 on the skin of the face a 3DMM would cover (not hair, ears, neck)
+    _cache: dict = field(default_factory=dict, compare=False, repr=False)
 
     @property
     def n_vertices(self) -> int:
@@ -240,17 +240,31 @@ class FaceModel:
 
     def shape(self, alpha: torch.Tensor, beta: torch.Tensor, senior: torch.Tensor | None = None) -> torch.Tensor:
         """Vertices ``[B, V, 3]`` from identity ``alpha [B, K']`` (K' <= K) and expression ``beta [B, 2]``."""
+        return self.shape_planes(alpha, beta, senior).transpose(1, 2).contiguous()
+
+    def shape_planes(self, alpha: torch.Tensor, beta: torch.Tensor, senior: torch.Tensor | None = None,
+                     vertices: torch.Tensor | None = None) -> torch.Tensor:
+        """:meth:`shape` as coordinate planes ``[B, 3, V]`` (x, y, z rows: the layout the renderer
+        reads), optionally of the ``vertices`` subset only."""
         K = alpha.shape[1]
         if K > self.identity.shape[0] or beta.shape[1] != len(EXPRESSIONS):
             raise ValueError(f"alpha [B,<= {self.identity.shape[0]}], beta [B,2]; got {tuple(alpha.shape)}, {tuple(beta.shape)}")
+        mean, basis = self._planar_basis(K, senior is not None, vertices)
+        coef = torch.cat([alpha, beta] + ([senior[:, None]] if senior is not None else []), 1).double()
         # In float64, one row at a time in effect: a face's vertices do not depend on which
         # other faces share its batch (float32 GEMM rounding would change with the batch size).
-        basis = torch.cat([self.identity[:K], self.expression]).flatten(1).double()  # [K+2, 3V]
-        v = torch.cat([alpha, beta], 1).double() @ basis
-        if senior is not None:
-            v = v + senior.double()[:, None] * self.senior.flatten().double()
-        return (self.mean.flatten() + v).float().reshape(alpha.shape[0], -1, 3)
+        return (mean + coef @ basis).float().view(alpha.shape[0], 3, -1)
 
+    def _planar_basis(self, K: int, senior: bool, vertices: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+        """The mean ``[3V']`` and components ``[K+2(+1), 3V']`` in float64, planar order, cached."""
+        key = (K, senior, None if vertices is None else tuple(vertices.tolist()))
+        if key not in self._cache:
+            comps = [self.identity[:K], self.expression] + ([self.senior[None]] if senior else [])
+            basis, mean = torch.cat(comps), self.mean
+            if vertices is not None:
+                basis, mean = basis[:, vertices], mean[vertices]
+            self._cache[key] = (mean.t().reshape(-1).double(), basis.transpose(1, 2).reshape(basis.shape[0], -1).double())
+        return self._cache[key]
 
 def _expressions(lay: Layout, mean: torch.Tensor) -> torch.Tensor:
     X, Y, Z = _front(lay.theta, lay.phi)

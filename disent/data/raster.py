@@ -15,8 +15,16 @@ How it works, all in batched tensor ops:
 3. the z-buffer is a ``scatter_reduce(amax)`` over keys that pack quantised depth above
    the triangle id, so the nearest triangle wins in one pass;
 4. the winners' barycentric coordinates interpolate the per-vertex attributes.
+
+:func:`rasterize_grids` is the same rasterizer for meshes that are regular grids (the face
+model and its coarse fit), faster by working on quads, several meshes in one call; it
+returns what :func:`rasterize` returns for :func:`grid_faces`, and the tests hold the two
+to the same pixels.  Vertex data may be stored as coordinate planes ``[B, 3, V]`` (seen as
+``[B, V, 3]`` through ``transpose(1, 2)``): every function here reads either layout.
 """
 from __future__ import annotations
+
+import math
 
 import torch
 
@@ -25,6 +33,7 @@ from disent.render import unit
 _ID_BITS = 20  # triangle ids below 2**20
 _DEPTH_LEVELS = 2**38  # depth quantisation over [-DEPTH_RANGE, DEPTH_RANGE]
 _DEPTH_RANGE = 16.0
+_CAND_BITS = 31  # rasterize_grids: candidate ids below 2**31 (the key packs 31 depth bits above them)
 MAX_WINDOW = 64  # triangles wider than this many pixels are refused (refine the mesh)
 
 
@@ -53,11 +62,12 @@ def to_camera(vertices: torch.Tensor, pose_deg: torch.Tensor, scale: torch.Tenso
     """Model-frame ``vertices [B, V, 3]`` -> camera frame: ``scale * R v + (shift_x, shift_y, 0)``.
 
     ``scale [B]`` maps model units to normalised image units; ``shift [B, 2]`` in image units.
+    Computed on coordinate planes: the result is a ``[B, V, 3]`` view of ``[B, 3, V]`` planes
+    (as is the input of :meth:`FaceModel.shape_planes` transposed), the renderer's layout.
     """
-    R = pose_matrix(pose_deg).to(vertices.dtype)
-    cam = scale.to(vertices.dtype)[:, None, None] * (vertices @ R.transpose(1, 2))
-    return cam + torch.nn.functional.pad(shift.to(vertices.dtype), (0, 1))[:, None, :]
-
+    sR = pose_matrix(pose_deg).to(vertices.dtype) * scale.to(vertices.dtype)[:, None, None]
+    t = torch.nn.functional.pad(shift.to(vertices.dtype), (0, 1))[:, :, None]
+    return torch.baddbmm(t, sR, vertices.transpose(1, 2)).transpose(1, 2)
 
 def vertex_normals(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
     """Area-weighted unit vertex normals ``[B, V, 3]`` (outward for counter-clockwise faces)."""
@@ -159,39 +169,181 @@ def rasterize(vertices_cam: torch.Tensor, faces: torch.Tensor, resolution: int) 
             "face": win_t, "bary": bary}
 
 
-def interpolate(attr: torch.Tensor, faces: torch.Tensor, raster: dict) -> torch.Tensor:
-    """Per-vertex ``attr [B, V, C]`` (or shared ``[V, C]``) -> per-pixel ``[B, C, H, W]`` (0 on background)."""
-    B, H, W = raster["face_id"].shape
-    bi, pi = raster["batch"], raster["pixel"]
-    corner = faces.index_select(0, raster["face"])  # [M, 3]
-    C = attr.shape[-1]
-    if attr.dim() == 2:
-        flat, rows = attr, corner
-    else:
-        flat, rows = attr.reshape(-1, C), corner + (bi * attr.shape[1])[:, None]
-    bary = raster["bary"].to(attr.dtype)
-    mixed = sum(flat.index_select(0, rows[:, j]) * bary[:, j:j + 1] for j in range(3))  # [M, C]
-    out = torch.zeros(B * H * W, C, dtype=attr.dtype, device=attr.device)
-    out.index_copy_(0, bi * (H * W) + pi, mixed)
-    return out.view(B, H, W, C).permute(0, 3, 1, 2)
+def interpolate(attr, faces: torch.Tensor, raster: dict) -> torch.Tensor:
+    """Per-vertex ``attr [B, V, C]`` (or shared ``[V, C]``, or a list of such) -> per-pixel
+    ``[B, C, H, W]`` (0 on background; a list's channels are concatenated).
 
+    One channel at a time with flat gathers and scatters (gathering small rows is slow on
+    the CPU); a channel stored as a plane (``attr.transpose(1, 2)`` of a ``[B, C, V]``
+    tensor) is read without a copy."""
+    attrs = list(attr) if isinstance(attr, (list, tuple)) else [attr]
+    B, H, W = raster["face_id"].shape
+    C = sum(a.shape[-1] for a in attrs)
+    bi, bary = raster["batch"], raster["bary"].to(attrs[0].dtype)
+    corner = [faces[:, j].index_select(0, raster["face"]) for j in range(3)]  # [M] vertex ids
+    w = bary.t().contiguous()
+    out = torch.zeros(B * C * H * W, dtype=attrs[0].dtype, device=attrs[0].device)
+    dst = bi * (C * H * W) + raster["pixel"]
+    c = 0
+    for a in attrs:
+        rows = corner if a.dim() == 2 else [r + bi * a.shape[1] for r in corner]
+        planes = a.permute(-1, *range(a.dim() - 1))  # [C_a, (B,) V]
+        for plane in planes:
+            v = plane.reshape(-1)
+            val = v.index_select(0, rows[0]) * w[0]
+            val.addcmul_(v.index_select(0, rows[1]), w[1]).addcmul_(v.index_select(0, rows[2]), w[2])
+            out.scatter_(0, dst + c * (H * W), val)
+            c += 1
+    return out.view(B, C, H, W)
 
 def grid_vertex_normals(vertices: torch.Tensor, grid_shape: tuple[int, int]) -> torch.Tensor:
     """Unit vertex normals ``[B, V, 3]`` of a mesh that is a regular ``rows x cols`` grid
     (row-major, rows running down, columns to the right), from central differences on
-    the grid: the fast path for the face model; same orientation as :func:`vertex_normals`."""
+    the grid: the fast path for the face model; same orientation as :func:`vertex_normals`.
+    Computed on coordinate planes; the result is a ``[B, V, 3]`` view of ``[B, 3, V]`` planes."""
     B, V, _ = vertices.shape
     gv, gu = grid_shape
-    P = vertices.view(B, gv, gu, 3)
-    du = torch.cat([P[:, :, 1:2] - P[:, :, :1], P[:, :, 2:] - P[:, :, :-2], P[:, :, -1:] - P[:, :, -2:-1]], 2)
-    dv = torch.cat([P[:, 1:2] - P[:, :1], P[:, 2:] - P[:, :-2], P[:, -1:] - P[:, -2:-1]], 1)
-    # Collapsed rows (a closed mouth) have no extent along v: take a two-row stencil there.
-    r = torch.arange(gv, device=vertices.device)
-    dv2 = P[:, (r + 2).clamp(max=gv - 1)] - P[:, (r - 2).clamp(min=0)]
-    dv = torch.where((dv * dv).sum(-1, keepdim=True) < 1e-12, dv2, dv)
-    n = torch.linalg.cross(dv, du, dim=-1)
-    return unit(n, -1).view(B, V, 3)
+    P = vertices.transpose(1, 2).reshape(B, 3, gv, gu)
+    du, dv = torch.empty_like(P), torch.empty_like(P)
+    for d, dim in ((du, 3), (dv, 2)):  # central differences inside, one-sided at the borders
+        n = P.shape[dim]
+        torch.sub(P.narrow(dim, 2, n - 2), P.narrow(dim, 0, n - 2), out=d.narrow(dim, 1, n - 2))
+        torch.sub(P.narrow(dim, 1, 1), P.narrow(dim, 0, 1), out=d.narrow(dim, 0, 1))
+        torch.sub(P.narrow(dim, n - 1, 1), P.narrow(dim, n - 2, 1), out=d.narrow(dim, n - 1, 1))
+    # Collapsed rows (a closed mouth) have no extent along v: take a two-row stencil there.  The
+    # test is relative (|dv| < 1e-3 |du|): a collapsed row's dv is float32 rounding, not a direction.
+    flat = (dv * dv).sum(1) < 1e-6 * (du * du).sum(1)  # [B, gv, gu]
+    rows = flat.any(2).any(0).nonzero().squeeze(1)
+    if rows.numel():
+        dv2 = P[:, :, (rows + 2).clamp(max=gv - 1)] - P[:, :, (rows - 2).clamp(min=0)]
+        dv[:, :, rows] = torch.where(flat[:, None, rows], dv2, dv[:, :, rows])
+    (vx, vy, vz), (ux, uy, uz) = dv.unbind(1), du.unbind(1)
+    n = torch.stack([vy * uz - vz * uy, vz * ux - vx * uz, vx * uy - vy * ux], 1)  # dv x du, on planes
+    return unit(n, 1).view(B, 3, V).transpose(1, 2)
 
+
+def grid_faces(gv: int, gu: int) -> torch.Tensor:
+    """Triangles ``[2Q, 3]`` of a ``gv x gu`` vertex grid (row-major, rows running down), counter-clockwise
+    seen from outside: quad ``q`` at (row r, column c) with corners a=(r,c), b=(r,c+1), c'=(r+1,c),
+    d=(r+1,c+1) is split along b-c' into triangle ``q`` = (a, c', b) and triangle ``Q + q`` = (b, c', d)."""
+    r, c = torch.meshgrid(torch.arange(gv - 1), torch.arange(gu - 1), indexing="ij")
+    a = (r * gu + c).flatten()
+    return torch.cat([torch.stack([a, a + gu, a + 1], 1), torch.stack([a + 1, a + gu, a + gu + 1], 1)])
+
+
+def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
+    """:func:`rasterize` for meshes that are regular grids triangulated by :func:`grid_faces`, several
+    meshes in one pass: ``meshes`` is a list of (``vertices_cam [B, gv*gu, 3]``, ``(gv, gu)``) or
+    (``vertices_cam``, ``(gv, gu)``, ``quads [(gv-1)*(gu-1)]`` bool: the quads drawn, default all).
+
+    Returns, per mesh, the dict of :func:`rasterize` for that mesh and ``grid_faces(gv, gu)``
+    (the same pixels, triangles and barycentrics up to float rounding and depth ties).
+
+    The grid saves work: the primitive is the quad (half as many as triangles; its corners
+    are slices of the vertex planes, no gathering).  Each pixel centre in a quad's box is
+    put on one side of the quad's diagonal b-c, which picks one of its two triangles, and
+    tested against that triangle only.  The z-buffer key packs the depth's order-preserving
+    integer above the candidate's index, so the winners are read straight from the buffer.
+    """
+    H = W = resolution
+    dev, dt = meshes[0][0].device, meshes[0][0].dtype
+    info = [(m[0].shape[0], (m[1][0] - 1) * (m[1][1] - 1)) for m in meshes]  # (B, quads per image)
+    n_quads, n_images = sum(B * Q for B, Q in info), sum(B for B, _ in info)
+    if n_quads >= 2**31 or n_images * H * W >= 2**24:
+        raise ValueError("rasterize_grids: too many quads or pixels for one call; split the batch")
+    # Per quad, written in place: the box origin about corner c, its width, the diagonal b - c, and
+    # the two triangles' data as (second, first - second), so one multiply-add picks between them.
+    table = torch.empty(17, n_quads, dtype=dt, device=dev)
+    count = torch.empty(n_quads, dtype=dt, device=dev)
+    q0, img0 = 0, 0
+    for (verts, (gv, gu), *drawn), (B, Q) in zip(meshes, info):
+        if verts.shape[1] != gv * gu:
+            raise ValueError(f"a {gv}x{gu} grid has {gv * gu} vertices, got {verts.shape[1]}")
+        col = [t.view(B, gv - 1, gu - 1) for t in table[:, q0:q0 + B * Q]]
+        x = ((verts[..., 0] + 1) * (0.5 * W) - 0.5).view(B, gv, gu)  # pixel units, y up
+        y = ((verts[..., 1] + 1) * (0.5 * H) - 0.5).view(B, gv, gu)
+        z = verts[..., 2].reshape(B, gv, gu)
+        xa, xb, xc, xd = x[:, :-1, :-1], x[:, :-1, 1:], x[:, 1:, :-1], x[:, 1:, 1:]
+        ya, yb, yc, yd = y[:, :-1, :-1], y[:, :-1, 1:], y[:, 1:, :-1], y[:, 1:, 1:]
+        za, zb, zc, zd = z[:, :-1, :-1], z[:, :-1, 1:], z[:, 1:, :-1], z[:, 1:, 1:]
+        ax, ay, bx, by, dx, dy = xa - xc, ya - yc, xb - xc, yb - yc, xd - xc, yd - yc  # corners about c
+        area1, area2 = bx * ay - by * ax, dx * by - dy * bx  # twice the signed areas of (a,c,b), (b,c,d)
+        x_lo = torch.minimum(torch.minimum(xa, xb), torch.minimum(xc, xd)).ceil_().clamp_min_(0)
+        y_lo = torch.minimum(torch.minimum(ya, yb), torch.minimum(yc, yd)).ceil_().clamp_min_(0)
+        nx = torch.maximum(torch.maximum(xa, xb), torch.maximum(xc, xd)).floor_().clamp_max_(W - 1).sub_(x_lo).add_(1).clamp_min_(0)
+        ny = torch.maximum(torch.maximum(ya, yb), torch.maximum(yc, yd)).floor_().clamp_max_(H - 1).sub_(y_lo).add_(1).clamp_min_(0)
+        f1, f2 = area1 > 1e-9, area2 > 1e-9
+        if drawn:
+            f1, f2 = f1 & drawn[0].view(gv - 1, gu - 1), f2 & drawn[0].view(gv - 1, gu - 1)
+        torch.mul(nx * ny, f1 | f2, out=count[q0:q0 + B * Q].view(B, gv - 1, gu - 1))
+        # Which triangle a centre p falls in: (a,c,b) iff s + bias >= 0, with s = cross(b - c, p - c)
+        # (a's side of the diagonal); the bias forces the front-facing triangle of a folded quad.
+        col[15].zero_().masked_fill_(f1 & ~f2, math.inf).masked_fill_(f2 & ~f1, -math.inf)
+        for k, (u, v) in enumerate(((x_lo, xc), (y_lo, yc))):
+            torch.sub(u, v, out=col[k])
+        col[2].copy_(nx)
+        for k, t in ((3, bx), (4, by), (7, dx), (8, dy), (11, zc)):
+            col[k].copy_(t)
+        torch.neg(area2, out=col[5])
+        torch.add(area1, area2, out=col[6])
+        torch.sub(ax, dx, out=col[9])
+        torch.sub(ay, dy, out=col[10])
+        torch.sub(zd, zc, out=col[12])
+        torch.sub(za, zd, out=col[13])
+        torch.sub(zb, zc, out=col[14])
+        img = (img0 + torch.arange(B, device=dev, dtype=dt))[:, None, None] * (H * W) + (H - 1) * W
+        torch.addcmul(img + x_lo, y_lo, torch.tensor(-W, dtype=dt), out=col[16])  # pixel index of the box origin
+        q0, img0 = q0 + B * Q, img0 + B
+    count = count.long()
+    kept = count.nonzero().squeeze(1)
+    cnt = count.index_select(0, kept)
+    # Candidates: every (kept quad, pixel centre of its box), all at once.
+    row = torch.repeat_interleave(cnt)
+    slot = (torch.arange(row.numel(), device=dev) - (torch.cumsum(cnt, 0) - cnt).index_select(0, row)).float()
+    quad = kept.index_select(0, row).int()  # int32 gathers move less memory
+    ox, oy, nx, bx, by, area2n, darea, dx, dy, ddx, ddy, zc, dzd, ddz, dzb, bias, base = (
+        t.index_select(0, quad) for t in table.unbind(0))
+    sy = torch.div(slot, nx, rounding_mode="floor")
+    sx = slot - sy * nx
+    qx, qy = ox + sx, oy + sy  # the centre about c
+    s = bx * qy - by * qx
+    first = (s + bias >= 0).float()  # 1: triangle (a,c,b), 0: (b,c,d)
+    inv = 1.0 / torch.addcmul(area2n, first, darea)
+    w_far = s * inv  # barycentric of a (first) or d (second)
+    w_b = (qx * torch.addcmul(dy, first, ddy) - qy * torch.addcmul(dx, first, ddx)) * inv
+    w_c = 1 - w_far - w_b
+    ok = (w_far >= -1e-6) & (w_b >= -1e-6) & (w_c >= -1e-6)
+    depth = zc + w_far * torch.addcmul(dzd, first, ddz) + w_b * dzb
+    pix = (base + sx - sy * W).long()
+    # z-buffer: nearest (largest z) wins; key = order-preserving integer of the float depth, then the candidate.
+    if pix.numel() >= 2**_CAND_BITS:
+        raise ValueError(f"rasterize_grids: {pix.numel()} candidate pixels, at most {2**_CAND_BITS}; split the batch")
+    bits = (depth.float() + _DEPTH_RANGE).clamp_min_(0).view(torch.int32).long()  # positive floats order as their bits
+    key = ((bits << _CAND_BITS) | torch.arange(pix.numel(), device=dev)).masked_fill_(~ok, -1)
+    zbuf = torch.full((img0 * H * W,), -1, dtype=torch.long, device=dev)
+    zbuf.scatter_reduce_(0, pix, key, reduce="amax")
+    cov = (zbuf >= 0).nonzero().squeeze(1)  # covered pixels, in order
+    win = zbuf.index_select(0, cov) & (2**_CAND_BITS - 1)
+    first, w_far, w_b, quad = (t.index_select(0, win) for t in (first, w_far, w_b, quad))
+    w_c = 1 - w_far - w_b
+    bary = torch.stack([w_b + first * (w_far - w_b), w_c, w_far + first * (w_b - w_far)]).clamp_min_(0)
+    bary = (bary / bary.sum(0, keepdim=True)).t()  # [M, 3], stored as planes
+    quad = quad.long()
+    out, q0 = [], 0
+    bounds = torch.searchsorted(cov, torch.tensor([0] + [B for B, _ in info], device=dev).cumsum(0) * (H * W)).tolist()
+    p0 = 0
+    for m, (B, Q) in enumerate(info):
+        lo, hi = bounds[m], bounds[m + 1]
+        p = cov[lo:hi] - p0
+        q = quad[lo:hi] - q0
+        face = torch.remainder(q, Q) + (1 - first[lo:hi]).long() * Q  # grid_faces order
+        face_id = torch.full((B * H * W,), -1, dtype=torch.long, device=dev)
+        face_id[p] = face
+        out.append({"face_id": face_id.view(B, H, W), "batch": torch.div(p, H * W, rounding_mode="floor"),
+                    "pixel": p % (H * W), "face": face, "bary": bary[lo:hi]})
+        q0 += B * Q
+        p0 += B * H * W
+    return out
 
 def render_face(vertices_cam: torch.Tensor, faces: torch.Tensor, uv: torch.Tensor, resolution: int,
                 vertex_normal: torch.Tensor | None = None) -> dict:
@@ -239,4 +391,4 @@ def grid_to_uv_map(vertex_attr: torch.Tensor, resolution: int, grid_shape: tuple
     return out
 
 
-__all__ = ["pose_matrix", "to_camera", "normalize", "vertex_normals", "grid_vertex_normals", "rasterize", "interpolate", "render_face", "grid_to_uv_map", "MAX_WINDOW"]
+__all__ = ["pose_matrix", "to_camera", "vertex_normals", "grid_vertex_normals", "grid_faces", "rasterize", "rasterize_grids", "interpolate", "render_face", "grid_to_uv_map", "MAX_WINDOW"]

@@ -19,11 +19,11 @@ from functools import lru_cache
 import torch
 import torch.nn.functional as F
 
-from disent.render import C4, composite, fit_sh, image_formation, sh_basis, sh_from_directions, sh_shading, unit
+from disent.render import C2, C4, composite, image_formation, sh_basis, sh_from_directions, sh_shading, solve_normal_equations, unit
 
 from .face_model import (BROW_X, BROW_Y, CHIN_Y, EYE_H, EYE_W, EYE_X, EYE_Y, GRID_U, GRID_V, HAIRLINE_Y, MOUTH_W, MOUTH_Y,
                          NOSE_BASE_Y, SLIT_ROWS, face_model, is_neck, layout, single_thread, uv_to_angles)
-from .raster import grid_vertex_normals, interpolate, rasterize, render_face, to_camera
+from .raster import grid_faces, grid_to_uv_map, grid_vertex_normals, interpolate, rasterize_grids, to_camera
 
 ATTRIBUTES = ("smiling", "beard", "eyeglasses", "senior")
 EFFECTS = ("specular", "cast_shadow", "noise", "occluder")
@@ -475,10 +475,16 @@ def pseudo_mesh() -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, tuple[int, 
     cols = sorted(set(range(0, GRID_U, PSEUDO_GRID_STEP)) | {GRID_U - 1})
     idx = (torch.tensor(rows)[:, None] * GRID_U + torch.tensor(cols)[None]).flatten()
     gv, gu = len(rows), len(cols)
-    r, c = torch.meshgrid(torch.arange(gv - 1), torch.arange(gu - 1), indexing="ij")
-    a = (r * gu + c).flatten()
-    faces = torch.cat([torch.stack([a, a + gu, a + 1], 1), torch.stack([a + 1, a + gu, a + gu + 1], 1)])
-    return idx, faces, face_model().uv[idx], (gv, gu)
+    return idx, grid_faces(gv, gu), face_model().uv[idx], (gv, gu)
+
+
+@lru_cache(maxsize=1)
+def pseudo_quads() -> torch.Tensor:
+    """The quads of :func:`pseudo_mesh` that touch the face region: the only ones whose pixels
+    can enter ``mask_pseudo``, so the only ones drawn (a 3DMM has no hair, ears or neck)."""
+    idx, _, _, (gv, gu) = pseudo_mesh()
+    r = face_model().face_region[idx].view(gv, gu) > 0
+    return (r[:-1, :-1] | r[:-1, 1:] | r[1:, :-1] | r[1:, 1:]).flatten()
 
 
 def _uv_map_from_subgrid(vals: torch.Tensor, grid: tuple[int, int], res: int) -> torch.Tensor:
@@ -501,14 +507,36 @@ def _uv_map_from_subgrid(vals: torch.Tensor, grid: tuple[int, int], res: int) ->
     return unit(out, 1) if C == 3 else out
 
 
+RENDER_CHUNK_PIXELS = 64 * 64 * 64  # scenes rendered together: a working set that stays in the CPU caches
+
+
 def render_scenes(p: dict, res: int, effects: dict | None = None, pseudo: bool = True) -> dict:
-    """Render a batch of scenes ``p`` (from :func:`scene_params`) at ``res`` x ``res``."""
+    """Render a batch of scenes ``p`` (from :func:`scene_params`) at ``res`` x ``res``.
+
+    Large batches are rendered ``RENDER_CHUNK_PIXELS // res**2`` scenes at a time (an item
+    does not depend on its batch, and small chunks run faster on the CPU than one large one)."""
+    N, chunk = p["alpha"].shape[0], max(1, RENDER_CHUNK_PIXELS // (res * res))
+    if N <= chunk:
+        return _render_chunk(p, res, effects, pseudo)
+    parts = [_render_chunk({k: v[lo:lo + chunk] for k, v in p.items()}, res, effects, pseudo) for lo in range(0, N, chunk)]
+    return {k: torch.cat([part[k] for part in parts]) for k in parts[0]}
+
+
+def _render_chunk(p: dict, res: int, effects: dict | None, pseudo: bool) -> dict:
+    """:func:`render_scenes` of one chunk: the true face and the coarse fit behind the pseudo
+    ground truth are rasterized together."""
     fm = face_model()
-    verts = fm.shape(p["alpha"], p["expression"], p["senior"])
-    cam = to_camera(verts, p["pose"], p["scale"], p["shift"])
+    cam = to_camera(fm.shape_planes(p["alpha"], p["expression"], p["senior"]).transpose(1, 2), p["pose"], p["scale"], p["shift"])
     vn = grid_vertex_normals(cam, (GRID_V, GRID_U))
-    g = render_face(cam, fm.faces, fm.uv, res, vertex_normal=vn)
-    matte, normal, uv = g["mask"], g["normal"], g["uv"]
+    meshes = [(cam, (GRID_V, GRID_U))]
+    if pseudo:
+        fit = _pseudo_geometry(p)
+        meshes.append((fit["cam"], fit["grid"], pseudo_quads()))
+    rasters = rasterize_grids(meshes, res)
+    r = rasters[0]
+    matte = (r["face_id"] >= 0)[:, None].float()
+    pix = interpolate([vn, fm.uv], fm.faces, r)  # 0 off the face
+    normal, uv = unit(pix[:, :3], 1), pix[:, 3:5]
     albedo_uv = paint_albedo(p, res)
     albedo = F.grid_sample(albedo_uv, (2 * uv - 1).permute(0, 2, 3, 1), mode="bilinear", align_corners=True) * matte
     sh = p["sh"]
@@ -517,11 +545,11 @@ def render_scenes(p: dict, res: int, effects: dict | None = None, pseudo: bool =
     foreground = image_formation(albedo, shading)  # Eq. 2
     image = composite(matte, foreground, background)  # Eq. 6
     out = {"image": image, "background": background, "matte": matte, "normal": normal, "albedo": albedo,
-           "shading": shading, "sh": sh, "uv": uv * matte, "normal_uv": g["normal_uv"], "albedo_uv": albedo_uv}
+           "shading": shading, "sh": sh, "uv": uv, "normal_uv": grid_to_uv_map(vn, res), "albedo_uv": albedo_uv}
     if effects:
         out["image"] = apply_effects(out, p, effects)
     if pseudo:
-        out.update(render_pseudo(out["image"], p, res))
+        out.update(_pseudo_maps(out["image"], fit, rasters[1], res))
     return out
 
 
@@ -529,41 +557,81 @@ def render_pseudo(image: torch.Tensor, p: dict, res: int) -> dict:
     """Pseudo ground truth from the coarse fit (first few identity components, perturbed pose
     and expression, no senior shape, a mesh at half the grid density, the face region only);
     ``sh_pseudo`` is the paper's L-hat: fit_sh(image, normal_pseudo, mask_pseudo), constant albedo."""
-    fm = face_model()
+    fit = _pseudo_geometry(p)
+    return _pseudo_maps(image, fit, rasterize_grids([(fit["cam"], fit["grid"], pseudo_quads())], res)[0], res)
+
+
+def _pseudo_geometry(p: dict) -> dict:
+    """The coarse fit's mesh in the camera frame and its vertex normals."""
+    idx, _, _, grid = pseudo_mesh()
+    planes = face_model().shape_planes(p["pseudo_alpha"], p["pseudo_expression"], vertices=idx)
+    cam = to_camera(planes.transpose(1, 2), p["pseudo_pose"], p["pseudo_scale"], p["pseudo_shift"])
+    return {"cam": cam, "grid": grid, "vn": grid_vertex_normals(cam, grid)}
+
+
+def _pseudo_maps(image: torch.Tensor, fit: dict, r: dict, res: int) -> dict:
     idx, faces, uv, grid = pseudo_mesh()
-    verts = fm.shape(p["pseudo_alpha"], p["pseudo_expression"])[:, idx]
-    cam = to_camera(verts, p["pseudo_pose"], p["pseudo_scale"], p["pseudo_shift"])
-    vn = grid_vertex_normals(cam, grid)
-    attrs = torch.cat([vn, fm.face_region[idx, None].expand(cam.shape[0], -1, 1)], -1)
-    r = rasterize(cam, faces, res)
-    pix = interpolate(torch.cat([attrs, uv.expand(cam.shape[0], -1, -1)], -1), faces, r)
+    pix = interpolate([fit["vn"], face_model().face_region[idx, None], uv], faces, r)
     mask = ((r["face_id"] >= 0)[:, None] & (pix[:, 3:4] > 0.5)).float()
     normal = unit(pix[:, :3], 1) * mask
-    sh_pseudo = fit_sh_packed(image, normal, mask)
     return {"normal_pseudo": normal, "mask_pseudo": mask, "uv_pseudo": pix[:, 4:6] * mask,
-            "normal_uv_pseudo": _uv_map_from_subgrid(vn, grid, res), "sh_pseudo": sh_pseudo}
+            "normal_uv_pseudo": _uv_map_from_subgrid(fit["vn"], grid, res), "sh_pseudo": fit_sh_packed(image, normal, mask)}
 
+def fit_sh_packed(image: torch.Tensor, normal: torch.Tensor, mask: torch.Tensor, min_pixels: int = 16,
+                  chunk: int = 128) -> torch.Tensor:
+    """:func:`disent.render.fit_sh` (constant albedo) on the masked pixels only: the same least
+    squares, as its sums over pixels need nothing else.
 
-def fit_sh_packed(image: torch.Tensor, normal: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """:func:`disent.render.fit_sh` on the masked pixels only (the same least squares: the
-    fit sums over pixels, so dropping unmasked ones changes nothing but the time)."""
+    Each image's masked pixels are packed into pieces of ``chunk`` (the last one padded with
+    zero weight); one batched float64 product gives every piece's normal equations, and each
+    image sums its own pieces in order, so an image's L-hat does not depend on its batch
+    (float32 sums would, and the solve amplifies their rounding to ~1e-3 in L-hat)."""
     B, C = image.shape[:2]
-    m = mask.reshape(B, -1) > 0
-    P = max(int(m.sum(1).max()), 1)
-    order = torch.argsort(m.to(torch.uint8), dim=1, descending=True, stable=True)[:, :P]
+    HW = image[0, 0].numel()
+    w = mask.reshape(B * HW)
+    sel = (w > 0).nonzero().squeeze(1)  # [M] flat b * HW + p, sorted
+    counts = torch.bincount(torch.div(sel, HW, rounding_mode="floor"), minlength=B)
+    if (counts < min_pixels).any():
+        bad = torch.nonzero(counts < min_pixels).flatten().tolist()
+        raise ValueError(f"fit_sh needs at least {min_pixels} masked pixels; images {bad} have {counts[bad].tolist()}")
+    pieces = (counts + chunk - 1) // chunk
+    owner = torch.repeat_interleave(pieces)  # [n] image of each piece
+    rank = (torch.arange(owner.numel()) - (torch.cumsum(pieces, 0) - pieces).index_select(0, owner))[:, None] * chunk
+    rank = rank + torch.arange(chunk)  # [n, chunk]: which masked pixel of its image
+    valid = rank < counts.index_select(0, owner)[:, None]
+    start = (torch.cumsum(counts, 0) - counts).index_select(0, owner)[:, None]
+    pix = sel.index_select(0, (start + rank).clamp_max_(sel.numel() - 1).view(-1)).view(-1, 1, chunk)
+    pix = pix + torch.div(pix, HW, rounding_mode="floor") * (2 * HW)  # b * 3HW + p (C = 3 planes)
 
-    def pack(x):
-        return torch.gather(x.reshape(B, x.shape[1], -1), 2, order[:, None].expand(-1, x.shape[1], -1))[..., None]
+    def packed(x):  # x [B, 3, H, W] at the packed pixels -> [n, 3, chunk] float64
+        return x.reshape(-1).index_select(0, (pix + torch.arange(3)[:, None] * HW).view(-1)).view(-1, 3, chunk).double()
 
-    # float64 pixel sums: in float32 the rounding of A^T A depends on the batch (its padded
-    # length P), and the solve amplifies it to ~1e-4 in L-hat; an item must not depend on its batch.
-    return fit_sh(pack(image.double()), pack(normal.double()), pack(mask.double()))[0].float()
+    y = packed(image)
+    if not torch.isfinite(y).all(1)[valid].all():
+        raise ValueError("fit_sh: image has NaN or Inf inside the mask")
+    weight = (w.index_select(0, sel).double().index_select(0, (start + rank).clamp_max_(sel.numel() - 1).view(-1))
+              .view(-1, 1, chunk) * valid[:, None])
+    basis = sh_basis(packed(normal), 1)  # [n, 9, chunk]
+    bw = basis * weight
+    G = torch.cat([torch.bmm(bw, basis.transpose(1, 2)), torch.bmm(bw, y.transpose(1, 2))], 2)  # [n, 9, 9 + C]
+    G = torch.zeros(B, 9, 9 + C, dtype=torch.float64).index_add_(0, owner, G)
+    return solve_normal_equations(G[:, :, :9], G[:, :, 9:]).float()
+
+def dominant_light(sh: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The directional part of an SH light ``[N, C, 9]``: unit direction ``[N, 3]`` (camera frame) of
+    its order-1 band averaged over channels, and the intensity ``[N, C]`` of each channel along it.
+    For one distant light (:func:`disent.render.sh_from_directions`) these are its direction and
+    intensity; ambient light alone has none (zero direction and intensity)."""
+    lin = sh[..., [3, 1, 2]]  # (L4, L2, L3): the x, y, z terms
+    d = F.normalize(lin.mean(1), dim=1)
+    return d, 4 * C2 * (lin * d[:, None]).sum(-1).clamp_min(0)  # a unit light's linear band has length 1 / (4 C2)
 
 
 def apply_effects(out: dict, p: dict, effects: dict) -> torch.Tensor:
     """Effects that break the paper's image model, each with a severity in [0, 1]:
 
-    * ``specular``: a Blinn-Phong highlight of the key light added to the face;
+    * ``specular``: a Blinn-Phong highlight of the light's dominant direction (:func:`dominant_light`
+      of the scene's ``sh``, so it follows a light given to ``SynthFaces.sample``) added to the face;
     * ``cast_shadow``: a soft-edged shadow cast across the face by an object outside the
       frame (the shading is attenuated on one side of a random line);
     * ``noise``: sensor noise, Gaussian with std ``0.1 * severity``;
@@ -587,9 +655,9 @@ def apply_effects(out: dict, p: dict, effects: dict) -> torch.Tensor:
         shadow = torch.sigmoid(d / 0.04)[:, None]
         fg = fg * (1 - 0.85 * float(effects["cast_shadow"]) * shadow)
     if effects.get("specular", 0) > 0:
-        h = F.normalize(p["light_direction"][:, 0] + torch.tensor([0.0, 0.0, 1.0]), dim=1)
+        d, key = dominant_light(out["sh"])
+        h = F.normalize(d + torch.tensor([0.0, 0.0, 1.0]), dim=1)
         ndh = (normal * h[:, :, None, None]).sum(1, keepdim=True).clamp_min(0)
-        key = p["light_intensity"][:, 0] * (p["sh"][:, :, 0].mean(1, keepdim=True) / 0.9)
         fg = fg + float(effects["specular"]) * 0.6 * ndh**24 * key[:, :, None, None] * matte
     image = composite(matte, fg.clamp(0, 1), bg)
     if effects.get("occluder", 0) > 0:
@@ -607,4 +675,4 @@ def apply_effects(out: dict, p: dict, effects: dict) -> torch.Tensor:
 
 
 __all__ = ["ATTRIBUTES", "EFFECTS", "LIGHT_BANK", "LIGHT_NAMES", "lights_to_sh", "sample_lights", "scene_params",
-           "render_scenes", "render_pseudo", "fit_sh_packed", "apply_effects", "paint_albedo", "paint_background", "uniform", "normal"]
+           "render_scenes", "render_pseudo", "fit_sh_packed", "dominant_light", "apply_effects", "paint_albedo", "paint_background", "uniform", "normal"]

@@ -8,11 +8,14 @@ then training images/s with and without the discriminator and inference images/s
 shared, so the peak is measured right before and after each rate and that rate is stated
 against their mean (``<rate>_peak_gflops``); ``peak_gflops`` is the median of all of them.  The data
 loader (``SynthFaces.get_batch`` on fresh indices) is timed alone at the training batch
-size, to show it outruns training.
+size, to show it outruns training (training renders batches in a background thread,
+``train.prefetch``).  Beside the float32 figures, bfloat16 autocast ones (``*_bf16_*``, off with
+``--no-bf16``) and how far bf16 moves the losses and outputs.
 
 ``time_to_accuracy``: minutes of training wall time until the network's normals beat the
-pseudo ground truth's (mean angular error on the test images), read from a run's
-``metrics.jsonl`` (the newest run under ``outputs/`` or ``--run DIR``).
+pseudo ground truth's (mean angular error on the same pixels), read from a run's
+``metrics.jsonl`` (the periodic ``val`` records and the final ``eval``; the newest run under
+``outputs/`` or ``--run DIR``).
 """
 from __future__ import annotations
 
@@ -94,6 +97,15 @@ def loader_img_s(n: int, resolution: int, rounds: int) -> float:
     return n / median_time(lambda: get_batch(ds, range(next(start), next(start) + n)), rounds, warmup=0)
 
 
+def cpu_has_bf16() -> bool:
+    """Native bfloat16 arithmetic on this CPU (AVX512-BF16 or AMX); without it bf16 is emulated."""
+    try:
+        flags = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return False
+    return "avx512_bf16" in flags or "amx_bf16" in flags
+
+
 def autocast(device, enabled: bool):
     """bfloat16 mixed precision, as ``train.amp`` (no loss scaling needed); the shading layer stays float32."""
     return torch.autocast(torch.device(device).type, dtype=torch.bfloat16, enabled=enabled)
@@ -134,6 +146,53 @@ def bench_one(name: str, args, device: str, sync) -> dict:
             key = "infer" if B == 64 else f"infer_b{B}"
             out[f"{key}_img_s"], out[f"{key}_peak_gflops"] = beside_peak(
                 args, device, lambda: B / median_time(infer, rounds if B > 1 else 20 * rounds, warmup=2))
+    if getattr(args, "bf16", False) and not args.amp:
+        out.update(bench_bf16(name, args, device, sync, batch))
+    return out
+
+
+def bench_bf16(name: str, args, device: str, sync, batch: dict) -> dict:
+    """bfloat16 autocast beside float32 (the shading layer stays float32): training with D and
+    inference at batch 64 in images/s, and how far bf16 moves the numbers from the same weights:
+    the first step's losses (near-zero terms such as smooth_A at initialisation differ by a large
+    relative amount but a tiny absolute one) and the inference outputs (max/mean absolute difference of ``recon``
+    in [0,1] units, mean angle between the normals in degrees)."""
+    from disent.eval.metrics import angular_error_deg
+    from disent.train import train_step
+
+    n, rounds, channels_last = args.train_batch, args.rounds, not args.no_channels_last
+    out = {}
+    losses = {}
+    for amp in (False, True):  # same initial weights (Trainer seeds), one step each
+        tr = Trainer(name, batch, True, device, channels_last, amp)
+        with autocast(device, amp):
+            losses[amp] = {k: v.item() for k, v in train_step(tr.model, tr.disc, tr.opt_g, tr.opt_d, tr.batch, tr.cfg).items()
+                           if torch.is_tensor(v)}
+    diff = {k: abs(losses[True][k] - v) for k, v in losses[False].items()}
+    out["bf16_first_step_total_rel_diff"] = diff["total"] / abs(losses[False]["total"])
+    out["bf16_first_step_D_rel_diff"] = diff["D"] / abs(losses[False]["D"])
+    out["bf16_first_step_term_max_abs_diff"] = max(diff.values())  # every term in its own units (~1e-3 .. 1)
+    tr.step()
+    out["train_bf16_img_s"], out["train_bf16_peak_gflops"] = beside_peak(
+        args, device, lambda: n / median_time(lambda: (tr.step(), sync()), rounds))
+    model = tr.model.eval()
+    x = batch["image"]
+    with torch.inference_mode():
+        ref = model(x)
+        with autocast(device, True):
+            low = model(x)
+
+        def infer():
+            with autocast(device, True):
+                model(x)
+            sync()
+
+        out["infer_bf16_img_s"], out["infer_bf16_peak_gflops"] = beside_peak(
+            args, device, lambda: len(x) / median_time(infer, rounds, warmup=2))
+    diff = (low["recon"].float() - ref["recon"]).abs()
+    out["bf16_recon_max_abs_diff"], out["bf16_recon_mean_abs_diff"] = diff.max().item(), diff.mean().item()
+    if "normal" in ref:
+        out["bf16_normal_mean_angle_deg"] = angular_error_deg(low["normal"].float(), ref["normal"]).mean().item()
     return out
 
 
@@ -141,7 +200,8 @@ def add_fractions(fig: dict, peak_gflops: float) -> None:
     """``<key>_fraction_of_peak`` = FLOPs per image x images/s / peak FLOP/s, for every rate, against
     the peak measured beside that rate (``<key>_peak_gflops``), else ``peak_gflops``."""
     for key in [k[:-len("_img_s")] for k in fig if k.endswith("_img_s")]:
-        flops = fig.get(f"{key}_flops_per_image", fig["flops_per_image"])  # inference: the forward FLOPs
+        train_key = "train" if key == "train_bf16" else key  # bf16 does the same FLOPs, stated against the fp32 peak
+        flops = fig.get(f"{train_key}_flops_per_image", fig["flops_per_image"])  # inference: the forward FLOPs
         peak = fig.get(f"{key}_peak_gflops", peak_gflops)
         fig[f"{key}_fraction_of_peak"] = flops * fig[f"{key}_img_s"] / 1e9 / peak
 
@@ -156,13 +216,16 @@ def bench_models(args) -> dict:
         add_fractions(fig, peak)
     setup = {"peak_gflops_min_max": [min(peaks), max(peaks)], "threads": torch.get_num_threads(), "device": device,
              "train_batch": args.train_batch, "resolution": args.size, "amp": args.amp,
-             "channels_last": not args.no_channels_last, "malloc_tuned": getattr(args, "malloc_tuned", False)}
+             "channels_last": not args.no_channels_last, "malloc_tuned": getattr(args, "malloc_tuned", False),
+             "bf16_avx512_bf16_or_amx": cpu_has_bf16() if not device.startswith("cuda") else None}
     if "explicit" in figures and "implicit" in figures:
         e, i = figures["explicit"], figures["implicit"]
         setup["implicit_vs_explicit"] = {k: i[k] / e[k] for k in ("train_img_s", "train_no_d_img_s", "infer_img_s")}
     if not device.startswith("cuda"):
         setup["loader_img_s"] = loader_img_s(args.train_batch, args.size, args.rounds)
         setup["loader_vs_fastest_training"] = setup["loader_img_s"] / max(f["train_no_d_img_s"] for f in figures.values())
+        if "explicit" in figures:  # the default run's model
+            setup["loader_vs_explicit_training"] = setup["loader_img_s"] / figures["explicit"]["train_img_s"]
     for name, fig in figures.items():
         print_table(f"{name}: {setup['threads']} threads, peak {peak:.1f} GFLOP/s, train batch {args.train_batch}", fig)
     print_table("setup", setup)
@@ -175,24 +238,36 @@ def latest_run(root: Path = Path("outputs")) -> Path | None:
     return runs[-1].parent if runs else None
 
 
+def accuracy_records(metrics_path: Path) -> list[dict]:
+    """``(step, wall, source, metrics)`` of every record with normal errors: the periodic
+    validations (``val``, see ``train.val_every``) and the final test evaluation (``eval``)."""
+    out = []
+    for line in Path(metrics_path).read_text().splitlines():
+        rec = json.loads(line) if line.strip() else {}
+        for source in ("val", "eval"):
+            m = rec.get(source)
+            if isinstance(m, dict) and m.get("normal_mean") is not None and m.get("pseudo_normal_mean") is not None:
+                out.append({"step": rec["step"], "wall": rec["wall"], "source": source, **m})
+    return out
+
+
 def time_to_accuracy(metrics_path: Path) -> dict:
-    """First logged evaluation whose network normal error beats the pseudo-GT's, in wall minutes."""
-    evals = []
-    for line in metrics_path.read_text().splitlines():
-        rec = json.loads(line)
-        if isinstance(rec.get("eval"), dict) and "normal_mean" in rec["eval"]:
-            evals.append(rec)
-    if not evals:
-        return {"run": str(metrics_path.parent), "minutes": None, "reason": "no evaluation with normals logged"}
-    for rec in evals:
-        e = rec["eval"]
-        if e["normal_mean"] < e["pseudo_normal_mean"]:
-            return {"run": str(metrics_path.parent), "minutes": rec["wall"] / 60, "step": rec["step"],
-                    "normal_mean": e["normal_mean"], "pseudo_normal_mean": e["pseudo_normal_mean"]}
-    e = evals[-1]["eval"]
-    return {"run": str(metrics_path.parent), "minutes": None, "reason": "normals never beat the pseudo-GT",
-            "last_wall_minutes": evals[-1]["wall"] / 60, "normal_mean": e["normal_mean"],
-            "pseudo_normal_mean": e["pseudo_normal_mean"]}
+    """Training wall minutes until the network's mean normal angular error first beats the
+    pseudo-GT's on the same pixels, read from a run's ``metrics.jsonl``; ``minutes`` is null if
+    it never did, with the best error reached and when."""
+    recs = accuracy_records(metrics_path)
+    run = str(Path(metrics_path).parent)
+    if not recs:
+        return {"run": run, "minutes": None, "reason": "no validation or evaluation with normals logged"}
+    for r in recs:
+        if r["normal_mean"] < r["pseudo_normal_mean"]:
+            return {"run": run, "minutes": r["wall"] / 60, "step": r["step"], "source": r["source"],
+                    "normal_mean": r["normal_mean"], "pseudo_normal_mean": r["pseudo_normal_mean"]}
+    best = min(recs, key=lambda r: r["normal_mean"])
+    return {"run": run, "minutes": None, "reason": "normals never beat the pseudo-GT",
+            "best_normal_mean": best["normal_mean"], "best_step": best["step"], "best_minutes": best["wall"] / 60,
+            "best_source": best["source"], "pseudo_normal_mean": best["pseudo_normal_mean"],
+            "last_minutes": recs[-1]["wall"] / 60, "n_records": len(recs)}
 
 
 def bench_time_to_accuracy(args) -> dict:

@@ -15,6 +15,7 @@ import torch.nn.functional as F
 from torch import nn
 
 CHANNELS = (32, 64, 64)  # Sec. 4.1 filter counts of the encoder
+NARROW_MAX = 4  # skip-decoder convolutions with at most this many outputs run as narrow_conv on the CPU
 
 
 # Nearest 2x upsampling followed by a 3x3 convolution, done at the low resolution: output pixel
@@ -31,7 +32,45 @@ def upsample_conv(x: torch.Tensor, conv: nn.Conv2d) -> torch.Tensor:
     o, c = conv.weight.shape[:2]
     taps = PHASE_TAPS.to(conv.weight)
     w = torch.einsum("apk,bql,ockl->oabcpq", taps, taps, conv.weight).reshape(4 * o, c, 3, 3)
-    return F.pixel_shuffle(F.conv2d(x, w, conv.bias.repeat_interleave(4), padding=1), 2)
+    y = conv3x3(x, w, conv.bias.repeat_interleave(4))
+    if o <= NARROW_MAX and not torch.is_grad_enabled() and y.is_contiguous(memory_format=torch.channels_last):
+        return shuffle_to_planes(y)
+    return F.pixel_shuffle(y, 2)
+
+
+def shuffle_to_planes(y: torch.Tensor) -> torch.Tensor:
+    """``F.pixel_shuffle(y, 2)`` of a channels-last ``y``, written channels first: with a few output
+    maps the channels-last result has a 1-3 element inner dimension and takes ~3x longer to write."""
+    B, C4, h, w = y.shape
+    C = C4 // 4
+    planes = y.permute(0, 2, 3, 1).reshape(B, h, w, C, 2, 2).permute(0, 3, 1, 4, 2, 5)  # [B, C, h, a, w, b]
+    return planes.reshape(B, C, 2 * h, 2 * w)
+
+
+def narrow_conv(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    """``F.conv2d(x, weight, bias, padding=1)`` for a 3x3 convolution with few outputs on
+    channels-last ``x``: one matrix product gives every tap's contribution at every pixel,
+    ``[9*O, C] @ [C, B*H*W]``, and eight shifted adds sum them.  The same multiply-adds as the
+    convolution, which oneDNN runs at a fraction of the matmul rate with 1 or 3 output maps."""
+    B, C, H, W = x.shape
+    O = weight.shape[0]
+    taps = weight.permute(2, 3, 0, 1).reshape(9 * O, C) @ x.permute(1, 0, 2, 3).reshape(C, B * H * W)
+    taps = taps.view(3, 3, O, B, H, W)
+    out = F.pad(taps[1, 1] + bias.view(O, 1, 1, 1), (1, 1, 1, 1))  # [O, B, H+2, W+2]
+    for dy in range(3):
+        for dx in range(3):
+            if (dy, dx) != (1, 1):  # output (y, x) gets tap (dy, dx) of input pixel (y + dy - 1, x + dx - 1)
+                out[:, :, 2 - dy:H + 2 - dy, 2 - dx:W + 2 - dx] += taps[dy, dx]
+    return out[:, :, 1:H + 1, 1:W + 1].permute(1, 0, 2, 3)
+
+
+def conv3x3(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    """``F.conv2d(x, weight, bias, padding=1)``; at inference on the CPU, outputs of at most
+    ``NARROW_MAX`` maps go through :func:`narrow_conv` (in training its backward was slower)."""
+    if weight.shape[0] <= NARROW_MAX and not torch.is_grad_enabled() and x.device.type == "cpu" \
+            and x.is_contiguous(memory_format=torch.channels_last):
+        return narrow_conv(x, weight, bias)
+    return F.conv2d(x, weight, bias, padding=1)
 
 
 def check_resolution(resolution: int) -> int:
@@ -76,7 +115,7 @@ class Decoder(nn.Module):
         x = F.relu(self.fc(code)).view(code.shape[0], CHANNELS[-1], self.side, self.side)
         for i, conv in enumerate(self.convs):
             if self.skips:
-                x = conv(F.max_unpool2d(x, switches[-1 - i], 2))
+                x = conv3x3(F.max_unpool2d(x, switches[-1 - i], 2), conv.weight, conv.bias)
             else:
                 x = upsample_conv(x, conv)  # = conv(nearest 2x upsampling of x)
             if i < len(self.convs) - 1:
