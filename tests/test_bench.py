@@ -20,7 +20,7 @@ def tiny_run(tmp_path_factory):
     threads = torch.get_num_threads()
     try:
         bench.main(["peak", "models", "--models", "explicit", "implicit", "--rounds", "1", "--peak-n", "256",
-                    "--train-batch", "2", "--infer-batches", "1", "64", "--threads", "1", "--out", str(out)])
+                    "--train-batch", "2", "--infer-batches", "1", "64", "--threads", "1", "--no-bf16", "--out", str(out)])
     finally:
         torch.set_num_threads(threads)
     return json.loads(out.read_text())
@@ -39,9 +39,27 @@ def test_bench_json_schema(tiny_run):
         assert "infer_b1_img_s" in m and "infer_b256_img_s" not in m  # only the batches asked for
         # FLOPs: a training step (forward + backward) costs more than the forward, D adds to it
         assert 0 < m["flops_per_image"] < m["train_no_d_flops_per_image"] < m["train_flops_per_image"]
+        assert not any("bf16" in k for k in m)  # --no-bf16
     setup = d["models_setup"]
-    assert setup["train_batch"] == 2 and setup["loader_img_s"] > 0
+    assert setup["train_batch"] == 2 and setup["loader_img_s"] > 0 and setup["loader_vs_explicit_training"] > 0
     assert set(setup["implicit_vs_explicit"]) == set(RATES)
+
+
+def test_bf16_figures_and_bf16_stays_close_to_float32():
+    """bfloat16 autocast beside float32: rates, and the same weights give nearly the same losses and outputs."""
+    from argparse import Namespace
+
+    from disent.models.bench import add_fractions, bench_bf16, synth_batch
+
+    args = Namespace(train_batch=2, rounds=1, no_channels_last=False, peak_n=128)
+    fig = bench_bf16("explicit", args, "cpu", lambda: None, synth_batch(2, 64, "cpu", True))
+    assert fig["train_bf16_img_s"] > 0 and fig["infer_bf16_img_s"] > 0
+    assert fig["bf16_first_step_total_rel_diff"] < 1e-2 and fig["bf16_first_step_D_rel_diff"] < 1e-2
+    assert 0 < fig["bf16_recon_max_abs_diff"] < 0.05 and fig["bf16_normal_mean_angle_deg"] < 2
+    fig.update(flops_per_image=1e9, train_flops_per_image=3e9)
+    add_fractions(fig, 1.0)  # bf16 training does the FLOPs of a float32 step, stated against the float32 peak
+    assert fig["train_bf16_fraction_of_peak"] == pytest.approx(3 * fig["train_bf16_img_s"] / fig["train_bf16_peak_gflops"])
+    assert fig["infer_bf16_fraction_of_peak"] == pytest.approx(fig["infer_bf16_img_s"] / fig["infer_bf16_peak_gflops"])
 
 
 def test_flops_scale_with_resolution():

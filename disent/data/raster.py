@@ -181,7 +181,9 @@ def interpolate(attr, faces: torch.Tensor, raster: dict) -> torch.Tensor:
     C = sum(a.shape[-1] for a in attrs)
     bi, bary = raster["batch"], raster["bary"].to(attrs[0].dtype)
     corner = [faces[:, j].index_select(0, raster["face"]) for j in range(3)]  # [M] vertex ids
-    w = bary.t().contiguous()
+    w = bary.t()
+    if w.stride(1) != 1:  # rasterize_grids already stores barycentrics as planes
+        w = w.contiguous()
     out = torch.zeros(B * C * H * W, dtype=attrs[0].dtype, device=attrs[0].device)
     dst = bi * (C * H * W) + raster["pixel"]
     c = 0
@@ -249,8 +251,13 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     dev, dt = meshes[0][0].device, meshes[0][0].dtype
     info = [(m[0].shape[0], (m[1][0] - 1) * (m[1][1] - 1)) for m in meshes]  # (B, quads per image)
     n_quads, n_images = sum(B * Q for B, Q in info), sum(B for B, _ in info)
-    if n_quads >= 2**31 or n_images * H * W >= 2**24:
-        raise ValueError("rasterize_grids: too many quads or pixels for one call; split the batch")
+    if n_images * H * W >= 2**24:  # pixel ids must stay exact in float32: halve the batch
+        if len({B for B, _ in info}) != 1 or info[0][0] < 2:
+            raise ValueError("rasterize_grids: too many pixels for one call and the meshes' batches differ")
+        h = info[0][0] // 2
+        halves = [rasterize_grids([(m[0][s], *m[1:]) for m in meshes], resolution) for s in (slice(0, h), slice(h, None))]
+        return [{"face_id": torch.cat([a["face_id"], b["face_id"]]), "batch": torch.cat([a["batch"], b["batch"] + h]),
+                 **{k: torch.cat([a[k], b[k]]) for k in ("pixel", "face", "bary")}} for a, b in zip(*halves)]
     # Per quad, written in place: the box origin about corner c, its width, the diagonal b - c, and
     # the two triangles' data as (second, first - second), so one multiply-add picks between them.
     table = torch.empty(17, n_quads, dtype=dt, device=dev)
@@ -329,20 +336,18 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     bary = torch.stack([w_b + first * (w_far - w_b), w_c, w_far + first * (w_b - w_far)]).clamp_min_(0)
     bary = (bary / bary.sum(0, keepdim=True)).t()  # [M, 3], stored as planes
     quad = quad.long()
-    out, q0 = [], 0
+    out, q0, p0 = [], 0, 0
     bounds = torch.searchsorted(cov, torch.tensor([0] + [B for B, _ in info], device=dev).cumsum(0) * (H * W)).tolist()
-    p0 = 0
     for m, (B, Q) in enumerate(info):
         lo, hi = bounds[m], bounds[m + 1]
         p = cov[lo:hi] - p0
-        q = quad[lo:hi] - q0
-        face = torch.remainder(q, Q) + (1 - first[lo:hi]).long() * Q  # grid_faces order
+        batch = torch.div(p, H * W, rounding_mode="floor")
+        face = quad[lo:hi] - (q0 + batch * Q) + (1 - first[lo:hi]).long() * Q  # grid_faces order
         face_id = torch.full((B * H * W,), -1, dtype=torch.long, device=dev)
-        face_id[p] = face
-        out.append({"face_id": face_id.view(B, H, W), "batch": torch.div(p, H * W, rounding_mode="floor"),
-                    "pixel": p % (H * W), "face": face, "bary": bary[lo:hi]})
-        q0 += B * Q
-        p0 += B * H * W
+        face_id.scatter_(0, p, face)
+        out.append({"face_id": face_id.view(B, H, W), "batch": batch, "pixel": p - batch * (H * W), "face": face,
+                    "bary": bary[lo:hi]})
+        q0, p0 = q0 + B * Q, p0 + B * H * W
     return out
 
 def render_face(vertices_cam: torch.Tensor, faces: torch.Tensor, uv: torch.Tensor, resolution: int,
@@ -372,11 +377,16 @@ def render_face(vertices_cam: torch.Tensor, faces: torch.Tensor, uv: torch.Tenso
             "normal_uv": grid_to_uv_map(vertex_normal, resolution), "face_id": r["face_id"]}
 
 
-def grid_to_uv_map(vertex_attr: torch.Tensor, resolution: int, grid_shape: tuple[int, int] | None = None) -> torch.Tensor:
-    """Lay per-vertex values of a UV-grid mesh out as a ``[B, C, res, res]`` UV-space map.
+def grid_to_uv_map(vertex_attr: torch.Tensor, resolution: int, grid_shape: tuple[int, int] | None = None,
+                   knots: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
+    """Lay per-vertex values of a UV-grid mesh out as a ``[B, C, res, res]`` UV-space map
+    (3-channel values, normals, are renormalised to unit length).
 
     The face model's vertices form a regular ``GRID_V x GRID_U`` grid in UV space, so the
-    map is a bilinear resize of that grid (normals are renormalised by the caller as needed).
+    map is a bilinear resize of that grid (texel centres at ``linspace(0, 1, res)``, as
+    ``align_corners=True``); a grid with uneven rows and columns gives its ``knots``
+    (v of each row, u of each column) and is interpolated linearly between them.  The
+    resize is separable: two batched products with fixed interpolation matrices.
     """
     from .face_model import GRID_U, GRID_V
 
@@ -384,11 +394,24 @@ def grid_to_uv_map(vertex_attr: torch.Tensor, resolution: int, grid_shape: tuple
     B, V, C = vertex_attr.shape
     if V != gv * gu:
         raise ValueError(f"vertex_attr has {V} vertices, the UV grid {gv}x{gu}")
-    grid = vertex_attr.reshape(B, gv, gu, C).permute(0, 3, 1, 2)
-    out = torch.nn.functional.interpolate(grid, size=(resolution, resolution), mode="bilinear", align_corners=True)
-    if C == 3:
-        out = unit(out, 1)
-    return out
+    if knots is None:
+        knots = (torch.linspace(0, 1, gv, dtype=torch.float64), torch.linspace(0, 1, gu, dtype=torch.float64))
+    Wv, Wu = (_linear_weights(k, resolution).to(vertex_attr) for k in knots)  # [res, gv], [res, gu]
+    grid = vertex_attr.reshape(B, gv, gu, C).permute(0, 3, 1, 2).reshape(B, C * gv, gu)
+    rows = torch.bmm(grid, Wu.t().expand(B, gu, resolution)).view(B * C, gv, resolution)
+    out = torch.bmm(Wv.expand(B * C, resolution, gv), rows).view(B, C, resolution, resolution)
+    return unit(out, 1) if C == 3 else out
 
+
+def _linear_weights(knots: torch.Tensor, res: int) -> torch.Tensor:
+    """``[res, n]``: piecewise-linear interpolation at ``linspace(0, 1, res)`` between sorted ``knots [n]``."""
+    t = torch.linspace(0, 1, res, dtype=torch.float64)
+    knots = knots.double()
+    i = torch.searchsorted(knots, t, right=True).clamp(1, len(knots) - 1)
+    f = ((t - knots[i - 1]) / (knots[i] - knots[i - 1])).clamp(0, 1)
+    W = torch.zeros(res, len(knots), dtype=torch.float64)
+    W[torch.arange(res), i - 1] = 1 - f
+    W[torch.arange(res), i] += f
+    return W
 
 __all__ = ["pose_matrix", "to_camera", "vertex_normals", "grid_vertex_normals", "grid_faces", "rasterize", "rasterize_grids", "interpolate", "render_face", "grid_to_uv_map", "MAX_WINDOW"]

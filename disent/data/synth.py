@@ -304,7 +304,7 @@ def paint_albedo(p: dict, res: int) -> torch.Tensor:
     coef = torch.cat([coef, tex], 1)
     layers = torch.cat([layers, noise_bank(res).reshape(-1, res * res)])
     albedo = torch.baddbmm(skin[:, :, None].expand(N, 3, res * res), coef.transpose(1, 2), layers.expand(N, -1, -1))
-    return albedo.reshape(N, 3, res, res).clamp(0.02, 0.95)
+    return albedo.clamp_(0.02, 0.95).reshape(N, 3, res, res)
 
 
 # ----------------------------------------------------------------------------- backgrounds
@@ -370,7 +370,7 @@ def paint_background(u: torch.Tensor, res: int) -> torch.Tensor:
     """Backgrounds ``[N, 3, res, res]`` from 16 uniforms per scene: a crop of a picture or
     texture, recoloured (contrast, per-channel gain, desaturation), a two-colour
     gradient, or a blend of both.  The recolouring is an affine colour map and the
-    gradient is bilinear, so the whole background is one ``baddbmm``."""
+    gradient is bilinear, so the whole background is two batched products."""
     crops, means = background_bank(res)
     N = u.shape[0]
     k = (u[:, 0] * crops.shape[0]).long().clamp(max=crops.shape[0] - 1)
@@ -392,9 +392,18 @@ def paint_background(u: torch.Tensor, res: int) -> torch.Tensor:
     kind = u[:, 15]  # 55% picture, 25% gradient, 20% blend
     w = torch.where(kind < 0.55, 1.0, torch.where(kind < 0.8, 0.0, 0.5))
     corners = w[:, None, None] * offset[:, :, None] + (1 - w)[:, None, None] * corners
-    base = F.interpolate(corners.reshape(N, 3, 2, 2), size=(res, res), mode="bilinear", align_corners=True)
-    bg = torch.baddbmm(base.reshape(N, 3, -1), w[:, None, None] * M, crops.index_select(0, k))
+    bg = torch.bmm(w[:, None, None] * M, crops.index_select(0, k))
+    bg.baddbmm_(corners, _bilinear_weights(res).expand(N, -1, -1))  # + the bilinear ramp between the corners
     return bg.clamp_(0, 1).reshape(N, 3, res, res)
+
+
+@lru_cache(maxsize=4)
+def _bilinear_weights(res: int) -> torch.Tensor:
+    """``[4, res*res]``: bilinear interpolation (align-corners) from the corners top-left,
+    top-right, bottom-left, bottom-right of a ``res x res`` image."""
+    t = torch.linspace(0, 1, res)
+    y, x = t[:, None].expand(res, res).reshape(-1), t[None].expand(res, res).reshape(-1)
+    return torch.stack([(1 - y) * (1 - x), (1 - y) * x, y * (1 - x), y * x])
 
 
 # ----------------------------------------------------------------------------- scene parameters
@@ -489,42 +498,14 @@ def pseudo_quads() -> torch.Tensor:
 
 def _uv_map_from_subgrid(vals: torch.Tensor, grid: tuple[int, int], res: int) -> torch.Tensor:
     """Lay values on the pseudo mesh's (non-uniform) sub-grid out over UV space."""
-    idx, _, uv, (gv, gu) = pseudo_mesh()
-    B, _, C = vals.shape
-    g = vals.reshape(B, gv, gu, C).permute(0, 3, 1, 2)
-    # Sample the sub-grid at each texel: its UV rows/cols are not uniform, so map via searchsorted.
-    us, vs = uv.reshape(gv, gu, 2)[0, :, 0].contiguous(), uv.reshape(gv, gu, 2)[:, 0, 1].contiguous()
-    t = torch.linspace(0, 1, res, dtype=uv.dtype)
-
-    def coord(knots):
-        i = torch.searchsorted(knots, t, right=True).clamp(1, len(knots) - 1)
-        f = (t - knots[i - 1]) / (knots[i] - knots[i - 1])
-        return (i - 1 + f) / (len(knots) - 1) * 2 - 1
-
-    gx, gy = coord(us), coord(vs)
-    samp = torch.stack(torch.meshgrid(gx, gy, indexing="xy"), -1).expand(B, res, res, 2)
-    out = F.grid_sample(g, samp, mode="bilinear", align_corners=True)
-    return unit(out, 1) if C == 3 else out
-
-
-RENDER_CHUNK_PIXELS = 64 * 64 * 64  # scenes rendered together: a working set that stays in the CPU caches
-
+    _, _, uv, (gv, gu) = pseudo_mesh()
+    uv = uv.reshape(gv, gu, 2)
+    return grid_to_uv_map(vals, res, (gv, gu), knots=(uv[:, 0, 1], uv[0, :, 0]))
 
 def render_scenes(p: dict, res: int, effects: dict | None = None, pseudo: bool = True) -> dict:
     """Render a batch of scenes ``p`` (from :func:`scene_params`) at ``res`` x ``res``.
 
-    Large batches are rendered ``RENDER_CHUNK_PIXELS // res**2`` scenes at a time (an item
-    does not depend on its batch, and small chunks run faster on the CPU than one large one)."""
-    N, chunk = p["alpha"].shape[0], max(1, RENDER_CHUNK_PIXELS // (res * res))
-    if N <= chunk:
-        return _render_chunk(p, res, effects, pseudo)
-    parts = [_render_chunk({k: v[lo:lo + chunk] for k, v in p.items()}, res, effects, pseudo) for lo in range(0, N, chunk)]
-    return {k: torch.cat([part[k] for part in parts]) for k in parts[0]}
-
-
-def _render_chunk(p: dict, res: int, effects: dict | None, pseudo: bool) -> dict:
-    """:func:`render_scenes` of one chunk: the true face and the coarse fit behind the pseudo
-    ground truth are rasterized together."""
+    The true face and the coarse fit behind the pseudo ground truth are rasterized together."""
     fm = face_model()
     cam = to_camera(fm.shape_planes(p["alpha"], p["expression"], p["senior"]).transpose(1, 2), p["pose"], p["scale"], p["shift"])
     vn = grid_vertex_normals(cam, (GRID_V, GRID_U))
@@ -577,6 +558,7 @@ def _pseudo_maps(image: torch.Tensor, fit: dict, r: dict, res: int) -> dict:
     return {"normal_pseudo": normal, "mask_pseudo": mask, "uv_pseudo": pix[:, 4:6] * mask,
             "normal_uv_pseudo": _uv_map_from_subgrid(fit["vn"], grid, res), "sh_pseudo": fit_sh_packed(image, normal, mask)}
 
+
 def fit_sh_packed(image: torch.Tensor, normal: torch.Tensor, mask: torch.Tensor, min_pixels: int = 16,
                   chunk: int = 128) -> torch.Tensor:
     """:func:`disent.render.fit_sh` (constant albedo) on the masked pixels only: the same least
@@ -590,7 +572,7 @@ def fit_sh_packed(image: torch.Tensor, normal: torch.Tensor, mask: torch.Tensor,
     HW = image[0, 0].numel()
     w = mask.reshape(B * HW)
     sel = (w > 0).nonzero().squeeze(1)  # [M] flat b * HW + p, sorted
-    counts = torch.bincount(torch.div(sel, HW, rounding_mode="floor"), minlength=B)
+    counts = (w > 0).view(B, HW).sum(1)
     if (counts < min_pixels).any():
         bad = torch.nonzero(counts < min_pixels).flatten().tolist()
         raise ValueError(f"fit_sh needs at least {min_pixels} masked pixels; images {bad} have {counts[bad].tolist()}")
@@ -600,22 +582,22 @@ def fit_sh_packed(image: torch.Tensor, normal: torch.Tensor, mask: torch.Tensor,
     rank = rank + torch.arange(chunk)  # [n, chunk]: which masked pixel of its image
     valid = rank < counts.index_select(0, owner)[:, None]
     start = (torch.cumsum(counts, 0) - counts).index_select(0, owner)[:, None]
-    pix = sel.index_select(0, (start + rank).clamp_max_(sel.numel() - 1).view(-1)).view(-1, 1, chunk)
-    pix = pix + torch.div(pix, HW, rounding_mode="floor") * (2 * HW)  # b * 3HW + p (C = 3 planes)
+    at = sel.index_select(0, (start + rank).clamp_max_(sel.numel() - 1).view(-1)).view(-1, chunk)  # b * HW + p
+    weight = (w.index_select(0, at.view(-1)).view(-1, 1, chunk) * valid[:, None]).double()
+    at = (at + (owner * (2 * HW))[:, None])[:, None]  # b * 3HW + p: the first of 3 planes
 
     def packed(x):  # x [B, 3, H, W] at the packed pixels -> [n, 3, chunk] float64
-        return x.reshape(-1).index_select(0, (pix + torch.arange(3)[:, None] * HW).view(-1)).view(-1, 3, chunk).double()
+        return x.reshape(-1).index_select(0, (at + torch.arange(3)[:, None] * HW).view(-1)).view(-1, 3, chunk).double()
 
     y = packed(image)
-    if not torch.isfinite(y).all(1)[valid].all():
+    if not torch.isfinite(y).all() and not torch.isfinite(y).all(1)[valid].all():
         raise ValueError("fit_sh: image has NaN or Inf inside the mask")
-    weight = (w.index_select(0, sel).double().index_select(0, (start + rank).clamp_max_(sel.numel() - 1).view(-1))
-              .view(-1, 1, chunk) * valid[:, None])
     basis = sh_basis(packed(normal), 1)  # [n, 9, chunk]
     bw = basis * weight
     G = torch.cat([torch.bmm(bw, basis.transpose(1, 2)), torch.bmm(bw, y.transpose(1, 2))], 2)  # [n, 9, 9 + C]
     G = torch.zeros(B, 9, 9 + C, dtype=torch.float64).index_add_(0, owner, G)
     return solve_normal_equations(G[:, :, :9], G[:, :, 9:]).float()
+
 
 def dominant_light(sh: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """The directional part of an SH light ``[N, C, 9]``: unit direction ``[N, 3]`` (camera frame) of

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from disent.lighting.order import select_order
+from disent.lighting.order import choose, select_order
 from disent.lighting.posterior import N_COEFFS, prepare, sample_posterior
 from disent.render import C4, fit_sh, sh_basis
 
@@ -166,23 +166,53 @@ def light_of_order(sh: torch.Tensor, order: int) -> torch.Tensor:
     return sh.float()
 
 
-def order_confusion(ds, n_per_order: int = 30, noise: float = 0.02, known_albedo: bool = True) -> dict:
-    """Confusion matrices (true order x chosen order) for the evidence and for BIC."""
+GEOMETRY = {"normal": ("normal", "matte", "uv"), "normal_pseudo": ("normal_pseudo", "mask_pseudo", "uv_pseudo")}
+ALBEDO = ("known", "constant", "texture")
+
+
+def order_data(item: dict, noise: float, seed: int, albedo: str = "constant", normals: str = "normal",
+               n_components: int = 20):
+    """``(LightingData, texture or None)`` of one item for the order choice.
+
+    ``albedo``: ``known`` (the true map), ``constant`` (L-hat's assumption) or ``texture``
+    (:mod:`disent.lighting.texture`, mapped through the geometry's UV); ``normals``:
+    ``normal`` (true normals, matte, uv) or ``normal_pseudo`` (the coarse fit's, with its mask and uv).
+    """
+    from disent.lighting.texture import texture_model
+
+    if albedo not in ALBEDO or normals not in GEOMETRY:
+        raise ValueError(f"albedo must be one of {ALBEDO} and normals one of {tuple(GEOMETRY)}")
+    n_key, m_key, uv_key = GEOMETRY[normals]
+    data = prepare(noisy(item["image"], noise, seed), item[n_key], item[m_key],
+                   item["albedo"] if albedo == "known" else None)
+    if albedo != "texture":
+        return data, None
+    model = texture_model(item["image"].shape[-1], n_components)
+    return data, (model.at_pixels(item[uv_key], data.index), model.variance)
+
+
+def order_confusion(ds, n_per_order: int = 30, noise: float = 0.02, albedo: str = "constant",
+                    normals: str = "normal", n_components: int = 20) -> dict:
+    """Confusion matrices (true order x chosen order) for the evidence and for BIC.
+
+    Item ``i`` of ``ds`` is relit with its own light cut to each order (:func:`light_of_order`).
+    """
     conf = {"evidence": np.zeros((3, 3), int), "bic": np.zeros((3, 3), int)}
     colour = {"evidence": {}, "bic": {}}
     for order in range(3):
         for i in range(n_per_order):
-            sh = light_of_order(ds[i]["sh"], order)
-            item = ds.sample(i, sh=sh)
-            data = item_data(item, noise, 1000 * order + i, known_albedo=known_albedo)
+            item = ds.sample(i, sh=light_of_order(ds[i]["sh"], order))
+            data, texture = order_data(item, noise, 1000 * order + i, albedo, normals, n_components)
+            scores = select_order(data, texture=texture)["scores"]
             for crit in conf:
-                r = select_order(data, crit)
+                r = choose(scores, crit)
                 conf[crit][order, r["order"]] += 1
                 colour[crit][r["choice"]] = colour[crit].get(r["choice"], 0) + 1
     return {crit: {"confusion": m.tolist(), "accuracy": float(np.trace(m) / m.sum()),
                    "per_order_recall": (np.diag(m) / m.sum(1)).tolist(), "chosen_models": colour[crit]}
-            for crit, m in conf.items()} | {"settings": {"n_per_order": n_per_order, "noise": noise,
-                                                        "known_albedo": known_albedo}}
+            for crit, m in conf.items()} | {"settings": {"split": ds.split, "n_per_order": n_per_order, "noise": noise,
+                                                        "albedo": albedo, "normals": normals,
+                                                        "n_components": n_components if albedo == "texture" else 0}}
 
 
 def plot_confusion(result: dict, path: Path, title: str = "") -> None:

@@ -26,6 +26,7 @@ log 20, "strong" evidence on Kass & Raftery's scale) of the best one.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -77,12 +78,9 @@ def _initial(A, y, gray):
     return np.concatenate([L[0], L[1:] @ L[0] / (L[0] @ L[0])])
 
 
-def score(data: LightingData, order: int, gray: bool = False, prior_scale: float = 2.0,
-          iterations: int | None = None) -> dict:
-    """Maximised log-likelihood, BIC and Laplace log evidence of one candidate."""
+def _fit(data: LightingData, order: int, gray: bool, prior_scale: float, iterations: int | None):
+    """MAP of one candidate by Gauss-Newton (sigma at its conditional mode): ``(theta, pred, J, s2, prior)``."""
     A, y = data.design(order), data.y
-    C = y.shape[1]
-    gray = gray and order > 0 and C > 1
     N = y.size
     theta = _initial(A, y, gray)
     iterations = iterations or (8 if gray else 2)  # linear models need one step per sigma update
@@ -99,34 +97,74 @@ def score(data: LightingData, order: int, gray: bool = False, prior_scale: float
         theta = theta + np.linalg.solve(H, J.T @ r / s2 - prior_prec * (theta - prior_mean))
     pred, J = _predict(theta, A, gray)
     r = (y - pred).T.reshape(-1)
-    sse = r @ r
-    s2 = sse / N
+    return theta, pred, J, max(r @ r / N, 1e-300), (prior_mean, prior_prec)
+
+
+def score(data: LightingData, order: int, gray: bool = False, prior_scale: float = 2.0,
+          iterations: int | None = None, texture: tuple | None = None, texture_iterations: int = 10) -> dict:
+    """Maximised log-likelihood, BIC and Laplace log evidence of one candidate.
+
+    ``texture = (pixels [1+J, P, C], variance [J])`` (:meth:`TextureModel.at_pixels` and
+    its PCA variances): the albedo is ``T_0 + sum_j beta_j T_j`` with ``beta_j ~ N(0,
+    variance_j)``, fitted by alternating least squares (``texture_iterations`` rounds); the
+    evidence then adds beta's prior and its Laplace volume (block-diagonal Hessian).
+    """
+    C = data.n_channels
+    gray = gray and order > 0 and C > 1
+    N = data.y.size
+    beta, extra = None, 0.0
+    if texture is not None:
+        tex, variance = texture
+        if tex.shape[1:] != data.y.shape:
+            raise ValueError(f"texture pixels {tex.shape[1:]} do not match the data {data.y.shape}")
+        beta = np.zeros(len(variance))
+        for _ in range(texture_iterations):
+            albedo = np.clip(tex[0] + np.einsum("j,jpc->pc", beta, tex[1:]), 1e-3, None)
+            theta, pred, J, s2, prior = _fit(replace(data, albedo=albedo), order, gray, prior_scale, iterations)
+            shading = pred / albedo  # [P, C]: the candidate's light through S(n, L_c)
+            X = (tex[1:] * shading[None]).reshape(len(variance), -1).T  # [P*C, J]
+            H_beta = X.T @ X / s2 + np.diag(1.0 / variance)
+            beta = np.linalg.solve(H_beta, X.T @ (data.y - tex[0] * shading).reshape(-1) / s2)
+        albedo = np.clip(tex[0] + np.einsum("j,jpc->pc", beta, tex[1:]), 1e-3, None)
+        data = replace(data, albedo=albedo)
+        extra = (-0.5 * (beta**2 / variance).sum() - 0.5 * np.log(variance).sum()
+                 - 0.5 * np.linalg.slogdet(H_beta)[1])  # log N(beta; 0, var) + J/2 log 2 pi - 1/2 log det H
+    theta, pred, J, s2, (prior_mean, prior_prec) = _fit(data, order, gray, prior_scale, iterations)
+    d = theta.size + (0 if beta is None else beta.size)
     loglik = -0.5 * N * (math.log(2 * math.pi * s2) + 1)
     H = J.T @ J / s2 + np.diag(prior_prec)
     log_prior = (-0.5 * (prior_prec * (theta - prior_mean) ** 2).sum() + 0.5 * np.log(prior_prec / (2 * math.pi)).sum()
                  - math.log(LOG_SIGMA_RANGE[1] - LOG_SIGMA_RANGE[0]))
     # Laplace: log Z = log p(y, theta*, t*) + (d+1)/2 log 2 pi - 1/2 log det H; H_tt = 2N for t = log sigma
-    log_evidence = (loglik + log_prior + 0.5 * (d + 1) * math.log(2 * math.pi)
-                    - 0.5 * np.linalg.slogdet(H)[1] - 0.5 * math.log(2 * N))
+    log_evidence = (loglik + log_prior + 0.5 * (theta.size + 1) * math.log(2 * math.pi)
+                    - 0.5 * np.linalg.slogdet(H)[1] - 0.5 * math.log(2 * N) + extra)
     return {"order": order, "gray": gray, "n_params": d, "loglik": float(loglik), "sigma": float(math.sqrt(s2)),
-            "bic": float(-2 * loglik + (d + 1) * math.log(N)), "log_evidence": float(log_evidence)}
+            "bic": float(-2 * loglik + (d + 1) * math.log(N)), "log_evidence": float(log_evidence),
+            "texture": None if beta is None else beta.tolist()}
 
 
 def select_order(data: LightingData, criterion: str = "evidence", threshold: float = DEFAULT_THRESHOLD,
-                 prior_scale: float = 2.0) -> dict:
+                 prior_scale: float = 2.0, texture: tuple | None = None) -> dict:
     """Score every candidate; choose the smallest within ``threshold`` of the best.
 
     ``criterion``: ``"evidence"`` (Laplace log evidence) or ``"bic"`` (compared as -BIC/2,
-    the same log units).  Returns ``{"choice", "order", "gray", "scores"}``.
+    the same log units).  ``texture``: see :func:`score` (the albedo texture model, fitted per
+    candidate); without it the albedo is constant (L-hat) or ``data``'s known albedo.
+    Returns ``{"choice", "order", "gray", "scores"}``.
     """
+    scores = {name: score(data, order, gray, prior_scale, texture=texture) for name, order, gray in candidates(data.n_channels)}
+    return choose(scores, criterion, threshold)
+
+
+def choose(scores: dict, criterion: str = "evidence", threshold: float = DEFAULT_THRESHOLD) -> dict:
+    """The smallest candidate of ``scores`` (small-to-large, as :func:`select_order` builds it)
+    whose score is within ``threshold`` of the best."""
     if criterion not in ("evidence", "bic"):
         raise ValueError(f"criterion must be 'evidence' or 'bic', got {criterion!r}")
-    scores = {name: score(data, order, gray, prior_scale) for name, order, gray in candidates(data.n_channels)}
     value = {k: s["log_evidence"] if criterion == "evidence" else -0.5 * s["bic"] for k, s in scores.items()}
     best = max(value.values())
-    choice = next(k for k in scores if value[k] >= best - threshold)  # dicts keep the small-to-large order
-    return {"choice": choice, "order": scores[choice]["order"], "gray": scores[choice]["gray"],
+    pick = next(k for k in scores if value[k] >= best - threshold)  # dicts keep the small-to-large order
+    return {"choice": pick, "order": scores[pick]["order"], "gray": scores[pick]["gray"],
             "criterion": criterion, "scores": scores}
 
-
-__all__ = ["candidates", "n_params", "score", "select_order", "DEFAULT_THRESHOLD"]
+__all__ = ["candidates", "n_params", "score", "select_order", "choose", "DEFAULT_THRESHOLD"]

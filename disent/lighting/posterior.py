@@ -156,6 +156,11 @@ class LogPosterior:
         const = gammaln((nu + 1) / 2) - gammaln(nu / 2) - 0.5 * math.log(nu * math.pi)
         return n * (const - log_sigma) - 0.5 * (nu + 1) * t
 
+    def feasible(self, theta: np.ndarray) -> np.ndarray:
+        """``[W]`` bool: shading non-negative at every face normal (the positivity prior's support)."""
+        L, _ = self.split(np.atleast_2d(theta))
+        return (L @ self.data.basis[:, : self.K].T).min((1, 2)) >= 0
+
     def log_prior(self, L: np.ndarray, log_sigma: np.ndarray) -> np.ndarray:
         lp = -0.5 * (L**2).sum((1, 2)) / self.prior_scale**2
         if self.known_sigma is None:
@@ -179,11 +184,11 @@ class LogPosterior:
 
 
 # ----------------------------------------------------------------------------- starting point
-def robust_fit(logpost: LogPosterior, iterations: int = 20):
+def robust_fit(logpost: LogPosterior, iterations: int = 20, constrained: bool = True):
     """Least-squares (Gaussian) or IRLS/EM (Student-t) fit and its Gaussian approximation.
 
-    Returns ``(mode [D], covariance [D, D])``: the fit (under the positivity prior, the
-    constrained fit where the free one shades some face normal negative) and the inverse
+    Returns ``(mode [D], covariance [D, D])``: the fit (under the positivity prior and with
+    ``constrained``, the constrained fit where the free one shades some face normal negative) and the inverse
     Hessian of the log-posterior there (Gauss-Newton; the constraint is ignored in it).
     """
     A, y, C, K = logpost.A, logpost.data.y, logpost.C, logpost.K
@@ -201,7 +206,7 @@ def robust_fit(logpost: LogPosterior, iterations: int = 20):
         if logpost.likelihood == "student_t":
             w = (logpost.nu + 1) / (logpost.nu + r**2 / s2)
     basis = logpost.data.basis[:, :K]
-    if logpost.positivity and (basis @ L.T).min() < 0:
+    if constrained and logpost.positivity and (basis @ L.T).min() < 0:
         L = np.stack([_nonnegative_fit(A[c], y[:, c], w[:, c], L[c], basis) for c in range(C)])
     # Gauss-Newton Hessian: A^T W A / s2 (+ prior) per channel; Fisher information of log sigma
     info = np.einsum("cpk,pc,cpl->ckl", A, w if logpost.likelihood == "gaussian" else
@@ -233,28 +238,59 @@ def _nonnegative_fit(A, y, w, start, basis):
     return l
 
 
-def independence_move(mean: np.ndarray, cov: np.ndarray, df: float = 30.0, inflate: float = 1.05):
-    """An emcee Metropolis-Hastings move proposing independently from a multivariate t.
+class TruncatedT:
+    """A multivariate t (``df``, centre ``mean``, scale ``cov * inflate^2``) restricted to the set
+    where ``feasible(theta)`` holds, drawn by rejection.
 
-    Centred on the Gaussian approximation of the posterior with its covariance inflated, it
-    mixes in a few steps where the posterior is close to Gaussian; mixed with a DE move
-    (which adapts to the ensemble's spread) the sampler stays correct when it is not.
+    Its log density is the untruncated one's up to the (unknown) normaliser, which cancels
+    in a Metropolis-Hastings ratio; so an independence proposal from it is exact, and every
+    proposal lies inside the positivity constraint (none wasted where the constraint binds).
     """
-    d = len(mean)
-    chol = np.linalg.cholesky(cov * inflate**2)
-    chol_inv = np.linalg.inv(chol)
 
-    def log_q(x):
-        z = (x - mean) @ chol_inv.T
-        return -0.5 * (df + d) * np.log1p((z * z).sum(1) / df)
+    def __init__(self, mean, cov, feasible=None, df: float = 30.0, inflate: float = 1.05, max_rounds: int = 50):
+        self.mean, self.df, self.feasible, self.max_rounds = mean, df, feasible, max_rounds
+        self.chol = np.linalg.cholesky(cov * inflate**2)
+        self.chol_inv = np.linalg.inv(self.chol)
+
+    def log_density(self, x):
+        z = (x - self.mean) @ self.chol_inv.T
+        return -0.5 * (self.df + len(self.mean)) * np.log1p((z * z).sum(1) / self.df)
+
+    def draw(self, n: int, rng, fallback=None):
+        """``n`` feasible draws; rows still infeasible after ``max_rounds`` rounds of ``2 n`` tries are
+        ``fallback``'s rows (default: the centre).  Returns ``(x [n, D], drawn [n] bool)``."""
+        out = np.array(np.broadcast_to(self.mean, (n, len(self.mean))) if fallback is None else fallback, dtype=float)
+        todo = np.arange(n)
+        for _ in range(self.max_rounds):
+            z = rng.standard_normal((2 * len(todo), len(self.mean)))
+            x = self.mean + (z / np.sqrt(rng.chisquare(self.df, size=len(z)) / self.df)[:, None]) @ self.chol.T
+            x = x if self.feasible is None else x[self.feasible(x)]
+            take = min(len(x), len(todo))
+            out[todo[:take]], todo = x[:take], todo[take:]
+            if not len(todo):
+                break
+        drawn = np.ones(n, bool)
+        drawn[todo] = False
+        return out, drawn
+
+
+def independence_move(mean: np.ndarray, cov: np.ndarray, feasible=None, df: float = 30.0, inflate: float = 1.05):
+    """An emcee Metropolis-Hastings move proposing independently from a (truncated) multivariate t.
+
+    Centred on the Gaussian approximation of the posterior with its covariance inflated and
+    restricted to the positivity constraint (:class:`TruncatedT`), it mixes in a few steps
+    where the posterior is close to a (truncated) Gaussian; mixed with a DE move (which
+    adapts to the ensemble's spread) the sampler stays correct when it is not.  A walker whose
+    rejection sampling fails keeps its position (a null proposal, accepted: still exact).
+    """
+    q = TruncatedT(mean, cov, feasible, df, inflate)
 
     def proposal(x, rng):
-        z = rng.standard_normal(x.shape)
-        u = rng.chisquare(df, size=len(x)) / df
-        new = mean + (z / np.sqrt(u)[:, None]) @ chol.T
-        return new, log_q(x) - log_q(new)  # ln q(x) - ln q(x') for an independence proposal
+        new, drawn = q.draw(len(x), rng, fallback=x)
+        log_ratio = np.where(drawn, q.log_density(x) - q.log_density(new), 0.0)  # ln q(x) - ln q(x')
+        return new, log_ratio
 
-    return emcee.moves.MHMove(proposal)
+    return emcee.moves.MHMove(proposal), q
 
 
 # ----------------------------------------------------------------------------- sampler
@@ -331,17 +367,17 @@ def sample_posterior(data: LightingData, *, order: int = 2, likelihood: str = "g
                      adapt_rounds: int = 6, seed: int = 0) -> Posterior:
     """Sample ``p(L, log sigma | data)`` with emcee, stopping by emcee's autocorrelation rule.
 
-    Moves: a differential-evolution move (20 %) mixed with an independence proposal from the
-    Gaussian approximation at the (IRLS, constrained) fit (80 %).  Every ``check_every`` steps
+    Moves: a differential-evolution move (20 %) mixed with an independence proposal (80 %)
+    from the Gaussian approximation at the free (IRLS) fit truncated to the positivity
+    constraint (:class:`TruncatedT`); the walkers start as draws of that proposal.  Every ``check_every`` steps
     the integrated autocorrelation time is estimated; with ``tau`` its largest value over the
     parameters, sampling stops once the chain is longer than ``min_tau_factor * tau`` and
     ``tau`` changed by less than ``tau_rtol`` since the last check, or at ``max_steps`` (then
     ``diagnostics["converged"]`` is False).  The first ``2 * tau`` steps are discarded and the
-    rest thinned by ``tau / 2``.  Where the positivity prior cuts into the Gaussian
-    approximation (face normals at zero shading) the proposal is mostly rejected: while the
-    acceptance fraction of a chunk is below ``min_acceptance`` (at most ``adapt_rounds`` times)
-    the proposal is refitted to the chunk's samples and a new chain started with it fixed
-    (the old one is dropped).  Such posteriors still mix more slowly (larger ``tau``).
+    rest thinned by ``tau / 2``.  While the acceptance fraction of a chunk is below
+    ``min_acceptance`` (the approximation misses the posterior; at most ``adapt_rounds``
+    times) the proposal is refitted to the chunk's samples and a new chain started with it
+    fixed (the old one is dropped).
     """
     if order not in N_COEFFS:
         raise ValueError(f"order must be 0, 1 or 2, got {order}")
@@ -351,19 +387,25 @@ def sample_posterior(data: LightingData, *, order: int = 2, likelihood: str = "g
     rng = np.random.default_rng(seed)
     D = logpost.ndim
     n_walkers = n_walkers or max(2 * D + 2, 32)
-    start = mode + 0.1 * rng.standard_normal((n_walkers, D)) @ np.linalg.cholesky(cov).T  # a small ball
+    feasible = logpost.feasible if positivity else None
+    # the proposal: the Gaussian approximation at the *free* fit, truncated to the constraint
+    # (for a Gaussian likelihood with known sigma that is the posterior itself)
+    centre, centre_cov = robust_fit(logpost, constrained=False) if positivity else (mode, cov)
+    ball = mode + 0.1 * rng.standard_normal((n_walkers, D)) @ np.linalg.cholesky(cov).T  # a small ball
     if positivity:  # push infeasible walkers back with the ambient term, as robust_fit does
-        L, _ = logpost.split(start)
+        L, _ = logpost.split(ball)
         deficit = np.clip(-(L @ logpost.data.basis[:, : logpost.K].T).min(2), 0, None)  # [W, C] shading
-        start[:, : logpost.C * logpost.K: logpost.K] += deficit / C4 * 1.001
+        ball[:, : logpost.C * logpost.K: logpost.K] += deficit / C4 * 1.001
+    # walkers start as draws of the proposal (inside the constraint); the ball where that fails
+    start = TruncatedT(centre, centre_cov, feasible).draw(n_walkers, rng, fallback=ball)[0]
 
     def new_sampler(mean, cov):
-        moves = [(emcee.moves.DEMove(), 0.2), (independence_move(mean, cov), 0.8)]
+        moves = [(emcee.moves.DEMove(), 0.2), (independence_move(mean, cov, feasible)[0], 0.8)]
         sampler = emcee.EnsembleSampler(n_walkers, D, logpost, moves=moves, vectorize=True)
         sampler.random_state = np.random.RandomState(int(rng.integers(2**31))).get_state()  # seeded moves
         return sampler
 
-    sampler = new_sampler(mode, cov)
+    sampler = new_sampler(centre, centre_cov)
     state = sampler.run_mcmc(start, check_every, progress=False)
     adapted = 0
     while sampler.acceptance_fraction.mean() < min_acceptance and adapted < adapt_rounds:
@@ -417,4 +459,4 @@ def gaussian_posterior(data: LightingData, sigma: float, *, order: int = 2, prio
 
 
 __all__ = ["N_COEFFS", "LightingData", "prepare", "LogPosterior", "robust_fit", "independence_move",
-           "Posterior", "sample_posterior", "gaussian_posterior"]
+           "TruncatedT", "Posterior", "sample_posterior", "gaussian_posterior"]
