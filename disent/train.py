@@ -105,14 +105,13 @@ class Prefetcher:
 
     def get(self, step: int) -> dict:
         if self.depth == 0:
-            want = next(self.steps)
-            got, batch = want, self.make_batch(want)
+            got = next(self.steps)
+            batch = self.make_batch(got)
         else:
             got, batch = self.queue.get()
             if got is None:
                 raise batch
-            want = step
-        if got != step or want != step:
+        if got != step:
             raise RuntimeError(f"prefetcher out of order: asked for step {step}, has step {got}")
         return batch
 

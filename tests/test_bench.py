@@ -41,7 +41,8 @@ def test_bench_json_schema(tiny_run):
         assert 0 < m["flops_per_image"] < m["train_no_d_flops_per_image"] < m["train_flops_per_image"]
         assert not any("bf16" in k for k in m)  # --no-bf16
     setup = d["models_setup"]
-    assert setup["train_batch"] == 2 and setup["loader_img_s"] > 0 and setup["loader_vs_explicit_training"] > 0
+    assert setup["train_batch"] == 2 and setup["loader_img_s"] > 0 and setup["loader_img_cpu_s"] > 0
+    assert setup["loader_vs_explicit_training"] > 0
     assert set(setup["implicit_vs_explicit"]) == set(RATES)
 
 

@@ -7,8 +7,9 @@ import torch
 
 from disent.lighting.order import select_order
 from disent.lighting.posterior import (
-    LogPosterior, gaussian_posterior, prepare, robust_fit, sample_posterior,
+    LogPosterior, TruncatedT, gaussian_posterior, integrated_time, prepare, robust_fit, sample_posterior,
 )
+from disent.lighting.texture import TextureModel
 from disent.render import sh_from_directions, sh_shading
 
 
@@ -102,9 +103,27 @@ def test_positivity_is_a_hard_constraint():
     out = lp(theta)
     assert np.isfinite(out[0]) and out[1] == -np.inf
     assert (data.basis @ robust_fit(LogPosterior(data, positivity=False))[0][:27].reshape(3, 9).T).min() < 0
-    post = sample_posterior(data, seed=0, max_steps=200, adapt_rounds=1)  # the free fit shades some normals negative
+    post = sample_posterior(data, seed=0, max_steps=200, adapt_rounds=0)  # the free fit shades some normals negative
     shading = post.sh @ data.basis.T  # [S, C, P]
     assert shading.min() >= 0 and post.diagnostics["n_samples"] > 0
+    # the truncated independence proposal keeps proposing inside the constraint: it mixes
+    assert post.diagnostics["acceptance_fraction"] > 0.2, post.diagnostics["acceptance_fraction"]
+    q = TruncatedT(*robust_fit(lp, constrained=False), feasible=lp.feasible)
+    x, drawn = q.draw(64, np.random.default_rng(0))
+    assert not lp.feasible(q.mean[None])[0]  # the free fit is outside; its truncation is not
+    assert drawn.any() and lp.feasible(x[drawn]).all()
+
+
+def test_integrated_time_matches_emcee():
+    import emcee
+
+    rng = np.random.default_rng(0)
+    chain = np.zeros((400, 6, 3))
+    for t in range(1, 400):  # AR(1) with phi = 0.8: tau = (1 + phi) / (1 - phi) = 9
+        chain[t] = 0.8 * chain[t - 1] + rng.standard_normal((6, 3))
+    tau = integrated_time(chain)
+    np.testing.assert_allclose(tau, emcee.autocorr.integrated_time(chain, tol=0, quiet=True), rtol=1e-10)
+    assert np.all((tau > 5) & (tau < 13))
 
 
 def test_robust_likelihood_resists_highlights():
@@ -198,3 +217,62 @@ def test_known_albedo_recovers_the_light_itself():
     assert np.abs(z).max() < 4.5  # the truth is inside the closed-form posterior
     constant = gaussian_posterior(prepare(image, normal, mask), 0.01)[0]  # albedo ignored: biased
     assert np.abs(constant - sh.numpy()).max() > 10 * np.sqrt(np.diagonal(cov, axis1=1, axis2=2)).max()
+
+
+def feature_texture(R=32):
+    """A texture model of dark features in UV space: hair (top band), beard (bottom band), eyes, lips."""
+    t = torch.linspace(0, 1, R, dtype=torch.float64)
+    v, u = torch.meshgrid(t, t, indexing="ij")
+    blob = lambda cu, cv, r: torch.exp(-((u - cu) ** 2 + (v - cv) ** 2) / (2 * r * r))
+    maps = torch.stack([torch.sigmoid((0.3 - v) / 0.04), torch.sigmoid((v - 0.75) / 0.04),
+                        blob(0.33, 0.42, 0.05) + blob(0.67, 0.42, 0.05), blob(0.5, 0.7, 0.05)])
+    comps = maps[:, None] * torch.tensor([1.0, 0.9, 0.8], dtype=torch.float64)[:, None, None]
+    norms = comps.flatten(1).norm(dim=1)
+    comps = comps / norms[:, None, None, None]
+    return TextureModel(np.full((3, R, R), 0.7), comps.numpy(), 0.2 * norms.numpy() ** 2 / R**2)
+
+
+def test_texture_model_keeps_the_order_choice_of_a_textured_face():
+    """Order-1 light on a textured albedo: the i.i.d. constant-albedo choice explains the
+    texture with order-2 terms; fitting the texture model's coefficients recovers order 1."""
+    H = 32
+    normal, mask = ellipsoid(H, H)
+    y, x = torch.meshgrid(torch.linspace(0, 1, H, dtype=torch.float64), torch.linspace(0, 1, H, dtype=torch.float64),
+                          indexing="ij")
+    uv = torch.stack([x, y]) * mask
+    model = feature_texture()
+    for seed in range(2):
+        rng = np.random.default_rng(seed)
+        beta = -np.sqrt(model.variance) * (1.5 + rng.random(4))  # darker features than the mean
+        albedo = torch.nn.functional.grid_sample(
+            torch.from_numpy(model.mean + np.einsum("j,jchw->chw", beta, model.components))[None],
+            (2 * uv - 1).permute(1, 2, 0)[None], align_corners=True)[0]
+        direction = rng.normal(size=3)
+        direction[2] = abs(direction[2]) + 0.3
+        sh = directional_light(direction.tolist())
+        sh[:, 4:], sh[:, 0] = 0, 2 * sh[:, 0]  # order 1, kept non-negative by a larger ambient
+        data = prepare(albedo * render(normal, sh, 0.0) + render(normal, 0 * sh, 0.02, seed), normal, mask)
+        texture = (model.at_pixels(uv, data.index), model.variance)
+        assert select_order(data)["order"] == 2  # the misfit the texture model removes
+        assert select_order(data, texture=texture)["order"] == 1
+
+
+@pytest.mark.slow  # a subprocess: imports and Hydra start-up
+def test_cli_writes_intervals_and_diagnostics(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "disent.lighting", "index=3", "max_steps=300", "figures=false", f"out={out}"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    result = json.loads((out / "posterior.json").read_text())
+    assert result["name"] == "test_00003" and result["order"] == 2 and result["known_albedo"]
+    lo, hi = np.asarray(result["ci95"][0]), np.asarray(result["ci95"][1])
+    lo68, hi68 = np.asarray(result["ci68"][0]), np.asarray(result["ci68"][1])
+    assert lo.shape == (3, 9) and np.all(lo <= lo68) and np.all(lo68 < hi68) and np.all(hi68 <= hi)
+    d = result["diagnostics"]
+    assert d["n_steps"] <= 300 and 0 < d["acceptance_fraction"] <= 1 and d["tau_max"] > 0 and d["ess_min"] > 0
+    assert result["order_choice"]["choice"] in result["order_choice"]["scores"]
+    assert 0 <= result["true_inside95"] <= 1  # the truth is known on SynthFaces

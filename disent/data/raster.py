@@ -221,7 +221,7 @@ def grid_vertex_normals(vertices: torch.Tensor, grid_shape: tuple[int, int]) -> 
         dv[:, :, rows] = torch.where(flat[:, None, rows], dv2, dv[:, :, rows])
     (vx, vy, vz), (ux, uy, uz) = dv.unbind(1), du.unbind(1)
     n = torch.stack([vy * uz - vz * uy, vz * ux - vx * uz, vx * uy - vy * ux], 1)  # dv x du, on planes
-    return unit(n, 1).view(B, 3, V).transpose(1, 2)
+    return unit_planes(n).view(B, 3, V).transpose(1, 2)
 
 
 def grid_faces(gv: int, gu: int) -> torch.Tensor:
@@ -325,23 +325,29 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     # z-buffer: nearest (largest z) wins; key = order-preserving integer of the float depth, then the candidate.
     if pix.numel() >= 2**_CAND_BITS:
         raise ValueError(f"rasterize_grids: {pix.numel()} candidate pixels, at most {2**_CAND_BITS}; split the batch")
-    bits = (depth.float() + _DEPTH_RANGE).clamp_min_(0).view(torch.int32).long()  # positive floats order as their bits
-    key = ((bits << _CAND_BITS) | torch.arange(pix.numel(), device=dev)).masked_fill_(~ok, -1)
+    # Positive floats order as their bits; a failed candidate gets -1.0, whose bits are negative, and so a negative key.
+    bits = (depth + _DEPTH_RANGE).clamp_min_(0).masked_fill_(~ok, -1.0).view(torch.int32).long()
+    key = torch.arange(pix.numel(), device=dev).add_(bits, alpha=2**_CAND_BITS)
     zbuf = torch.full((img0 * H * W,), -1, dtype=torch.long, device=dev)
     zbuf.scatter_reduce_(0, pix, key, reduce="amax")
     cov = (zbuf >= 0).nonzero().squeeze(1)  # covered pixels, in order
     win = zbuf.index_select(0, cov) & (2**_CAND_BITS - 1)
     first, w_far, w_b, quad = (t.index_select(0, win) for t in (first, w_far, w_b, quad))
-    w_c = 1 - w_far - w_b
-    bary = torch.stack([w_b + first * (w_far - w_b), w_c, w_far + first * (w_b - w_far)]).clamp_min_(0)
-    bary = (bary / bary.sum(0, keepdim=True)).t()  # [M, 3], stored as planes
+    # Clamp the tolerance's tiny negatives and renormalise, as rasterize does; stored as planes ([M, 3] seen).
+    w_far.clamp_min_(0)
+    w_b.clamp_min_(0)
+    w_c = (1 - w_far - w_b).clamp_min_(0)
+    total = (w_far + w_b).add_(w_c)
+    w_far, w_b, w_c = (t.div_(total) for t in (w_far, w_b, w_c))
+    w_b, w_far = w_b.lerp(w_far, first), w_far.lerp(w_b, first)  # (a, c, b) or (b, c, d) in grid_faces order
+    bary = torch.stack([w_b, w_c, w_far]).t()
     quad = quad.long()
     out, q0, p0 = [], 0, 0
     bounds = torch.searchsorted(cov, torch.tensor([0] + [B for B, _ in info], device=dev).cumsum(0) * (H * W)).tolist()
     for m, (B, Q) in enumerate(info):
         lo, hi = bounds[m], bounds[m + 1]
         p = cov[lo:hi] - p0
-        batch = torch.div(p, H * W, rounding_mode="floor")
+        batch = p >> int(math.log2(H * W)) if H * W & (H * W - 1) == 0 else torch.div(p, H * W, rounding_mode="floor")
         face = quad[lo:hi] - (q0 + batch * Q) + (1 - first[lo:hi]).long() * Q  # grid_faces order
         face_id = torch.full((B * H * W,), -1, dtype=torch.long, device=dev)
         face_id.scatter_(0, p, face)
@@ -400,7 +406,15 @@ def grid_to_uv_map(vertex_attr: torch.Tensor, resolution: int, grid_shape: tuple
     grid = vertex_attr.reshape(B, gv, gu, C).permute(0, 3, 1, 2).reshape(B, C * gv, gu)
     rows = torch.bmm(grid, Wu.t().expand(B, gu, resolution)).view(B * C, gv, resolution)
     out = torch.bmm(Wv.expand(B * C, resolution, gv), rows).view(B, C, resolution, resolution)
-    return unit(out, 1) if C == 3 else out
+    return unit_planes(out) if C == 3 else out
+
+
+def unit_planes(v: torch.Tensor) -> torch.Tensor:
+    """:func:`disent.render.unit` of ``[B, 3, ...]`` along dim 1, on the three planes (fewer passes)."""
+    x, y, z = v.unbind(1)
+    s = x * x
+    s.addcmul_(y, y).addcmul_(z, z)
+    return v * s.clamp_min_(1e-24).rsqrt_().unsqueeze(1)
 
 
 def _linear_weights(knots: torch.Tensor, res: int) -> torch.Tensor:
@@ -414,4 +428,4 @@ def _linear_weights(knots: torch.Tensor, res: int) -> torch.Tensor:
     W[torch.arange(res), i] += f
     return W
 
-__all__ = ["pose_matrix", "to_camera", "vertex_normals", "grid_vertex_normals", "grid_faces", "rasterize", "rasterize_grids", "interpolate", "render_face", "grid_to_uv_map", "MAX_WINDOW"]
+__all__ = ["pose_matrix", "to_camera", "vertex_normals", "grid_vertex_normals", "grid_faces", "rasterize", "rasterize_grids", "interpolate", "render_face", "grid_to_uv_map", "unit_planes", "MAX_WINDOW"]

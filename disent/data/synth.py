@@ -19,11 +19,11 @@ from functools import lru_cache
 import torch
 import torch.nn.functional as F
 
-from disent.render import C2, C4, composite, image_formation, sh_basis, sh_from_directions, sh_shading, solve_normal_equations, unit
+from disent.render import C2, C4, composite, image_formation, sh_basis, sh_from_directions, sh_shading, solve_normal_equations
 
 from .face_model import (BROW_X, BROW_Y, CHIN_Y, EYE_H, EYE_W, EYE_X, EYE_Y, GRID_U, GRID_V, HAIRLINE_Y, MOUTH_W, MOUTH_Y,
                          NOSE_BASE_Y, SLIT_ROWS, face_model, is_neck, layout, single_thread, uv_to_angles)
-from .raster import grid_faces, grid_to_uv_map, grid_vertex_normals, interpolate, rasterize_grids, to_camera
+from .raster import grid_faces, grid_to_uv_map, grid_vertex_normals, interpolate, rasterize_grids, to_camera, unit_planes
 
 ATTRIBUTES = ("smiling", "beard", "eyeglasses", "senior")
 EFFECTS = ("specular", "cast_shadow", "noise", "occluder")
@@ -517,7 +517,7 @@ def render_scenes(p: dict, res: int, effects: dict | None = None, pseudo: bool =
     r = rasters[0]
     matte = (r["face_id"] >= 0)[:, None].float()
     pix = interpolate([vn, fm.uv], fm.faces, r)  # 0 off the face
-    normal, uv = unit(pix[:, :3], 1), pix[:, 3:5]
+    normal, uv = unit_planes(pix[:, :3]), pix[:, 3:5]
     albedo_uv = paint_albedo(p, res)
     albedo = F.grid_sample(albedo_uv, (2 * uv - 1).permute(0, 2, 3, 1), mode="bilinear", align_corners=True) * matte
     sh = p["sh"]
@@ -554,7 +554,7 @@ def _pseudo_maps(image: torch.Tensor, fit: dict, r: dict, res: int) -> dict:
     idx, faces, uv, grid = pseudo_mesh()
     pix = interpolate([fit["vn"], face_model().face_region[idx, None], uv], faces, r)
     mask = ((r["face_id"] >= 0)[:, None] & (pix[:, 3:4] > 0.5)).float()
-    normal = unit(pix[:, :3], 1) * mask
+    normal = unit_planes(pix[:, :3]).mul_(mask)
     return {"normal_pseudo": normal, "mask_pseudo": mask, "uv_pseudo": pix[:, 4:6] * mask,
             "normal_uv_pseudo": _uv_map_from_subgrid(fit["vn"], grid, res), "sh_pseudo": fit_sh_packed(image, normal, mask)}
 

@@ -12,6 +12,7 @@ from omegaconf import DictConfig
 from disent.lighting.experiments import figures_for, noisy, run_all
 from disent.lighting.order import select_order
 from disent.lighting.posterior import prepare, sample_posterior
+from disent.lighting.texture import texture_model
 
 log = logging.getLogger(__name__)
 
@@ -45,10 +46,16 @@ def posterior_of(cfg: DictConfig, name: str, item: dict) -> dict:
     mask = item["mask_pseudo"] if normals == "normal_pseudo" else item["matte"]
     albedo = item["albedo"] if cfg.known_albedo and "albedo" in item else None
     data = prepare(noisy(item["image"], cfg.noise, cfg.seed), item[normals], mask, albedo, gray=cfg.gray)
+    uv_key = "uv_pseudo" if normals == "normal_pseudo" else "uv"
+    texture = None
+    if albedo is None and cfg.texture_components > 0 and uv_key in item and not cfg.gray:
+        model = texture_model(cfg.data.resolution, cfg.texture_components)
+        texture = (model.at_pixels(item[uv_key], data.index), model.variance)
     post = sample_posterior(data, order=cfg.order, likelihood=cfg.likelihood, nu=cfg.nu, seed=cfg.seed,
                             max_steps=cfg.max_steps)
     result = {"name": name, "normals": normals, "known_albedo": albedo is not None} | post.summary()
-    result["order_choice"] = {k: v for k, v in select_order(data).items() if k != "criterion"}
+    result["order_choice"] = {k: v for k, v in select_order(data, texture=texture).items() if k != "criterion"}
+    result["order_choice"]["texture_components"] = 0 if texture is None else len(texture[1])
     if "sh" in item:
         truth = item["sh"].double().numpy()
         result["true_sh"] = truth.tolist()

@@ -20,6 +20,8 @@ from disent.render import C4, fit_sh, sh_basis
 
 OUT = Path("reports/lighting")
 BANDS = {0: [0], 1: [1, 2, 3], 2: [4, 5, 6, 7, 8]}
+GEOMETRY = {"normal": ("normal", "matte", "uv"), "normal_pseudo": ("normal_pseudo", "mask_pseudo", "uv_pseudo")}
+ALBEDO = ("known", "constant", "texture")
 
 
 def noisy(image: torch.Tensor, noise: float, seed: int) -> torch.Tensor:
@@ -27,9 +29,13 @@ def noisy(image: torch.Tensor, noise: float, seed: int) -> torch.Tensor:
     return image.double() + noise * torch.randn(image.shape, generator=g, dtype=torch.float64)
 
 
-def item_data(item: dict, noise: float = 0.02, seed: int = 0, mask=None, known_albedo: bool = True, gray=False):
-    mask = item["matte"] if mask is None else mask
-    return prepare(noisy(item["image"], noise, seed), item["normal"], mask,
+def item_data(item: dict, noise: float = 0.02, seed: int = 0, mask=None, known_albedo: bool = True, gray=False,
+              normals: str = "normal"):
+    """One item's pixels on its true (``normals="normal"``, matte) or pseudo (``normal_pseudo``,
+    mask_pseudo) geometry; ``mask`` overrides the mask."""
+    n_key, m_key, _ = GEOMETRY[normals]
+    mask = item[m_key] if mask is None else mask
+    return prepare(noisy(item["image"], noise, seed), item[n_key], mask,
                    item["albedo"] if known_albedo else None, gray=gray)
 
 
@@ -101,7 +107,8 @@ def plot_widths(w: dict, path: Path) -> None:
 
 # ----------------------------------------------------------------------------- calibration
 def calibration(ds, n_images: int = 12, noise: float = 0.02, severity: float = 0.5,
-                conditions=("lambertian", "specular", "cast_shadow", "specular+cast_shadow")) -> dict:
+                conditions=("lambertian", "specular", "cast_shadow", "specular+cast_shadow"),
+                normals: str = "normal") -> dict:
     """Share of true SH coefficients inside the 68 % / 95 % intervals, per likelihood and effect.
 
     ``z_rms`` is the RMS of (posterior mean - truth) / posterior sd: 1 when calibrated, larger
@@ -115,7 +122,7 @@ def calibration(ds, n_images: int = 12, noise: float = 0.02, severity: float = 0
             z, conv = [], []
             for i in range(n_images):
                 item = ds.sample(i, effects=effects) if effects else ds[i]
-                post = sample_posterior(item_data(item, noise, i), likelihood=likelihood, seed=i)
+                post = sample_posterior(item_data(item, noise, i, normals=normals), likelihood=likelihood, seed=i)
                 truth = item["sh"].double().numpy()
                 for level in inside:
                     lo, hi = post.interval(level)
@@ -127,7 +134,7 @@ def calibration(ds, n_images: int = 12, noise: float = 0.02, severity: float = 0
                 "inside68": float(np.concatenate(inside[0.68]).mean()),
                 "inside95": float(np.concatenate(inside[0.95]).mean()),
                 "z_rms": float(np.sqrt(np.mean(z**2))), "n_coefficients": int(z.size), "converged": float(np.mean(conv))}
-    out["settings"] = {"n_images": n_images, "noise": noise, "severity": severity}
+    out["settings"] = {"n_images": n_images, "noise": noise, "severity": severity, "normals": normals}
     return out
 
 
@@ -144,7 +151,8 @@ def plot_calibration(c: dict, path: Path) -> None:
     ax.set_xticks(x, [k.replace("/", "\n").replace("+", "+\n") for k in keys], fontsize=8)
     ax.set_ylim(0, 1)
     ax.set_ylabel("share of true coefficients")
-    ax.set_title(f"Calibration of the SH-light intervals ({c['settings']['n_images']} images, noise "
+    ax.set_title(f"Calibration of the SH-light intervals ({c['settings'].get('normals', 'normal')}, "
+                 f"{c['settings']['n_images']} images, noise "
                  f"{c['settings']['noise']}, effect severity {c['settings']['severity']})")
     ax.legend(loc="upper right")
     fig.tight_layout()
@@ -166,8 +174,6 @@ def light_of_order(sh: torch.Tensor, order: int) -> torch.Tensor:
     return sh.float()
 
 
-GEOMETRY = {"normal": ("normal", "matte", "uv"), "normal_pseudo": ("normal_pseudo", "mask_pseudo", "uv_pseudo")}
-ALBEDO = ("known", "constant", "texture")
 
 
 def order_data(item: dict, noise: float, seed: int, albedo: str = "constant", normals: str = "normal",
@@ -215,6 +221,26 @@ def order_confusion(ds, n_per_order: int = 30, noise: float = 0.02, albedo: str 
                                                         "n_components": n_components if albedo == "texture" else 0}}
 
 
+ORDER_ROWS = (("known", "normal"), ("constant", "normal"), ("texture", "normal"),
+              ("known", "normal_pseudo"), ("constant", "normal_pseudo"), ("texture", "normal_pseudo"))
+
+
+def order_study(splits=("val", "test"), rows=ORDER_ROWS, n_per_order: int = 20, noise: float = 0.02,
+                resolution: int = 64, seed: int = 0, name: str = "order") -> dict:
+    """The order-choice confusion matrices of every ``(albedo, normals)`` row on each split;
+    written to ``reports/lighting/<name>.json`` (the method and its constants are chosen on
+    ``val``; ``test`` only reports)."""
+    from disent.data import SynthFaces
+
+    out = {}
+    for split in splits:
+        ds = SynthFaces(split, resolution, seed)
+        for albedo, normals in rows:
+            out[f"{split}/{albedo}/{normals}"] = order_confusion(ds, n_per_order, noise, albedo, normals)
+            save_json(name, out)
+    return out
+
+
 def plot_confusion(result: dict, path: Path, title: str = "") -> None:
     import matplotlib.pyplot as plt
 
@@ -233,6 +259,32 @@ def plot_confusion(result: dict, path: Path, title: str = "") -> None:
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_order_study(study: dict, path: Path, criterion: str = "evidence") -> None:
+    """One confusion matrix per ``split/albedo/normals`` row of :func:`order_study`."""
+    import matplotlib.pyplot as plt
+
+    keys = list(study)
+    cols = min(3, len(keys))
+    rows = -(-len(keys) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.3 * cols, 3.2 * rows), squeeze=False)
+    for ax, key in zip(axes.flat, keys):
+        m = np.asarray(study[key][criterion]["confusion"])
+        ax.imshow(m, cmap="Blues", vmin=0, vmax=m.sum(1).max())
+        for i in range(3):
+            for j in range(3):
+                ax.text(j, i, m[i, j], ha="center", va="center", color="white" if m[i, j] > m.max() / 2 else "black")
+        ax.set_xticks(range(3), ["0", "1", "2"])
+        ax.set_yticks(range(3), ["0", "1", "2"])
+        ax.set_xlabel("chosen order")
+        ax.set_ylabel("true order")
+        ax.set_title(f"{key}\n{criterion} accuracy {study[key][criterion]['accuracy']:.0%}", fontsize=9)
+    for ax in list(axes.flat)[len(keys):]:
+        ax.axis("off")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
@@ -326,12 +378,13 @@ def run_all(split: str = "test", resolution: int = 64, seed: int = 0, quick: boo
     save_json("calibration", summary["calibration"])
     plot_calibration(summary["calibration"], OUT / "calibration.png")
 
-    summary["order"] = order_confusion(ds, n_per_order=20 // n)
-    summary["order_constant_albedo"] = order_confusion(ds, n_per_order=20 // n, known_albedo=False)
-    save_json("order", {"known_albedo": summary["order"], "constant_albedo": summary["order_constant_albedo"]})
-    plot_confusion(summary["order"], OUT / "order_confusion.png", "SH order choice, known albedo, noise 0.02")
-    plot_confusion(summary["order_constant_albedo"], OUT / "order_confusion_constant_albedo.png",
-                   "SH order choice, constant albedo absorbed into L (L-hat), noise 0.02")
+    summary["calibration_pseudo"] = calibration(ds, n_images=8 // n, conditions=("lambertian", "specular", "cast_shadow"),
+                                                normals="normal_pseudo")
+    save_json("calibration_pseudo", summary["calibration_pseudo"])
+    plot_calibration(summary["calibration_pseudo"], OUT / "calibration_pseudo.png")
+
+    summary["order"] = order_study(("val", split), n_per_order=20 // n, resolution=resolution, seed=seed)
+    plot_order_study(summary["order"], OUT / "order_confusion.png")
 
     summary["speed"] = speed(ds)
     save_json("speed", summary["speed"])
@@ -340,5 +393,5 @@ def run_all(split: str = "test", resolution: int = 64, seed: int = 0, quick: boo
     return summary
 
 
-__all__ = ["item_data", "widths", "calibration", "order_confusion", "light_of_order", "figures_for", "speed",
-           "run_all", "central_mask", "band_width"]
+__all__ = ["item_data", "widths", "calibration", "order_confusion", "order_data", "order_study", "light_of_order", "figures_for", "speed",
+           "run_all", "central_mask", "band_width", "plot_order_study"]

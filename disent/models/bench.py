@@ -86,15 +86,30 @@ def synth_batch(n: int, resolution: int, device, channels_last: bool, start: int
     return to_device(get_batch(ds, range(start, start + n), TRAIN_KEYS), device, channels_last)
 
 
-def loader_img_s(n: int, resolution: int, rounds: int) -> float:
-    """``SynthFaces.get_batch`` alone on fresh indices, at the current thread count."""
+def loader_img_s(n: int, resolution: int, rounds: int) -> tuple[float, float]:
+    """``SynthFaces.get_batch`` alone on fresh indices of ``n`` images, as training's prefetch
+    thread runs it (one torch thread): (images per wall second, images per CPU second of
+    this process; the second is the one a loaded machine leaves nearly unchanged)."""
     from disent.data import SynthFaces
     from disent.train import get_batch
 
     ds = SynthFaces("train", resolution=resolution, seed=0)
     get_batch(ds, range(n))  # builds the generator's fixed tables
-    start = iter(range(n, 10**6, n))
-    return n / median_time(lambda: get_batch(ds, range(next(start), next(start) + n)), rounds, warmup=0)
+    starts = iter(range(n, len(ds) - n, n))
+    cpu = []
+
+    def render():
+        s, c = next(starts), time.process_time()
+        get_batch(ds, range(s, s + n))
+        cpu.append(time.process_time() - c)
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        wall = median_time(render, rounds, warmup=0)
+    finally:
+        torch.set_num_threads(threads)
+    return n / wall, n / statistics.median(cpu)
 
 
 def cpu_has_bf16() -> bool:
@@ -222,7 +237,7 @@ def bench_models(args) -> dict:
         e, i = figures["explicit"], figures["implicit"]
         setup["implicit_vs_explicit"] = {k: i[k] / e[k] for k in ("train_img_s", "train_no_d_img_s", "infer_img_s")}
     if not device.startswith("cuda"):
-        setup["loader_img_s"] = loader_img_s(args.train_batch, args.size, args.rounds)
+        setup["loader_img_s"], setup["loader_img_cpu_s"] = loader_img_s(args.train_batch, args.size, args.rounds)
         setup["loader_vs_fastest_training"] = setup["loader_img_s"] / max(f["train_no_d_img_s"] for f in figures.values())
         if "explicit" in figures:  # the default run's model
             setup["loader_vs_explicit_training"] = setup["loader_img_s"] / figures["explicit"]["train_img_s"]
