@@ -63,6 +63,18 @@ def test_bf16_figures_and_bf16_stays_close_to_float32():
     assert fig["infer_bf16_fraction_of_peak"] == pytest.approx(fig["infer_bf16_img_s"] / fig["infer_bf16_peak_gflops"])
 
 
+def test_loader_figure_renders_n_fresh_images_per_round(monkeypatch):
+    import disent.train
+    from disent.models.bench import loader_img_s
+
+    seen = []
+    monkeypatch.setattr(disent.train, "get_batch", lambda ds, idx: seen.append(list(idx)))
+    wall, cpu = loader_img_s(4, 64, 3)
+    assert wall > 0 and cpu > 0
+    assert [len(i) for i in seen] == [4] * 4  # the table warm-up, then 3 timed rounds of exactly 4 images
+    assert len({i for idx in seen for i in idx}) == 16  # every round on fresh images
+
+
 def test_flops_scale_with_resolution():
     """The FLOP counter sees every convolution: 4x the pixels, ~4x the convolution FLOPs."""
     from disent.models import build_model

@@ -10,7 +10,15 @@ from disent.lighting.posterior import (
     LogPosterior, TruncatedT, gaussian_posterior, integrated_time, prepare, robust_fit, sample_posterior,
 )
 from disent.lighting.texture import TextureModel
+from disent.lighting.threads import single_core
 from disent.render import sh_from_directions, sh_shading
+
+
+@pytest.fixture(autouse=True)
+def one_core():
+    """numpy's BLAS threads spin against other work on a shared machine: one core, as the code targets."""
+    with single_core():
+        yield
 
 
 def ellipsoid(H=32, W=32, a=0.8, b=1.0):

@@ -330,9 +330,10 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     key = torch.arange(pix.numel(), device=dev).add_(bits, alpha=2**_CAND_BITS)
     zbuf = torch.full((img0 * H * W,), -1, dtype=torch.long, device=dev)
     zbuf.scatter_reduce_(0, pix, key, reduce="amax")
-    cov = (zbuf >= 0).nonzero().squeeze(1)  # covered pixels, in order
-    win = zbuf.index_select(0, cov) & (2**_CAND_BITS - 1)
-    first, w_far, w_b, quad = (t.index_select(0, win) for t in (first, w_far, w_b, quad))
+    # The winners: the candidates whose key is their pixel's (one per covered pixel; a failed candidate's key
+    # is below the empty buffer's -1), in candidate order, which runs over the meshes in turn.
+    win = (zbuf.index_select(0, pix) == key).nonzero().squeeze(1)
+    cov, first, w_far, w_b, quad = (t.index_select(0, win) for t in (pix, first, w_far, w_b, quad))
     # Clamp the tolerance's tiny negatives and renormalise, as rasterize does; stored as planes ([M, 3] seen).
     w_far.clamp_min_(0)
     w_b.clamp_min_(0)
@@ -343,7 +344,8 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     bary = torch.stack([w_b, w_c, w_far]).t()
     quad = quad.long()
     out, q0, p0 = [], 0, 0
-    bounds = torch.searchsorted(cov, torch.tensor([0] + [B for B, _ in info], device=dev).cumsum(0) * (H * W)).tolist()
+    first_cand = torch.stack([count[:q].sum() for q in torch.tensor([B * Q for B, Q in info]).cumsum(0).tolist()])
+    bounds = [0] + torch.searchsorted(win, first_cand).tolist()
     for m, (B, Q) in enumerate(info):
         lo, hi = bounds[m], bounds[m + 1]
         p = cov[lo:hi] - p0

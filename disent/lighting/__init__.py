@@ -14,17 +14,12 @@ __all__ = ["select_order", "N_COEFFS", "LightingData", "LogPosterior", "Posterio
 
 def bench_lighting(args) -> dict:
     """L-hat by least squares (batched, per image) and the posterior (27 parameters, 64x64)."""
-    import torch
-
     from disent.bench import print_table
     from disent.lighting.experiments import speed
+    from disent.lighting.threads import single_core
 
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # the posterior's target is one core
-    try:
+    with single_core():  # the posterior's target is one core (torch and BLAS threads)
         out = speed(batch=args.batch, rounds=args.rounds)
-    finally:
-        torch.set_num_threads(threads)
     print_table(f"lighting: L-hat least squares (batch {out['ls_batch']}) and emcee posterior "
                 f"({out['n_pixels']} face pixels at 64x64, 1 thread)", out)
     return out

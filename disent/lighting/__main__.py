@@ -13,6 +13,7 @@ from disent.lighting.experiments import figures_for, noisy, run_all
 from disent.lighting.order import select_order
 from disent.lighting.posterior import prepare, sample_posterior
 from disent.lighting.texture import texture_model
+from disent.lighting.threads import single_core
 
 log = logging.getLogger(__name__)
 
@@ -68,7 +69,11 @@ def posterior_of(cfg: DictConfig, name: str, item: dict) -> dict:
 
 @hydra.main(version_base="1.3", config_path="../../conf", config_name="lighting")
 def main(cfg: DictConfig) -> None:
-    torch.set_num_threads(1)
+    with single_core():
+        run(cfg)
+
+
+def run(cfg: DictConfig) -> None:
     if cfg.task == "report":
         run_all(cfg.split, cfg.data.resolution, cfg.data.seed)
         return

@@ -356,9 +356,14 @@ def speed(ds=None, batch: int = 256, rounds: int = 3) -> dict:
 def run_all(split: str = "test", resolution: int = 64, seed: int = 0, quick: bool = False) -> dict:
     """Every experiment of the report section; writes ``reports/lighting/*``."""
     from disent.data import SynthFaces
+    from disent.lighting.threads import single_core
 
-    torch.set_num_threads(1)
-    ds = SynthFaces(split, resolution, seed)
+    with single_core():
+        return _run_all(SynthFaces(split, resolution, seed), resolution, seed, quick)
+
+
+def _run_all(ds, resolution: int, seed: int, quick: bool) -> dict:
+    split = ds.split
     OUT.mkdir(parents=True, exist_ok=True)
     summary, t0 = {}, time.perf_counter()
     n = 2 if quick else 1

@@ -22,6 +22,12 @@ Each model is scored, with i.i.d. Gaussian noise of unknown sigma, by
 
 The choice is the smallest model whose score is within ``threshold`` (log units, default
 log 20, "strong" evidence on Kass & Raftery's scale) of the best one.
+
+With a constant albedo, textured albedo (eyes, brows, lips, hair, beard) leaves a structured
+misfit that the i.i.d. noise model explains with extra SH terms (order 2 is chosen for most
+scenes).  Without a known albedo, pass ``texture`` (:mod:`disent.lighting.texture`): each
+candidate is then fitted with its own albedo from a PCA texture model (coefficients under
+their PCA prior), so the texture is explained by the albedo and not by the light.
 """
 from __future__ import annotations
 

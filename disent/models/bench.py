@@ -109,7 +109,7 @@ def loader_img_s(n: int, resolution: int, rounds: int) -> tuple[float, float]:
         wall = median_time(render, rounds, warmup=0)
     finally:
         torch.set_num_threads(threads)
-    return n / wall, n / statistics.median(cpu)
+    return n / wall, n / max(statistics.median(cpu), 1e-9)
 
 
 def cpu_has_bf16() -> bool:
