@@ -245,7 +245,7 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     are slices of the vertex planes, no gathering).  Each pixel centre in a quad's box is
     put on one side of the quad's diagonal b-c, which picks one of its two triangles, and
     tested against that triangle only.  The z-buffer key packs the depth's order-preserving
-    integer above the candidate's index, so the winners are read straight from the buffer.
+    integer above the candidate's index; the winners are the candidates whose key their pixel keeps.
     """
     H = W = resolution
     dev, dt = meshes[0][0].device, meshes[0][0].dtype

@@ -281,13 +281,14 @@ def independence_move(mean: np.ndarray, cov: np.ndarray, feasible=None, df: floa
     restricted to the positivity constraint (:class:`TruncatedT`), it mixes in a few steps
     where the posterior is close to a (truncated) Gaussian; mixed with a DE move (which
     adapts to the ensemble's spread) the sampler stays correct when it is not.  A walker whose
-    rejection sampling fails keeps its position (a null proposal, accepted: still exact).
+    rejection sampling fails keeps its position (counted as a rejection, so a proposal that
+    misses the constraint shows in the acceptance fraction and triggers the refit).
     """
     q = TruncatedT(mean, cov, feasible, df, inflate)
 
     def proposal(x, rng):
         new, drawn = q.draw(len(x), rng, fallback=x)
-        log_ratio = np.where(drawn, q.log_density(x) - q.log_density(new), 0.0)  # ln q(x) - ln q(x')
+        log_ratio = np.where(drawn, q.log_density(x) - q.log_density(new), -np.inf)  # ln q(x) - ln q(x')
         return new, log_ratio
 
     return emcee.moves.MHMove(proposal), q
