@@ -7,9 +7,10 @@ from disent.lighting.order import select_order
 from disent.lighting.posterior import (
     N_COEFFS, LightingData, LogPosterior, Posterior, gaussian_posterior, prepare, sample_posterior,
 )
+from disent.lighting.texture import TextureModel, texture_model
 
 __all__ = ["select_order", "N_COEFFS", "LightingData", "LogPosterior", "Posterior", "gaussian_posterior", "prepare",
-           "sample_posterior", "bench_lighting"]
+           "sample_posterior", "TextureModel", "texture_model", "bench_lighting"]
 
 
 def bench_lighting(args) -> dict:

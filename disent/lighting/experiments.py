@@ -383,8 +383,8 @@ def _run_all(ds, resolution: int, seed: int, quick: bool) -> dict:
     save_json("calibration", summary["calibration"])
     plot_calibration(summary["calibration"], OUT / "calibration.png")
 
-    summary["calibration_pseudo"] = calibration(ds, n_images=8 // n, conditions=("lambertian", "specular", "cast_shadow"),
-                                                normals="normal_pseudo")
+    summary["calibration_pseudo"] = calibration(ds, n_images=8 // n, normals="normal_pseudo",
+                                                conditions=("lambertian", "specular", "cast_shadow"))
     save_json("calibration_pseudo", summary["calibration_pseudo"])
     plot_calibration(summary["calibration_pseudo"], OUT / "calibration_pseudo.png")
 
@@ -398,5 +398,5 @@ def _run_all(ds, resolution: int, seed: int, quick: bool) -> dict:
     return summary
 
 
-__all__ = ["item_data", "widths", "calibration", "order_confusion", "order_data", "order_study", "light_of_order", "figures_for", "speed",
-           "run_all", "central_mask", "band_width", "plot_order_study"]
+__all__ = ["item_data", "widths", "calibration", "order_confusion", "order_data", "order_study", "light_of_order",
+           "figures_for", "speed", "run_all", "central_mask", "band_width", "plot_order_study"]

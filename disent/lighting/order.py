@@ -158,7 +158,8 @@ def select_order(data: LightingData, criterion: str = "evidence", threshold: flo
     candidate); without it the albedo is constant (L-hat) or ``data``'s known albedo.
     Returns ``{"choice", "order", "gray", "scores"}``.
     """
-    scores = {name: score(data, order, gray, prior_scale, texture=texture) for name, order, gray in candidates(data.n_channels)}
+    scores = {name: score(data, order, gray, prior_scale, texture=texture)
+              for name, order, gray in candidates(data.n_channels)}
     return choose(scores, criterion, threshold)
 
 

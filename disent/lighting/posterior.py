@@ -13,8 +13,9 @@ known albedo map, ``I_c(p) = a_c(p) S(n_p, L_c) + e`` and L is the light itself)
   outside), each coefficient ``N(0, prior_scale^2)`` (weak), ``log sigma`` uniform on
   ``[log 1e-4, log 1]`` (Jeffreys, bounded).
 
-Sampled with ``emcee.EnsembleSampler`` (log-probability vectorised over walkers), started in
-a small ball around the least-squares fit; the stopping rule is emcee's: the chain is longer
+Sampled with ``emcee.EnsembleSampler`` (log-probability vectorised over walkers), started as
+draws of the Gaussian approximation at the least-squares fit inside the constraint; the
+stopping rule is emcee's: the chain is longer
 than ``50 * tau`` (``tau`` the largest over the parameters) and the estimate of ``tau``
 changed by less than 1 % since the last check.
 """
