@@ -148,8 +148,10 @@ def main(argv=None) -> None:
     p.add_argument("--out", type=Path, default=BENCH_JSON)
     p.add_argument("--device", default="cpu", help="cpu | cuda | cuda:N")
     p.add_argument("--amp", action="store_true", help="bfloat16 mixed precision (the shading layer stays float32)")
-    p.add_argument("--no-bf16", dest="bf16", action="store_false",
-                   help="skip the bfloat16 autocast figures measured beside the float32 ones")
+    p.add_argument("--bf16", dest="bf16", action="store_true", default=None,
+                   help="measure bfloat16 autocast figures beside the float32 ones (default: on a GPU or a CPU "
+                        "with native bf16; where bf16 is emulated it is ~15x slower and takes minutes)")
+    p.add_argument("--no-bf16", dest="bf16", action="store_false", help="skip the bfloat16 figures")
     p.add_argument("--no-channels-last", action="store_true", help="NCHW instead of NHWC activations")
     p.add_argument("--models", nargs="*", default=None, help="models to benchmark (default: all)")
     p.add_argument("--run", default=None, help="run folder for time_to_accuracy (default: newest under outputs/)")

@@ -16,6 +16,7 @@ lighting candidate with its own fitted texture.
 """
 from __future__ import annotations
 
+import hashlib
 import os
 from dataclasses import dataclass
 from functools import lru_cache
@@ -24,6 +25,8 @@ from pathlib import Path
 import numpy as np
 import torch
 import torch.nn.functional as F
+
+from disent.runs import atomic_write
 
 
 @dataclass
@@ -54,8 +57,13 @@ class TextureModel:
 
 
 def _cache_path(resolution: int, n_images: int, seed: int) -> Path:
+    """Keyed by the arguments and a fingerprint of the generator (the bytes of one rendered
+    train albedo), so a changed SynthFaces never reuses a stale model."""
+    from disent.data import SynthFaces
+
+    probe = SynthFaces("train", resolution, seed).get_batch(range(1))["albedo_uv"].numpy().tobytes()
     root = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "disent" / "lighting"
-    return root / f"texture_{resolution}_{n_images}_{seed}.npz"
+    return root / f"texture_{resolution}_{n_images}_{seed}_{hashlib.sha1(probe).hexdigest()[:12]}.npz"
 
 
 @lru_cache(maxsize=4)
@@ -78,8 +86,7 @@ def texture_model(resolution: int = 64, n_components: int = 20, n_images: int = 
         shape = (3, resolution, resolution)
         full = TextureModel(mean.reshape(shape).numpy(), v[:keep].reshape(keep, *shape).numpy(),
                             (sv[:keep] ** 2 / (n_images - 1)).numpy())
-        path.parent.mkdir(parents=True, exist_ok=True)
-        np.savez(path, mean=full.mean, components=full.components, variance=full.variance)
+        atomic_write(path, lambda f: np.savez(f, mean=full.mean, components=full.components, variance=full.variance))
     if n_components > full.n_components:
         raise ValueError(f"texture model has {full.n_components} components, asked for {n_components}")
     return full.truncate(n_components)

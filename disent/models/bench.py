@@ -9,8 +9,8 @@ shared, so the peak is measured right before and after each rate and that rate i
 against their mean (``<rate>_peak_gflops``); ``peak_gflops`` is the median of all of them.  The data
 loader (``SynthFaces.get_batch`` on fresh indices) is timed alone at the training batch
 size, to show it outruns training (training renders batches in a background thread,
-``train.prefetch``).  Beside the float32 figures, bfloat16 autocast ones (``*_bf16_*``, off with
-``--no-bf16``) and how far bf16 moves the losses and outputs.
+``train.prefetch``).  Beside the float32 figures, bfloat16 autocast ones (``*_bf16_*``; by default only
+where bf16 is native: a GPU or a CPU with AVX512-BF16/AMX; ``--bf16`` forces them) and how far bf16 moves the losses and outputs.
 
 ``time_to_accuracy``: minutes of training wall time until the network's normals beat the
 pseudo ground truth's (mean angular error on the same pixels), read from a run's
@@ -161,7 +161,10 @@ def bench_one(name: str, args, device: str, sync) -> dict:
             key = "infer" if B == 64 else f"infer_b{B}"
             out[f"{key}_img_s"], out[f"{key}_peak_gflops"] = beside_peak(
                 args, device, lambda: B / median_time(infer, rounds if B > 1 else 20 * rounds, warmup=2))
-    if getattr(args, "bf16", False) and not args.amp:
+    bf16 = getattr(args, "bf16", False)
+    if bf16 is None:  # default: where bf16 is native
+        bf16 = device.startswith("cuda") or cpu_has_bf16()
+    if bf16 and not args.amp:
         out.update(bench_bf16(name, args, device, sync, batch))
     return out
 
