@@ -241,20 +241,25 @@ def order_study(splits=("val", "test"), rows=ORDER_ROWS, n_per_order: int = 20, 
     return out
 
 
+def draw_confusion(ax, confusion) -> None:
+    """A 3x3 order confusion matrix (rows: true order, columns: chosen) with its counts."""
+    m = np.asarray(confusion)
+    ax.imshow(m, cmap="Blues", vmin=0, vmax=m.sum(1).max())
+    for i in range(3):
+        for j in range(3):
+            ax.text(j, i, m[i, j], ha="center", va="center", color="white" if m[i, j] > m.max() / 2 else "black")
+    ax.set_xticks(range(3), ["0", "1", "2"])
+    ax.set_yticks(range(3), ["0", "1", "2"])
+    ax.set_xlabel("chosen order")
+    ax.set_ylabel("true order")
+
+
 def plot_confusion(result: dict, path: Path, title: str = "") -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(7.5, 3.6))
     for ax, crit in zip(axes, ("evidence", "bic")):
-        m = np.asarray(result[crit]["confusion"])
-        ax.imshow(m, cmap="Blues", vmin=0, vmax=m.sum(1).max())
-        for i in range(3):
-            for j in range(3):
-                ax.text(j, i, m[i, j], ha="center", va="center", color="white" if m[i, j] > m.max() / 2 else "black")
-        ax.set_xticks(range(3), ["0", "1", "2"])
-        ax.set_yticks(range(3), ["0", "1", "2"])
-        ax.set_xlabel("chosen order")
-        ax.set_ylabel("true order")
+        draw_confusion(ax, result[crit]["confusion"])
         ax.set_title(f"{crit} (accuracy {result[crit]['accuracy']:.0%})")
     fig.suptitle(title)
     fig.tight_layout()
@@ -271,15 +276,7 @@ def plot_order_study(study: dict, path: Path, criterion: str = "evidence") -> No
     rows = -(-len(keys) // cols)
     fig, axes = plt.subplots(rows, cols, figsize=(3.3 * cols, 3.2 * rows), squeeze=False)
     for ax, key in zip(axes.flat, keys):
-        m = np.asarray(study[key][criterion]["confusion"])
-        ax.imshow(m, cmap="Blues", vmin=0, vmax=m.sum(1).max())
-        for i in range(3):
-            for j in range(3):
-                ax.text(j, i, m[i, j], ha="center", va="center", color="white" if m[i, j] > m.max() / 2 else "black")
-        ax.set_xticks(range(3), ["0", "1", "2"])
-        ax.set_yticks(range(3), ["0", "1", "2"])
-        ax.set_xlabel("chosen order")
-        ax.set_ylabel("true order")
+        draw_confusion(ax, study[key][criterion]["confusion"])
         ax.set_title(f"{key}\n{criterion} accuracy {study[key][criterion]['accuracy']:.0%}", fontsize=9)
     for ax in list(axes.flat)[len(keys):]:
         ax.axis("off")
