@@ -19,7 +19,7 @@ from functools import lru_cache
 import torch
 import torch.nn.functional as F
 
-from disent.render import C1, C2, C3, C4, C5, composite, image_formation, sh_basis, sh_from_directions, sh_shading, solve_normal_equations
+from disent.render import C2, C4, composite, image_formation, sh_basis, sh_from_directions, sh_shading, solve_normal_equations
 
 from .face_model import (BROW_X, BROW_Y, CHIN_Y, EYE_H, EYE_W, EYE_X, EYE_Y, GRID_U, GRID_V, HAIRLINE_Y, MOUTH_W, MOUTH_Y,
                          NOSE_BASE_Y, SLIT_ROWS, face_model, is_neck, layout, single_thread, uv_to_angles)
@@ -535,22 +535,14 @@ def render_scenes(p: dict, res: int, effects: dict | None = None, pseudo: bool =
 
 
 def shade(normal: torch.Tensor, sh: torch.Tensor, matte: torch.Tensor) -> torch.Tensor:
-    """``sh_shading(normal, sh) * matte`` (Eq. 4), for a binary ``matte`` and normals that are 0 off it:
-    the SH basis planes are written once into one buffer, the two with a constant term masked
-    (the others vanish with the normal), and one batched product gives the three channels."""
+    """``sh_shading(normal, sh) * matte`` (Eq. 4) as one batched product over the SH basis planes,
+    for a binary ``matte`` and normals that are 0 off it: only the two basis planes with a
+    constant term (L1, L7) need the matte, the others vanish with the normal."""
     B, _, H, W = normal.shape
-    nx, ny, nz = normal.reshape(B, 3, H * W).unbind(1)
-    m = matte.reshape(B, H * W)
-    basis = normal.new_empty(B, 9, H * W)
-    torch.mul(m, C4, out=basis[:, 0])
-    torch.mul(ny, 2 * C2, out=basis[:, 1])
-    torch.mul(nz, 2 * C2, out=basis[:, 2])
-    torch.mul(nx, 2 * C2, out=basis[:, 3])
-    torch.mul(nx, 2 * C1, out=basis[:, 4]).mul_(ny)
-    torch.mul(ny, 2 * C1, out=basis[:, 5]).mul_(nz)
-    torch.mul(nz, C3, out=basis[:, 6]).mul_(nz).sub_(C5).mul_(m)
-    torch.mul(nx, 2 * C1, out=basis[:, 7]).mul_(nz)
-    torch.sub(nx, ny, out=basis[:, 8]).mul_(torch.add(nx, ny)).mul_(C1)
+    basis = sh_basis(normal.reshape(B, 3, H * W), 1)  # [B, 9, HW]
+    m = matte.reshape(B, 1, H * W)
+    basis[:, 0:1].mul_(m)
+    basis[:, 6:7].mul_(m)
     return torch.bmm(sh.to(normal.dtype), basis).view(B, -1, H, W)
 
 
