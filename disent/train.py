@@ -174,15 +174,14 @@ def train_step(model, disc, opt_g, opt_d, batch, cfg_loss) -> dict:
 def validate(model, batch: dict) -> dict:
     """The cheap periodic check: on a fixed validation batch, the network's mean normal angular
     error and the pseudo-GT's on the same pixels (degrees), and the reconstruction PSNR (dB)."""
-    from disent.eval.evaluate import face_mask, predict
-    from disent.eval.metrics import normal_angular_error, reconstruction_metrics
+    from disent.eval.evaluate import normal_metrics, predict
+    from disent.eval.metrics import reconstruction_metrics
 
     out = predict(model, batch["image"])
     m = {"recon_psnr": reconstruction_metrics(out["recon"].float().clamp(0, 1), batch["image"])["psnr"]}
     if "normal" in out and "normal" in batch:
-        both = face_mask(batch["matte"]) * (batch["mask_pseudo"] > 0.5)
-        m["normal_mean"] = normal_angular_error(out["normal"].float(), batch["normal"], both)["mean"]
-        m["pseudo_normal_mean"] = normal_angular_error(batch["normal_pseudo"], batch["normal"], both)["mean"]
+        normals = normal_metrics(out["normal"].float(), batch)
+        m.update({k: normals[k] for k in ("normal_mean", "pseudo_normal_mean")})
     return m
 
 

@@ -67,6 +67,15 @@ def model_outputs(model, dataset, limit: int = 256, batch_size: int = 64, keys=(
     return out, gt, len(gt["image"]) / max(seconds, 1e-12)
 
 
+def normal_metrics(normal: torch.Tensor, gt: dict) -> dict:
+    """``normal_*``: the angular error of ``normal`` against the true normals; ``pseudo_normal_*``:
+    the pseudo-GT's, on the same pixels (the true face mask intersected with the pseudo mask)."""
+    both = face_mask(gt["matte"]) * (gt["mask_pseudo"] > 0.5)
+    m = {f"normal_{k}": v for k, v in normal_angular_error(normal, gt["normal"], both).items()}
+    m.update({f"pseudo_normal_{k}": v for k, v in normal_angular_error(gt["normal_pseudo"], gt["normal"], both).items()})
+    return m
+
+
 def metrics_from_outputs(out: dict, gt: dict) -> dict:
     """Flat metric dict from model outputs and ground truth (same keys as SynthFaces items).
 
@@ -81,11 +90,7 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
         for k, v in reconstruction_metrics(out["recon"].clamp(0, 1), gt["image"], mask).items():
             m[f"{name}_{k}"] = v
     if "normal" in out:
-        both = face * (gt["mask_pseudo"] > 0.5)
-        for k, v in normal_angular_error(out["normal"], gt["normal"], both).items():
-            m[f"normal_{k}"] = v
-        for k, v in normal_angular_error(gt["normal_pseudo"], gt["normal"], both).items():
-            m[f"pseudo_normal_{k}"] = v
+        m.update(normal_metrics(out["normal"], gt))
     if "albedo" in out:
         m["albedo_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], face)
     if "shading" in out:
@@ -103,4 +108,4 @@ def evaluate_model(model, dataset, limit: int = 256, batch_size: int = 64) -> di
     return {**metrics_from_outputs(out, gt), "infer_images_per_s": ips, "n_eval": len(gt["image"])}
 
 
-__all__ = ["FACE_THRESHOLD", "face_mask", "batches", "render", "predict", "model_outputs", "metrics_from_outputs", "evaluate_model"]
+__all__ = ["FACE_THRESHOLD", "face_mask", "normal_metrics", "batches", "render", "predict", "model_outputs", "metrics_from_outputs", "evaluate_model"]
