@@ -64,11 +64,11 @@ def test_bf16_figures_and_bf16_stays_close_to_float32():
 
 
 def test_loader_figure_renders_n_fresh_images_per_round(monkeypatch):
-    import disent.train
+    from disent.data import SynthFaces
     from disent.models.bench import loader_img_s
 
     seen = []
-    monkeypatch.setattr(disent.train, "get_batch", lambda ds, idx: seen.append(list(idx)))
+    monkeypatch.setattr(SynthFaces, "get_batch", lambda self, idx: seen.append(list(idx)))
     wall, cpu = loader_img_s(4, 64, 3)
     assert wall > 0 and cpu > 0
     assert [len(i) for i in seen] == [4] * 4  # the table warm-up, then 3 timed rounds of exactly 4 images

@@ -12,8 +12,6 @@ from __future__ import annotations
 
 import time
 
-import torch
-
 from disent.bench import print_table, register
 
 
@@ -21,36 +19,39 @@ def _median(xs: list[float]) -> float:
     return sorted(xs)[len(xs) // 2]
 
 
+def generation_rates(ds, n: int, rounds: int) -> tuple[float, float]:
+    """``ds.get_batch`` (one torch thread, as SynthFaces renders) on ``rounds`` fresh blocks of ``n``
+    indices, after one block that builds the generator's fixed tables: medians of (images per wall
+    second, images per CPU second of this process).  Also the loader figure of ``disent.bench models``."""
+    ds.get_batch(range(n))
+    wall, cpu = [], []
+    for start in range(n, n * (rounds + 1), n):
+        t0, c0 = time.perf_counter(), time.process_time()
+        ds.get_batch(range(start, start + n))
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+    return n / _median(wall), n / _median(cpu)
+
+
 def bench_data(args) -> dict:
     from disent.data import SynthFaces
+    from disent.data.face_model import single_thread
     from disent.data.synth import render_scenes
 
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
     out = {"threads": 1}
-    try:
+    with single_thread():
         for res in sorted({64, 128} | {args.size}):
             ds = SynthFaces("train", resolution=res, seed=0)
             B = min(args.batch, 256)
-            ds.get_batch(range(B))  # builds the fixed tables (layers, atlas, model)
-            wall, cpu, bare, start = [], [], [], B
-            for _ in range(args.rounds):
-                idx = range(start, start + B)
-                start += B
-                t0, c0 = time.perf_counter(), time.process_time()
-                ds.get_batch(idx)
-                wall.append(time.perf_counter() - t0)
-                cpu.append(time.process_time() - c0)
-                p = ds.params(idx)
+            out[f"images_per_s_{res}"], out[f"images_per_cpu_s_{res}"] = generation_rates(ds, B, args.rounds)
+            bare = []
+            for start in range(B, B * (args.rounds + 1), B):  # the same scenes without the pseudo ground truth
+                p = ds.params(range(start, start + B))
                 c0 = time.process_time()
                 render_scenes(p, res, pseudo=False)
                 bare.append(time.process_time() - c0)
-            out[f"images_per_s_{res}"] = B / _median(wall)
-            out[f"images_per_cpu_s_{res}"] = B / _median(cpu)
             out[f"images_per_cpu_s_{res}_without_pseudo"] = B / _median(bare)
         out["batch"] = B
-    finally:
-        torch.set_num_threads(threads)
     print_table("SynthFaces generation (one thread, fresh indices, all layers + pseudo-GT)", out)
     return out
 

@@ -19,7 +19,7 @@ from functools import lru_cache
 import torch
 import torch.nn.functional as F
 
-from disent.render import C2, C4, composite, image_formation, sh_basis, sh_from_directions, sh_shading, solve_normal_equations
+from disent.render import C2, C4, composite, image_formation, sh_basis, sh_from_directions, solve_normal_equations
 
 from .face_model import (BROW_X, BROW_Y, CHIN_Y, EYE_H, EYE_W, EYE_X, EYE_Y, GRID_U, GRID_V, HAIRLINE_Y, MOUTH_W, MOUTH_Y,
                          NOSE_BASE_Y, SLIT_ROWS, face_model, is_neck, layout, single_thread, uv_to_angles)

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import json
 import statistics
-import time
 from pathlib import Path
 
 import torch
@@ -91,25 +90,9 @@ def loader_img_s(n: int, resolution: int, rounds: int) -> tuple[float, float]:
     thread runs it (one torch thread): (images per wall second, images per CPU second of
     this process; the second is the one a loaded machine leaves nearly unchanged)."""
     from disent.data import SynthFaces
-    from disent.train import get_batch
+    from disent.data.bench import generation_rates
 
-    ds = SynthFaces("train", resolution=resolution, seed=0)
-    get_batch(ds, range(n))  # builds the generator's fixed tables
-    starts = iter(range(n, len(ds) - n, n))
-    cpu = []
-
-    def render():
-        s, c = next(starts), time.process_time()
-        get_batch(ds, range(s, s + n))
-        cpu.append(time.process_time() - c)
-
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        wall = median_time(render, rounds, warmup=0)
-    finally:
-        torch.set_num_threads(threads)
-    return n / wall, n / max(statistics.median(cpu), 1e-9)
+    return generation_rates(SynthFaces("train", resolution=resolution, seed=0), n, rounds)
 
 
 def cpu_has_bf16() -> bool:
