@@ -123,16 +123,18 @@ def score(data: LightingData, order: int, gray: bool = False, prior_scale: float
         tex, variance = texture
         if tex.shape[1:] != data.y.shape:
             raise ValueError(f"texture pixels {tex.shape[1:]} do not match the data {data.y.shape}")
+        def albedo_of(beta):  # T_0 + sum_j beta_j T_j, kept positive
+            return np.clip(tex[0] + np.einsum("j,jpc->pc", beta, tex[1:]), 1e-3, None)
+
         beta = np.zeros(len(variance))
         for _ in range(texture_iterations):
-            albedo = np.clip(tex[0] + np.einsum("j,jpc->pc", beta, tex[1:]), 1e-3, None)
+            albedo = albedo_of(beta)
             theta, pred, J, s2, prior = _fit(replace(data, albedo=albedo), order, gray, prior_scale, iterations)
             shading = pred / albedo  # [P, C]: the candidate's light through S(n, L_c)
             X = (tex[1:] * shading[None]).reshape(len(variance), -1).T  # [P*C, J]
             H_beta = X.T @ X / s2 + np.diag(1.0 / variance)
             beta = np.linalg.solve(H_beta, X.T @ (data.y - tex[0] * shading).reshape(-1) / s2)
-        albedo = np.clip(tex[0] + np.einsum("j,jpc->pc", beta, tex[1:]), 1e-3, None)
-        data = replace(data, albedo=albedo)
+        data = replace(data, albedo=albedo_of(beta))
         extra = (-0.5 * (beta**2 / variance).sum() - 0.5 * np.log(variance).sum()
                  - 0.5 * np.linalg.slogdet(H_beta)[1])  # log N(beta; 0, var) + J/2 log 2 pi - 1/2 log det H
     theta, pred, J, s2, (prior_mean, prior_prec) = _fit(data, order, gray, prior_scale, iterations)

@@ -292,7 +292,7 @@ def independence_move(mean: np.ndarray, cov: np.ndarray, feasible=None, df: floa
         log_ratio = np.where(drawn, q.log_density(x) - q.log_density(new), -np.inf)  # ln q(x) - ln q(x')
         return new, log_ratio
 
-    return emcee.moves.MHMove(proposal), q
+    return emcee.moves.MHMove(proposal)
 
 
 def integrated_time(chain: np.ndarray, c: float = 5.0) -> np.ndarray:
@@ -419,7 +419,7 @@ def sample_posterior(data: LightingData, *, order: int = 2, likelihood: str = "g
     start = TruncatedT(centre, centre_cov, feasible).draw(n_walkers, rng, fallback=ball)[0]
 
     def new_sampler(mean, cov):
-        moves = [(emcee.moves.DEMove(live_dangerously=True), 0.2), (independence_move(mean, cov, feasible)[0], 0.8)]
+        moves = [(emcee.moves.DEMove(live_dangerously=True), 0.2), (independence_move(mean, cov, feasible), 0.8)]
         sampler = emcee.EnsembleSampler(n_walkers, D, logpost, moves=moves, vectorize=True)
         sampler.random_state = np.random.RandomState(int(rng.integers(2**31))).get_state()  # seeded moves
         return sampler
