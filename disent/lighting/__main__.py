@@ -12,7 +12,7 @@ from omegaconf import DictConfig
 from disent.lighting.experiments import figures_for, noisy, run_all
 from disent.lighting.order import select_order
 from disent.lighting.posterior import prepare, sample_posterior
-from disent.lighting.texture import texture_model
+from disent.lighting.texture import texture_for
 from disent.lighting.threads import single_core
 
 log = logging.getLogger(__name__)
@@ -50,8 +50,7 @@ def posterior_of(cfg: DictConfig, name: str, item: dict) -> dict:
     uv_key = "uv_pseudo" if normals == "normal_pseudo" else "uv"
     texture = None
     if albedo is None and cfg.texture_components > 0 and uv_key in item and not cfg.gray:
-        model = texture_model(cfg.data.resolution, cfg.texture_components)
-        texture = (model.at_pixels(item[uv_key], data.index), model.variance)
+        texture = texture_for(data, item[uv_key], cfg.texture_components)
     post = sample_posterior(data, order=cfg.order, likelihood=cfg.likelihood, nu=cfg.nu, seed=cfg.seed,
                             max_steps=cfg.max_steps)
     result = {"name": name, "normals": normals, "known_albedo": albedo is not None} | post.summary()

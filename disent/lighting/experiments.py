@@ -184,17 +184,14 @@ def order_data(item: dict, noise: float, seed: int, albedo: str = "constant", no
     (:mod:`disent.lighting.texture`, mapped through the geometry's UV); ``normals``:
     ``normal`` (true normals, matte, uv) or ``normal_pseudo`` (the coarse fit's, with its mask and uv).
     """
-    from disent.lighting.texture import texture_model
+    from disent.lighting.texture import texture_for
 
     if albedo not in ALBEDO or normals not in GEOMETRY:
         raise ValueError(f"albedo must be one of {ALBEDO} and normals one of {tuple(GEOMETRY)}")
-    n_key, m_key, uv_key = GEOMETRY[normals]
-    data = prepare(noisy(item["image"], noise, seed), item[n_key], item[m_key],
-                   item["albedo"] if albedo == "known" else None)
+    data = item_data(item, noise, seed, known_albedo=albedo == "known", normals=normals)
     if albedo != "texture":
         return data, None
-    model = texture_model(item["image"].shape[-1], n_components)
-    return data, (model.at_pixels(item[uv_key], data.index), model.variance)
+    return data, texture_for(data, item[GEOMETRY[normals][2]], n_components)
 
 
 def order_confusion(ds, n_per_order: int = 30, noise: float = 0.02, albedo: str = "constant",

@@ -92,4 +92,12 @@ def texture_model(resolution: int = 64, n_components: int = 20, n_images: int = 
     return full.truncate(n_components)
 
 
-__all__ = ["TextureModel", "texture_model"]
+def texture_for(data, uv, n_components: int = 20) -> tuple:
+    """``(pixels [1+J, P, C], variance [J])``: the texture model at the pixels of ``data``
+    (:class:`~disent.lighting.posterior.LightingData`) through the ``uv [2,H,W]`` map, the
+    ``texture`` argument of :func:`disent.lighting.order.select_order`."""
+    model = texture_model(uv.shape[-1], n_components)
+    return model.at_pixels(uv, data.index), model.variance
+
+
+__all__ = ["TextureModel", "texture_model", "texture_for"]
