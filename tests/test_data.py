@@ -320,7 +320,7 @@ def test_rasterizer_coverage_depth_and_barycentrics():
     near = r["face_id"][0] >= 2
     assert near.sum() == 16 * 16  # the nearer square is entirely visible
     # Interpolating the vertices' own x, y gives back each pixel centre (linear, orthographic).
-    pix = interpolate(verts[0], faces, r)[0]
+    pix = interpolate(verts[0], r)[0]
     centres = (torch.arange(H) * 2 + 1) / H - 1
     assert torch.allclose(pix[0][mask], centres.expand(H, H)[mask], atol=1e-5)
     assert torch.allclose(pix[1][mask], centres.flip(0)[:, None].expand(H, H)[mask], atol=1e-5)
@@ -359,7 +359,7 @@ def test_grid_rasterizer_matches_the_triangle_rasterizer():
             assert ((g["face_id"] >= 0) != (t["face_id"] >= 0)).sum() <= 2  # a centre exactly on an outline edge
             same = g["face_id"] == t["face_id"]
             assert same.float().mean() > 0.9995
-            a, b = interpolate(verts, f, g), interpolate(verts, f, t)  # x, y: the pixel centres; z: depth
+            a, b = interpolate(verts, g), interpolate(verts, t)  # x, y: the pixel centres; z: depth
             centres = (torch.arange(res) * 2 + 1) / res - 1
             covered = g["face_id"] >= 0
             assert (a[:, 0] - centres)[covered].abs().max() < 1e-3 and (a[:, 1] - centres.flip(0)[:, None])[covered].abs().max() < 1e-3
@@ -375,7 +375,7 @@ def test_pseudo_fit_draws_only_its_face_quads():
     masks = []
     for mesh in ((fit["cam"], grid), (fit["cam"], grid, pseudo_quads())):
         r = rasterize_grids([mesh], 64)[0]
-        pix = interpolate([fit["vn"], region], faces, r)
+        pix = interpolate([fit["vn"], region], r)
         masks.append(((r["face_id"] >= 0) & (pix[:, 3] > 0.5), pix[:, :3]))
     assert 0.3 < pseudo_quads().float().mean() < 0.8
     assert torch.equal(masks[0][0], masks[1][0]) and masks[0][0].any()

@@ -34,6 +34,7 @@ _ID_BITS = 20  # triangle ids below 2**20
 _DEPTH_LEVELS = 2**38  # depth quantisation over [-DEPTH_RANGE, DEPTH_RANGE]
 _DEPTH_RANGE = 16.0
 _CAND_BITS = 31  # rasterize_grids: candidate ids below 2**31 (the key packs 31 depth bits above them)
+_FOLD = 1e30  # rasterize_grids: a bias beyond any cross product, to force one triangle of a folded quad
 MAX_WINDOW = 64  # triangles wider than this many pixels are refused (refine the mesh)
 
 
@@ -86,7 +87,8 @@ def rasterize(vertices_cam: torch.Tensor, faces: torch.Tensor, resolution: int) 
 
     Returns ``face_id [B, H, W]`` (int64, -1 on background) and the covered pixels as
     flat lists: ``batch [M]``, ``pixel [M]`` (row-major index, row 0 at the top),
-    ``face [M]`` and ``bary [M, 3]``.
+    ``face [M]``, ``bary [M, 3]`` and ``corners [3, M]``, the face's vertices as flat ids
+    ``batch * V + vertex`` (what :func:`interpolate` gathers).
     """
     if vertices_cam.dim() != 3 or vertices_cam.shape[-1] != 3:
         raise ValueError(f"vertices_cam must be [B,V,3], got {tuple(vertices_cam.shape)}")
@@ -113,7 +115,7 @@ def rasterize(vertices_cam: torch.Tensor, faces: torch.Tensor, resolution: int) 
     empty = torch.zeros(0, dtype=torch.long, device=dev)
     if k.numel() == 0:
         return {"face_id": face_id.view(B, H, W), "batch": empty, "pixel": empty, "face": empty,
-                "bary": torch.zeros(0, 3, dtype=dt, device=dev)}
+                "bary": torch.zeros(0, 3, dtype=dt, device=dev), "corners": empty.view(3, 0)}
     big = int(torch.maximum(nx.max(), ny.max()))
     if big > MAX_WINDOW:
         raise ValueError(f"a triangle spans {big} pixels; the rasterizer expects a mesh finer than {MAX_WINDOW} px")
@@ -165,38 +167,73 @@ def rasterize(vertices_cam: torch.Tensor, faces: torch.Tensor, resolution: int) 
     face_id[win_pix] = win_t
     bary = torch.stack([w0.index_select(0, win), w1.index_select(0, win), w2.index_select(0, win)], 1).clamp_min(0)
     bary = bary / bary.sum(1, keepdim=True)
-    return {"face_id": face_id.view(B, H, W), "batch": win_pix // (H * W), "pixel": win_pix % (H * W),
-            "face": win_t, "bary": bary}
+    batch = win_pix // (H * W)
+    corners = torch.stack([faces[:, j].index_select(0, win_t) for j in range(3)]) + batch * V
+    return {"face_id": face_id.view(B, H, W), "batch": batch, "pixel": win_pix % (H * W), "face": win_t, "bary": bary,
+            "corners": corners}
 
 
-def interpolate(attr, faces: torch.Tensor, raster: dict) -> torch.Tensor:
+def interpolate(attr, raster: dict) -> torch.Tensor:
     """Per-vertex ``attr [B, V, C]`` (or shared ``[V, C]``, or a list of such) -> per-pixel
-    ``[B, C, H, W]`` (0 on background; a list's channels are concatenated).
+    ``[B, C, H, W]`` (0 on background; a list's channels are concatenated)."""
+    return paste(interpolate_covered(attr, raster), raster)
 
-    One channel at a time with flat gathers and scatters (gathering small rows is slow on
-    the CPU); a channel stored as a plane (``attr.transpose(1, 2)`` of a ``[B, C, V]``
-    tensor) is read without a copy."""
+
+def interpolate_covered(attr, raster: dict) -> torch.Tensor:
+    """:func:`interpolate` at the covered pixels only: ``[C, M]`` in the order of ``raster``'s lists,
+    from their ``corners`` (flat vertex ids ``batch * V + vertex``) and ``bary``.
+
+    One channel at a time with flat gathers (gathering small rows is slow on the CPU); a
+    channel stored as a plane (``attr.transpose(1, 2)`` of a ``[B, C, V]`` tensor) is read
+    without a copy."""
     attrs = list(attr) if isinstance(attr, (list, tuple)) else [attr]
-    B, H, W = raster["face_id"].shape
-    C = sum(a.shape[-1] for a in attrs)
-    bi, bary = raster["batch"], raster["bary"].to(attrs[0].dtype)
-    corner = [faces[:, j].index_select(0, raster["face"]) for j in range(3)]  # [M] vertex ids
-    w = bary.t()
+    bi, corners = raster["batch"], raster["corners"]
+    w = raster["bary"].to(attrs[0].dtype).t()
     if w.stride(1) != 1:  # rasterize_grids already stores barycentrics as planes
         w = w.contiguous()
-    out = torch.zeros(B * C * H * W, dtype=attrs[0].dtype, device=attrs[0].device)
-    dst = bi * (C * H * W) + raster["pixel"]
+    out = torch.empty(sum(a.shape[-1] for a in attrs), bi.numel(), dtype=attrs[0].dtype, device=attrs[0].device)
+    shared = {}  # vertex ids within one mesh, for attributes shared by the batch
     c = 0
     for a in attrs:
-        rows = corner if a.dim() == 2 else [r + bi * a.shape[1] for r in corner]
-        planes = a.permute(-1, *range(a.dim() - 1))  # [C_a, (B,) V]
-        for plane in planes:
+        if a.dim() == 2 and a.shape[0] not in shared:
+            shared[a.shape[0]] = corners - bi * a.shape[0]
+        rows = shared[a.shape[0]] if a.dim() == 2 else corners
+        for plane in a.permute(-1, *range(a.dim() - 1)):  # [(B,) V] per channel
             v = plane.reshape(-1)
-            val = v.index_select(0, rows[0]) * w[0]
+            val = torch.mul(v.index_select(0, rows[0]), w[0], out=out[c])
             val.addcmul_(v.index_select(0, rows[1]), w[1]).addcmul_(v.index_select(0, rows[2]), w[2])
-            out.scatter_(0, dst + c * (H * W), val)
             c += 1
+    return out
+
+
+def paste(values: torch.Tensor, raster: dict) -> torch.Tensor:
+    """Values at the covered pixels ``[C, M]`` -> an image ``[B, C, H, W]``, 0 elsewhere."""
+    B, H, W = raster["face_id"].shape
+    C = values.shape[0]
+    out = torch.zeros(B * C * H * W, dtype=values.dtype, device=values.device)
+    dst = raster["batch"] * (C * H * W) + raster["pixel"]
+    for c in range(C):
+        out.scatter_(0, dst + c * (H * W) if c else dst, values[c])
     return out.view(B, C, H, W)
+
+
+def sample_texture(texture: torch.Tensor, uv: torch.Tensor, batch: torch.Tensor) -> torch.Tensor:
+    """Bilinear lookup of ``texture [B, C, R, R]`` at ``uv [2, M]`` (in [0, 1], u right, v down) of the
+    images ``batch [M]``: ``[C, M]``, what ``grid_sample(texture, 2 uv - 1, align_corners=True)`` gives
+    at those pixels (up to float rounding)."""
+    B, C, R, _ = texture.shape
+    x, y = uv[0] * (R - 1), uv[1] * (R - 1)
+    x0, y0 = x.floor().clamp_(0, R - 2), y.floor().clamp_(0, R - 2)
+    fx, fy = x - x0, y - y0
+    at = batch * (C * R * R) + y0.long() * R + x0.long()  # top-left texel, channel 0
+    flat = texture.reshape(-1)
+    out = torch.empty(C, uv.shape[1], dtype=texture.dtype, device=texture.device)
+    for c in range(C):
+        i = at + c * R * R if c else at
+        top = flat.index_select(0, i).lerp_(flat.index_select(0, i + 1), fx)
+        bottom = flat.index_select(0, i + R).lerp_(flat.index_select(0, i + R + 1), fx)
+        torch.lerp(top, bottom, fy, out=out[c])
+    return out
 
 def grid_vertex_normals(vertices: torch.Tensor, grid_shape: tuple[int, int]) -> torch.Tensor:
     """Unit vertex normals ``[B, V, 3]`` of a mesh that is a regular ``rows x cols`` grid
@@ -214,14 +251,16 @@ def grid_vertex_normals(vertices: torch.Tensor, grid_shape: tuple[int, int]) -> 
         torch.sub(P.narrow(dim, n - 1, 1), P.narrow(dim, n - 2, 1), out=d.narrow(dim, n - 1, 1))
     # Collapsed rows (a closed mouth) have no extent along v: take a two-row stencil there.  The
     # test is relative (|dv| < 1e-3 |du|): a collapsed row's dv is float32 rounding, not a direction.
-    flat = (dv * dv).sum(1) < 1e-6 * (du * du).sum(1)  # [B, gv, gu]
+    flat = _squared_norm(dv) < _squared_norm(du).mul_(1e-6)  # [B, gv, gu]
     rows = flat.any(2).any(0).nonzero().squeeze(1)
     if rows.numel():
         dv2 = P[:, :, (rows + 2).clamp(max=gv - 1)] - P[:, :, (rows - 2).clamp(min=0)]
         dv[:, :, rows] = torch.where(flat[:, None, rows], dv2, dv[:, :, rows])
     (vx, vy, vz), (ux, uy, uz) = dv.unbind(1), du.unbind(1)
-    n = torch.stack([vy * uz - vz * uy, vz * ux - vx * uz, vx * uy - vy * ux], 1)  # dv x du, on planes
-    return unit_planes(n).view(B, 3, V).transpose(1, 2)
+    n, tmp = torch.empty_like(P), torch.empty_like(vx)
+    for k, (a, b, c, d) in enumerate(((vy, uz, vz, uy), (vz, ux, vx, uz), (vx, uy, vy, ux))):
+        torch.mul(a, b, out=n[:, k]).sub_(torch.mul(c, d, out=tmp))  # dv x du, on planes
+    return unit_planes(n, inplace=True).view(B, 3, V).transpose(1, 2)
 
 
 def grid_faces(gv: int, gu: int) -> torch.Tensor:
@@ -241,100 +280,120 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     Returns, per mesh, the dict of :func:`rasterize` for that mesh and ``grid_faces(gv, gu)``
     (the same pixels, triangles and barycentrics up to float rounding and depth ties).
 
-    The grid saves work: the primitive is the quad (half as many as triangles; its corners
-    are slices of the vertex planes, no gathering).  Each pixel centre in a quad's box is
-    put on one side of the quad's diagonal b-c, which picks one of its two triangles, and
-    tested against that triangle only.  The z-buffer key packs the depth's order-preserving
-    integer above the candidate's index; the winners are the candidates whose key their pixel keeps.
+    The grid saves work: the primitive is the quad (half as many as triangles), and on the
+    flattened vertex planes a quad's four corners are the same planes shifted by 0, 1, gu and
+    gu + 1, so its per-quad data is a few passes over contiguous memory.  Each pixel centre
+    in a quad's box is put on one side of the quad's diagonal b-c, which picks one of its two
+    triangles, and tested against that triangle only.  The z-buffer key packs the depth's
+    order-preserving integer above the candidate's index; the winners are the candidates
+    whose key their pixel keeps.
     """
     H = W = resolution
     dev, dt = meshes[0][0].device, meshes[0][0].dtype
-    info = [(m[0].shape[0], (m[1][0] - 1) * (m[1][1] - 1)) for m in meshes]  # (B, quads per image)
-    n_quads, n_images = sum(B * Q for B, Q in info), sum(B for B, _ in info)
+    info = [(m[0].shape[0], m[1]) for m in meshes]  # (B, (gv, gu))
+    n_images = sum(B for B, _ in info)
     if n_images * H * W >= 2**24:  # pixel ids must stay exact in float32: halve the batch
         if len({B for B, _ in info}) != 1 or info[0][0] < 2:
             raise ValueError("rasterize_grids: too many pixels for one call and the meshes' batches differ")
         h = info[0][0] // 2
         halves = [rasterize_grids([(m[0][s], *m[1:]) for m in meshes], resolution) for s in (slice(0, h), slice(h, None))]
         return [{"face_id": torch.cat([a["face_id"], b["face_id"]]), "batch": torch.cat([a["batch"], b["batch"] + h]),
-                 **{k: torch.cat([a[k], b[k]]) for k in ("pixel", "face", "bary")}} for a, b in zip(*halves)]
-    # Per quad, written in place: the box origin about corner c, its width, the diagonal b - c, and
-    # the two triangles' data as (second, first - second), so one multiply-add picks between them.
+                 "corners": torch.cat([a["corners"], b["corners"] + h * m[0].shape[1]], 1),
+                 **{k: torch.cat([a[k], b[k]]) for k in ("pixel", "face", "bary")}} for a, b, m in zip(*halves, meshes)]
+    # Quads on the flattened vertex planes of each mesh: quad k has the corners a = k, b = k + 1, c = k + gu,
+    # d = k + gu + 1 (flat ids over the batch), so each column below is a few contiguous slices; a k whose
+    # corner a lies in the last row or column of its grid is no quad and is never drawn.
+    sizes = [B * gv * gu - gu - 1 for B, (gv, gu) in info]
+    n_quads = sum(sizes)
     table = torch.empty(17, n_quads, dtype=dt, device=dev)
     count = torch.empty(n_quads, dtype=dt, device=dev)
     q0, img0 = 0, 0
-    for (verts, (gv, gu), *drawn), (B, Q) in zip(meshes, info):
-        if verts.shape[1] != gv * gu:
-            raise ValueError(f"a {gv}x{gu} grid has {gv * gu} vertices, got {verts.shape[1]}")
-        col = [t.view(B, gv - 1, gu - 1) for t in table[:, q0:q0 + B * Q]]
-        x = ((verts[..., 0] + 1) * (0.5 * W) - 0.5).view(B, gv, gu)  # pixel units, y up
-        y = ((verts[..., 1] + 1) * (0.5 * H) - 0.5).view(B, gv, gu)
-        z = verts[..., 2].reshape(B, gv, gu)
-        xa, xb, xc, xd = x[:, :-1, :-1], x[:, :-1, 1:], x[:, 1:, :-1], x[:, 1:, 1:]
-        ya, yb, yc, yd = y[:, :-1, :-1], y[:, :-1, 1:], y[:, 1:, :-1], y[:, 1:, 1:]
-        za, zb, zc, zd = z[:, :-1, :-1], z[:, :-1, 1:], z[:, 1:, :-1], z[:, 1:, 1:]
-        ax, ay, bx, by, dx, dy = xa - xc, ya - yc, xb - xc, yb - yc, xd - xc, yd - yc  # corners about c
-        area1, area2 = bx * ay - by * ax, dx * by - dy * bx  # twice the signed areas of (a,c,b), (b,c,d)
+    for (verts, (gv, gu), *drawn), (B, _), K in zip(meshes, info, sizes):
+        V = gv * gu
+        if verts.shape[1] != V:
+            raise ValueError(f"a {gv}x{gu} grid has {V} vertices, got {verts.shape[1]}")
+        col = table[:, q0:q0 + K]
+        x = torch.addcmul(torch.tensor(0.5 * W - 0.5, dtype=dt), verts[..., 0], torch.tensor(0.5 * W, dtype=dt)).reshape(-1)
+        y = torch.addcmul(torch.tensor(0.5 * H - 0.5, dtype=dt), verts[..., 1], torch.tensor(0.5 * H, dtype=dt)).reshape(-1)
+        z = verts[..., 2].reshape(-1)
+        xa, xb, xc, xd = x[:K], x[1:K + 1], x[gu:K + gu], x[gu + 1:]
+        ya, yb, yc, yd = y[:K], y[1:K + 1], y[gu:K + gu], y[gu + 1:]
+        za, zb, zc, zd = z[:K], z[1:K + 1], z[gu:K + gu], z[gu + 1:]
+        ax, ay = xa - xc, ya - yc
+        bx, by, dx, dy = (torch.sub(u, v, out=col[k]) for k, (u, v) in zip((3, 4, 7, 8), ((xb, xc), (yb, yc), (xd, xc), (yd, yc))))
+        area1 = bx * ay
+        area1.addcmul_(by, ax, value=-1)  # twice the signed areas of (a,c,b) and (b,c,d)
+        area2 = torch.mul(dx, by, out=col[5])
+        area2.addcmul_(dy, bx, value=-1)
         x_lo = torch.minimum(torch.minimum(xa, xb), torch.minimum(xc, xd)).ceil_().clamp_min_(0)
         y_lo = torch.minimum(torch.minimum(ya, yb), torch.minimum(yc, yd)).ceil_().clamp_min_(0)
-        nx = torch.maximum(torch.maximum(xa, xb), torch.maximum(xc, xd)).floor_().clamp_max_(W - 1).sub_(x_lo).add_(1).clamp_min_(0)
+        nx = torch.maximum(torch.maximum(xa, xb), torch.maximum(xc, xd), out=col[2]).floor_().clamp_max_(W - 1).sub_(x_lo).add_(1).clamp_min_(0)
         ny = torch.maximum(torch.maximum(ya, yb), torch.maximum(yc, yd)).floor_().clamp_max_(H - 1).sub_(y_lo).add_(1).clamp_min_(0)
-        f1, f2 = area1 > 1e-9, area2 > 1e-9
-        if drawn:
-            f1, f2 = f1 & drawn[0].view(gv - 1, gu - 1), f2 & drawn[0].view(gv - 1, gu - 1)
-        torch.mul(nx * ny, f1 | f2, out=count[q0:q0 + B * Q].view(B, gv - 1, gu - 1))
-        # Which triangle a centre p falls in: (a,c,b) iff s + bias >= 0, with s = cross(b - c, p - c)
-        # (a's side of the diagonal); the bias forces the front-facing triangle of a folded quad.
-        col[15].zero_().masked_fill_(f1 & ~f2, math.inf).masked_fill_(f2 & ~f1, -math.inf)
-        for k, (u, v) in enumerate(((x_lo, xc), (y_lo, yc))):
-            torch.sub(u, v, out=col[k])
-        col[2].copy_(nx)
-        for k, t in ((3, bx), (4, by), (7, dx), (8, dy), (11, zc)):
-            col[k].copy_(t)
-        torch.neg(area2, out=col[5])
-        torch.add(area1, area2, out=col[6])
+        mask = torch.zeros(gv, gu, dtype=dt, device=dev)  # the real (and drawn) quads of one image
+        mask[:-1, :-1] = drawn[0].view(gv - 1, gu - 1) if drawn else 1
+        mask = mask.view(-1).repeat(B)[:K]
+        f1 = torch.gt(area1, 1e-9, out=torch.empty_like(area1)).mul_(mask)
+        f2 = torch.gt(area2, 1e-9, out=torch.empty_like(area2)).mul_(mask)
+        torch.maximum(f1, f2, out=count[q0:q0 + K]).mul_(nx).mul_(ny)
+        # Which triangle a centre p falls in: (a,c,b) iff s >= bias, with s = cross(b - c, p - c) (a's side of
+        # the diagonal); the bias forces the front-facing triangle of a folded quad.
+        torch.sub(f2, f1, out=col[15]).mul_(_FOLD)
+        torch.sub(x_lo, xc, out=col[0])
+        torch.sub(y_lo, yc, out=col[1])
+        area2.neg_()  # col 5: -area2
+        torch.add(area1, col[5], alpha=-1, out=col[6])  # area1 + area2
         torch.sub(ax, dx, out=col[9])
         torch.sub(ay, dy, out=col[10])
+        col[11].copy_(zc)
         torch.sub(zd, zc, out=col[12])
         torch.sub(za, zd, out=col[13])
         torch.sub(zb, zc, out=col[14])
-        img = (img0 + torch.arange(B, device=dev, dtype=dt))[:, None, None] * (H * W) + (H - 1) * W
-        torch.addcmul(img + x_lo, y_lo, torch.tensor(-W, dtype=dt), out=col[16])  # pixel index of the box origin
-        q0, img0 = q0 + B * Q, img0 + B
-    count = count.long()
-    kept = count.nonzero().squeeze(1)
+        # pixel index of the box origin: image * HW + (H - 1 - y_lo) * W + x_lo
+        img = torch.arange(img0, img0 + B, device=dev, dtype=dt).mul_(H * W).add_((H - 1) * W).repeat_interleave(V)[:K]
+        torch.add(img, x_lo, out=col[16]).addcmul_(y_lo, torch.tensor(-W, dtype=dt))
+        q0, img0 = q0 + K, img0 + B
+    kept = count.nonzero().squeeze(1).int()
     cnt = count.index_select(0, kept)
-    # Candidates: every (kept quad, pixel centre of its box), all at once.
-    row = torch.repeat_interleave(cnt)
-    slot = (torch.arange(row.numel(), device=dev) - (torch.cumsum(cnt, 0) - cnt).index_select(0, row)).float()
-    quad = kept.index_select(0, row).int()  # int32 gathers move less memory
+    # Candidates: every (kept quad, pixel centre of its box), as running sums over marks at each quad's
+    # first candidate: the quad id, and the slot s (its s-th centre, row-major in the box).
+    ends = torch.cumsum(cnt, 0)
+    n = int(ends[-1]) if ends.numel() else 0
+    if n >= 2**_CAND_BITS:
+        raise ValueError(f"rasterize_grids: {n} candidate pixels, at most {2**_CAND_BITS}; split the batch")
+    starts = (ends[:-1]).long()
+    step = torch.ones(n, dtype=dt, device=dev)
+    step.index_copy_(0, starts, 1 - cnt[:-1])
+    step[0] = 0
+    slot = torch.cumsum(step, 0)
+    jump = torch.zeros(n, dtype=torch.int32, device=dev)
+    jump.index_copy_(0, starts, kept[1:] - kept[:-1])
+    jump[0] = kept[0]
+    quad = torch.cumsum(jump, 0, dtype=torch.int32)
     ox, oy, nx, bx, by, area2n, darea, dx, dy, ddx, ddy, zc, dzd, ddz, dzb, bias, base = (
         t.index_select(0, quad) for t in table.unbind(0))
-    sy = torch.div(slot, nx, rounding_mode="floor")
-    sx = slot - sy * nx
+    sy = (slot / nx).floor_()
+    sx = torch.addcmul(slot, sy, nx, value=-1)
     qx, qy = ox + sx, oy + sy  # the centre about c
-    s = bx * qy - by * qx
-    first = (s + bias >= 0).float()  # 1: triangle (a,c,b), 0: (b,c,d)
-    inv = 1.0 / torch.addcmul(area2n, first, darea)
+    s = bx * qy
+    s.addcmul_(by, qx, value=-1)
+    first = torch.ge(s, bias, out=torch.empty_like(s))  # 1: triangle (a,c,b), 0: (b,c,d)
+    inv = torch.addcmul(area2n, first, darea).reciprocal_()
     w_far = s * inv  # barycentric of a (first) or d (second)
-    w_b = (qx * torch.addcmul(dy, first, ddy) - qy * torch.addcmul(dx, first, ddx)) * inv
+    w_b = qx * torch.addcmul(dy, first, ddy)
+    w_b.addcmul_(qy, torch.addcmul(dx, first, ddx), value=-1).mul_(inv)
     w_c = 1 - w_far - w_b
-    ok = (w_far >= -1e-6) & (w_b >= -1e-6) & (w_c >= -1e-6)
-    depth = zc + w_far * torch.addcmul(dzd, first, ddz) + w_b * dzb
-    pix = (base + sx - sy * W).long()
+    ok = torch.ge(torch.minimum(torch.minimum(w_far, w_b), w_c), -1e-6, out=w_c)  # 1: inside (w_c no longer needed)
+    depth = torch.addcmul(zc, w_far, torch.addcmul(dzd, first, ddz))
+    depth.addcmul_(w_b, dzb)
+    pix = base.add_(sx).addcmul_(sy, torch.tensor(-W, dtype=dt)).long()
     # z-buffer: nearest (largest z) wins; key = order-preserving integer of the float depth, then the candidate.
-    if pix.numel() >= 2**_CAND_BITS:
-        raise ValueError(f"rasterize_grids: {pix.numel()} candidate pixels, at most {2**_CAND_BITS}; split the batch")
     # Positive floats order as their bits; a failed candidate gets -1.0, whose bits are negative, and so a negative key.
-    bits = (depth + _DEPTH_RANGE).clamp_min_(0).masked_fill_(~ok, -1.0).view(torch.int32).long()
-    key = torch.arange(pix.numel(), device=dev).add_(bits, alpha=2**_CAND_BITS)
+    depth.add_(_DEPTH_RANGE).clamp_min_(0).mul_(ok).add_(ok).sub_(1)
+    key = torch.arange(n, device=dev).add_(depth.view(torch.int32).long(), alpha=2**_CAND_BITS)
     zbuf = torch.full((img0 * H * W,), -1, dtype=torch.long, device=dev)
     zbuf.scatter_reduce_(0, pix, key, reduce="amax")
-    # The winners: the candidates whose key is their pixel's (one per covered pixel; a failed candidate's key
-    # is below the empty buffer's -1), in candidate order, which runs over the meshes in turn.
     win = (zbuf.index_select(0, pix) == key).nonzero().squeeze(1)
     cov, first, w_far, w_b, quad = (t.index_select(0, win) for t in (pix, first, w_far, w_b, quad))
-    # Clamp the tolerance's tiny negatives and renormalise, as rasterize does; stored as planes ([M, 3] seen).
     w_far.clamp_min_(0)
     w_b.clamp_min_(0)
     w_c = (1 - w_far - w_b).clamp_min_(0)
@@ -343,19 +402,24 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     w_b, w_far = w_b.lerp(w_far, first), w_far.lerp(w_b, first)  # (a, c, b) or (b, c, d) in grid_faces order
     bary = torch.stack([w_b, w_c, w_far]).t()
     quad = quad.long()
+    second = (1 - first).long()
     out, q0, p0 = [], 0, 0
-    first_cand = torch.stack([count[:q].sum() for q in torch.tensor([B * Q for B, Q in info]).cumsum(0).tolist()])
-    bounds = [0] + torch.searchsorted(win, first_cand).tolist()
-    for m, (B, Q) in enumerate(info):
+    bounds = [0] + torch.searchsorted(cov, torch.tensor([B * H * W for B, _ in info]).cumsum(0)).tolist()
+    for m, ((B, (gv, gu)), K) in enumerate(zip(info, sizes)):
         lo, hi = bounds[m], bounds[m + 1]
+        V, Q = gv * gu, (gv - 1) * (gu - 1)
+        k = quad[lo:hi] - q0  # flat id of corner a
+        batch = torch.div(k, V, rounding_mode="floor")
+        a = k - batch * V
+        sec = second[lo:hi]
+        face = a - torch.div(a, gu, rounding_mode="floor") + sec * Q  # grid_faces order
+        corners = torch.stack([k + sec, k + gu, k + 1 + sec * gu])
         p = cov[lo:hi] - p0
-        batch = p >> int(math.log2(H * W)) if H * W & (H * W - 1) == 0 else torch.div(p, H * W, rounding_mode="floor")
-        face = quad[lo:hi] - (q0 + batch * Q) + (1 - first[lo:hi]).long() * Q  # grid_faces order
         face_id = torch.full((B * H * W,), -1, dtype=torch.long, device=dev)
         face_id.scatter_(0, p, face)
         out.append({"face_id": face_id.view(B, H, W), "batch": batch, "pixel": p - batch * (H * W), "face": face,
-                    "bary": bary[lo:hi]})
-        q0, p0 = q0 + B * Q, p0 + B * H * W
+                    "bary": bary[lo:hi], "corners": corners})
+        q0, p0 = q0 + K, p0 + B * H * W
     return out
 
 def render_face(vertices_cam: torch.Tensor, faces: torch.Tensor, uv: torch.Tensor, resolution: int,
@@ -379,7 +443,7 @@ def render_face(vertices_cam: torch.Tensor, faces: torch.Tensor, uv: torch.Tenso
     r = rasterize(vertices_cam, faces, resolution)
     mask = (r["face_id"] >= 0)[:, None].to(vertices_cam.dtype)
     attrs = torch.cat([vertex_normal, vertices_cam[..., 2:], uv.to(vertices_cam.dtype).expand(vertices_cam.shape[0], -1, -1)], -1)
-    pix = interpolate(attrs, faces, r)
+    pix = interpolate(attrs, r)
     normal = unit(pix[:, :3], 1) * mask
     return {"mask": mask, "normal": normal, "depth": pix[:, 3:4], "uv": pix[:, 4:6],
             "normal_uv": grid_to_uv_map(vertex_normal, resolution), "face_id": r["face_id"]}
@@ -394,7 +458,8 @@ def grid_to_uv_map(vertex_attr: torch.Tensor, resolution: int, grid_shape: tuple
     map is a bilinear resize of that grid (texel centres at ``linspace(0, 1, res)``, as
     ``align_corners=True``); a grid with uneven rows and columns gives its ``knots``
     (v of each row, u of each column) and is interpolated linearly between them.  The
-    resize is separable: two batched products with fixed interpolation matrices.
+    resize is separable: along v a blend of two gathered rows per texel row, along u a
+    batched product with the fixed interpolation matrix.
     """
     from .face_model import GRID_U, GRID_V
 
@@ -404,30 +469,50 @@ def grid_to_uv_map(vertex_attr: torch.Tensor, resolution: int, grid_shape: tuple
         raise ValueError(f"vertex_attr has {V} vertices, the UV grid {gv}x{gu}")
     if knots is None:
         knots = (torch.linspace(0, 1, gv, dtype=torch.float64), torch.linspace(0, 1, gu, dtype=torch.float64))
-    Wv, Wu = (_linear_weights(k, resolution).to(vertex_attr) for k in knots)  # [res, gv], [res, gu]
-    grid = vertex_attr.reshape(B, gv, gu, C).permute(0, 3, 1, 2).reshape(B, C * gv, gu)
-    rows = torch.bmm(grid, Wu.t().expand(B, gu, resolution)).view(B * C, gv, resolution)
-    out = torch.bmm(Wv.expand(B * C, resolution, gv), rows).view(B, C, resolution, resolution)
-    return unit_planes(out) if C == 3 else out
+    grid = vertex_attr.reshape(B, gv, gu, C).permute(0, 3, 1, 2).reshape(B * C, gv, gu)
+    # Along v first (fewer columns to carry): each texel row mixes two grid rows, gathered whole.
+    i, f = _linear_taps(knots[0], resolution)
+    f = f.to(vertex_attr.dtype)[:, None]
+    rows = grid.index_select(1, i).mul_(1 - f).addcmul_(grid.index_select(1, i + 1), f)  # [B*C, res, gu]
+    Wu = _linear_weights(knots[1], resolution).to(vertex_attr)  # [res, gu]
+    out = torch.bmm(rows.view(B, C * resolution, gu), Wu.t().expand(B, gu, resolution)).view(B, C, resolution, resolution)
+    return unit_planes(out, inplace=True) if C == 3 else out
 
 
-def unit_planes(v: torch.Tensor) -> torch.Tensor:
-    """:func:`disent.render.unit` of ``[B, 3, ...]`` along dim 1, on the three planes (fewer passes)."""
+def unit_planes(v: torch.Tensor, inplace: bool = False) -> torch.Tensor:
+    """:func:`disent.render.unit` of ``[B, 3, ...]`` along dim 1, on the three planes (fewer passes);
+    ``inplace`` scales ``v`` itself."""
+    return v.mul_(_rsqrt_norm(v)) if inplace else v * _rsqrt_norm(v)
+
+
+def _squared_norm(v: torch.Tensor) -> torch.Tensor:
+    """``|v|^2`` of ``[B, 3, ...]`` along dim 1, ``[B, ...]``."""
     x, y, z = v.unbind(1)
     s = x * x
-    s.addcmul_(y, y).addcmul_(z, z)
-    return v * s.clamp_min_(1e-24).rsqrt_().unsqueeze(1)
+    return s.addcmul_(y, y).addcmul_(z, z)
 
 
-def _linear_weights(knots: torch.Tensor, res: int) -> torch.Tensor:
-    """``[res, n]``: piecewise-linear interpolation at ``linspace(0, 1, res)`` between sorted ``knots [n]``."""
+def _rsqrt_norm(v: torch.Tensor) -> torch.Tensor:
+    return _squared_norm(v).clamp_min_(1e-24).rsqrt_().unsqueeze(1)
+
+
+def _linear_taps(knots: torch.Tensor, res: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Piecewise-linear interpolation at ``linspace(0, 1, res)`` between sorted ``knots [n]``:
+    texel t is ``(1 - f[t]) * value[i[t]] + f[t] * value[i[t] + 1]``; returns ``i [res]``, ``f [res]`` (float64)."""
     t = torch.linspace(0, 1, res, dtype=torch.float64)
     knots = knots.double()
     i = torch.searchsorted(knots, t, right=True).clamp(1, len(knots) - 1)
     f = ((t - knots[i - 1]) / (knots[i] - knots[i - 1])).clamp(0, 1)
+    return i - 1, f
+
+
+def _linear_weights(knots: torch.Tensor, res: int) -> torch.Tensor:
+    """:func:`_linear_taps` as a ``[res, n]`` matrix."""
+    i, f = _linear_taps(knots, res)
     W = torch.zeros(res, len(knots), dtype=torch.float64)
-    W[torch.arange(res), i - 1] = 1 - f
-    W[torch.arange(res), i] += f
+    W[torch.arange(res), i] = 1 - f
+    W[torch.arange(res), i + 1] += f
     return W
 
-__all__ = ["pose_matrix", "to_camera", "vertex_normals", "grid_vertex_normals", "grid_faces", "rasterize", "rasterize_grids", "interpolate", "render_face", "grid_to_uv_map", "unit_planes", "MAX_WINDOW"]
+__all__ = ["pose_matrix", "to_camera", "vertex_normals", "grid_vertex_normals", "grid_faces", "rasterize", "rasterize_grids", "interpolate",
+           "interpolate_covered", "paste", "sample_texture", "render_face", "grid_to_uv_map", "unit_planes", "MAX_WINDOW"]

@@ -19,11 +19,12 @@ from functools import lru_cache
 import torch
 import torch.nn.functional as F
 
-from disent.render import C2, C4, composite, image_formation, sh_basis, sh_from_directions, solve_normal_equations
+from disent.render import C2, C4, composite, image_formation, sh_basis, sh_from_directions, sh_matrix, solve_normal_equations
 
 from .face_model import (BROW_X, BROW_Y, CHIN_Y, EYE_H, EYE_W, EYE_X, EYE_Y, GRID_U, GRID_V, HAIRLINE_Y, MOUTH_W, MOUTH_Y,
                          NOSE_BASE_Y, SLIT_ROWS, face_model, is_neck, layout, single_thread, uv_to_angles)
-from .raster import grid_faces, grid_to_uv_map, grid_vertex_normals, interpolate, rasterize_grids, to_camera, unit_planes
+from .raster import (grid_faces, grid_to_uv_map, grid_vertex_normals, interpolate_covered, paste, rasterize_grids, sample_texture,
+                     to_camera, unit_planes)
 
 ATTRIBUTES = ("smiling", "beard", "eyeglasses", "senior")
 EFFECTS = ("specular", "cast_shadow", "noise", "occluder")
@@ -265,8 +266,8 @@ FRAME_COLOURS = torch.tensor([[0.03, 0.03, 0.03], [0.25, 0.12, 0.05], [0.55, 0.5
 def paint_albedo(p: dict, res: int) -> torch.Tensor:
     """Albedo in UV space ``[N, 3, res, res]`` from a scene's appearance parameters.
 
-    A base skin colour plus one coloured layer per feature (``LAYERS``) and a skin
-    texture field, summed as one matrix product ``[N,3,L] @ [L,res^2]``.
+    A base skin colour with a skin texture field, plus one coloured layer per feature
+    (``LAYERS``), summed as one matrix product ``[N,3,L] @ [L,res^2]``.
     """
     layers = paint_layers(res)
     N = p["skin"].shape[0]
@@ -299,11 +300,9 @@ def paint_albedo(p: dict, res: int) -> torch.Tensor:
     put("glasses_round", p["frame"], p["eyeglasses"] * (1 - p["square"]))
     put("glasses_square", p["frame"], p["eyeglasses"] * p["square"])
     # Skin texture: one of the fixed noise fields, scaled by the skin colour.
-    tex = torch.zeros(N, noise_bank(res).shape[0], 3)
-    tex[torch.arange(N), p["noise_id"]] = 0.045 * skin
-    coef = torch.cat([coef, tex], 1)
-    layers = torch.cat([layers, noise_bank(res).reshape(-1, res * res)])
-    albedo = torch.baddbmm(skin[:, :, None].expand(N, 3, res * res), coef.transpose(1, 2), layers.expand(N, -1, -1))
+    tex = noise_bank(res).reshape(-1, 1, res * res).index_select(0, p["noise_id"])  # [N, 1, res^2]
+    albedo = torch.addcmul(skin[:, :, None], tex, 0.045 * skin[:, :, None])
+    albedo.baddbmm_(coef.transpose(1, 2), layers.expand(N, -1, -1))
     return albedo.clamp_(0.02, 0.95).reshape(N, 3, res, res)
 
 
@@ -515,11 +514,11 @@ def render_scenes(p: dict, res: int, effects: dict | None = None, pseudo: bool =
         meshes.append((fit["cam"], fit["grid"], pseudo_quads()))
     rasters = rasterize_grids(meshes, res)
     r = rasters[0]
-    matte = (r["face_id"] >= 0)[:, None].float()
-    pix = interpolate([vn, fm.uv], fm.faces, r)  # 0 off the face
-    normal, uv = unit_planes(pix[:, :3]), pix[:, 3:5]
+    matte = paste(torch.ones(1, r["batch"].numel()), r)
+    at = interpolate_covered([vn, fm.uv], r)  # normal, uv at the covered pixels
     albedo_uv = paint_albedo(p, res)
-    albedo = F.grid_sample(albedo_uv, (2 * uv - 1).permute(0, 2, 3, 1), mode="bilinear", align_corners=True) * matte
+    normal, uv = paste(unit_planes(at[None, :3])[0], r), paste(at[3:5], r)
+    albedo = paste(sample_texture(albedo_uv, at[3:5], r["batch"]), r)
     sh = p["sh"]
     shading = shade(normal, sh, matte)
     background = paint_background(p["bg"], res)
@@ -534,16 +533,23 @@ def render_scenes(p: dict, res: int, effects: dict | None = None, pseudo: bool =
     return out
 
 
+_QUADRATIC = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))  # the products n_i n_j (i <= j) of Eq. 5
+
+
 def shade(normal: torch.Tensor, sh: torch.Tensor, matte: torch.Tensor) -> torch.Tensor:
-    """``sh_shading(normal, sh) * matte`` (Eq. 4) as one batched product over the SH basis planes,
-    for a binary ``matte`` and normals that are 0 off it: only the two basis planes with a
-    constant term (L1, L7) need the matte, the others vanish with the normal."""
+    """``sh_shading(normal, sh) * matte`` (Eq. 4) in the form of Eq. 5, S = [n;1]^T K [n;1], for a
+    binary ``matte`` and normals that are 0 off it: the matte stands in for the 1, so the shading
+    is one batched product of K's 10 distinct entries with the planes n, 1 and n_i n_j."""
     B, _, H, W = normal.shape
-    basis = sh_basis(normal.reshape(B, 3, H * W), 1)  # [B, 9, HW]
-    m = matte.reshape(B, 1, H * W)
-    basis[:, 0:1].mul_(m)
-    basis[:, 6:7].mul_(m)
-    return torch.bmm(sh.to(normal.dtype), basis).view(B, -1, H, W)
+    planes = torch.empty(B, 10, H * W, dtype=normal.dtype)
+    n = planes[:, :3]
+    n.copy_(normal.reshape(B, 3, H * W))
+    planes[:, 3].copy_(matte.reshape(B, H * W))
+    for k, (i, j) in enumerate(_QUADRATIC):
+        torch.mul(n[:, i], n[:, j], out=planes[:, 4 + k])
+    K = sh_matrix(sh.to(normal.dtype))  # [B, C, 4, 4], symmetric
+    coef = torch.cat([2 * K[..., :3, 3], K[..., 3:, 3], torch.stack([K[..., i, j] * (1 if i == j else 2) for i, j in _QUADRATIC], -1)], -1)
+    return torch.bmm(coef, planes).view(B, -1, H, W)
 
 
 def render_pseudo(image: torch.Tensor, p: dict, res: int) -> dict:
@@ -563,11 +569,12 @@ def _pseudo_geometry(p: dict) -> dict:
 
 
 def _pseudo_maps(image: torch.Tensor, fit: dict, r: dict, res: int) -> dict:
-    idx, faces, uv, grid = pseudo_mesh()
-    pix = interpolate([fit["vn"], face_model().face_region[idx, None], uv], faces, r)
-    mask = ((r["face_id"] >= 0)[:, None] & (pix[:, 3:4] > 0.5)).float()
-    normal = unit_planes(pix[:, :3]).mul_(mask)
-    return {"normal_pseudo": normal, "mask_pseudo": mask, "uv_pseudo": pix[:, 4:6] * mask,
+    idx, _, uv, grid = pseudo_mesh()
+    at = interpolate_covered([fit["vn"], face_model().face_region[idx, None], uv], r)  # at the covered pixels
+    inside = torch.gt(at[3:4], 0.5, out=torch.empty_like(at[3:4]))  # the face region, where a 3DMM fits
+    normal = paste(unit_planes(at[None, :3])[0].mul_(inside), r)
+    mask = paste(inside, r)
+    return {"normal_pseudo": normal, "mask_pseudo": mask, "uv_pseudo": paste(at[4:6].mul_(inside), r),
             "normal_uv_pseudo": _uv_map_from_subgrid(fit["vn"], grid, res), "sh_pseudo": fit_sh_packed(image, normal, mask)}
 
 
