@@ -6,9 +6,10 @@ import torch
 
 from disent.data import ATTR_PRIOR, LIGHT_BANK, LIGHT_NAMES, SPLITS, SynthFaces
 from disent.data.face_model import GRID_U, GRID_V, face_model
-from disent.data.raster import grid_faces, interpolate, rasterize, rasterize_grids, render_face, to_camera
+from disent.data.raster import (face_ids, grid_faces, grid_to_uv_map, grid_vertex_normals, interpolate, rasterize, rasterize_grids,
+                                render_face, to_camera, vertex_normals)
 from disent.data.synth import (LAYERS, _pseudo_geometry, dominant_light, fit_sh_packed, lights_to_sh, paint_layers,
-                               pseudo_mesh, pseudo_quads, sample_lights, uniform)
+                               pseudo_mesh, pseudo_quads, sample_lights, shade, uniform)
 from disent.render import composite, fit_sh, image_formation, sh_basis, sh_from_directions, sh_shading
 
 IMAGE_KEYS = ("image", "background", "albedo", "shading", "normal", "normal_uv", "albedo_uv", "normal_pseudo",
@@ -356,12 +357,13 @@ def test_grid_rasterizer_matches_the_triangle_rasterizer():
         grids = rasterize_grids([(cam, (GRID_V, GRID_U)), (fit["cam"], grid)], res)
         for g, (verts, f) in zip(grids, ((cam, fm.faces), (fit["cam"], faces))):
             t = rasterize(verts.contiguous(), f, res)
-            assert ((g["face_id"] >= 0) != (t["face_id"] >= 0)).sum() <= 2  # a centre exactly on an outline edge
-            same = g["face_id"] == t["face_id"]
+            g_id = face_ids(g)
+            assert ((g_id >= 0) != (t["face_id"] >= 0)).sum() <= 2  # a centre exactly on an outline edge
+            same = g_id == t["face_id"]
             assert same.float().mean() > 0.9995
             a, b = interpolate(verts, g), interpolate(verts, t)  # x, y: the pixel centres; z: depth
             centres = (torch.arange(res) * 2 + 1) / res - 1
-            covered = g["face_id"] >= 0
+            covered = g_id >= 0
             assert (a[:, 0] - centres)[covered].abs().max() < 1e-3 and (a[:, 1] - centres.flip(0)[:, None])[covered].abs().max() < 1e-3
             assert (a - b).abs().amax(1)[same].max() < 1e-3  # slivers of the closed mouth: rounding of tiny areas
 
@@ -376,8 +378,43 @@ def test_pseudo_fit_draws_only_its_face_quads():
     for mesh in ((fit["cam"], grid), (fit["cam"], grid, pseudo_quads())):
         r = rasterize_grids([mesh], 64)[0]
         pix = interpolate([fit["vn"], region], r)
-        masks.append(((r["face_id"] >= 0) & (pix[:, 3] > 0.5), pix[:, :3]))
+        masks.append(((face_ids(r) >= 0) & (pix[:, 3] > 0.5), pix[:, :3]))
     assert 0.3 < pseudo_quads().float().mean() < 0.8
     assert torch.equal(masks[0][0], masks[1][0]) and masks[0][0].any()
     m = masks[0][0][:, None].expand(-1, 3, -1, -1)
     assert torch.equal(masks[0][1][m], masks[1][1][m])
+
+
+def test_shade_is_eq4_times_the_matte():
+    g = torch.Generator().manual_seed(0)
+    n = torch.nn.functional.normalize(torch.randn(4, 3, 8, 8, generator=g, dtype=torch.float64), dim=1)
+    matte = (torch.rand(4, 1, 8, 8, generator=g) > 0.3).double()
+    sh = torch.randn(4, 3, 9, generator=g, dtype=torch.float64)
+    assert torch.allclose(shade(n * matte, sh, matte), sh_shading(n, sh) * matte, atol=1e-12)
+
+
+def test_grid_to_uv_map_reproduces_bilinear_functions():
+    # Piecewise-linear interpolation between any knots is exact for f = a + b v + c u + d u v.
+    g = torch.Generator().manual_seed(0)
+    kv = torch.cat([torch.zeros(1), torch.rand(7, generator=g).sort().values * 0.9 + 0.05, torch.ones(1)]).double()
+    ku = torch.cat([torch.zeros(1), torch.rand(4, generator=g).sort().values * 0.9 + 0.05, torch.ones(1)]).double()
+    a, b, c, d = torch.randn(4, 2, 5, generator=g, dtype=torch.float64)
+    f = lambda v, u: a[:, :, None, None] + b[:, :, None, None] * v + c[:, :, None, None] * u + d[:, :, None, None] * u * v
+    vals = f(kv[:, None], ku[None]).reshape(2, 5, -1).transpose(1, 2)  # [B, V, C]
+    out = grid_to_uv_map(vals, 16, (len(kv), len(ku)), knots=(kv, ku))
+    t = torch.linspace(0, 1, 16, dtype=torch.float64)
+    assert torch.allclose(out, f(t[:, None], t[None]), atol=1e-12)
+    uniform_knots = torch.linspace(0, 1, 9, dtype=torch.float64), torch.linspace(0, 1, 6, dtype=torch.float64)
+    vals = f(uniform_knots[0][:, None], uniform_knots[1][None]).reshape(2, 5, -1).transpose(1, 2)
+    assert torch.allclose(grid_to_uv_map(vals, 16, (9, 6)), f(t[:, None], t[None]), atol=1e-12)
+
+
+def test_grid_vertex_normals_of_a_plane():
+    # A tilted plane: every vertex normal is the plane's, as the triangle mesh's area-weighted normals give it.
+    gv, gu = 6, 5
+    v, u = torch.meshgrid(torch.linspace(0, 1, gv, dtype=torch.float64), torch.linspace(0, 1, gu, dtype=torch.float64), indexing="ij")
+    x, y = u - 0.5, 0.5 - v  # rows run down the image, columns right
+    verts = torch.stack([x, y, 0.3 * x - 0.2 * y], -1).reshape(1, -1, 3)
+    n = grid_vertex_normals(verts, (gv, gu))
+    assert torch.allclose(n, vertex_normals(verts, grid_faces(gv, gu)), atol=1e-12)
+    assert torch.allclose(n[0], torch.nn.functional.normalize(torch.tensor([-0.3, 0.2, 1.0], dtype=torch.float64), dim=0).expand(gv * gu, 3), atol=1e-12)

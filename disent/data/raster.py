@@ -85,7 +85,7 @@ def vertex_normals(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
 def rasterize(vertices_cam: torch.Tensor, faces: torch.Tensor, resolution: int) -> dict:
     """Visible triangle and barycentrics per pixel.
 
-    Returns ``face_id [B, H, W]`` (int64, -1 on background) and the covered pixels as
+    Returns ``face_id [B, H, W]`` (int64, -1 on background), ``size`` (B, H, W) and the covered pixels as
     flat lists: ``batch [M]``, ``pixel [M]`` (row-major index, row 0 at the top),
     ``face [M]``, ``bary [M, 3]`` and ``corners [3, M]``, the face's vertices as flat ids
     ``batch * V + vertex`` (what :func:`interpolate` gathers).
@@ -114,7 +114,7 @@ def rasterize(vertices_cam: torch.Tensor, faces: torch.Tensor, resolution: int) 
     face_id = torch.full((B * H * W,), -1, dtype=torch.long, device=dev)
     empty = torch.zeros(0, dtype=torch.long, device=dev)
     if k.numel() == 0:
-        return {"face_id": face_id.view(B, H, W), "batch": empty, "pixel": empty, "face": empty,
+        return {"face_id": face_id.view(B, H, W), "size": (B, H, W), "batch": empty, "pixel": empty, "face": empty,
                 "bary": torch.zeros(0, 3, dtype=dt, device=dev), "corners": empty.view(3, 0)}
     big = int(torch.maximum(nx.max(), ny.max()))
     if big > MAX_WINDOW:
@@ -169,8 +169,8 @@ def rasterize(vertices_cam: torch.Tensor, faces: torch.Tensor, resolution: int) 
     bary = bary / bary.sum(1, keepdim=True)
     batch = win_pix // (H * W)
     corners = torch.stack([faces[:, j].index_select(0, win_t) for j in range(3)]) + batch * V
-    return {"face_id": face_id.view(B, H, W), "batch": batch, "pixel": win_pix % (H * W), "face": win_t, "bary": bary,
-            "corners": corners}
+    return {"face_id": face_id.view(B, H, W), "size": (B, H, W), "batch": batch, "pixel": win_pix % (H * W), "face": win_t,
+            "bary": bary, "corners": corners}
 
 
 def interpolate(attr, raster: dict) -> torch.Tensor:
@@ -206,15 +206,39 @@ def interpolate_covered(attr, raster: dict) -> torch.Tensor:
     return out
 
 
-def paste(values: torch.Tensor, raster: dict) -> torch.Tensor:
-    """Values at the covered pixels ``[C, M]`` -> an image ``[B, C, H, W]``, 0 elsewhere."""
-    B, H, W = raster["face_id"].shape
+def paste(values: torch.Tensor, raster: dict, background: torch.Tensor | None = None) -> torch.Tensor:
+    """Values at the covered pixels ``[C, M]`` -> an image ``[B, C, H, W]`` that is ``background``
+    (default 0) elsewhere: Eq. 6's composite for a binary matte, with no pass over the background's pixels."""
+    B, H, W = raster["size"]
     C = values.shape[0]
-    out = torch.zeros(B * C * H * W, dtype=values.dtype, device=values.device)
-    dst = raster["batch"] * (C * H * W) + raster["pixel"]
+    if background is None:
+        out = torch.zeros(B * C * H * W, dtype=values.dtype, device=values.device)
+    else:
+        out = background.to(values.dtype).contiguous().clone().view(-1)
+    at = _pixel_index(raster, C)
     for c in range(C):
-        out.scatter_(0, dst + c * (H * W) if c else dst, values[c])
+        out.scatter_(0, at + c * (H * W) if c else at, values[c])
     return out.view(B, C, H, W)
+
+
+def pick(image: torch.Tensor, raster: dict) -> torch.Tensor:
+    """``image [B, C, H, W]`` at the covered pixels of ``raster``: ``[C, M]`` (what :func:`paste` undoes)."""
+    C, HW = image.shape[1], image[0, 0].numel()
+    flat, at = image.contiguous().view(-1), _pixel_index(raster, C)
+    return torch.stack([flat.index_select(0, at + c * HW if c else at) for c in range(C)])
+
+
+def _pixel_index(raster: dict, C: int) -> torch.Tensor:
+    """Flat index of channel 0 of each covered pixel in a ``[B, C, H, W]`` image."""
+    _, H, W = raster["size"]
+    return raster["batch"] * (C * H * W) + raster["pixel"]
+
+
+def face_ids(raster: dict) -> torch.Tensor:
+    """The visible face of every pixel, ``[B, H, W]`` int64, -1 on background."""
+    B, H, W = raster["size"]
+    out = torch.full((B * H * W,), -1, dtype=torch.long, device=raster["face"].device)
+    return out.scatter_(0, raster["batch"] * (H * W) + raster["pixel"], raster["face"]).view(B, H, W)
 
 
 def sample_texture(texture: torch.Tensor, uv: torch.Tensor, batch: torch.Tensor) -> torch.Tensor:
@@ -224,16 +248,17 @@ def sample_texture(texture: torch.Tensor, uv: torch.Tensor, batch: torch.Tensor)
     B, C, R, _ = texture.shape
     x, y = uv[0] * (R - 1), uv[1] * (R - 1)
     x0, y0 = x.floor().clamp_(0, R - 2), y.floor().clamp_(0, R - 2)
-    fx, fy = x - x0, y - y0
-    at = batch * (C * R * R) + y0.long() * R + x0.long()  # top-left texel, channel 0
-    flat = texture.reshape(-1)
+    fx, fy = x.sub_(x0), y.sub_(y0)
+    corner = (batch * (C * R * R)).add_(y0.long(), alpha=R).add_(x0.long()).int()  # top-left texel in channel 0
+    corners = (corner, corner + 1, corner + R, corner + R + 1)
+    flat = texture.contiguous().view(-1)
     out = torch.empty(C, uv.shape[1], dtype=texture.dtype, device=texture.device)
     for c in range(C):
-        i = at + c * R * R if c else at
-        top = flat.index_select(0, i).lerp_(flat.index_select(0, i + 1), fx)
-        bottom = flat.index_select(0, i + R).lerp_(flat.index_select(0, i + R + 1), fx)
-        torch.lerp(top, bottom, fy, out=out[c])
+        plane = flat[c * R * R:]  # channel c of image b starts at b * C * R * R here
+        t00, t01, t10, t11 = (plane.index_select(0, i) for i in corners)
+        torch.lerp(t00.lerp_(t01, fx), t10.lerp_(t11, fx), fy, out=out[c])
     return out
+
 
 def grid_vertex_normals(vertices: torch.Tensor, grid_shape: tuple[int, int]) -> torch.Tensor:
     """Unit vertex normals ``[B, V, 3]`` of a mesh that is a regular ``rows x cols`` grid
@@ -278,7 +303,8 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     (``vertices_cam``, ``(gv, gu)``, ``quads [(gv-1)*(gu-1)]`` bool: the quads drawn, default all).
 
     Returns, per mesh, the dict of :func:`rasterize` for that mesh and ``grid_faces(gv, gu)``
-    (the same pixels, triangles and barycentrics up to float rounding and depth ties).
+    (the same pixels, triangles and barycentrics up to float rounding and depth ties), less the
+    dense ``face_id`` map, which :func:`face_ids` builds when it is wanted.
 
     The grid saves work: the primitive is the quad (half as many as triangles), and on the
     flattened vertex planes a quad's four corners are the same planes shifted by 0, 1, gu and
@@ -297,7 +323,7 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
             raise ValueError("rasterize_grids: too many pixels for one call and the meshes' batches differ")
         h = info[0][0] // 2
         halves = [rasterize_grids([(m[0][s], *m[1:]) for m in meshes], resolution) for s in (slice(0, h), slice(h, None))]
-        return [{"face_id": torch.cat([a["face_id"], b["face_id"]]), "batch": torch.cat([a["batch"], b["batch"] + h]),
+        return [{"size": (a["size"][0] + b["size"][0], H, W), "batch": torch.cat([a["batch"], b["batch"] + h]),
                  "corners": torch.cat([a["corners"], b["corners"] + h * m[0].shape[1]], 1),
                  **{k: torch.cat([a[k], b[k]]) for k in ("pixel", "face", "bary")}} for a, b, m in zip(*halves, meshes)]
     # Quads on the flattened vertex planes of each mesh: quad k has the corners a = k, b = k + 1, c = k + gu,
@@ -414,10 +440,7 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
         sec = second[lo:hi]
         face = a - torch.div(a, gu, rounding_mode="floor") + sec * Q  # grid_faces order
         corners = torch.stack([k + sec, k + gu, k + 1 + sec * gu])
-        p = cov[lo:hi] - p0
-        face_id = torch.full((B * H * W,), -1, dtype=torch.long, device=dev)
-        face_id.scatter_(0, p, face)
-        out.append({"face_id": face_id.view(B, H, W), "batch": batch, "pixel": p - batch * (H * W), "face": face,
+        out.append({"size": (B, H, W), "batch": batch, "pixel": cov[lo:hi] - p0 - batch * (H * W), "face": face,
                     "bary": bary[lo:hi], "corners": corners})
         q0, p0 = q0 + K, p0 + B * H * W
     return out
@@ -515,4 +538,4 @@ def _linear_weights(knots: torch.Tensor, res: int) -> torch.Tensor:
     return W
 
 __all__ = ["pose_matrix", "to_camera", "vertex_normals", "grid_vertex_normals", "grid_faces", "rasterize", "rasterize_grids", "interpolate",
-           "interpolate_covered", "paste", "sample_texture", "render_face", "grid_to_uv_map", "unit_planes", "MAX_WINDOW"]
+           "interpolate_covered", "paste", "pick", "face_ids", "sample_texture", "render_face", "grid_to_uv_map", "unit_planes", "MAX_WINDOW"]

@@ -23,8 +23,8 @@ from disent.render import C2, C4, composite, image_formation, sh_basis, sh_from_
 
 from .face_model import (BROW_X, BROW_Y, CHIN_Y, EYE_H, EYE_W, EYE_X, EYE_Y, GRID_U, GRID_V, HAIRLINE_Y, MOUTH_W, MOUTH_Y,
                          NOSE_BASE_Y, SLIT_ROWS, face_model, is_neck, layout, single_thread, uv_to_angles)
-from .raster import (grid_faces, grid_to_uv_map, grid_vertex_normals, interpolate_covered, paste, rasterize_grids, sample_texture,
-                     to_camera, unit_planes)
+from .raster import (grid_faces, grid_to_uv_map, grid_vertex_normals, interpolate_covered, paste, pick, rasterize_grids,
+                     sample_texture, to_camera, unit_planes)
 
 ATTRIBUTES = ("smiling", "beard", "eyeglasses", "senior")
 EFFECTS = ("specular", "cast_shadow", "noise", "occluder")
@@ -518,12 +518,13 @@ def render_scenes(p: dict, res: int, effects: dict | None = None, pseudo: bool =
     at = interpolate_covered([vn, fm.uv], r)  # normal, uv at the covered pixels
     albedo_uv = paint_albedo(p, res)
     normal, uv = paste(unit_planes(at[None, :3])[0], r), paste(at[3:5], r)
-    albedo = paste(sample_texture(albedo_uv, at[3:5], r["batch"]), r)
+    albedo_at = sample_texture(albedo_uv, at[3:5], r["batch"])
+    albedo = paste(albedo_at, r)
     sh = p["sh"]
     shading = shade(normal, sh, matte)
     background = paint_background(p["bg"], res)
-    foreground = image_formation(albedo, shading)  # Eq. 2
-    image = composite(matte, foreground, background)  # Eq. 6
+    # Eq. 2 on the face, composited over the background (Eq. 6; the matte is binary).
+    image = paste(image_formation(albedo_at, pick(shading, r)), r, background)
     out = {"image": image, "background": background, "matte": matte, "normal": normal, "albedo": albedo,
            "shading": shading, "sh": sh, "uv": uv, "normal_uv": grid_to_uv_map(vn, res), "albedo_uv": albedo_uv}
     if effects:
@@ -536,20 +537,33 @@ def render_scenes(p: dict, res: int, effects: dict | None = None, pseudo: bool =
 _QUADRATIC = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))  # the products n_i n_j (i <= j) of Eq. 5
 
 
-def shade(normal: torch.Tensor, sh: torch.Tensor, matte: torch.Tensor) -> torch.Tensor:
-    """``sh_shading(normal, sh) * matte`` (Eq. 4) in the form of Eq. 5, S = [n;1]^T K [n;1], for a
-    binary ``matte`` and normals that are 0 off it: the matte stands in for the 1, so the shading
-    is one batched product of K's 10 distinct entries with the planes n, 1 and n_i n_j."""
-    B, _, H, W = normal.shape
-    planes = torch.empty(B, 10, H * W, dtype=normal.dtype)
+def eq5_planes(normal: torch.Tensor, one: torch.Tensor, extra: int = 0, dtype=None) -> torch.Tensor:
+    """The 10 distinct entries of [n;1][n;1]^T (Eq. 5) as planes ``[B, 10 + extra, P]`` from ``normal [B, 3, P]``:
+    n_x, n_y, n_z, ``one [B, P]`` (the constant: a binary mask, with normals 0 off it), then n_i n_j
+    in ``_QUADRATIC`` order; ``extra`` planes are left for the caller."""
+    B, _, P = normal.shape
+    planes = torch.empty(B, 10 + extra, P, dtype=dtype or normal.dtype)
     n = planes[:, :3]
-    n.copy_(normal.reshape(B, 3, H * W))
-    planes[:, 3].copy_(matte.reshape(B, H * W))
+    n.copy_(normal)
+    planes[:, 3].copy_(one)
     for k, (i, j) in enumerate(_QUADRATIC):
         torch.mul(n[:, i], n[:, j], out=planes[:, 4 + k])
-    K = sh_matrix(sh.to(normal.dtype))  # [B, C, 4, 4], symmetric
-    coef = torch.cat([2 * K[..., :3, 3], K[..., 3:, 3], torch.stack([K[..., i, j] * (1 if i == j else 2) for i, j in _QUADRATIC], -1)], -1)
-    return torch.bmm(coef, planes).view(B, -1, H, W)
+    return planes
+
+
+def eq5_coefficients(sh: torch.Tensor) -> torch.Tensor:
+    """``sh [..., 9]`` -> ``[..., 10]``: the shading is these coefficients dotted with :func:`eq5_planes`
+    (S = [n;1]^T K [n;1], Eq. 5, with K = :func:`disent.render.sh_matrix`, symmetric)."""
+    K = sh_matrix(sh)
+    return torch.cat([2 * K[..., :3, 3], K[..., 3:, 3], torch.stack([K[..., i, j] * (1 if i == j else 2) for i, j in _QUADRATIC], -1)], -1)
+
+
+def shade(normal: torch.Tensor, sh: torch.Tensor, matte: torch.Tensor) -> torch.Tensor:
+    """``sh_shading(normal, sh) * matte`` (Eq. 4) in the form of Eq. 5 for a binary ``matte`` and normals
+    that are 0 off it: one batched product of :func:`eq5_coefficients` with :func:`eq5_planes`."""
+    B, _, H, W = normal.shape
+    planes = eq5_planes(normal.reshape(B, 3, H * W), matte.reshape(B, H * W))
+    return torch.bmm(eq5_coefficients(sh.to(normal.dtype)), planes).view(B, -1, H, W)
 
 
 def render_pseudo(image: torch.Tensor, p: dict, res: int) -> dict:
@@ -584,14 +598,16 @@ def fit_sh_packed(image: torch.Tensor, normal: torch.Tensor, mask: torch.Tensor,
     squares, as its sums over pixels need nothing else.
 
     Each image's masked pixels are packed into pieces of ``chunk`` (the last one padded with
-    zero weight); one batched float64 product gives every piece's normal equations, and each
-    image sums its own pieces in order, so an image's L-hat does not depend on its batch
-    (float32 sums would, and the solve amplifies their rounding to ~1e-3 in L-hat)."""
+    zero weight); one batched float64 product gives every piece's sums of products of the
+    image and the :func:`eq5_planes` of its normals, and each image sums its own pieces in order,
+    so an image's L-hat does not depend on its batch (float32 sums would, and the solve amplifies
+    their rounding to ~1e-3 in L-hat).  The SH basis is linear in those planes (Eq. 5), basis =
+    T planes, so the normal equations are T (sums) T^T and T (sums with the image)."""
     B, C = image.shape[:2]
     HW = image[0, 0].numel()
     w = mask.reshape(B * HW)
     sel = (w > 0).nonzero().squeeze(1)  # [M] flat b * HW + p, sorted
-    counts = (w > 0).view(B, HW).sum(1)
+    counts = torch.bincount(torch.div(sel, HW, rounding_mode="floor"), minlength=B)
     if (counts < min_pixels).any():
         bad = torch.nonzero(counts < min_pixels).flatten().tolist()
         raise ValueError(f"fit_sh needs at least {min_pixels} masked pixels; images {bad} have {counts[bad].tolist()}")
@@ -602,20 +618,22 @@ def fit_sh_packed(image: torch.Tensor, normal: torch.Tensor, mask: torch.Tensor,
     valid = rank < counts.index_select(0, owner)[:, None]
     start = (torch.cumsum(counts, 0) - counts).index_select(0, owner)[:, None]
     at = sel.index_select(0, (start + rank).clamp_max_(sel.numel() - 1).view(-1)).view(-1, chunk)  # b * HW + p
-    weight = (w.index_select(0, at.view(-1)).view(-1, 1, chunk) * valid[:, None]).double()
-    at = (at + (owner * (2 * HW))[:, None])[:, None]  # b * 3HW + p: the first of 3 planes
+    weight = w.index_select(0, at.view(-1)).view(-1, chunk).mul_(valid)
+    at = (at + (owner * (2 * HW))[:, None])[:, None] + torch.arange(3)[:, None] * HW  # [n, 3, chunk]: b * 3HW + c * HW + p
 
-    def packed(x):  # x [B, 3, H, W] at the packed pixels -> [n, 3, chunk] float64
-        return x.reshape(-1).index_select(0, (at + torch.arange(3)[:, None] * HW).view(-1)).view(-1, 3, chunk).double()
+    def packed(x):  # x [B, 3, H, W] at the packed pixels, 0 on the padding -> [n, 3, chunk]
+        return x.reshape(-1).index_select(0, at.view(-1)).view(at.shape).mul_(valid[:, None])
 
     y = packed(image)
-    if not torch.isfinite(y).all() and not torch.isfinite(y).all(1)[valid].all():
+    if not torch.isfinite(y).all():
         raise ValueError("fit_sh: image has NaN or Inf inside the mask")
-    basis = sh_basis(packed(normal), 1)  # [n, 9, chunk]
-    bw = basis * weight
-    G = torch.cat([torch.bmm(bw, basis.transpose(1, 2)), torch.bmm(bw, y.transpose(1, 2))], 2)  # [n, 9, 9 + C]
-    G = torch.zeros(B, 9, 9 + C, dtype=torch.float64).index_add_(0, owner, G)
-    return solve_normal_equations(G[:, :, :9], G[:, :, 9:]).float()
+    X = eq5_planes(packed(normal), valid, extra=C, dtype=torch.float64)  # [n, 10 + C, chunk]
+    X[:, 10:].copy_(y)
+    soft = not torch.equal(weight, valid.to(weight.dtype))  # a binary mask: X's rows already carry it
+    G = torch.bmm(X * weight.double()[:, None] if soft else X, X.transpose(1, 2))  # [n, 10 + C, 10 + C]
+    G = torch.zeros(B, 10 + C, 10 + C, dtype=torch.float64).index_add_(0, owner, G)
+    T = eq5_coefficients(torch.eye(9, dtype=torch.float64))  # [9, 10]: basis = T planes
+    return solve_normal_equations(T @ G[:, :10, :10] @ T.t(), T @ G[:, :10, 10:]).float()
 
 
 def dominant_light(sh: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
