@@ -88,6 +88,11 @@ def test_sh_pseudo_is_l_hat_of_the_pseudo_normals(batch):
     assert torch.allclose(batch["sh_pseudo"], sh, atol=1e-5)
     packed = fit_sh_packed(batch["image"], batch["normal_pseudo"], batch["mask_pseudo"])
     assert torch.allclose(packed, sh, atol=1e-5)
+    # A soft mask weights the pixels, as fit_sh does.
+    soft = batch["mask_pseudo"] * torch.rand(batch["mask_pseudo"].shape, generator=torch.Generator().manual_seed(0))
+    sh_soft = fit_sh(*(t.double() for t in (batch["image"], batch["normal_pseudo"], soft)))[0].float()
+    assert not torch.allclose(sh_soft, sh, atol=1e-3)
+    assert torch.allclose(fit_sh_packed(batch["image"], batch["normal_pseudo"], soft), sh_soft, atol=1e-5)
 
 
 def test_pseudo_gt_error_in_the_stated_band():
@@ -417,4 +422,5 @@ def test_grid_vertex_normals_of_a_plane():
     verts = torch.stack([x, y, 0.3 * x - 0.2 * y], -1).reshape(1, -1, 3)
     n = grid_vertex_normals(verts, (gv, gu))
     assert torch.allclose(n, vertex_normals(verts, grid_faces(gv, gu)), atol=1e-12)
-    assert torch.allclose(n[0], torch.nn.functional.normalize(torch.tensor([-0.3, 0.2, 1.0], dtype=torch.float64), dim=0).expand(gv * gu, 3), atol=1e-12)
+    plane = torch.tensor([-0.3, 0.2, 1.0], dtype=torch.float64)
+    assert torch.allclose(n[0], (plane / plane.norm()).expand(gv * gu, 3), atol=1e-12)

@@ -253,7 +253,7 @@ class FaceModel:
         coef = torch.cat([alpha, beta] + ([senior[:, None]] if senior is not None else []), 1).double()
         # In float64, one row at a time in effect: a face's vertices do not depend on which
         # other faces share its batch (float32 GEMM rounding would change with the batch size).
-        return (mean + coef @ basis).float().view(alpha.shape[0], 3, -1)
+        return torch.addmm(mean, coef, basis).float().view(alpha.shape[0], 3, -1)
 
     def _planar_basis(self, K: int, senior: bool, vertices: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
         """The mean ``[3V']`` and components ``[K+2(+1), 3V']`` in float64, planar order, cached."""

@@ -277,7 +277,7 @@ def grid_vertex_normals(vertices: torch.Tensor, grid_shape: tuple[int, int]) -> 
     # Collapsed rows (a closed mouth) have no extent along v: take a two-row stencil there.  The
     # test is relative (|dv| < 1e-3 |du|): a collapsed row's dv is float32 rounding, not a direction.
     flat = _squared_norm(dv) < _squared_norm(du).mul_(1e-6)  # [B, gv, gu]
-    rows = flat.any(2).any(0).nonzero().squeeze(1)
+    rows = flat.any(0).any(1).nonzero().squeeze(1)
     if rows.numel():
         dv2 = P[:, :, (rows + 2).clamp(max=gv - 1)] - P[:, :, (rows - 2).clamp(min=0)]
         dv[:, :, rows] = torch.where(flat[:, None, rows], dv2, dv[:, :, rows])

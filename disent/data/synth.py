@@ -555,7 +555,8 @@ def eq5_coefficients(sh: torch.Tensor) -> torch.Tensor:
     """``sh [..., 9]`` -> ``[..., 10]``: the shading is these coefficients dotted with :func:`eq5_planes`
     (S = [n;1]^T K [n;1], Eq. 5, with K = :func:`disent.render.sh_matrix`, symmetric)."""
     K = sh_matrix(sh)
-    return torch.cat([2 * K[..., :3, 3], K[..., 3:, 3], torch.stack([K[..., i, j] * (1 if i == j else 2) for i, j in _QUADRATIC], -1)], -1)
+    quadratic = torch.stack([K[..., i, j] * (1 if i == j else 2) for i, j in _QUADRATIC], -1)
+    return torch.cat([2 * K[..., :3, 3], K[..., 3:, 3], quadratic], -1)  # n (twice the off-diagonal), 1, n_i n_j
 
 
 def shade(normal: torch.Tensor, sh: torch.Tensor, matte: torch.Tensor) -> torch.Tensor:
