@@ -378,23 +378,18 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
         img = torch.arange(img0, img0 + B, device=dev, dtype=dt).mul_(H * W).add_((H - 1) * W).repeat_interleave(V)[:K]
         torch.add(img, x_lo, out=col[16]).addcmul_(y_lo, torch.tensor(-W, dtype=dt))
         q0, img0 = q0 + K, img0 + B
-    kept = count.nonzero().squeeze(1).int()
-    cnt = count.index_select(0, kept)
-    # Candidates: every (kept quad, pixel centre of its box), as running sums over marks at each quad's
-    # first candidate: the quad id, and the slot s (its s-th centre, row-major in the box).
-    ends = torch.cumsum(cnt, 0)
+    # Candidates: every (quad, pixel centre of its box), quad after quad: candidate i belongs to the quad
+    # whose run of ``count`` candidates covers i (the number of runs ending at or before i: a running sum
+    # of marks at the run ends), and is the s-th centre of its box (row-major), s = i - the run's start.
+    count = count.int()
+    ends = torch.cumsum(count, 0, dtype=torch.int32)
     n = int(ends[-1]) if ends.numel() else 0
     if n >= 2**_CAND_BITS:
         raise ValueError(f"rasterize_grids: {n} candidate pixels, at most {2**_CAND_BITS}; split the batch")
-    starts = (ends[:-1]).long()
-    step = torch.ones(n, dtype=dt, device=dev)
-    step.index_copy_(0, starts, 1 - cnt[:-1])
-    step[0] = 0
-    slot = torch.cumsum(step, 0)
-    jump = torch.zeros(n, dtype=torch.int32, device=dev)
-    jump.index_copy_(0, starts, kept[1:] - kept[:-1])
-    jump[0] = kept[0]
-    quad = torch.cumsum(jump, 0, dtype=torch.int32)
+    marks = torch.zeros(n + 1, dtype=torch.int32, device=dev)
+    marks.index_add_(0, ends, torch.ones(1, dtype=torch.int32, device=dev).expand(n_quads))
+    quad = torch.cumsum(marks[:n], 0, dtype=torch.int32)
+    slot = torch.arange(n, dtype=torch.int32, device=dev).sub_((ends - count).index_select(0, quad)).to(dt)
     ox, oy, nx, bx, by, area2n, darea, dx, dy, ddx, ddy, zc, dzd, ddz, dzb, bias, base = (
         t.index_select(0, quad) for t in table.unbind(0))
     sy = (slot / nx).floor_()

@@ -517,7 +517,7 @@ def render_scenes(p: dict, res: int, effects: dict | None = None, pseudo: bool =
     matte = paste(torch.ones(1, r["batch"].numel()), r)
     at = interpolate_covered([vn, fm.uv], r)  # normal, uv at the covered pixels
     albedo_uv = paint_albedo(p, res)
-    normal, uv = paste(unit_planes(at[None, :3])[0], r), paste(at[3:5], r)
+    normal, uv = paste(unit_planes(at[None, :3], inplace=True)[0], r), paste(at[3:5], r)
     albedo_at = sample_texture(albedo_uv, at[3:5], r["batch"])
     albedo = paste(albedo_at, r)
     sh = p["sh"]
@@ -587,7 +587,7 @@ def _pseudo_maps(image: torch.Tensor, fit: dict, r: dict, res: int) -> dict:
     idx, _, uv, grid = pseudo_mesh()
     at = interpolate_covered([fit["vn"], face_model().face_region[idx, None], uv], r)  # at the covered pixels
     inside = torch.gt(at[3:4], 0.5, out=torch.empty_like(at[3:4]))  # the face region, where a 3DMM fits
-    normal = paste(unit_planes(at[None, :3])[0].mul_(inside), r)
+    normal = paste(unit_planes(at[None, :3], inplace=True)[0].mul_(inside), r)
     mask = paste(inside, r)
     return {"normal_pseudo": normal, "mask_pseudo": mask, "uv_pseudo": paste(at[4:6].mul_(inside), r),
             "normal_uv_pseudo": _uv_map_from_subgrid(fit["vn"], grid, res), "sh_pseudo": fit_sh_packed(image, normal, mask)}
@@ -631,8 +631,8 @@ def fit_sh_packed(image: torch.Tensor, normal: torch.Tensor, mask: torch.Tensor,
     X = eq5_planes(packed(normal), valid, extra=C, dtype=torch.float64)  # [n, 10 + C, chunk]
     X[:, 10:].copy_(y)
     soft = not torch.equal(weight, valid.to(weight.dtype))  # a binary mask: X's rows already carry it
-    G = torch.bmm(X * weight.double()[:, None] if soft else X, X.transpose(1, 2))  # [n, 10 + C, 10 + C]
-    G = torch.zeros(B, 10 + C, 10 + C, dtype=torch.float64).index_add_(0, owner, G)
+    G = torch.bmm(X[:, :10] * weight.double()[:, None] if soft else X[:, :10], X.transpose(1, 2))  # [n, 10, 10 + C]
+    G = torch.zeros(B, 10, 10 + C, dtype=torch.float64).index_add_(0, owner, G)
     T = eq5_coefficients(torch.eye(9, dtype=torch.float64))  # [9, 10]: basis = T planes
     return solve_normal_equations(T @ G[:, :10, :10] @ T.t(), T @ G[:, :10, 10:]).float()
 
