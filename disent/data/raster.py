@@ -297,6 +297,33 @@ def grid_faces(gv: int, gu: int) -> torch.Tensor:
     return torch.cat([torch.stack([a, a + gu, a + 1], 1), torch.stack([a + 1, a + gu, a + gu + 1], 1)])
 
 
+def _window(extreme, v: torch.Tensor, gu: int, K: int, out: torch.Tensor | None = None) -> torch.Tensor:
+    """``extreme`` (torch.minimum or torch.maximum) of the four corners k, k + 1, k + gu, k + gu + 1 of
+    each quad k < K of the flat vertex values ``v``."""
+    pairs = extreme(v[:-1], v[1:])
+    return extreme(pairs[:K], pairs[gu:gu + K], out=out)
+
+
+_LAYOUTS: dict = {}
+
+
+def _grid_layout(B: int, gv: int, gu: int, drawn, img0: int, H: int, W: int, dt, dev) -> tuple[torch.Tensor, torch.Tensor]:
+    """For the flat quad ids k < K of :func:`rasterize_grids` on ``B`` images of a ``gv x gu`` grid: 1 where
+    k is a quad (its corner a is in neither the last row nor the last column) that is drawn, and the pixel
+    index of the top-left corner of its image, ``image * H * W + (H - 1) * W``.  The same for every batch
+    of a mesh, so they are kept (a few entries)."""
+    key = (B, gv, gu, None if drawn is None else drawn.numpy().tobytes(), img0, H, W, dt, str(dev))
+    if key not in _LAYOUTS:
+        V, K = gv * gu, B * gv * gu - gu - 1
+        one = torch.zeros(gv, gu, dtype=dt, device=dev)
+        one[:-1, :-1] = 1 if drawn is None else drawn.view(gv - 1, gu - 1)
+        image = torch.arange(img0, img0 + B, device=dev, dtype=dt).mul_(H * W).add_((H - 1) * W)
+        if len(_LAYOUTS) >= 8:
+            _LAYOUTS.clear()
+        _LAYOUTS[key] = (one.view(1, V).expand(B, V).reshape(-1)[:K], image[:, None].expand(B, V).reshape(-1)[:K])
+    return _LAYOUTS[key]
+
+
 def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     """:func:`rasterize` for meshes that are regular grids triangulated by :func:`grid_faces`, several
     meshes in one pass: ``meshes`` is a list of (``vertices_cam [B, gv*gu, 3]``, ``(gv, gu)``) or
@@ -351,16 +378,15 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
         area1.addcmul_(by, ax, value=-1)  # twice the signed areas of (a,c,b) and (b,c,d)
         area2 = torch.mul(dx, by, out=col[5])
         area2.addcmul_(dy, bx, value=-1)
-        x_lo = torch.minimum(torch.minimum(xa, xb), torch.minimum(xc, xd)).ceil_().clamp_min_(0)
-        y_lo = torch.minimum(torch.minimum(ya, yb), torch.minimum(yc, yd)).ceil_().clamp_min_(0)
-        nx = torch.maximum(torch.maximum(xa, xb), torch.maximum(xc, xd), out=col[2]).floor_().clamp_max_(W - 1).sub_(x_lo).add_(1).clamp_min_(0)
-        ny = torch.maximum(torch.maximum(ya, yb), torch.maximum(yc, yd)).floor_().clamp_max_(H - 1).sub_(y_lo).add_(1).clamp_min_(0)
-        mask = torch.zeros(gv, gu, dtype=dt, device=dev)  # the real (and drawn) quads of one image
-        mask[:-1, :-1] = drawn[0].view(gv - 1, gu - 1) if drawn else 1
-        mask = mask.view(-1).repeat(B)[:K]
-        f1 = torch.gt(area1, 1e-9, out=torch.empty_like(area1)).mul_(mask)
-        f2 = torch.gt(area2, 1e-9, out=torch.empty_like(area2)).mul_(mask)
-        torch.maximum(f1, f2, out=count[q0:q0 + K]).mul_(nx).mul_(ny)
+        # The box of pixel centres: extremes over each 2x2 window of corners, pairs along rows, then rows.
+        x_lo = _window(torch.minimum, x, gu, K).ceil_().clamp_min_(0)
+        y_lo = _window(torch.minimum, y, gu, K).ceil_().clamp_min_(0)
+        nx = _window(torch.maximum, x, gu, K, out=col[2]).floor_().clamp_max_(W - 1).sub_(x_lo).add_(1).clamp_min_(0)
+        ny = _window(torch.maximum, y, gu, K).floor_().clamp_max_(H - 1).sub_(y_lo).add_(1).clamp_min_(0)
+        drawn_quads, origin = _grid_layout(B, gv, gu, drawn[0] if drawn else None, img0, H, W, dt, dev)
+        f1 = torch.gt(area1, 1e-9, out=torch.empty_like(area1))
+        f2 = torch.gt(area2, 1e-9, out=torch.empty_like(area2))
+        torch.maximum(f1, f2, out=count[q0:q0 + K]).mul_(nx).mul_(ny).mul_(drawn_quads)
         # Which triangle a centre p falls in: (a,c,b) iff s >= bias, with s = cross(b - c, p - c) (a's side of
         # the diagonal); the bias forces the front-facing triangle of a folded quad.
         torch.sub(f2, f1, out=col[15]).mul_(_FOLD)
@@ -374,9 +400,7 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
         torch.sub(zd, zc, out=col[12])
         torch.sub(za, zd, out=col[13])
         torch.sub(zb, zc, out=col[14])
-        # pixel index of the box origin: image * HW + (H - 1 - y_lo) * W + x_lo
-        img = torch.arange(img0, img0 + B, device=dev, dtype=dt).mul_(H * W).add_((H - 1) * W).repeat_interleave(V)[:K]
-        torch.add(img, x_lo, out=col[16]).addcmul_(y_lo, torch.tensor(-W, dtype=dt))
+        torch.add(origin, x_lo, out=col[16]).addcmul_(y_lo, torch.tensor(-W, dtype=dt))  # pixel index of the box origin
         q0, img0 = q0 + K, img0 + B
     # Candidates: every (quad, pixel centre of its box), quad after quad: candidate i belongs to the quad
     # whose run of ``count`` candidates covers i (the number of runs ending at or before i: a running sum
@@ -413,8 +437,11 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     key = torch.arange(n, device=dev).add_(depth.view(torch.int32).long(), alpha=2**_CAND_BITS)
     zbuf = torch.full((img0 * H * W,), -1, dtype=torch.long, device=dev)
     zbuf.scatter_reduce_(0, pix, key, reduce="amax")
-    win = (zbuf.index_select(0, pix) == key).nonzero().squeeze(1)
-    cov, first, w_far, w_b, quad = (t.index_select(0, win) for t in (pix, first, w_far, w_b, quad))
+    # The winners, read off the z-buffer: each covered pixel keeps its winning candidate's key (a failed
+    # candidate's key is below the empty buffer's -1), listed in pixel order, which runs over the meshes in turn.
+    cov = (zbuf >= 0).nonzero().squeeze(1)
+    win = zbuf.index_select(0, cov).bitwise_and_(2**_CAND_BITS - 1)
+    first, w_far, w_b, quad = (t.index_select(0, win) for t in (first, w_far, w_b, quad))
     w_far.clamp_min_(0)
     w_b.clamp_min_(0)
     w_c = (1 - w_far - w_b).clamp_min_(0)
