@@ -24,7 +24,6 @@ to the same pixels.  Vertex data may be stored as coordinate planes ``[B, 3, V]`
 """
 from __future__ import annotations
 
-import math
 
 import torch
 
@@ -312,7 +311,7 @@ def _grid_layout(B: int, gv: int, gu: int, drawn, img0: int, H: int, W: int, dt,
     k is a quad (its corner a is in neither the last row nor the last column) that is drawn, and the pixel
     index of the top-left corner of its image, ``image * H * W + (H - 1) * W``.  The same for every batch
     of a mesh, so they are kept (a few entries)."""
-    key = (B, gv, gu, None if drawn is None else drawn.numpy().tobytes(), img0, H, W, dt, str(dev))
+    key = (B, gv, gu, None if drawn is None else drawn.cpu().numpy().tobytes(), img0, H, W, dt, str(dev))
     if key not in _LAYOUTS:
         V, K = gv * gu, B * gv * gu - gu - 1
         one = torch.zeros(gv, gu, dtype=dt, device=dev)
@@ -358,6 +357,8 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     # corner a lies in the last row or column of its grid is no quad and is never drawn.
     sizes = [B * gv * gu - gu - 1 for B, (gv, gu) in info]
     n_quads = sum(sizes)
+    # Per quad, written in place: the box origin about corner c, its width, the diagonal b - c, and
+    # the two triangles' data as (second, first - second), so one multiply-add picks between them.
     table = torch.empty(17, n_quads, dtype=dt, device=dev)
     count = torch.empty(n_quads, dtype=dt, device=dev)
     q0, img0 = 0, 0
@@ -442,6 +443,7 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     cov = (zbuf >= 0).nonzero().squeeze(1)
     win = zbuf.index_select(0, cov).bitwise_and_(2**_CAND_BITS - 1)
     first, w_far, w_b, quad = (t.index_select(0, win) for t in (first, w_far, w_b, quad))
+    # Clamp the tolerance's tiny negatives and renormalise, as rasterize does; stored as planes ([M, 3] seen).
     w_far.clamp_min_(0)
     w_b.clamp_min_(0)
     w_c = (1 - w_far - w_b).clamp_min_(0)
