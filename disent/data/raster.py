@@ -24,7 +24,6 @@ to the same pixels.  Vertex data may be stored as coordinate planes ``[B, 3, V]`
 """
 from __future__ import annotations
 
-
 import torch
 
 from disent.render import unit
