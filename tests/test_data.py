@@ -3,11 +3,12 @@ import math
 
 import pytest
 import torch
+import torch.nn.functional as F
 
 from disent.data import ATTR_PRIOR, LIGHT_BANK, LIGHT_NAMES, SPLITS, SynthFaces
 from disent.data.face_model import GRID_U, GRID_V, face_model
-from disent.data.raster import (face_ids, grid_faces, grid_to_uv_map, grid_vertex_normals, interpolate, rasterize, rasterize_grids,
-                                render_face, to_camera, vertex_normals)
+from disent.data.raster import (face_ids, grid_faces, grid_to_uv_map, grid_vertex_normals, interpolate, interpolate_covered, paste,
+                                pick, rasterize, rasterize_grids, render_face, sample_texture, to_camera, vertex_normals)
 from disent.data.synth import (LAYERS, _pseudo_geometry, dominant_light, fit_sh_packed, lights_to_sh, paint_layers,
                                pseudo_mesh, pseudo_quads, sample_lights, shade, uniform)
 from disent.render import composite, fit_sh, image_formation, sh_basis, sh_from_directions, sh_shading
@@ -334,6 +335,27 @@ def test_rasterizer_coverage_depth_and_barycentrics():
     # Back-facing triangles are culled.
     flipped = rasterize(verts, faces[:, [0, 2, 1]], H)
     assert (flipped["face_id"] < 0).all()
+
+
+def test_paste_pick_and_texture_lookup_at_covered_pixels():
+    """paste / pick are inverse on the covered pixels; paste onto a background is Eq. 6 with a binary
+    matte, exactly; sample_texture is grid_sample(align_corners=True) at the covered pixels."""
+    fm = face_model()
+    p = SynthFaces("val", seed=6).params(range(3))
+    cam = to_camera(fm.shape(p["alpha"], p["expression"], p["senior"]), p["pose"], p["scale"], p["shift"])
+    r = rasterize_grids([(cam, (GRID_V, GRID_U))], 32)[0]
+    g = torch.Generator().manual_seed(0)
+    values = torch.rand(3, r["batch"].numel(), generator=g)
+    background = torch.rand(3, 3, 32, 32, generator=g)
+    matte = paste(torch.ones(1, values.shape[1]), r)
+    assert torch.equal(matte[:, 0] > 0, face_ids(r) >= 0)
+    assert torch.equal(pick(paste(values, r), r), values)
+    assert torch.equal(paste(values, r, background), composite(matte, paste(values, r), background))
+    texture = torch.rand(3, 3, 16, 16, generator=g)
+    uv = interpolate_covered(fm.uv, r)
+    uv[:, :4] = torch.tensor([[0.0, 1.0, 1.0, 0.0], [0.0, 0.0, 1.0, 1.0]])  # the corners of UV space
+    ref = pick(F.grid_sample(texture, (2 * paste(uv, r) - 1).permute(0, 2, 3, 1), align_corners=True), r)
+    assert torch.allclose(sample_texture(texture, uv, r["batch"]), ref, atol=1e-6)
 
 
 def test_render_face_layers():
