@@ -395,6 +395,24 @@ def test_grid_rasterizer_matches_the_triangle_rasterizer():
             assert (a - b).abs().amax(1)[same].max() < 1e-3  # slivers of the closed mouth: rounding of tiny areas
 
 
+def test_grid_rasterizer_splits_a_batch_too_large_for_float32_pixel_ids(monkeypatch):
+    """Over the pixel-id limit the batch is rasterized in halves: the same lists, offsets and all."""
+    import disent.data.raster as raster
+
+    p = SynthFaces("val", seed=2).params(range(5))
+    fm = face_model()
+    cam = to_camera(fm.shape(p["alpha"], p["expression"], p["senior"]), p["pose"], p["scale"], p["shift"])
+    fit = _pseudo_geometry(p)
+    meshes = [(cam, (GRID_V, GRID_U)), (fit["cam"], fit["grid"], pseudo_quads())]
+    whole = rasterize_grids(meshes, 32)
+    monkeypatch.setattr(raster, "_MAX_PIXELS", 3 * 32 * 32)  # 10 images: split down to 1 or 2 per call
+    split = rasterize_grids(meshes, 32)
+    for a, b, (verts, *_) in zip(whole, split, meshes):
+        assert a["size"] == b["size"] and a["grid"] == b["grid"]
+        assert torch.equal(face_ids(a), face_ids(b)) and (face_ids(a) >= 0).any()
+        assert torch.allclose(interpolate(verts, a), interpolate(verts, b))
+
+
 def test_pseudo_fit_draws_only_its_face_quads():
     """Only quads touching the face region can enter mask_pseudo; drawing only those changes no pixel."""
     p = SynthFaces("train", seed=5).params(range(32))

@@ -34,6 +34,7 @@ _DEPTH_RANGE = 16.0
 _CAND_BITS = 31  # rasterize_grids: candidate ids below 2**31 (the key packs 31 depth bits above them)
 _FOLD = 1e30  # rasterize_grids: a bias beyond any cross product, to force one triangle of a folded quad
 MAX_WINDOW = 64  # triangles wider than this many pixels are refused (refine the mesh)
+_MAX_PIXELS = 2**24  # rasterize_grids: pixel ids are float32 integers, exact below 2**24
 
 
 def pose_matrix(pose_deg: torch.Tensor) -> torch.Tensor:
@@ -233,10 +234,17 @@ def _pixel_index(raster: dict, C: int) -> torch.Tensor:
 
 
 def face_ids(raster: dict) -> torch.Tensor:
-    """The visible face of every pixel, ``[B, H, W]`` int64, -1 on background."""
+    """The visible face of every pixel, ``[B, H, W]`` int64, -1 on background (for :func:`rasterize_grids`,
+    the :func:`grid_faces` id, from the corners)."""
     B, H, W = raster["size"]
-    out = torch.full((B * H * W,), -1, dtype=torch.long, device=raster["face"].device)
-    return out.scatter_(0, raster["batch"] * (H * W) + raster["pixel"], raster["face"]).view(B, H, W)
+    face = raster.get("face")
+    if face is None:  # quad q = (row, column) of corner a; its second triangle is q + Q
+        gv, gu = raster["grid"]
+        k = raster["corners"][1] - gu
+        a = k - raster["batch"] * (gv * gu)
+        face = a - torch.div(a, gu, rounding_mode="floor") + (raster["corners"][0] - k) * ((gv - 1) * (gu - 1))
+    out = torch.full((B * H * W,), -1, dtype=torch.long, device=face.device)
+    return out.scatter_(0, raster["batch"] * (H * W) + raster["pixel"], face).view(B, H, W)
 
 
 def sample_texture(texture: torch.Tensor, uv: torch.Tensor, batch: torch.Tensor) -> torch.Tensor:
@@ -328,8 +336,9 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     (``vertices_cam``, ``(gv, gu)``, ``quads [(gv-1)*(gu-1)]`` bool: the quads drawn, default all).
 
     Returns, per mesh, the dict of :func:`rasterize` for that mesh and ``grid_faces(gv, gu)``
-    (the same pixels, triangles and barycentrics up to float rounding and depth ties), less the
-    dense ``face_id`` map, which :func:`face_ids` builds when it is wanted.
+    (the same pixels, triangles and barycentrics up to float rounding and depth ties), with the
+    ``grid`` shape and without the ``face`` list and the dense ``face_id`` map, which
+    :func:`face_ids` builds from the corners when it is wanted.
 
     The grid saves work: the primitive is the quad (half as many as triangles), and on the
     flattened vertex planes a quad's four corners are the same planes shifted by 0, 1, gu and
@@ -343,14 +352,14 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     dev, dt = meshes[0][0].device, meshes[0][0].dtype
     info = [(m[0].shape[0], m[1]) for m in meshes]  # (B, (gv, gu))
     n_images = sum(B for B, _ in info)
-    if n_images * H * W >= 2**24:  # pixel ids must stay exact in float32: halve the batch
+    if n_images * H * W >= _MAX_PIXELS:  # pixel ids must stay exact in float32: halve the batch
         if len({B for B, _ in info}) != 1 or info[0][0] < 2:
             raise ValueError("rasterize_grids: too many pixels for one call and the meshes' batches differ")
         h = info[0][0] // 2
         halves = [rasterize_grids([(m[0][s], *m[1:]) for m in meshes], resolution) for s in (slice(0, h), slice(h, None))]
         return [{"size": (a["size"][0] + b["size"][0], H, W), "batch": torch.cat([a["batch"], b["batch"] + h]),
                  "corners": torch.cat([a["corners"], b["corners"] + h * m[0].shape[1]], 1),
-                 **{k: torch.cat([a[k], b[k]]) for k in ("pixel", "face", "bary")}} for a, b, m in zip(*halves, meshes)]
+                 "grid": m[1], **{k: torch.cat([a[k], b[k]]) for k in ("pixel", "bary")}} for a, b, m in zip(*halves, meshes)]
     # Quads on the flattened vertex planes of each mesh: quad k has the corners a = k, b = k + 1, c = k + gu,
     # d = k + gu + 1 (flat ids over the batch), so each column below is a few contiguous slices; a k whose
     # corner a lies in the last row or column of its grid is no quad and is never drawn.
@@ -454,17 +463,15 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     second = (1 - first).long()
     out, q0, p0 = [], 0, 0
     bounds = [0] + torch.searchsorted(cov, torch.tensor([B * H * W for B, _ in info]).cumsum(0)).tolist()
+    shift = (H * W).bit_length() - 1 if H * W & (H * W - 1) == 0 else None  # a power of two: shifts, no division
     for m, ((B, (gv, gu)), K) in enumerate(zip(info, sizes)):
         lo, hi = bounds[m], bounds[m + 1]
-        V, Q = gv * gu, (gv - 1) * (gu - 1)
-        k = quad[lo:hi] - q0  # flat id of corner a
-        batch = torch.div(k, V, rounding_mode="floor")
-        a = k - batch * V
-        sec = second[lo:hi]
-        face = a - torch.div(a, gu, rounding_mode="floor") + sec * Q  # grid_faces order
-        corners = torch.stack([k + sec, k + gu, k + 1 + sec * gu])
-        out.append({"size": (B, H, W), "batch": batch, "pixel": cov[lo:hi] - p0 - batch * (H * W), "face": face,
-                    "bary": bary[lo:hi], "corners": corners})
+        p = cov[lo:hi] - p0
+        batch = p >> shift if shift is not None else torch.div(p, H * W, rounding_mode="floor")
+        k, sec = quad[lo:hi] - q0, second[lo:hi]  # flat id of corner a; the quad's second triangle
+        corners = torch.stack([k + sec, k + gu, k.add(sec, alpha=gu).add_(1)])  # grid_faces order
+        out.append({"size": (B, H, W), "grid": (gv, gu), "batch": batch, "pixel": p - (batch << shift if shift is not None
+                    else batch * (H * W)), "bary": bary[lo:hi], "corners": corners})
         q0, p0 = q0 + K, p0 + B * H * W
     return out
 
