@@ -365,27 +365,30 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     # corner a lies in the last row or column of its grid is no quad and is never drawn.
     sizes = [B * gv * gu - gu - 1 for B, (gv, gu) in info]
     n_quads = sum(sizes)
-    # Per quad, written in place: the box origin about corner c, its width, the diagonal b - c, and
-    # the two triangles' data as (second, first - second), so one multiply-add picks between them.
-    table = torch.empty(17, n_quads, dtype=dt, device=dev)
+    # Per quad, written in place: the box origin about corner c, its width, the diagonal b - c, the fold
+    # bias, the depth at c and along c -> b, and the box origin's pixel index; per triangle (quad q's
+    # triangle (a,c,b) at 2q, (b,c,d) at 2q + 1): 1 / its doubled area, the far corner's edge about c
+    # over that area (the barycentric of b), and the depth along c -> far corner.
+    table = torch.empty(9, n_quads, dtype=dt, device=dev)
+    tri = torch.empty(4, n_quads, 2, dtype=dt, device=dev)
     count = torch.empty(n_quads, dtype=dt, device=dev)
     q0, img0 = 0, 0
     for (verts, (gv, gu), *drawn), (B, _), K in zip(meshes, info, sizes):
         V = gv * gu
         if verts.shape[1] != V:
             raise ValueError(f"a {gv}x{gu} grid has {V} vertices, got {verts.shape[1]}")
-        col = table[:, q0:q0 + K]
+        col, (inv, far_x, far_y, far_z) = table[:, q0:q0 + K], (t[q0:q0 + K].unbind(1) for t in tri)
         x = torch.addcmul(torch.tensor(0.5 * W - 0.5, dtype=dt), verts[..., 0], torch.tensor(0.5 * W, dtype=dt)).reshape(-1)
         y = torch.addcmul(torch.tensor(0.5 * H - 0.5, dtype=dt), verts[..., 1], torch.tensor(0.5 * H, dtype=dt)).reshape(-1)
         z = verts[..., 2].reshape(-1)
         xa, xb, xc, xd = x[:K], x[1:K + 1], x[gu:K + gu], x[gu + 1:]
         ya, yb, yc, yd = y[:K], y[1:K + 1], y[gu:K + gu], y[gu + 1:]
         za, zb, zc, zd = z[:K], z[1:K + 1], z[gu:K + gu], z[gu + 1:]
-        ax, ay = xa - xc, ya - yc
-        bx, by, dx, dy = (torch.sub(u, v, out=col[k]) for k, (u, v) in zip((3, 4, 7, 8), ((xb, xc), (yb, yc), (xd, xc), (yd, yc))))
+        ax, ay, dx, dy = xa - xc, ya - yc, xd - xc, yd - yc  # corners about c
+        bx, by = torch.sub(xb, xc, out=col[3]), torch.sub(yb, yc, out=col[4])
         area1 = bx * ay
         area1.addcmul_(by, ax, value=-1)  # twice the signed areas of (a,c,b) and (b,c,d)
-        area2 = torch.mul(dx, by, out=col[5])
+        area2 = dx * by
         area2.addcmul_(dy, bx, value=-1)
         # The box of pixel centres: extremes over each 2x2 window of corners, pairs along rows, then rows.
         x_lo = _window(torch.minimum, x, gu, K).ceil_().clamp_min_(0)
@@ -398,18 +401,17 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
         torch.maximum(f1, f2, out=count[q0:q0 + K]).mul_(nx).mul_(ny).mul_(drawn_quads)
         # Which triangle a centre p falls in: (a,c,b) iff s >= bias, with s = cross(b - c, p - c) (a's side of
         # the diagonal); the bias forces the front-facing triangle of a folded quad.
-        torch.sub(f2, f1, out=col[15]).mul_(_FOLD)
+        torch.sub(f2, f1, out=col[5]).mul_(_FOLD)
         torch.sub(x_lo, xc, out=col[0])
         torch.sub(y_lo, yc, out=col[1])
-        area2.neg_()  # col 5: -area2
-        torch.add(area1, col[5], alpha=-1, out=col[6])  # area1 + area2
-        torch.sub(ax, dx, out=col[9])
-        torch.sub(ay, dy, out=col[10])
-        col[11].copy_(zc)
-        torch.sub(zd, zc, out=col[12])
-        torch.sub(za, zd, out=col[13])
-        torch.sub(zb, zc, out=col[14])
-        torch.add(origin, x_lo, out=col[16]).addcmul_(y_lo, torch.tensor(-W, dtype=dt))  # pixel index of the box origin
+        col[6].copy_(zc)
+        torch.sub(zb, zc, out=col[7])
+        torch.add(origin, x_lo, out=col[8]).addcmul_(y_lo, torch.tensor(-W, dtype=dt))  # pixel index of the box origin
+        for t, (area, far) in enumerate(((area1, (ax, ay, za)), (area2.neg_(), (dx, dy, zd)))):
+            torch.reciprocal(area, out=inv[t])  # (b,c,d): the sign makes the far-corner barycentric s / area
+            torch.mul(far[0], inv[t], out=far_x[t])
+            torch.mul(far[1], inv[t], out=far_y[t])
+            torch.sub(far[2], zc, out=far_z[t])
         q0, img0 = q0 + K, img0 + B
     # Candidates: every (quad, pixel centre of its box), quad after quad: candidate i belongs to the quad
     # whose run of ``count`` candidates covers i (the number of runs ending at or before i: a running sum
@@ -423,21 +425,20 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     marks.index_add_(0, ends, torch.ones(1, dtype=torch.int32, device=dev).expand(n_quads))
     quad = torch.cumsum(marks[:n], 0, dtype=torch.int32)
     slot = torch.arange(n, dtype=torch.int32, device=dev).sub_((ends - count).index_select(0, quad)).to(dt)
-    ox, oy, nx, bx, by, area2n, darea, dx, dy, ddx, ddy, zc, dzd, ddz, dzb, bias, base = (
-        t.index_select(0, quad) for t in table.unbind(0))
+    ox, oy, nx, bx, by, bias, zc, dzb, base = (t.index_select(0, quad) for t in table.unbind(0))
     sy = (slot / nx).floor_()
     sx = torch.addcmul(slot, sy, nx, value=-1)
     qx, qy = ox + sx, oy + sy  # the centre about c
     s = bx * qy
     s.addcmul_(by, qx, value=-1)
     first = torch.ge(s, bias, out=torch.empty_like(s))  # 1: triangle (a,c,b), 0: (b,c,d)
-    inv = torch.addcmul(area2n, first, darea).reciprocal_()
-    w_far = s * inv  # barycentric of a (first) or d (second)
-    w_b = qx * torch.addcmul(dy, first, ddy)
-    w_b.addcmul_(qy, torch.addcmul(dx, first, ddx), value=-1).mul_(inv)
+    t = (quad * 2).add_(1).sub_(first.int())  # the triangle's entry in the per-triangle table
+    inv, far_x, far_y, far_z = (v.view(-1).index_select(0, t) for v in tri)
+    w_far = s.mul_(inv)  # barycentric of a (first) or d (second)
+    w_b = qx.mul_(far_y).addcmul_(qy, far_x, value=-1)  # barycentric of b
     w_c = 1 - w_far - w_b
     ok = torch.ge(torch.minimum(torch.minimum(w_far, w_b), w_c), -1e-6, out=w_c)  # 1: inside (w_c no longer needed)
-    depth = torch.addcmul(zc, w_far, torch.addcmul(dzd, first, ddz))
+    depth = torch.addcmul(zc, w_far, far_z)
     depth.addcmul_(w_b, dzb)
     pix = base.add_(sx).addcmul_(sy, torch.tensor(-W, dtype=dt)).long()
     # z-buffer: nearest (largest z) wins; key = order-preserving integer of the float depth, then the candidate.
