@@ -18,9 +18,12 @@ How it works, all in batched tensor ops:
 
 :func:`rasterize_grids` is the same rasterizer for meshes that are regular grids (the face
 model and its coarse fit), faster by working on quads, several meshes in one call; it
-returns what :func:`rasterize` returns for :func:`grid_faces`, and the tests hold the two
-to the same pixels.  Vertex data may be stored as coordinate planes ``[B, 3, V]`` (seen as
-``[B, V, 3]`` through ``transpose(1, 2)``): every function here reads either layout.
+returns what :func:`rasterize` returns for :func:`grid_faces` (less the dense maps), and the
+tests hold the two to the same pixels.  A raster lists the covered pixels; per-pixel work can
+stay on that list (:func:`interpolate_covered`, :func:`sample_texture`, :func:`pick`) and
+become an image only at the end (:func:`paste`, :func:`interpolate`).  Vertex data may be
+stored as coordinate planes ``[B, 3, V]`` (seen as ``[B, V, 3]`` through ``transpose(1, 2)``):
+every function here reads either layout.
 """
 from __future__ import annotations
 
