@@ -258,13 +258,11 @@ def sample_texture(texture: torch.Tensor, uv: torch.Tensor, batch: torch.Tensor)
     x, y = uv[0] * (R - 1), uv[1] * (R - 1)
     x0, y0 = x.floor().clamp_(0, R - 2), y.floor().clamp_(0, R - 2)
     fx, fy = x.sub_(x0), y.sub_(y0)
-    corner = (batch * (C * R * R)).add_(y0.long(), alpha=R).add_(x0.long()).int()  # top-left texel in channel 0
-    corners = (corner, corner + 1, corner + R, corner + R + 1)
+    corner = (batch * (C * R * R)).add_(y0.mul_(R).add_(x0).long()).int()  # top-left texel, channel 0 of image b
     flat = texture.contiguous().view(-1)
     out = torch.empty(C, uv.shape[1], dtype=texture.dtype, device=texture.device)
-    for c in range(C):
-        plane = flat[c * R * R:]  # channel c of image b starts at b * C * R * R here
-        t00, t01, t10, t11 = (plane.index_select(0, i) for i in corners)
+    for c in range(C):  # the texel to the right, below, below right: the same index into shifted views
+        t00, t01, t10, t11 = (flat[c * R * R + d:].index_select(0, corner) for d in (0, 1, R, R + 1))
         torch.lerp(t00.lerp_(t01, fx), t10.lerp_(t11, fx), fy, out=out[c])
     return out
 
