@@ -461,8 +461,7 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     w_far, w_b, w_c = (t.div_(total) for t in (w_far, w_b, w_c))
     w_b, w_far = w_b.lerp(w_far, first), w_far.lerp(w_b, first)  # (a, c, b) or (b, c, d) in grid_faces order
     bary = torch.stack([w_b, w_c, w_far]).t()
-    quad = quad.long()
-    second = (1 - first).long()
+    second = (1 - first).int()
     out, q0, p0 = [], 0, 0
     bounds = [0] + torch.searchsorted(cov, torch.tensor([B * H * W for B, _ in info]).cumsum(0)).tolist()
     shift = (H * W).bit_length() - 1 if H * W & (H * W - 1) == 0 else None  # a power of two: shifts, no division
