@@ -320,15 +320,17 @@ def _grid_layout(B: int, gv: int, gu: int, drawn, img0: int, H: int, W: int, dt,
     index of the top-left corner of its image, ``image * H * W + (H - 1) * W``.  The same for every batch
     of a mesh, so they are kept (a few entries)."""
     key = (B, gv, gu, None if drawn is None else drawn.cpu().numpy().tobytes(), img0, H, W, dt, str(dev))
-    if key not in _LAYOUTS:
+    layout = _LAYOUTS.get(key)  # (a loader thread may render beside the main one: no check-then-read)
+    if layout is None:
         V, K = gv * gu, B * gv * gu - gu - 1
         one = torch.zeros(gv, gu, dtype=dt, device=dev)
         one[:-1, :-1] = 1 if drawn is None else drawn.view(gv - 1, gu - 1)
         image = torch.arange(img0, img0 + B, device=dev, dtype=dt).mul_(H * W).add_((H - 1) * W)
+        layout = (one.view(1, V).expand(B, V).reshape(-1)[:K], image[:, None].expand(B, V).reshape(-1)[:K])
         if len(_LAYOUTS) >= 8:
             _LAYOUTS.clear()
-        _LAYOUTS[key] = (one.view(1, V).expand(B, V).reshape(-1)[:K], image[:, None].expand(B, V).reshape(-1)[:K])
-    return _LAYOUTS[key]
+        _LAYOUTS[key] = layout
+    return layout
 
 
 def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
