@@ -370,17 +370,17 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     n_quads = sum(sizes)
     # Per quad, written in place: the box origin about corner c, its width, the diagonal b - c, the fold
     # bias, the depth at c and along c -> b, and the box origin's pixel index; per triangle (quad q's
-    # triangle (a,c,b) at 2q, (b,c,d) at 2q + 1): 1 / its doubled area, the far corner's edge about c
-    # over that area (the barycentric of b), and the depth along c -> far corner.
+    # triangle (a,c,b) at q, (b,c,d) at n_quads + q): 1 / its doubled area, the far corner's edge about
+    # c over that area (the barycentric of b), and the depth along c -> far corner.
     table = torch.empty(9, n_quads, dtype=dt, device=dev)
-    tri = torch.empty(4, n_quads, 2, dtype=dt, device=dev)
+    tri = torch.empty(4, 2, n_quads, dtype=dt, device=dev)
     count = torch.empty(n_quads, dtype=dt, device=dev)
     q0, img0 = 0, 0
     for (verts, (gv, gu), *drawn), (B, _), K in zip(meshes, info, sizes):
         V = gv * gu
         if verts.shape[1] != V:
             raise ValueError(f"a {gv}x{gu} grid has {V} vertices, got {verts.shape[1]}")
-        col, (inv, far_x, far_y, far_z) = table[:, q0:q0 + K], (t[q0:q0 + K].unbind(1) for t in tri)
+        col, (inv, far_x, far_y, far_z) = table[:, q0:q0 + K], (t[:, q0:q0 + K] for t in tri)
         x = torch.addcmul(torch.tensor(0.5 * W - 0.5, dtype=dt), verts[..., 0], torch.tensor(0.5 * W, dtype=dt)).reshape(-1)
         y = torch.addcmul(torch.tensor(0.5 * H - 0.5, dtype=dt), verts[..., 1], torch.tensor(0.5 * H, dtype=dt)).reshape(-1)
         z = verts[..., 2].reshape(-1)
@@ -434,8 +434,8 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     qx, qy = ox + sx, oy + sy  # the centre about c
     s = bx * qy
     s.addcmul_(by, qx, value=-1)
-    first = torch.ge(s, bias, out=torch.empty_like(s))  # 1: triangle (a,c,b), 0: (b,c,d)
-    t = (quad * 2).add_(1).sub_(first.int())  # the triangle's entry in the per-triangle table
+    second = torch.lt(s, bias, out=torch.empty_like(s))  # 0: triangle (a,c,b), 1: (b,c,d)
+    t = quad.add(second.int(), alpha=n_quads)  # the triangle's entry in the per-triangle table
     inv, far_x, far_y, far_z = (v.view(-1).index_select(0, t) for v in tri)
     w_far = s.mul_(inv)  # barycentric of a (first) or d (second)
     w_b = qx.mul_(far_y).addcmul_(qy, far_x, value=-1)  # barycentric of b
@@ -454,16 +454,16 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     # candidate's key is below the empty buffer's -1), listed in pixel order, which runs over the meshes in turn.
     cov = (zbuf >= 0).nonzero().squeeze(1)
     win = zbuf.index_select(0, cov).bitwise_and_(2**_CAND_BITS - 1)
-    first, w_far, w_b, quad = (t.index_select(0, win) for t in (first, w_far, w_b, quad))
+    second, w_far, w_b, quad = (t.index_select(0, win) for t in (second, w_far, w_b, quad))
     # Clamp the tolerance's tiny negatives and renormalise, as rasterize does; stored as planes ([M, 3] seen).
     w_far.clamp_min_(0)
     w_b.clamp_min_(0)
     w_c = (1 - w_far - w_b).clamp_min_(0)
     total = (w_far + w_b).add_(w_c)
     w_far, w_b, w_c = (t.div_(total) for t in (w_far, w_b, w_c))
-    w_b, w_far = w_b.lerp(w_far, first), w_far.lerp(w_b, first)  # (a, c, b) or (b, c, d) in grid_faces order
+    w_b, w_far = w_far.lerp(w_b, second), w_b.lerp(w_far, second)  # (a, c, b) or (b, c, d) in grid_faces order
     bary = torch.stack([w_b, w_c, w_far]).t()
-    second = (1 - first).int()
+    second = second.int()
     out, q0, p0 = [], 0, 0
     bounds = [0] + torch.searchsorted(cov, torch.tensor([B * H * W for B, _ in info]).cumsum(0)).tolist()
     shift = (H * W).bit_length() - 1 if H * W & (H * W - 1) == 0 else None  # a power of two: shifts, no division
