@@ -411,7 +411,7 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
         torch.sub(zb, zc, out=col[7])
         torch.add(origin, x_lo, out=col[8]).addcmul_(y_lo, torch.tensor(-W, dtype=dt))  # pixel index of the box origin
         for t, (area, far) in enumerate(((area1, (ax, ay, za)), (area2.neg_(), (dx, dy, zd)))):
-            torch.reciprocal(area, out=inv[t])  # (b,c,d): the sign makes the far-corner barycentric s / area
+            torch.reciprocal(area, out=inv[t])  # (b,c,d) with the sign flipped: d's barycentric is s / (-area2)
             torch.mul(far[0], inv[t], out=far_x[t])
             torch.mul(far[1], inv[t], out=far_y[t])
             torch.sub(far[2], zc, out=far_z[t])
@@ -466,17 +466,21 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     second = second.int()
     out, q0, p0 = [], 0, 0
     bounds = [0] + torch.searchsorted(cov, torch.tensor([B * H * W for B, _ in info]).cumsum(0)).tolist()
-    shift = (H * W).bit_length() - 1 if H * W & (H * W - 1) == 0 else None  # a power of two: shifts, no division
     for m, ((B, (gv, gu)), K) in enumerate(zip(info, sizes)):
         lo, hi = bounds[m], bounds[m + 1]
         p = cov[lo:hi] - p0
-        batch = p >> shift if shift is not None else torch.div(p, H * W, rounding_mode="floor")
+        if H * W & (H * W - 1) == 0:  # a power of two: a shift and a mask, no division
+            batch, pixel = p >> (H * W).bit_length() - 1, p & (H * W - 1)
+        else:
+            batch = torch.div(p, H * W, rounding_mode="floor")
+            pixel = p - batch * (H * W)
         k, sec = quad[lo:hi] - q0, second[lo:hi]  # flat id of corner a; the quad's second triangle
         corners = torch.stack([k + sec, k + gu, k.add(sec, alpha=gu).add_(1)])  # grid_faces order
-        out.append({"size": (B, H, W), "grid": (gv, gu), "batch": batch, "pixel": p - (batch << shift if shift is not None
-                    else batch * (H * W)), "bary": bary[lo:hi], "corners": corners})
+        out.append({"size": (B, H, W), "grid": (gv, gu), "batch": batch, "pixel": pixel, "bary": bary[lo:hi],
+                    "corners": corners})
         q0, p0 = q0 + K, p0 + B * H * W
     return out
+
 
 def render_face(vertices_cam: torch.Tensor, faces: torch.Tensor, uv: torch.Tensor, resolution: int,
                 vertex_normal: torch.Tensor | None = None) -> dict:
