@@ -465,7 +465,7 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     bary = torch.stack([w_b, w_c, w_far]).t()
     second = second.int()
     out, q0, p0 = [], 0, 0
-    bounds = [0] + torch.searchsorted(cov, torch.tensor([B * H * W for B, _ in info]).cumsum(0)).tolist()
+    bounds = [0] + torch.searchsorted(cov, torch.tensor([B * H * W for B, _ in info], device=dev).cumsum(0)).tolist()
     for m, ((B, (gv, gu)), K) in enumerate(zip(info, sizes)):
         lo, hi = bounds[m], bounds[m + 1]
         p = cov[lo:hi] - p0
