@@ -10,13 +10,10 @@ CPU seconds).  The dataset's target is 1,000 images per CPU second at 64x64.
 """
 from __future__ import annotations
 
+import statistics
 import time
 
 from disent.bench import print_table, register
-
-
-def _median(xs: list[float]) -> float:
-    return sorted(xs)[len(xs) // 2]
 
 
 def generation_rates(ds, n: int, rounds: int) -> tuple[float, float]:
@@ -30,7 +27,7 @@ def generation_rates(ds, n: int, rounds: int) -> tuple[float, float]:
         ds.get_batch(range(start, start + n))
         wall.append(time.perf_counter() - t0)
         cpu.append(time.process_time() - c0)
-    return n / _median(wall), n / _median(cpu)
+    return n / statistics.median_high(wall), n / statistics.median_high(cpu)
 
 
 def bench_data(args) -> dict:
@@ -50,7 +47,7 @@ def bench_data(args) -> dict:
                 c0 = time.process_time()
                 render_scenes(p, res, pseudo=False)
                 bare.append(time.process_time() - c0)
-            out[f"images_per_cpu_s_{res}_without_pseudo"] = B / _median(bare)
+            out[f"images_per_cpu_s_{res}_without_pseudo"] = B / statistics.median_high(bare)
         out["batch"] = B
     print_table("SynthFaces generation (one thread, fresh indices, all layers + pseudo-GT)", out)
     return out
