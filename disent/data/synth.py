@@ -495,11 +495,12 @@ def pseudo_quads() -> torch.Tensor:
     return (r[:-1, :-1] | r[:-1, 1:] | r[1:, :-1] | r[1:, 1:]).flatten()
 
 
-def _uv_map_from_subgrid(vals: torch.Tensor, grid: tuple[int, int], res: int) -> torch.Tensor:
+def _uv_map_from_subgrid(vals: torch.Tensor, res: int) -> torch.Tensor:
     """Lay values on the pseudo mesh's (non-uniform) sub-grid out over UV space."""
     _, _, uv, (gv, gu) = pseudo_mesh()
     uv = uv.reshape(gv, gu, 2)
     return grid_to_uv_map(vals, res, (gv, gu), knots=(uv[:, 0, 1], uv[0, :, 0]))
+
 
 def render_scenes(p: dict, res: int, effects: dict | None = None, pseudo: bool = True) -> dict:
     """Render a batch of scenes ``p`` (from :func:`scene_params`) at ``res`` x ``res``.
@@ -584,13 +585,13 @@ def _pseudo_geometry(p: dict) -> dict:
 
 
 def _pseudo_maps(image: torch.Tensor, fit: dict, r: dict, res: int) -> dict:
-    idx, _, uv, grid = pseudo_mesh()
+    idx, _, uv, _ = pseudo_mesh()
     at = interpolate_covered([fit["vn"], face_model().face_region[idx, None], uv], r)  # at the covered pixels
     inside = torch.gt(at[3:4], 0.5, out=torch.empty_like(at[3:4]))  # the face region, where a 3DMM fits
     normal = paste(unit_planes(at[None, :3], inplace=True)[0].mul_(inside), r)
     mask = paste(inside, r)
     return {"normal_pseudo": normal, "mask_pseudo": mask, "uv_pseudo": paste(at[4:6].mul_(inside), r),
-            "normal_uv_pseudo": _uv_map_from_subgrid(fit["vn"], grid, res), "sh_pseudo": fit_sh_packed(image, normal, mask)}
+            "normal_uv_pseudo": _uv_map_from_subgrid(fit["vn"], res), "sh_pseudo": fit_sh_packed(image, normal, mask)}
 
 
 def fit_sh_packed(image: torch.Tensor, normal: torch.Tensor, mask: torch.Tensor, min_pixels: int = 16,
