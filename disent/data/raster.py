@@ -574,5 +574,6 @@ def _linear_weights(knots: torch.Tensor, res: int) -> torch.Tensor:
     W[torch.arange(res), i + 1] += f
     return W
 
+
 __all__ = ["pose_matrix", "to_camera", "vertex_normals", "grid_vertex_normals", "grid_faces", "rasterize", "rasterize_grids", "interpolate",
            "interpolate_covered", "paste", "pick", "face_ids", "sample_texture", "render_face", "grid_to_uv_map", "unit_planes", "MAX_WINDOW"]

@@ -174,8 +174,6 @@ def light_of_order(sh: torch.Tensor, order: int) -> torch.Tensor:
     return sh.float()
 
 
-
-
 def order_data(item: dict, noise: float, seed: int, albedo: str = "constant", normals: str = "normal",
                n_components: int = 20):
     """``(LightingData, texture or None)`` of one item for the order choice.

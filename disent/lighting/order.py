@@ -176,4 +176,5 @@ def choose(scores: dict, criterion: str = "evidence", threshold: float = DEFAULT
     return {"choice": pick, "order": scores[pick]["order"], "gray": scores[pick]["gray"],
             "criterion": criterion, "scores": scores}
 
+
 __all__ = ["candidates", "n_params", "score", "select_order", "choose", "DEFAULT_THRESHOLD"]
