@@ -13,7 +13,7 @@ import platform
 import statistics
 import time
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
 import torch
 
@@ -21,20 +21,26 @@ BENCH_JSON = Path("reports/bench.json")
 DEVICE = "cpu"  # set by --device
 
 
+def timed_rounds(fns: Sequence[Callable[[], object]], rounds: int = 5, warmup: int = 1) -> list[list[float]]:
+    """Wall seconds of each of ``fns`` in every round: within a round the functions run in turn,
+    so on a shared machine they see the load of the same moments.  ``warmup`` untimed rounds first."""
+    times = [[] for _ in fns]
+    for r in range(warmup + rounds):
+        for fn, out in zip(fns, times):
+            t0 = time.perf_counter()
+            fn()
+            if r >= warmup:
+                out.append(time.perf_counter() - t0)
+    return times
+
+
 def median_time(fn: Callable[[], object], rounds: int = 5, warmup: int = 1) -> float:
     """Median wall time in seconds of ``fn()`` over ``rounds`` after ``warmup`` calls."""
-    for _ in range(warmup):
-        fn()
-    times = []
-    for _ in range(rounds):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+    return statistics.median(timed_rounds([fn], rounds, warmup)[0])
 
 
-def measure_peak_gflops(n: int = 2048, rounds: int = 5, device: str = "cpu") -> float:
-    """This machine's fp32 matmul peak in GFLOP/s at the current thread count."""
+def matmul(n: int = 2048, device: str = "cpu") -> Callable[[], None]:
+    """One fp32 ``n x n`` matmul (``2 n^3`` FLOPs), synchronised: the peak's yardstick."""
     a = torch.randn(n, n, device=device)
     b = torch.randn(n, n, device=device)
     sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
@@ -43,7 +49,12 @@ def measure_peak_gflops(n: int = 2048, rounds: int = 5, device: str = "cpu") -> 
         a @ b
         sync()
 
-    return 2 * n**3 / median_time(mm, rounds) / 1e9
+    return mm
+
+
+def measure_peak_gflops(n: int = 2048, rounds: int = 5, device: str = "cpu") -> float:
+    """This machine's fp32 matmul peak in GFLOP/s at the current thread count."""
+    return 2 * n**3 / median_time(matmul(n, device), rounds) / 1e9
 
 
 def machine_info() -> dict:

@@ -46,6 +46,17 @@ def test_bench_json_schema(tiny_run):
     assert set(setup["implicit_vs_explicit"]) == set(RATES)
 
 
+def test_timed_rounds_alternates_and_times_each_call(monkeypatch):
+    """A rate and its peak run in turn within every round (so they share the load of the moment);
+    warm-up rounds are run but not timed, and each time is that call's own clock difference."""
+    clock, calls = iter(range(100)), []
+    monkeypatch.setattr(bench.time, "perf_counter", lambda: next(clock))
+    fns = [lambda: calls.append("rate"), lambda: (calls.append("peak"), next(clock))]  # the peak takes 1 tick more
+    times = bench.timed_rounds(fns, rounds=3, warmup=1)
+    assert calls == ["rate", "peak"] * 4
+    assert times == [[1, 1, 1], [2, 2, 2]]
+
+
 def test_bf16_figures_and_bf16_stays_close_to_float32():
     """bfloat16 autocast beside float32: rates, and the same weights give nearly the same losses and outputs."""
     from argparse import Namespace
@@ -88,7 +99,7 @@ def test_flops_scale_with_resolution():
     assert 3.0 < f[32] / f[16] < 4.0  # the fully connected layers grow less than 4x
 
 
-@pytest.mark.parametrize("c,o", [(8, 3), (5, 4)])
+@pytest.mark.parametrize("c,o", [(8, 3), (5, 4), (6, 5)])  # phase form, and a wide layer as written
 def test_upsample_conv_equals_conv_of_nearest_upsampling(c, o):
     torch.manual_seed(0)
     conv = torch.nn.Conv2d(c, o, 3, padding=1).double()
@@ -138,6 +149,31 @@ def test_inference_fast_paths_leave_the_outputs_unchanged():
     assert narrow > 0
     for k in ("recon", "background", "matte", "normal", "albedo"):
         torch.testing.assert_close(fast[k], plain[k], rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("name", ["explicit", "implicit"])
+def test_channels_last_model_computes_the_same_outputs_and_gradients(name):
+    """Memory format is a speed choice only: a channels-last copy of a model (NHWC from the
+    decoders' first map on) gives the contiguous model's outputs and weight gradients."""
+    import copy
+
+    from disent.models import build_model
+    from disent.models.bench import model_cfg
+
+    torch.manual_seed(0)
+    model = build_model(model_cfg(name, 16))
+    nhwc = copy.deepcopy(model).to(memory_format=torch.channels_last)
+    x = torch.rand(2, 3, 16, 16)
+    outs, grads = [], []
+    for m, image in ((model, x), (nhwc, x.contiguous(memory_format=torch.channels_last))):
+        out = m(image)
+        (out["recon"].square().mean() + out["normal"].sum()).backward()
+        outs.append(out)
+        grads.append({k: p.grad for k, p in m.named_parameters()})
+    for k in ("recon", "normal", "albedo", "matte", "background"):
+        torch.testing.assert_close(outs[1][k], outs[0][k], rtol=1e-4, atol=1e-5)
+    for k, g in grads[0].items():
+        torch.testing.assert_close(grads[1][k], g, rtol=1e-3, atol=1e-5, msg=k)
 
 
 def test_shading_stays_float32_under_mixed_precision():

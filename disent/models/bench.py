@@ -5,8 +5,8 @@ pass and for a whole training step (generator and EBGAN discriminator, forward a
 then training images/s with and without the discriminator and inference images/s at batch
 1, 64 and 256, each also as a fraction of the fp32 matmul peak measured in the same run
 (``achieved FLOP/s / peak``).  Every figure is the median of several rounds; the machine is
-shared, so the peak is measured right before and after each rate and that rate is stated
-against their mean (``<rate>_peak_gflops``); ``peak_gflops`` is the median of all of them.  The data
+shared, so each rate's rounds alternate with rounds of the peak's matmul and the rate is
+stated against the median of those (``<rate>_peak_gflops``); ``peak_gflops`` is the median of all of them.  The data
 loader (``SynthFaces.get_batch`` on fresh indices) is timed alone at the training batch
 size, to show it outruns training (training renders batches in a background thread,
 ``train.prefetch``).  Beside the float32 figures, bfloat16 autocast ones (``*_bf16_*``; by default only
@@ -27,7 +27,7 @@ import torch
 from omegaconf import OmegaConf
 from torch.utils.flop_counter import FlopCounterMode
 
-from disent.bench import measure_peak_gflops, median_time, print_table, register
+from disent.bench import matmul, print_table, register, timed_rounds
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 MODELS = ("explicit", "implicit", "baseline")
@@ -109,12 +109,12 @@ def autocast(device, enabled: bool):
     return torch.autocast(torch.device(device).type, dtype=torch.bfloat16, enabled=enabled)
 
 
-def beside_peak(args, device, measure):
-    """``(measure(), peak)``: the matmul peak is taken right before and right after the rate,
-    and their mean returned, so that a rate and its peak share the machine's load of the moment."""
-    before = measure_peak_gflops(args.peak_n, rounds=args.rounds, device=device)
-    rate = measure()
-    return rate, (before + measure_peak_gflops(args.peak_n, rounds=args.rounds, device=device)) / 2
+def beside_peak(args, device, fn, items: int, rounds: int, warmup: int = 1) -> tuple[float, float]:
+    """``(items/s of fn, matmul peak GFLOP/s)``, timed alternately round by round (``fn``, then one
+    ``--peak-n`` matmul), each the median over ``rounds``: on a shared machine a rate and its
+    peak then see the load of the same moments."""
+    t_fn, t_mm = timed_rounds([fn, matmul(args.peak_n, device)], rounds, warmup)
+    return items / statistics.median(t_fn), 2 * args.peak_n**3 / statistics.median(t_mm) / 1e9
 
 
 def bench_one(name: str, args, device: str, sync) -> dict:
@@ -128,22 +128,24 @@ def bench_one(name: str, args, device: str, sync) -> dict:
         out[f"{key}_flops_per_image"] = count_flops(tr.step) / n
         tr.step()  # warm-up (allocator, RMSprop state)
         out[f"{key}_img_s"], out[f"{key}_peak_gflops"] = beside_peak(
-            args, device, lambda: n / median_time(lambda: (tr.step(), sync()), rounds))
+            args, device, lambda: (tr.step(), sync()), n, rounds)
     model = tr.model.eval()
     fmt = torch.channels_last if channels_last else torch.contiguous_format
     with torch.inference_mode():
         out["flops_per_image"] = count_flops(lambda: model(batch["image"][:2])) / 2
         for B in args.infer_batches:
             x = batch["image"].repeat(-(-B // n), 1, 1, 1)[:B].contiguous(memory_format=fmt)
+            calls = max(1, 64 // B)  # a small batch runs several times a round, as long as a batch of 64
 
             def infer():
-                with autocast(device, args.amp):
-                    model(x)
+                for _ in range(calls):
+                    with autocast(device, args.amp):
+                        model(x)
                 sync()
 
             key = "infer" if B == 64 else f"infer_b{B}"
             out[f"{key}_img_s"], out[f"{key}_peak_gflops"] = beside_peak(
-                args, device, lambda: B / median_time(infer, rounds if B > 1 else 20 * rounds, warmup=2))
+                args, device, infer, B * calls, rounds, warmup=2)
     bf16 = getattr(args, "bf16", False)
     if bf16 is None:  # default: where bf16 is native
         bf16 = device.startswith("cuda") or cpu_has_bf16()
@@ -175,7 +177,7 @@ def bench_bf16(name: str, args, device: str, sync, batch: dict) -> dict:
     out["bf16_first_step_term_max_abs_diff"] = max(diff.values())  # every term in its own units (~1e-3 .. 1)
     tr.step()
     out["train_bf16_img_s"], out["train_bf16_peak_gflops"] = beside_peak(
-        args, device, lambda: n / median_time(lambda: (tr.step(), sync()), rounds))
+        args, device, lambda: (tr.step(), sync()), n, rounds)
     model = tr.model.eval()
     x = batch["image"]
     with torch.inference_mode():
@@ -189,7 +191,7 @@ def bench_bf16(name: str, args, device: str, sync, batch: dict) -> dict:
             sync()
 
         out["infer_bf16_img_s"], out["infer_bf16_peak_gflops"] = beside_peak(
-            args, device, lambda: len(x) / median_time(infer, rounds, warmup=2))
+            args, device, infer, len(x), rounds, warmup=2)
     diff = (low["recon"].float() - ref["recon"]).abs()
     out["bf16_recon_max_abs_diff"], out["bf16_recon_mean_abs_diff"] = diff.max().item(), diff.mean().item()
     if "normal" in ref:

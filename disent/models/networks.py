@@ -26,10 +26,14 @@ PHASE_TAPS = torch.tensor([[[1.0, 0, 0], [0, 1, 1], [0, 0, 0]],
 
 
 def upsample_conv(x: torch.Tensor, conv: nn.Conv2d) -> torch.Tensor:
-    """``conv(interpolate(x, scale_factor=2, mode="nearest"))`` as one convolution with 4x the
-    output channels (one per phase) and a pixel shuffle: the upsampled tensor is never built,
-    and a narrow last layer (3 outputs) becomes a 12-output one, which runs several times faster."""
+    """``conv(interpolate(x, scale_factor=2, mode="nearest"))``.  A narrow layer (at most
+    ``NARROW_MAX`` outputs, the last one) runs as one convolution with 4x the output channels
+    (one per phase) and a pixel shuffle: the upsampled tensor is never built, and 3 outputs
+    become 12, which runs several times faster.  Wider layers run as written: on the CPU oneDNN
+    takes the full-resolution convolution faster than the 4x-wide low-resolution one."""
     o, c = conv.weight.shape[:2]
+    if o > NARROW_MAX:
+        return conv3x3(F.interpolate(x, scale_factor=2, mode="nearest"), conv.weight, conv.bias)
     taps = PHASE_TAPS.to(conv.weight)
     w = torch.einsum("apk,bql,ockl->oabcpq", taps, taps, conv.weight).reshape(4 * o, c, 3, 3)
     y = conv3x3(x, w, conv.bias.repeat_interleave(4))
@@ -113,6 +117,8 @@ class Decoder(nn.Module):
         if self.skips and switches is None:
             raise ValueError("this decoder unpools with the encoder's switches; pass codes['switches']")
         x = F.relu(self.fc(code)).view(code.shape[0], CHANNELS[-1], self.side, self.side)
+        if self.convs[0].weight.is_contiguous(memory_format=torch.channels_last):
+            x = x.contiguous(memory_format=torch.channels_last)  # a channels-last model: NHWC from the first map on
         for i, conv in enumerate(self.convs):
             if self.skips:
                 x = conv3x3(F.max_unpool2d(x, switches[-1 - i], 2), conv.weight, conv.bias)
