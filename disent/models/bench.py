@@ -6,7 +6,8 @@ then training images/s with and without the discriminator and inference images/s
 1, 64 and 256, each also as a fraction of the fp32 matmul peak measured in the same run
 (``achieved FLOP/s / peak``).  Every figure is the median of several rounds; the machine is
 shared, so each rate's rounds alternate with rounds of the peak's matmul and the rate is
-stated against the median of those (``<rate>_peak_gflops``); ``peak_gflops`` is the median of all of them.  The data
+stated against the median of those (``<rate>_peak_gflops``); ``peak_gflops`` is the median of all of them.
+``implicit_vs_explicit`` compares the two models' images/s timed in alternating rounds.  The data
 loader (``SynthFaces.get_batch`` on fresh indices) is timed alone at the training batch
 size, to show it outruns training (training renders batches in a background thread,
 ``train.prefetch``).  Beside the float32 figures, bfloat16 autocast ones (``*_bf16_*``; by default only
@@ -199,6 +200,29 @@ def bench_bf16(name: str, args, device: str, sync, batch: dict) -> dict:
     return out
 
 
+def interleaved_ratios(args, device: str, sync, a: str = "implicit", b: str = "explicit") -> dict:
+    """Images/s of model ``a`` over model ``b``, the two timed in alternating rounds on the same batch
+    (training with and without D, inference at the training batch): on a shared machine a ratio of
+    rates measured minutes apart carries the load of both moments, alternating rounds share it."""
+    channels_last, n = not args.no_channels_last, args.train_batch
+    batch = synth_batch(n, args.size, device, channels_last)
+    out = {}
+    for adv in (True, False):
+        steps = [Trainer(name, batch, adv, device, channels_last, args.amp).step for name in (a, b)]
+        t_a, t_b = timed_rounds([lambda s=s: (s(), sync()) for s in steps], args.rounds)
+        out["train_img_s" if adv else "train_no_d_img_s"] = statistics.median(t_b) / statistics.median(t_a)
+    models = [Trainer(name, batch, False, device, channels_last).model.eval() for name in (a, b)]
+
+    def infer(model):
+        with torch.inference_mode(), autocast(device, args.amp):
+            model(batch["image"])
+        sync()
+
+    t_a, t_b = timed_rounds([lambda m=m: infer(m) for m in models], args.rounds, warmup=2)
+    out["infer_img_s"] = statistics.median(t_b) / statistics.median(t_a)
+    return out
+
+
 def add_fractions(fig: dict, peak_gflops: float) -> None:
     """``<key>_fraction_of_peak`` = FLOPs per image x images/s / peak FLOP/s, for every rate, against
     the peak measured beside that rate (``<key>_peak_gflops``), else ``peak_gflops``."""
@@ -222,8 +246,7 @@ def bench_models(args) -> dict:
              "channels_last": not args.no_channels_last, "malloc_tuned": getattr(args, "malloc_tuned", False),
              "bf16_avx512_bf16_or_amx": cpu_has_bf16() if not device.startswith("cuda") else None}
     if "explicit" in figures and "implicit" in figures:
-        e, i = figures["explicit"], figures["implicit"]
-        setup["implicit_vs_explicit"] = {k: i[k] / e[k] for k in ("train_img_s", "train_no_d_img_s", "infer_img_s")}
+        setup["implicit_vs_explicit"] = interleaved_ratios(args, device, sync)
     if not device.startswith("cuda"):
         setup["loader_img_s"], setup["loader_img_cpu_s"] = loader_img_s(args.train_batch, args.size, args.rounds)
         setup["loader_vs_fastest_training"] = setup["loader_img_s"] / max(f["train_no_d_img_s"] for f in figures.values())
