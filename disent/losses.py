@@ -71,15 +71,14 @@ def recon_L(out, batch, c: float | None = 0.75, space: str = "shading"):
     """
     target, mask, normal = batch["sh_pseudo"], batch["mask_pseudo"], batch["normal_pseudo"]
     if c is not None:
-        s_hat = sh_shading(normal, target) * mask
-        mean = s_hat.sum((0, 2, 3)) / mask.sum().clamp_min(1e-8)  # [C]
+        mean = (sh_shading(normal, target) * mask).sum((0, 2, 3)) / mask.sum().clamp_min(1e-8)  # [C]
         target = target * (c / mean.clamp_min(1e-3))[None, :, None]
     target = target.detach()
     if space == "coefficients":
         return F.mse_loss(out["sh"], target)
     if space != "shading":
         raise ValueError(f"recon_L space must be 'shading' or 'coefficients', got {space!r}")
-    return masked_mean((sh_shading(normal, out["sh"]) - sh_shading(normal, target)).pow(2), mask)
+    return masked_mean(sh_shading(normal, out["sh"] - target).pow(2), mask)  # Eq. 4 is linear in L
 
 
 def smooth_A(out, batch):
