@@ -19,7 +19,7 @@ def tiny_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("bench") / "bench.json"
     threads = torch.get_num_threads()
     try:
-        bench.main(["peak", "models", "--models", "explicit", "implicit", "--rounds", "1", "--peak-n", "256",
+        bench.main(["peak", "models", "profile", "--models", "explicit", "implicit", "--rounds", "1", "--peak-n", "256",
                     "--train-batch", "2", "--infer-batches", "1", "64", "--threads", "1", "--no-bf16", "--out", str(out)])
     finally:
         torch.set_num_threads(threads)
@@ -44,6 +44,19 @@ def test_bench_json_schema(tiny_run):
     assert setup["train_batch"] == 2 and setup["loader_img_s"] > 0 and setup["loader_img_cpu_s"] > 0
     assert setup["loader_vs_explicit_training"] > 0
     assert set(setup["implicit_vs_explicit"]) == set(RATES)
+
+
+def test_profile_section(tiny_run):
+    """Per operator self CPU ms of a training step and an inference batch: the largest first,
+    the rest in ``other``, and the parts sum to ``total``."""
+    for name in ("explicit", "implicit"):
+        for part in ("train_step_ms", "infer_batch_ms"):
+            ops = dict(tiny_run["profile"][f"{name}_{part}"])
+            total, share = ops.pop("total"), ops.pop("convolution_share")
+            assert sum(ops.values()) == pytest.approx(total) and 0 < share < 1
+            named = [v for k, v in sorted(ops.items()) if k != "other"]  # keys "01 name", "02 name", ...
+            assert len(named) == 12 and named == sorted(named, reverse=True)
+    assert any("convolution_backward" in k for k in tiny_run["profile"]["explicit_train_step_ms"])
 
 
 def test_timed_rounds_alternates_and_times_each_call(monkeypatch):

@@ -13,6 +13,9 @@ size, to show it outruns training (training renders batches in a background thre
 ``train.prefetch``).  Beside the float32 figures, bfloat16 autocast ones (``*_bf16_*``; by default only
 where bf16 is native: a GPU or a CPU with AVX512-BF16/AMX; ``--bf16`` forces them) and how far bf16 moves the losses and outputs.
 
+``profile``: self CPU milliseconds by operator (``torch.profiler``) of one training step with D and
+one inference batch per model, the largest operators first.
+
 ``time_to_accuracy``: minutes of training wall time until the network's normals beat the
 pseudo ground truth's (mean angular error on the same pixels), read from a run's
 ``metrics.jsonl`` (the periodic ``val`` records and the final ``eval``; the newest run under
@@ -258,6 +261,43 @@ def bench_models(args) -> dict:
     return {**figures, "top": {"peak_gflops": peak, "models_setup": setup}}
 
 
+# ----------------------------------------------------------------------------- profile
+def top_ops(fn, calls: int = 3, top: int = 12) -> dict:
+    """Self CPU milliseconds per call of ``fn`` by operator (``torch.profiler``): the ``top`` largest,
+    keyed by rank and name (``"01 aten::convolution_backward"``, so that sorted keys keep the order),
+    the rest summed as ``other``, and ``total``; ``convolution_share`` is the convolutions' part."""
+    from torch.profiler import ProfilerActivity, profile
+
+    fn()  # warm-up outside the profile
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        for _ in range(calls):
+            fn()
+    ms = {e.key: e.self_cpu_time_total / 1e3 / calls for e in prof.key_averages()}
+    ranked = sorted(ms.items(), key=lambda kv: -kv[1])
+    total = sum(ms.values())
+    conv = sum(v for k, v in ms.items() if "convolution" in k)
+    return {**{f"{i:02d} {k}": v for i, (k, v) in enumerate(ranked[:top], 1)}, "other": sum(v for _, v in ranked[top:]), "total": total,
+            "convolution_share": conv / total}
+
+
+def bench_profile(args) -> dict:
+    """Where a training step with D and an inference batch spend their time, by operator."""
+    channels_last, n = not args.no_channels_last, args.train_batch
+    batch = synth_batch(n, args.size, args.device, channels_last)
+    out = {}
+    for name in args.models or MODELS:
+        tr = Trainer(name, batch, True, args.device, channels_last, args.amp)
+        tr.step()
+        out[f"{name}_train_step_ms"] = top_ops(tr.step)
+        model = tr.model.eval()
+        with torch.inference_mode():
+            out[f"{name}_infer_batch_ms"] = top_ops(lambda: model(batch["image"]))
+        for key in (f"{name}_train_step_ms", f"{name}_infer_batch_ms"):
+            print_table(f"{key.replace('_', ' ')} (self CPU ms per call, batch {n}, {torch.get_num_threads()} threads)",
+                        out[key])
+    return out
+
+
 # ----------------------------------------------------------------------------- time to accuracy
 def latest_run(root: Path = Path("outputs")) -> Path | None:
     runs = sorted(root.glob("*/*/metrics.jsonl"), key=lambda p: p.stat().st_mtime)
@@ -307,4 +347,5 @@ def bench_time_to_accuracy(args) -> dict:
 
 
 register("models", bench_models)
+register("profile", bench_profile)
 register("time_to_accuracy", bench_time_to_accuracy)
