@@ -37,9 +37,12 @@ def upsample_conv(x: torch.Tensor, conv: nn.Conv2d) -> torch.Tensor:
     taps = PHASE_TAPS.to(conv.weight)
     w = torch.einsum("apk,bql,ockl->oabcpq", taps, taps, conv.weight).reshape(4 * o, c, 3, 3)
     y = conv3x3(x, w, conv.bias.repeat_interleave(4))
-    if o <= NARROW_MAX and not torch.is_grad_enabled() and y.is_contiguous(memory_format=torch.channels_last):
-        return shuffle_to_planes(y)
-    return F.pixel_shuffle(y, 2)
+    return shuffle_to_planes(y) if cpu_nhwc_inference(y) else F.pixel_shuffle(y, 2)
+
+
+def cpu_nhwc_inference(x: torch.Tensor) -> bool:
+    """Inference (no autograd) on the CPU with channels-last maps: where the narrow fast paths pay."""
+    return not torch.is_grad_enabled() and x.device.type == "cpu" and x.is_contiguous(memory_format=torch.channels_last)
 
 
 def shuffle_to_planes(y: torch.Tensor) -> torch.Tensor:
@@ -71,8 +74,7 @@ def narrow_conv(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> to
 def conv3x3(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
     """``F.conv2d(x, weight, bias, padding=1)``; at inference on the CPU, outputs of at most
     ``NARROW_MAX`` maps go through :func:`narrow_conv` (in training its backward was slower)."""
-    if weight.shape[0] <= NARROW_MAX and not torch.is_grad_enabled() and x.device.type == "cpu" \
-            and x.is_contiguous(memory_format=torch.channels_last):
+    if weight.shape[0] <= NARROW_MAX and cpu_nhwc_inference(x):
         return narrow_conv(x, weight, bias)
     return F.conv2d(x, weight, bias, padding=1)
 
