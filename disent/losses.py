@@ -151,5 +151,11 @@ def generator_losses(out: dict, batch: dict, weights: dict, energy_fake=None, bw
 
 
 def discriminator_loss(energy_real: torch.Tensor, energy_fake: torch.Tensor, margin: float) -> torch.Tensor:
-    """EBGAN margin loss that trains D: ``D(x) + max(0, m - D(G))`` (batch means)."""
+    """EBGAN margin loss that trains D: ``D(x) + max(0, m - D(G))`` (batch means).
+
+    When every generated image is past the margin the second term and its gradient are exactly
+    zero; it is then left out of the graph, so that D's backward pass skips the generated batch
+    (in the default runs most steps are such steps)."""
+    if not bool((energy_fake < margin).any()):
+        return energy_real.mean()
     return energy_real.mean() + F.relu(margin - energy_fake).mean()

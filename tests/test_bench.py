@@ -39,6 +39,8 @@ def test_bench_json_schema(tiny_run):
         assert "infer_b1_img_s" in m and "infer_b256_img_s" not in m  # only the batches asked for
         # FLOPs: a training step (forward + backward) costs more than the forward, D adds to it
         assert 0 < m["flops_per_image"] < m["train_no_d_flops_per_image"] < m["train_flops_per_image"]
+        # every generated image past D's margin: D's backward skips the generated batch for D's own loss
+        assert m["train_no_d_flops_per_image"] < m["train_past_margin_flops_per_image"] < m["train_flops_per_image"]
         assert not any("bf16" in k for k in m)  # --no-bf16
     setup = d["models_setup"]
     assert setup["train_batch"] == 2 and setup["loader_img_s"] > 0 and setup["loader_img_cpu_s"] > 0

@@ -110,8 +110,14 @@ def test_discriminator_energy_and_margin_loss():
     D = Discriminator(R)
     x = torch.rand(3, 3, R, R)
     torch.testing.assert_close(D.energy(x), (D(x) - x).pow(2).mean((1, 2, 3)))
-    real, fake = torch.tensor([0.1, 0.3]), torch.tensor([0.5, 2.5])
-    assert L.discriminator_loss(real, fake, margin=1.0).item() == pytest.approx(0.2 + (0.5 + 0) / 2)
+    real, fake = torch.tensor([0.1, 0.3], requires_grad=True), torch.tensor([0.5, 2.5], requires_grad=True)
+    loss = L.discriminator_loss(real, fake, margin=1.0)
+    assert loss.item() == pytest.approx(0.2 + (0.5 + 0) / 2)
+    assert torch.autograd.grad(loss, fake)[0].tolist() == [-0.5, 0.0]
+    # every generated image past the margin: the same value and a zero gradient, and the
+    # generated batch is out of the graph (its backward pass is skipped)
+    loss = L.discriminator_loss(real, fake, margin=0.5)
+    assert loss.item() == pytest.approx(0.2) and torch.autograd.grad(loss, fake, allow_unused=True)[0] is None
 
 
 def test_loss_terms_closed_forms():
@@ -221,3 +227,23 @@ def test_adversarial_step_updates_generator_and_discriminator_from_their_own_los
     assert {"recon", "adv", "D", "total"} <= set(losses)
     for p0, p, g in zip(d0, D.parameters(), expected):
         torch.testing.assert_close(p0 - 0.1 * g, p.detach(), atol=1e-6, rtol=1e-5)
+
+
+@pytest.mark.parametrize("margin", [1e-9, 10.0])  # every generated image past the margin / inside it
+def test_leaving_out_the_generated_batch_past_the_margin_changes_no_bit(monkeypatch, margin):
+    """D's loss drops the generated batch when every image is past the margin; the step's
+    updates of both networks are bitwise those of the plain EBGAN loss."""
+    cfg = compose_cfg("model=explicit").loss
+    cfg.margin = margin
+    plain = lambda real, fake, m: real.mean() + F.relu(m - fake).mean()
+    params = []
+    for loss in (L.discriminator_loss, plain):
+        torch.manual_seed(0)
+        model, D = build_model(model_cfg("explicit")), Discriminator(R)
+        opt_g, opt_d = torch.optim.SGD(model.parameters(), lr=0.1), torch.optim.SGD(D.parameters(), lr=0.1)
+        monkeypatch.setattr(L, "discriminator_loss", loss)
+        before = [p.detach().clone() for p in D.parameters()]
+        train_step(model, D, opt_g, opt_d, fake_batch(), cfg)
+        assert not all(torch.equal(a, b) for a, b in zip(before, D.parameters()))  # D did learn
+        params.append([p.detach().clone() for p in (*model.parameters(), *D.parameters())])
+    assert all(torch.equal(a, b) for a, b in zip(*params))
