@@ -4,12 +4,13 @@
 pass and for a whole training step (generator and EBGAN discriminator, forward and backward),
 then training images/s with and without the discriminator and inference images/s at batch
 1, 64 and 256, each also as a fraction of the fp32 matmul peak measured in the same run
-(``achieved FLOP/s / peak``).  Training with D is timed doing its whole work (every generated image
-inside D's margin, ``FULL_WORK_MARGIN``) and, as ``train_past_margin``, with every generated image past
-the margin, where D's loss leaves the generated batch out (most steps of the default runs).  Every figure is the median of several rounds; the machine is
-shared, so each rate's rounds alternate with rounds of the peak's matmul and the rate is
-stated against the median of those (``<rate>_peak_gflops``); ``peak_gflops`` is the median of all of them.
-``implicit_vs_explicit`` compares the two models' images/s timed in alternating rounds.  The data
+(``achieved FLOP/s / peak``).  Training with D is timed doing its whole work (every generated
+image inside D's margin, ``FULL_WORK_MARGIN``) and, as ``train_past_margin``, with every generated
+image past the margin, where D's loss leaves the generated batch out (most steps of the default
+runs).  Every figure is the median of several rounds; the machine is shared, so each rate's rounds
+alternate with rounds of the peak's matmul and the rate is stated against the median of those
+(``<rate>_peak_gflops``); ``peak_gflops`` is the median of all of them.  ``implicit_vs_explicit``
+compares the two models' images/s timed in alternating rounds.  The data
 loader (``SynthFaces.get_batch`` on fresh indices) is timed alone at the training batch
 size, to show it outruns training (training renders batches in a background thread,
 ``train.prefetch``).  Beside the float32 figures, bfloat16 autocast ones (``*_bf16_*``; by default only
@@ -286,8 +287,8 @@ def top_ops(fn, calls: int = 3, top: int = 12) -> dict:
     ranked = sorted(ms.items(), key=lambda kv: -kv[1])
     total = sum(ms.values())
     conv = sum(v for k, v in ms.items() if "convolution" in k)
-    return {**{f"{i:02d} {k}": v for i, (k, v) in enumerate(ranked[:top], 1)}, "other": sum(v for _, v in ranked[top:]), "total": total,
-            "convolution_share": conv / total}
+    return {**{f"{i:02d} {k}": v for i, (k, v) in enumerate(ranked[:top], 1)},
+            "other": sum(v for _, v in ranked[top:]), "total": total, "convolution_share": conv / total}
 
 
 def bench_profile(args) -> dict:
