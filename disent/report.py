@@ -394,6 +394,40 @@ def sec_speed(rep: Report, runs: list[Run]) -> None:
         rep.note("no run has a normal error (baseline-only runs).")
 
 
+FRACTION_TARGETS = {"train": 0.55, "infer": 0.60}  # training with D, inference at batch 64
+
+
+def plot_fractions(rep: Report, models: dict, device: str, threads) -> None:
+    """Bar chart: each model's achieved FLOP/s as a fraction of the matmul peak of its run."""
+    plt = _plt()
+    rates = [("train", "train\nwith D"), ("train_past_margin", "train, fakes\npast D's margin"),
+             ("train_no_d", "train\nwithout D"), ("infer_b1", "infer\nbatch 1"), ("infer", "infer\nbatch 64"),
+             ("infer_b256", "infer\nbatch 256")]
+    order = ("explicit", "implicit", "baseline")
+    models = dict(sorted(models.items(), key=lambda kv: order.index(kv[0]) if kv[0] in order else len(order)))
+    rates = [(k, label) for k, label in rates if any(f"{k}_fraction_of_peak" in m for m in models.values())]
+    fig, ax = plt.subplots(figsize=(7, 2.8))
+    width = 0.8 / len(models)
+    for j, (name, m) in enumerate(models.items()):
+        ax.bar([i + j * width for i in range(len(rates))], [m.get(f"{k}_fraction_of_peak", 0) for k, _ in rates],
+               width, label=name)
+    for k, target in FRACTION_TARGETS.items():
+        i = [r for r, _ in rates].index(k) if k in [r for r, _ in rates] else None
+        if i is not None:
+            ax.hlines(target, i - width / 2, i + width * (len(models) - 0.5), colors="k", linestyles="--", lw=1)
+    ax.set_xticks([i + width * (len(models) - 1) / 2 for i in range(len(rates))], [label for _, label in rates], fontsize=7)
+    ax.set_ylabel("fraction of matmul peak")
+    ax.set_title(f"Achieved FLOP/s over the fp32 matmul peak of the same run ({device}, {threads} threads); "
+                 "dashed: the explicit model's targets", fontsize=8)
+    ax.set_ylim(0, 1)
+    ax.legend(fontsize=7, ncol=len(models), loc="upper left")
+    fig.tight_layout()
+    path = rep.fig / "bench_fractions.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    rep.image(path, "fraction of peak by model and rate")
+
+
 def sec_bench(rep: Report, out: Path) -> None:
     bench = _load_json(out / "bench.json")
     if not bench:
@@ -412,6 +446,8 @@ def sec_bench(rep: Report, out: Path) -> None:
     env = {k: v for k, v in bench.items() if not isinstance(v, dict)}
     if env:
         rep.add("Machine: " + ", ".join(f"{k}={fmt(v)}" for k, v in env.items()) + "\n")
+    if isinstance(bench.get("models"), dict):
+        plot_fractions(rep, bench["models"], bench.get("device", "cpu"), bench.get("threads"))
     for section, vals in bench.items():
         if not isinstance(vals, dict):
             continue

@@ -149,3 +149,21 @@ def test_pick_runs_prefers_the_longest_trained_run(tmp_path):
         (d / "checkpoints" / "last.pt").write_bytes(b"")
     chosen = pick_runs(find_runs([tmp_path]))
     assert set(chosen) == {"explicit"} and chosen["explicit"].path.name == "long"
+
+
+def test_bench_section_charts_the_fractions_of_peak(tmp_path):
+    """A bench.json with models gets the fraction-of-peak chart and every figure in a table; one
+    without models gets only the tables."""
+    models = {"explicit": {"train_fraction_of_peak": 0.58, "infer_fraction_of_peak": 0.66, "train_img_s": 52.0},
+              "implicit": {"train_fraction_of_peak": 0.55, "infer_fraction_of_peak": 0.7, "train_img_s": 46.0}}
+    (tmp_path / "bench.json").write_text(json.dumps({"device": "cpu", "threads": 2, "models": models}))
+    rep = report.Report(tmp_path)
+    report.sec_bench(rep, tmp_path)
+    text = "\n".join(rep.lines)
+    assert (tmp_path / "figures" / "bench_fractions.png").stat().st_size > 0
+    assert "figures/bench_fractions.png" in text and "| explicit.train_fraction_of_peak | 0.58 |" in text
+    (tmp_path / "figures" / "bench_fractions.png").unlink()
+    (tmp_path / "bench.json").write_text(json.dumps({"device": "cpu", "data": {"images_per_s_64": 1000.0}}))
+    rep = report.Report(tmp_path)
+    report.sec_bench(rep, tmp_path)
+    assert not (tmp_path / "figures" / "bench_fractions.png").exists() and "| images_per_s_64 | 1000 |" in "\n".join(rep.lines)
