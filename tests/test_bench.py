@@ -130,19 +130,23 @@ def test_upsample_conv_equals_conv_of_nearest_upsampling(c, o):
 
 
 @pytest.mark.parametrize("o", [1, 3, 12])
-def test_narrow_conv_equals_conv2d_with_gradients(o):
-    from disent.models.networks import narrow_conv
+@pytest.mark.parametrize("fn", ["narrow_conv", "NarrowConv"])  # autograd through it / its own backward
+def test_narrow_conv_equals_conv2d_with_gradients(o, fn):
+    import disent.models.networks as N
 
+    conv = N.narrow_conv if fn == "narrow_conv" else N.NarrowConv.apply
     torch.manual_seed(0)
     x = torch.randn(2, 5, 6, 7, dtype=torch.float64).contiguous(memory_format=torch.channels_last).requires_grad_()
     w = torch.randn(o, 5, 3, 3, dtype=torch.float64, requires_grad=True)
     b = torch.randn(o, dtype=torch.float64, requires_grad=True)
     ref = F.conv2d(x, w, b, padding=1)
-    out = narrow_conv(x, w, b)
+    out = conv(x, w, b)
     torch.testing.assert_close(out, ref)
     g = torch.randn_like(ref)
     for a, r in zip(torch.autograd.grad(out, (x, w, b), g), torch.autograd.grad(ref, (x, w, b), g)):
         torch.testing.assert_close(a, r)
+    if fn == "NarrowConv":  # gradients against finite differences
+        assert torch.autograd.gradcheck(conv, (x[:1, :, :3, :4].detach().requires_grad_(), w, b))
 
 
 def test_inference_fast_paths_leave_the_outputs_unchanged():

@@ -37,12 +37,12 @@ def upsample_conv(x: torch.Tensor, conv: nn.Conv2d) -> torch.Tensor:
     taps = PHASE_TAPS.to(conv.weight)
     w = torch.einsum("apk,bql,ockl->oabcpq", taps, taps, conv.weight).reshape(4 * o, c, 3, 3)
     y = conv3x3(x, w, conv.bias.repeat_interleave(4))
-    return shuffle_to_planes(y) if cpu_nhwc_inference(y) else F.pixel_shuffle(y, 2)
+    return shuffle_to_planes(y) if cpu_nhwc(y) and not torch.is_grad_enabled() else F.pixel_shuffle(y, 2)
 
 
-def cpu_nhwc_inference(x: torch.Tensor) -> bool:
-    """Inference (no autograd) on the CPU with channels-last maps: where the narrow fast paths pay."""
-    return not torch.is_grad_enabled() and x.device.type == "cpu" and x.is_contiguous(memory_format=torch.channels_last)
+def cpu_nhwc(x: torch.Tensor) -> bool:
+    """Channels-last maps on the CPU: where the narrow fast paths pay."""
+    return x.device.type == "cpu" and x.is_contiguous(memory_format=torch.channels_last)
 
 
 def shuffle_to_planes(y: torch.Tensor) -> torch.Tensor:
@@ -71,11 +71,42 @@ def narrow_conv(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> to
     return out[:, :, 1:H + 1, 1:W + 1].permute(1, 0, 2, 3)
 
 
-def conv3x3(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
-    """``F.conv2d(x, weight, bias, padding=1)``; at inference on the CPU, outputs of at most
-    ``NARROW_MAX`` maps go through :func:`narrow_conv` (in training its backward was slower)."""
-    if weight.shape[0] <= NARROW_MAX and cpu_nhwc_inference(x):
+class NarrowConv(torch.autograd.Function):
+    """:func:`narrow_conv` with a backward for training: the input gradient from oneDNN (fast with
+    few output maps), the weight gradient as one matrix product of the nine shifted output gradients
+    with the input, ``[9*O, B*H*W] @ [B*H*W, C]`` (oneDNN's runs at ~10-20 GFLOP/s with 1-3 outputs)."""
+
+    @staticmethod
+    def forward(ctx, x, weight, bias):
+        ctx.save_for_backward(x, weight)
         return narrow_conv(x, weight, bias)
+
+    @staticmethod
+    def backward(ctx, grad):
+        x, weight = ctx.saved_tensors
+        (B, C, H, W), O = x.shape, weight.shape[0]
+        grad_x = grad_w = grad_b = None
+        if ctx.needs_input_grad[0]:
+            grad_x = torch.ops.aten.convolution_backward(grad, x, weight, None, [1, 1], [1, 1], [1, 1], False, [0, 0],
+                                                         1, [True, False, False])[0]
+        if ctx.needs_input_grad[1]:  # tap (dy, dx) of input pixel p meets the output gradient at p - (dy - 1, dx - 1)
+            g = F.pad(grad.permute(1, 0, 2, 3), (1, 1, 1, 1))  # [O, B, H+2, W+2]
+            shifted = torch.stack([g[:, :, 2 - dy:H + 2 - dy, 2 - dx:W + 2 - dx] for dy in range(3) for dx in range(3)])
+            grad_w = shifted.view(9 * O, -1) @ x.permute(0, 2, 3, 1).reshape(-1, C)
+            grad_w = grad_w.view(3, 3, O, C).permute(2, 3, 0, 1)
+        if ctx.needs_input_grad[2]:
+            grad_b = grad.sum((0, 2, 3))
+        return grad_x, grad_w, grad_b
+
+
+def conv3x3(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    """``F.conv2d(x, weight, bias, padding=1)``; on the CPU with channels-last maps, outputs of at most
+    ``NARROW_MAX`` maps go through :func:`narrow_conv` (:class:`NarrowConv` in float32 training)."""
+    if weight.shape[0] <= NARROW_MAX and cpu_nhwc(x):
+        if not torch.is_grad_enabled():
+            return narrow_conv(x, weight, bias)
+        if x.dtype == weight.dtype == torch.float32 and not torch.is_autocast_enabled("cpu"):
+            return NarrowConv.apply(x, weight, bias)
     return F.conv2d(x, weight, bias, padding=1)
 
 
