@@ -403,17 +403,19 @@ def plot_fractions(rep: Report, models: dict, device: str, threads) -> None:
     rates = [("train", "train\nwith D"), ("train_past_margin", "train, fakes\npast D's margin"),
              ("train_no_d", "train\nwithout D"), ("infer_b1", "infer\nbatch 1"), ("infer", "infer\nbatch 64"),
              ("infer_b256", "infer\nbatch 256")]
-    order = ("explicit", "implicit", "baseline")
-    models = dict(sorted(models.items(), key=lambda kv: order.index(kv[0]) if kv[0] in order else len(order)))
+    from disent.models.bench import MODELS
+
+    models = dict(sorted(models.items(), key=lambda kv: MODELS.index(kv[0]) if kv[0] in MODELS else len(MODELS)))
     rates = [(k, label) for k, label in rates if any(f"{k}_fraction_of_peak" in m for m in models.values())]
+    keys = [k for k, _ in rates]
     fig, ax = plt.subplots(figsize=(7, 2.8))
     width = 0.8 / len(models)
     for j, (name, m) in enumerate(models.items()):
         ax.bar([i + j * width for i in range(len(rates))], [m.get(f"{k}_fraction_of_peak", 0) for k, _ in rates],
                width, label=name)
     for k, target in FRACTION_TARGETS.items():
-        i = [r for r, _ in rates].index(k) if k in [r for r, _ in rates] else None
-        if i is not None:
+        if k in keys:
+            i = keys.index(k)
             ax.hlines(target, i - width / 2, i + width * (len(models) - 0.5), colors="k", linestyles="--", lw=1)
     ax.set_xticks([i + width * (len(models) - 1) / 2 for i in range(len(rates))], [label for _, label in rates], fontsize=7)
     ax.set_ylabel("fraction of matmul peak")

@@ -84,7 +84,7 @@ class NarrowConv(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad):
         x, weight = ctx.saved_tensors
-        (B, C, H, W), O = x.shape, weight.shape[0]
+        (_, C, H, W), O = x.shape, weight.shape[0]
         grad_x = grad_w = grad_b = None
         if ctx.needs_input_grad[0]:
             grad_x = torch.ops.aten.convolution_backward(grad, x, weight, None, [1, 1], [1, 1], [1, 1], False, [0, 0],
