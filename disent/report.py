@@ -430,6 +430,42 @@ def plot_fractions(rep: Report, models: dict, device: str, threads) -> None:
     rep.image(path, "fraction of peak by model and rate")
 
 
+PROFILE_GROUPS = {"convolutions": ("convolution",), "matrix products": ("aten::mm", "aten::addmm", "aten::bmm"),
+                  "pooling, unpooling": ("max_pool", "max_unpool", "gather", "fill_")}  # the rest: "other operators"
+
+
+def plot_profile(rep: Report, profile: dict) -> None:
+    """Stacked bars: where each model's training step and inference batch spend their self CPU time."""
+    plt = _plt()
+    groups = [*PROFILE_GROUPS, "other operators"]
+    rows = {}
+    for key, ops in profile.items():
+        share = dict.fromkeys(groups, 0.0)
+        for op, ms in ops.items():
+            if op in ("total", "convolution_share"):
+                continue
+            name = op.split(" ", 1)[-1]
+            group = next((g for g, pats in PROFILE_GROUPS.items() if any(p in name for p in pats)), groups[-1])
+            share[group] += ms / ops["total"]
+        rows[key.removesuffix("_ms").replace("_", " ") + f" ({ops['total']:.0f} ms)"] = share
+    fig, ax = plt.subplots(figsize=(7, 0.35 * len(rows) + 1))
+    left = np.zeros(len(rows))
+    for g in groups:
+        widths = np.array([r[g] for r in rows.values()])
+        ax.barh(list(rows), widths, left=left, label=g)
+        left += widths
+    ax.invert_yaxis()
+    ax.set_xlim(0, 1)
+    ax.set_xlabel("share of self CPU time (torch.profiler)")
+    ax.legend(fontsize=7, ncol=len(groups), loc="lower center", bbox_to_anchor=(0.5, 1.0))
+    ax.tick_params(labelsize=7)
+    fig.tight_layout()
+    path = rep.fig / "bench_profile.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    rep.image(path, "where the time goes, by operator group")
+
+
 def sec_bench(rep: Report, out: Path) -> None:
     bench = _load_json(out / "bench.json")
     if not bench:
@@ -450,6 +486,8 @@ def sec_bench(rep: Report, out: Path) -> None:
         rep.add("Machine: " + ", ".join(f"{k}={fmt(v)}" for k, v in env.items()) + "\n")
     if isinstance(bench.get("models"), dict):
         plot_fractions(rep, bench["models"], bench.get("device", "cpu"), bench.get("threads"))
+    if isinstance(bench.get("profile"), dict):
+        plot_profile(rep, bench["profile"])
     for section, vals in bench.items():
         if not isinstance(vals, dict):
             continue

@@ -152,17 +152,20 @@ def test_pick_runs_prefers_the_longest_trained_run(tmp_path):
 
 
 def test_bench_section_charts_the_fractions_of_peak(tmp_path):
-    """A bench.json with models gets the fraction-of-peak chart and every figure in a table; one
-    without models gets only the tables."""
+    """A bench.json with models and a profile gets the fraction-of-peak and the profile charts and
+    every figure in a table; one without them gets only the tables."""
     models = {"explicit": {"train_fraction_of_peak": 0.58, "infer_fraction_of_peak": 0.66, "train_img_s": 52.0},
               "implicit": {"train_fraction_of_peak": 0.55, "infer_fraction_of_peak": 0.7, "train_img_s": 46.0}}
-    (tmp_path / "bench.json").write_text(json.dumps({"device": "cpu", "threads": 2, "models": models}))
+    profile = {"explicit_train_step_ms": {"01 aten::convolution_backward": 6.0, "02 aten::mm": 2.0, "03 aten::gather": 1.0,
+                                          "other": 1.0, "total": 10.0, "convolution_share": 0.6}}
+    (tmp_path / "bench.json").write_text(json.dumps({"device": "cpu", "threads": 2, "models": models, "profile": profile}))
     rep = report.Report(tmp_path)
     report.sec_bench(rep, tmp_path)
     text = "\n".join(rep.lines)
-    assert (tmp_path / "figures" / "bench_fractions.png").stat().st_size > 0
-    assert "figures/bench_fractions.png" in text and "| explicit.train_fraction_of_peak | 0.58 |" in text
-    (tmp_path / "figures" / "bench_fractions.png").unlink()
+    for fig in ("bench_fractions.png", "bench_profile.png"):
+        assert (tmp_path / "figures" / fig).stat().st_size > 0 and f"figures/{fig}" in text
+        (tmp_path / "figures" / fig).unlink()
+    assert "| explicit.train_fraction_of_peak | 0.58 |" in text
     (tmp_path / "bench.json").write_text(json.dumps({"device": "cpu", "data": {"images_per_s_64": 1000.0}}))
     rep = report.Report(tmp_path)
     report.sec_bench(rep, tmp_path)
