@@ -83,6 +83,14 @@ class Report:
     def image(self, path: Path, alt: str) -> None:
         self.lines.append(f"![{alt}]({_rel(path, self.out)})\n")
 
+    def figure(self, fig, name: str, alt: str) -> None:
+        """Lay out ``fig``, save it as ``figures/<name>``, close it and show it here."""
+        fig.tight_layout()
+        path = self.fig / name
+        fig.savefig(path, dpi=120)
+        _plt().close(fig)
+        self.image(path, alt)
+
     def section(self, title: str, fn, *args) -> None:
         self.add(f"## {title}\n")
         try:
@@ -383,11 +391,7 @@ def sec_speed(rep: Report, runs: list[Run]) -> None:
         ax.set_ylabel(label)
         ax.legend(fontsize=5, ncol=2)
     fig.suptitle("Speed against accuracy, one point per run (up-left is worse; the front: fastest for its error)", fontsize=8)
-    fig.tight_layout()
-    path = rep.fig / "speed_accuracy.png"
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    rep.image(path, "speed versus accuracy")
+    rep.figure(fig, "speed_accuracy.png", "speed versus accuracy")
     rep.add("_Training images/s is the median of the per-step rates each run logged, on whatever machine and load "
             "it ran (see the runs table); the Pareto front joins the runs no other run beats on both axes._\n")
     if not any(p[2] is not None for p in pts):
@@ -423,11 +427,7 @@ def plot_fractions(rep: Report, models: dict, device: str, threads) -> None:
                  "dashed: the explicit model's targets", fontsize=8)
     ax.set_ylim(0, 1)
     ax.legend(fontsize=7, ncol=len(models), loc="upper left")
-    fig.tight_layout()
-    path = rep.fig / "bench_fractions.png"
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    rep.image(path, "fraction of peak by model and rate")
+    rep.figure(fig, "bench_fractions.png", "fraction of peak by model and rate")
 
 
 PROFILE_GROUPS = {"convolutions": ("convolution",), "matrix products": ("aten::mm", "aten::addmm", "aten::bmm"),
@@ -459,11 +459,7 @@ def plot_profile(rep: Report, profile: dict) -> None:
     ax.set_xlabel("share of self CPU time (torch.profiler)")
     ax.legend(fontsize=7, ncol=len(groups), loc="lower center", bbox_to_anchor=(0.5, 1.0))
     ax.tick_params(labelsize=7)
-    fig.tight_layout()
-    path = rep.fig / "bench_profile.png"
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    rep.image(path, "where the time goes, by operator group")
+    rep.figure(fig, "bench_profile.png", "where the time goes, by operator group")
 
 
 def sec_bench(rep: Report, out: Path) -> None:
