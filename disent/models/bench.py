@@ -124,6 +124,17 @@ def autocast(device, enabled: bool):
     return torch.autocast(torch.device(device).type, dtype=torch.bfloat16, enabled=enabled)
 
 
+def inference(model, x, device, amp: bool, sync, calls: int = 1):
+    """A callable that runs ``model(x)`` ``calls`` times without autograd (bfloat16 autocast if ``amp``), synchronised."""
+    def run():
+        with torch.inference_mode(), autocast(device, amp):
+            for _ in range(calls):
+                model(x)
+        sync()
+
+    return run
+
+
 def beside_peak(args, device, fn, items: int, rounds: int, warmup: int = 1) -> tuple[float, float]:
     """``(items/s of fn, matmul peak GFLOP/s)``, timed alternately round by round (``fn``, then one
     ``--peak-n`` matmul), each the median over ``rounds``: on a shared machine a rate and its
@@ -151,16 +162,9 @@ def bench_one(name: str, args, device: str, sync) -> dict:
         for B in args.infer_batches:
             x = batch["image"].repeat(-(-B // n), 1, 1, 1)[:B].contiguous(memory_format=fmt)
             calls = max(1, 64 // B)  # a small batch runs several times a round, as long as a batch of 64
-
-            def infer():
-                for _ in range(calls):
-                    with autocast(device, args.amp):
-                        model(x)
-                sync()
-
             key = "infer" if B == 64 else f"infer_b{B}"
             out[f"{key}_img_s"], out[f"{key}_peak_gflops"] = beside_peak(
-                args, device, infer, B * calls, rounds, warmup=2)
+                args, device, inference(model, x, device, args.amp, sync, calls), B * calls, rounds, warmup=2)
     bf16 = getattr(args, "bf16", False)
     if bf16 is None:  # default: where bf16 is native
         bf16 = device.startswith("cuda") or cpu_has_bf16()
@@ -199,14 +203,8 @@ def bench_bf16(name: str, args, device: str, sync, batch: dict) -> dict:
         ref = model(x)
         with autocast(device, True):
             low = model(x)
-
-        def infer():
-            with autocast(device, True):
-                model(x)
-            sync()
-
         out["infer_bf16_img_s"], out["infer_bf16_peak_gflops"] = beside_peak(
-            args, device, infer, len(x), rounds, warmup=2)
+            args, device, inference(model, x, device, True, sync), len(x), rounds, warmup=2)
     diff = (low["recon"].float() - ref["recon"]).abs()
     out["bf16_recon_max_abs_diff"], out["bf16_recon_mean_abs_diff"] = diff.max().item(), diff.mean().item()
     if "normal" in ref:
@@ -226,13 +224,7 @@ def interleaved_ratios(args, device: str, sync, a: str = "implicit", b: str = "e
         t_a, t_b = timed_rounds([lambda s=s: (s(), sync()) for s in steps], args.rounds)
         out["train_img_s" if adv else "train_no_d_img_s"] = statistics.median(t_b) / statistics.median(t_a)
     models = [Trainer(name, batch, False, device, channels_last).model.eval() for name in (a, b)]
-
-    def infer(model):
-        with torch.inference_mode(), autocast(device, args.amp):
-            model(batch["image"])
-        sync()
-
-    t_a, t_b = timed_rounds([lambda m=m: infer(m) for m in models], args.rounds, warmup=2)
+    t_a, t_b = timed_rounds([inference(m, batch["image"], device, args.amp, sync) for m in models], args.rounds, warmup=2)
     out["infer_img_s"] = statistics.median(t_b) / statistics.median(t_a)
     return out
 
