@@ -247,7 +247,7 @@ def face_ids(raster: dict) -> torch.Tensor:
         a = k - raster["batch"] * (gv * gu)
         face = a - torch.div(a, gu, rounding_mode="floor") + (raster["corners"][0] - k) * ((gv - 1) * (gu - 1))
     out = torch.full((B * H * W,), -1, dtype=torch.long, device=face.device)
-    return out.scatter_(0, raster["batch"] * (H * W) + raster["pixel"], face).view(B, H, W)
+    return out.scatter_(0, _pixel_index(raster, 1), face).view(B, H, W)
 
 
 def sample_texture(texture: torch.Tensor, uv: torch.Tensor, batch: torch.Tensor) -> torch.Tensor:
