@@ -1,7 +1,8 @@
 """One benchmark entry point: ``python -m disent.bench [SUBCOMMAND ...]``.
 
-Every subcommand prints a table and merges its figures into ``reports/bench.json``
-(the report reads them).  Benchmarks print figures; no test asserts a time.
+Every subcommand prints a table and merges its figures into ``reports/bench.json``, or
+``reports/bench-cuda.json`` with ``--device cuda``, so that GPU figures sit beside the CPU ones
+(the report reads every ``reports/bench*.json``).  Benchmarks print figures; no test asserts a time.
 The machine is shared and noisy, so each figure is the median of several rounds.
 """
 from __future__ import annotations
@@ -19,6 +20,13 @@ import torch
 
 BENCH_JSON = Path("reports/bench.json")
 DEVICE = "cpu"  # set by --device
+
+
+def bench_json(device: str) -> Path:
+    """Where a run on ``device`` writes: ``reports/bench.json`` on the CPU, ``reports/bench-cuda.json``
+    on any GPU (``cuda:N`` included), so the two never overwrite each other."""
+    kind = torch.device(device).type
+    return BENCH_JSON if kind == "cpu" else BENCH_JSON.with_name(f"bench-{kind}.json")
 
 
 def timed_rounds(fns: Sequence[Callable[[], object]], rounds: int = 5, warmup: int = 1) -> list[list[float]]:
@@ -156,7 +164,7 @@ def main(argv=None) -> None:
     p.add_argument("--rounds", type=int, default=5, help="timed rounds; the median is reported")
     p.add_argument("--batch", type=int, default=256)
     p.add_argument("--size", type=int, default=64)
-    p.add_argument("--out", type=Path, default=BENCH_JSON)
+    p.add_argument("--out", type=Path, default=None, help="default: reports/bench.json, reports/bench-cuda.json on a GPU")
     p.add_argument("--device", default="cpu", help="cpu | cuda | cuda:N")
     p.add_argument("--amp", action="store_true", help="bfloat16 mixed precision (the shading layer stays float32)")
     p.add_argument("--bf16", dest="bf16", action="store_true", default=None,
@@ -171,6 +179,7 @@ def main(argv=None) -> None:
     p.add_argument("--infer-batches", type=int, nargs="+", default=[1, 64, 256], help="inference batches (64 is the headline)")
     p.add_argument("--no-malloc-tuning", action="store_true", help="leave glibc's malloc as it is (see tune_malloc)")
     args = p.parse_args(argv)
+    args.out = args.out or bench_json(args.device)
     from disent.train import tune_malloc  # the same setting as training (train.malloc_tuning)
 
     args.malloc_tuned = False if args.no_malloc_tuning else tune_malloc()

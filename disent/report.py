@@ -398,43 +398,53 @@ def sec_speed(rep: Report, runs: list[Run]) -> None:
         rep.note("no run has a normal error (baseline-only runs).")
 
 
-FRACTION_TARGETS = {"train": 0.55, "infer": 0.60}  # training with D, inference at batch 64
+FRACTION_TARGETS = {"train": 0.55, "infer": 0.60}  # the explicit model on the CPU: training with D, inference at batch 64
+RATIO_TARGET = 0.7  # the implicit model's images/s over the explicit model's, each rate
+BENCH_RATES = (("train", "train with D"), ("train_past_margin", "train, fakes past D's margin"),
+               ("train_no_d", "train without D"), ("infer_b1", "infer batch 1"), ("infer", "infer batch 64"),
+               ("infer_b256", "infer batch 256"))  # key prefix in bench.json's models.<name>, label
 
 
-def plot_fractions(rep: Report, models: dict, device: str, threads) -> None:
-    """Bar chart: each model's achieved FLOP/s as a fraction of the matmul peak of its run."""
-    plt = _plt()
-    rates = [("train", "train\nwith D"), ("train_past_margin", "train, fakes\npast D's margin"),
-             ("train_no_d", "train\nwithout D"), ("infer_b1", "infer\nbatch 1"), ("infer", "infer\nbatch 64"),
-             ("infer_b256", "infer\nbatch 256")]
+def _bench_models(models: dict) -> tuple[dict, list]:
+    """The models in ``disent.models.bench.MODELS`` order, and the rates of ``BENCH_RATES`` any of them has."""
     from disent.models.bench import MODELS
 
     models = dict(sorted(models.items(), key=lambda kv: MODELS.index(kv[0]) if kv[0] in MODELS else len(MODELS)))
-    rates = [(k, label) for k, label in rates if any(f"{k}_fraction_of_peak" in m for m in models.values())]
+    return models, [(k, label) for k, label in BENCH_RATES
+                    if any(f"{k}_img_s" in m or f"{k}_fraction_of_peak" in m for m in models.values())]
+
+
+def plot_fractions(rep: Report, models: dict, device: str, threads, name: str = "bench_fractions.png") -> None:
+    """Bar chart: each model's achieved FLOP/s as a fraction of the matmul peak of its run."""
+    import textwrap
+
+    plt = _plt()
+    models, rates = _bench_models(models)
     keys = [k for k, _ in rates]
     fig, ax = plt.subplots(figsize=(7, 2.8))
     width = 0.8 / len(models)
-    for j, (name, m) in enumerate(models.items()):
+    for j, (model, m) in enumerate(models.items()):
         ax.bar([i + j * width for i in range(len(rates))], [m.get(f"{k}_fraction_of_peak", 0) for k, _ in rates],
-               width, label=name)
+               width, label=model)
     for k, target in FRACTION_TARGETS.items():
-        if k in keys:
+        if k in keys and device == "cpu":
             i = keys.index(k)
             ax.hlines(target, i - width / 2, i + width * (len(models) - 0.5), colors="k", linestyles="--", lw=1)
-    ax.set_xticks([i + width * (len(models) - 1) / 2 for i in range(len(rates))], [label for _, label in rates], fontsize=7)
+    ax.set_xticks([i + width * (len(models) - 1) / 2 for i in range(len(rates))],
+                  [textwrap.fill(label, 14) for _, label in rates], fontsize=7)
     ax.set_ylabel("fraction of matmul peak")
-    ax.set_title(f"Achieved FLOP/s over the fp32 matmul peak of the same run ({device}, {threads} threads); "
-                 "dashed: the explicit model's targets", fontsize=8)
+    ax.set_title(f"Achieved FLOP/s over the fp32 matmul peak of the same run ({device}, {threads} threads)"
+                 + ("; dashed: the explicit model's targets" if device == "cpu" else ""), fontsize=8)
     ax.set_ylim(0, 1)
     ax.legend(fontsize=7, ncol=len(models), loc="upper left")
-    rep.figure(fig, "bench_fractions.png", "fraction of peak by model and rate")
+    rep.figure(fig, name, "fraction of peak by model and rate")
 
 
 PROFILE_GROUPS = {"convolutions": ("convolution",), "matrix products": ("aten::mm", "aten::addmm", "aten::bmm"),
                   "pooling, unpooling": ("max_pool", "max_unpool", "gather", "fill_")}  # the rest: "other operators"
 
 
-def plot_profile(rep: Report, profile: dict) -> None:
+def plot_profile(rep: Report, profile: dict, name: str = "bench_profile.png") -> None:
     """Stacked bars: where each model's training step and inference batch spend their self CPU time."""
     plt = _plt()
     groups = [*PROFILE_GROUPS, "other operators"]
@@ -444,8 +454,8 @@ def plot_profile(rep: Report, profile: dict) -> None:
         for op, ms in ops.items():
             if op in ("total", "convolution_share"):
                 continue
-            name = op.split(" ", 1)[-1]
-            group = next((g for g, pats in PROFILE_GROUPS.items() if any(p in name for p in pats)), groups[-1])
+            op_name = op.split(" ", 1)[-1]
+            group = next((g for g, pats in PROFILE_GROUPS.items() if any(p in op_name for p in pats)), groups[-1])
             share[group] += ms / ops["total"]
         rows[key.removesuffix("_ms").replace("_", " ") + f" ({ops['total']:.0f} ms)"] = share
     fig, ax = plt.subplots(figsize=(7, 0.35 * len(rows) + 1))
@@ -459,14 +469,49 @@ def plot_profile(rep: Report, profile: dict) -> None:
     ax.set_xlabel("share of self CPU time (torch.profiler)")
     ax.legend(fontsize=7, ncol=len(groups), loc="lower center", bbox_to_anchor=(0.5, 1.0))
     ax.tick_params(labelsize=7)
-    rep.figure(fig, "bench_profile.png", "where the time goes, by operator group")
+    rep.figure(fig, name, "where the time goes, by operator group")
+
+
+def models_table(models: dict) -> list[str]:
+    """Markdown rows, one per model: forward GFLOP per image, then images/s (fraction of peak) per rate."""
+    models, rates = _bench_models(models)
+    lines = ["| model | GFLOP / image (forward) | " + " | ".join(label for _, label in rates) + " |",
+             "|---|" + "---|" * (len(rates) + 1)]
+    for name, m in models.items():
+        cells = [f"{m[f'{k}_img_s']:.1f} ({m.get(f'{k}_fraction_of_peak', math.nan):.2f})" if f"{k}_img_s" in m else "-"
+                 for k, _ in rates]
+        lines.append(f"| {name} | {m.get('flops_per_image', math.nan) / 1e9:.3f} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def target_checks(bench: dict) -> list[str]:
+    """The CPU targets against this run's figures: the explicit model's fractions of peak, the
+    implicit/explicit images/s ratios, and the loader against training."""
+    explicit, setup = bench.get("models", {}).get("explicit", {}), bench.get("models_setup", {})
+    labels, checks = dict(BENCH_RATES), []
+
+    def check(what, value, target):
+        checks.append(f"- {what}: {value:.3f} (target >= {target}): **{'met' if value >= target else 'missed'}**")
+
+    for k, target in FRACTION_TARGETS.items():
+        if f"{k}_fraction_of_peak" in explicit:
+            check(f"explicit, {labels[k]}, fraction of peak", explicit[f"{k}_fraction_of_peak"], target)
+    for k, ratio in setup.get("implicit_vs_explicit", {}).items():
+        check(f"implicit / explicit images/s, {labels.get(k.removesuffix('_img_s'), k)}", ratio, RATIO_TARGET)
+    if "loader_vs_fastest_training" in setup:
+        check("loader alone over the fastest training, images/s", setup["loader_vs_fastest_training"], 1.0)
+    return checks
 
 
 def sec_bench(rep: Report, out: Path) -> None:
-    bench = _load_json(out / "bench.json")
-    if not bench:
+    """Every ``bench*.json`` (``bench.json`` from the CPU, ``bench-cuda.json`` from a GPU), each
+    under its device: the models at a glance, the CPU targets, charts, then every figure."""
+    paths = sorted(Path(out).glob("bench*.json"), key=lambda p: (p.name != "bench.json", p.name))
+    benches = [(p, b) for p in paths if isinstance(b := _load_json(p), dict)]
+    if not benches:
         rep.note("`reports/bench.json`; run `python -m disent.bench`.")
         return
+
     def fmt(v):
         return f"{v:.4g}" if isinstance(v, float) else json.dumps(v)[:120]
 
@@ -477,19 +522,25 @@ def sec_bench(rep: Report, out: Path) -> None:
             else:
                 yield f"{prefix}{k}", v
 
-    env = {k: v for k, v in bench.items() if not isinstance(v, dict)}
-    if env:
-        rep.add("Machine: " + ", ".join(f"{k}={fmt(v)}" for k, v in env.items()) + "\n")
-    if isinstance(bench.get("models"), dict):
-        plot_fractions(rep, bench["models"], bench.get("device", "cpu"), bench.get("threads"))
-    if isinstance(bench.get("profile"), dict):
-        plot_profile(rep, bench["profile"])
-    for section, vals in bench.items():
-        if not isinstance(vals, dict):
-            continue
-        rep.add(f"**{section}**\n", "| quantity | value |", "|---|---|")
-        rep.add(*(f"| {k} | {fmt(v)} |" for k, v in flat(vals)))
-        rep.add("")
+    for path, bench in benches:
+        device = str(bench.get("device", "cpu"))
+        rep.add(f"### {device} (`reports/{path.name}`)\n")
+        env = {k: v for k, v in bench.items() if not isinstance(v, dict)}
+        if env:
+            rep.add("Machine: " + ", ".join(f"{k}={fmt(v)}" for k, v in env.items()) + "\n")
+        models = bench.get("models")
+        if isinstance(models, dict) and models:
+            rep.add("Images/s (fraction of the matmul peak measured beside each rate):\n", *models_table(models), "")
+            if device == "cpu" and (checks := target_checks(bench)):
+                rep.add("Targets on the CPU:\n", *checks, "")
+            plot_fractions(rep, models, device, bench.get("threads"), f"{path.stem}_fractions.png")
+        if isinstance(bench.get("profile"), dict):
+            plot_profile(rep, bench["profile"], f"{path.stem}_profile.png")
+        rep.add(f"<details><summary>Every figure in {path.name}</summary>\n")
+        for section, vals in bench.items():
+            if isinstance(vals, dict):
+                rep.add(f"**{section}**\n", "| quantity | value |", "|---|---|", *(f"| {k} | {fmt(v)} |" for k, v in flat(vals)), "")
+        rep.add("</details>\n")
 
 
 def sec_lighting(rep: Report, out: Path) -> None:
@@ -541,7 +592,7 @@ def build(out="reports", roots=RUN_ROOTS, n_vis: int = 6, compute: bool = False,
     rep.section("Ablations", sec_ablation, runs)
     rep.section("Stability where methods fail", sec_stability, eval_dir)
     rep.section("Speed against accuracy", sec_speed, runs)
-    rep.section("Benchmarks (`reports/bench.json`)", sec_bench, out)
+    rep.section("Benchmarks (`reports/bench*.json`)", sec_bench, out)
     rep.section("L-hat uncertainty (`reports/lighting/`)", sec_lighting, out)
     path = out / name
     path.write_text("\n".join(rep.lines) + "\n")

@@ -26,6 +26,11 @@ def tiny_run(tmp_path_factory):
     return json.loads(out.read_text())
 
 
+def test_gpu_figures_go_beside_the_cpu_ones():
+    assert bench.bench_json("cpu") == bench.BENCH_JSON
+    assert bench.bench_json("cuda") == bench.bench_json("cuda:1") == bench.BENCH_JSON.with_name("bench-cuda.json")
+
+
 def test_bench_json_schema(tiny_run):
     d = tiny_run
     assert d["peak_gflops"] > 0 and d["threads"] == 1 and d["device"] == "cpu" and d["torch"] == torch.__version__

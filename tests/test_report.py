@@ -166,7 +166,34 @@ def test_bench_section_charts_the_fractions_of_peak(tmp_path):
         assert (tmp_path / "figures" / fig).stat().st_size > 0 and f"figures/{fig}" in text
         (tmp_path / "figures" / fig).unlink()
     assert "| explicit.train_fraction_of_peak | 0.58 |" in text
+    assert "| explicit | nan | 52.0 (0.58) | - |" in text  # no forward FLOPs nor inference rate given
     (tmp_path / "bench.json").write_text(json.dumps({"device": "cpu", "data": {"images_per_s_64": 1000.0}}))
     rep = report.Report(tmp_path)
     report.sec_bench(rep, tmp_path)
     assert not (tmp_path / "figures" / "bench_fractions.png").exists() and "| images_per_s_64 | 1000 |" in "\n".join(rep.lines)
+
+
+def test_bench_section_puts_gpu_figures_beside_the_cpu_ones(tmp_path):
+    """``bench.json`` (CPU) and ``bench-cuda.json`` (GPU) each get a subsection naming the device, a
+    row per model, their own charts; the CPU targets are checked against the CPU figures only."""
+    def bench(device, train_frac, ratio):
+        model = {"flops_per_image": 3.2e8, "train_img_s": 40.0, "train_fraction_of_peak": train_frac,
+                 "infer_img_s": 350.0, "infer_fraction_of_peak": 0.66}
+        return {"device": device, "threads": 2, "models": {"explicit": model, "implicit": dict(model)},
+                "models_setup": {"implicit_vs_explicit": {"train_img_s": ratio}, "loader_vs_fastest_training": 4.0}}
+
+    (tmp_path / "bench.json").write_text(json.dumps(bench("cpu", 0.54, 0.9)))
+    (tmp_path / "bench-cuda.json").write_text(json.dumps(bench("cuda (NVIDIA H100)", 0.2, 0.6)))
+    rep = report.Report(tmp_path)
+    report.sec_bench(rep, tmp_path)
+    text = "\n".join(rep.lines)
+    cpu, gpu = text.split("### cuda (NVIDIA H100) (`reports/bench-cuda.json`)")
+    assert "### cpu (`reports/bench.json`)" in cpu
+    assert "| explicit | 0.320 | 40.0 (0.54) | 350.0 (0.66) |" in cpu and "| implicit | 0.320 | 40.0 (0.54)" in cpu
+    assert "train with D, fraction of peak: 0.540 (target >= 0.55): **missed**" in cpu
+    assert "infer batch 64, fraction of peak: 0.660 (target >= 0.6): **met**" in cpu
+    assert "train with D: 0.900 (target >= 0.7): **met**" in cpu and "4.000 (target >= 1.0): **met**" in cpu
+    assert "| explicit | 0.320 | 40.0 (0.20) |" in gpu and "target" not in gpu
+    for name in ("bench_fractions.png", "bench-cuda_fractions.png"):
+        assert (tmp_path / "figures" / name).stat().st_size > 0
+    assert "figures/bench_fractions.png" in cpu and "figures/bench-cuda_fractions.png" in gpu
