@@ -154,6 +154,27 @@ def test_narrow_conv_equals_conv2d_with_gradients(o, fn):
         assert torch.autograd.gradcheck(conv, (x[:1, :, :3, :4].detach().requires_grad_(), w, b))
 
 
+@pytest.mark.parametrize("channels_last", [True, False])
+def test_max_unpool_equals_torch_with_gradients(channels_last):
+    """MaxUnpool: F.max_unpool2d's output, and its gradient for channels-last (the gather along
+    NHWC pixels) and contiguous maps; gradients against finite differences too."""
+    import disent.models.networks as N
+
+    torch.manual_seed(0)
+    fmt = torch.channels_last if channels_last else torch.contiguous_format
+    pooled, switches = F.max_pool2d(torch.randn(3, 5, 8, 6, dtype=torch.float64).contiguous(memory_format=fmt), 2,
+                                    return_indices=True)
+    assert switches.is_contiguous(memory_format=fmt)
+    x = pooled.detach().requires_grad_()
+    out, ref = N.MaxUnpool.apply(x, switches), F.max_unpool2d(x, switches, 2)
+    torch.testing.assert_close(out, ref)
+    g = torch.randn_like(ref).contiguous(memory_format=fmt)
+    grad = torch.autograd.grad(out, x, g)[0]
+    torch.testing.assert_close(grad, torch.autograd.grad(ref, x, g)[0])
+    assert grad.shape == x.shape and grad.is_contiguous(memory_format=fmt)
+    assert torch.autograd.gradcheck(lambda v: N.MaxUnpool.apply(v, switches), (x,))
+
+
 def test_inference_fast_paths_leave_the_outputs_unchanged():
     """The explicit model with and without narrow_conv at inference: the same outputs."""
     import disent.models.networks as N
