@@ -247,3 +247,24 @@ def test_leaving_out_the_generated_batch_past_the_margin_changes_no_bit(monkeypa
         assert not all(torch.equal(a, b) for a, b in zip(before, D.parameters()))  # D did learn
         params.append([p.detach().clone() for p in (*model.parameters(), *D.parameters())])
     assert all(torch.equal(a, b) for a, b in zip(*params))
+
+
+@pytest.mark.parametrize("name", ["baseline", "explicit", "implicit"])
+def test_model_and_losses_hold_no_tensor_on_the_cpu(name, monkeypatch):
+    """Forward and backward of a model, D and every generator loss term on the ``meta`` device (shapes,
+    no data): an elementwise operation that meets a tensor made on the CPU (a constant without
+    ``device=``) raises, as it would on a GPU; the stand-in for a CUDA run where there is no GPU.
+    ``torch.autocast`` knows no meta device; here it does nothing."""
+    import contextlib
+
+    autocast = torch.autocast
+    monkeypatch.setattr(torch, "autocast", lambda device_type, *a, **k: contextlib.nullcontext()
+                        if device_type == "meta" else autocast(device_type, *a, **k))
+    cfg = compose_cfg(f"model={name}")
+    model, disc = build_model(model_cfg(name)).to("meta"), Discriminator(R).to("meta")
+    b = {k: v.to("meta") for k, v in fake_batch(2).items()}
+    out = model(b["image"])
+    losses = L.generator_losses(out, b, dict(cfg.loss.weights), disc.energy(out["recon"]), cfg.loss.bws_c)
+    (losses["total"] + disc.energy(b["image"]).mean()).backward()  # (the margin loss reads its hinge on the host)
+    assert all(v.device.type == "meta" for v in (*out.values(), *losses.values()) if torch.is_tensor(v))
+    assert all(p.grad is not None and p.grad.device.type == "meta" for p in model.parameters())
