@@ -156,7 +156,8 @@ def train_step(model, disc, opt_g, opt_d, batch, cfg_loss) -> dict:
         energy_real = disc.energy(batch["image"])
         losses["D"] = L.discriminator_loss(energy_real, energy_fake, cfg_loss.margin)
         losses["D_real"] = energy_real.mean().detach()
-    bad = [k for k, v in losses.items() if not torch.isfinite(v)]
+    finite = torch.stack([v.detach().float() for v in losses.values()]).isfinite().tolist()  # one device sync
+    bad = [k for k, ok in zip(losses, finite) if not ok]
     if bad:
         named = [k for k in bad if k != "total"] or bad
         return {"nonfinite": named, **losses}
