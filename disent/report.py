@@ -539,7 +539,8 @@ def sec_bench(rep: Report, out: Path) -> None:
         rep.add(f"<details><summary>Every figure in {path.name}</summary>\n")
         for section, vals in bench.items():
             if isinstance(vals, dict):
-                rep.add(f"**{section}**\n", "| quantity | value |", "|---|---|", *(f"| {k} | {fmt(v)} |" for k, v in flat(vals)), "")
+                rep.add(f"**{section}**\n", "| quantity | value |", "|---|---|",
+                        *(f"| {k} | {fmt(v)} |" for k, v in flat(vals)), "")
         rep.add("</details>\n")
 
 

@@ -127,8 +127,8 @@ class MaxUnpool(torch.autograd.Function):
         if not (grad.is_contiguous(memory_format=torch.channels_last)
                 and switches.is_contiguous(memory_format=torch.channels_last)):
             return grad.flatten(2).gather(2, switches.flatten(2)).view(B, C, h, w), None
-        picked = torch.gather(grad.permute(0, 2, 3, 1).reshape(B, -1, C), 1, switches.permute(0, 2, 3, 1).reshape(B, -1, C))
-        return picked.view(B, h, w, C).permute(0, 3, 1, 2), None
+        g, idx = (t.permute(0, 2, 3, 1).reshape(B, -1, C) for t in (grad, switches))  # views [B, pixels, C]
+        return torch.gather(g, 1, idx).view(B, h, w, C).permute(0, 3, 1, 2), None
 
 
 def check_resolution(resolution: int) -> int:
