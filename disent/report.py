@@ -530,7 +530,9 @@ def sec_bench(rep: Report, out: Path) -> None:
             rep.add("Machine: " + ", ".join(f"{k}={fmt(v)}" for k, v in env.items()) + "\n")
         models = bench.get("models")
         if isinstance(models, dict) and models:
-            rep.add("Images/s (fraction of the matmul peak measured beside each rate):\n", *models_table(models), "")
+            rep.add("Images/s (fraction of the matmul peak measured beside each rate). Each rate is timed at its own "
+                    "moment; on a shared machine compare the fractions, which divide out the load of that moment, "
+                    "rather than images/s across cells.\n", *models_table(models), "")
             if device == "cpu" and (checks := target_checks(bench)):
                 rep.add("Targets on the CPU:\n", *checks, "")
             plot_fractions(rep, models, device, bench.get("threads"), f"{path.stem}_fractions.png")
