@@ -282,3 +282,21 @@ def test_cli_writes_intervals_and_diagnostics(tmp_path):
     assert d["n_steps"] <= 300 and 0 < d["acceptance_fraction"] <= 1 and d["tau_max"] > 0 and d["ess_min"] > 0
     assert result["order_choice"]["choice"] in result["order_choice"]["scores"]
     assert 0 <= result["true_inside95"] <= 1  # the truth is known on SynthFaces
+
+
+def test_single_core_sets_and_restores_torch_and_blas_threads():
+    from disent.lighting.threads import _openblas
+
+    outer = torch.get_num_threads()
+    torch.set_num_threads(2)
+    blas = _openblas()
+    for _, set_ in blas:
+        set_(2)
+    try:
+        with single_core():
+            assert torch.get_num_threads() == 1 and all(get() == 1 for get, _ in blas)
+        assert torch.get_num_threads() == 2 and all(get() == 2 for get, _ in blas)
+    finally:
+        torch.set_num_threads(outer)
+        for _, set_ in blas:
+            set_(1)

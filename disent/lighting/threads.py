@@ -9,8 +9,6 @@ from __future__ import annotations
 import ctypes
 from contextlib import contextmanager
 
-import torch
-
 _SETTERS = ("openblas_set_num_threads", "scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads",
             "openblas_set_num_threads64_")
 _GETTERS = tuple(s.replace("set", "get") for s in _SETTERS)
@@ -37,17 +35,18 @@ def _openblas() -> list:
 
 @contextmanager
 def single_core():
-    """Run the block with one torch thread and one OpenBLAS thread; restore both after."""
+    """Run the block with one torch thread (:class:`disent.data.face_model.single_thread`) and one
+    OpenBLAS thread; restore both after."""
+    from disent.data.face_model import single_thread
+
     blas = _openblas()
     before = [get() for get, _ in blas]
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
     for _, set_ in blas:
         set_(1)
     try:
-        yield
+        with single_thread():
+            yield
     finally:
-        torch.set_num_threads(threads)
         for (_, set_), n in zip(blas, before):
             set_(n)
 
