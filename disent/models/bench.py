@@ -290,11 +290,9 @@ def bench_profile(args) -> dict:
     out = {}
     for name in args.models or MODELS:
         tr = Trainer(name, batch, True, args.device, channels_last, args.amp)
-        tr.step()
-        out[f"{name}_train_step_ms"] = top_ops(tr.step)
-        model = tr.model.eval()
-        with torch.inference_mode():
-            out[f"{name}_infer_batch_ms"] = top_ops(lambda: model(batch["image"]))
+        out[f"{name}_train_step_ms"] = top_ops(tr.step)  # (top_ops warms up: allocator, RMSprop state)
+        out[f"{name}_infer_batch_ms"] = top_ops(inference(tr.model.eval(), batch["image"], args.device, args.amp,
+                                                          lambda: None))
         for key in (f"{name}_train_step_ms", f"{name}_infer_batch_ms"):
             print_table(f"{key.replace('_', ' ')} (self CPU ms per call, batch {n}, {torch.get_num_threads()} threads)",
                         out[key])
