@@ -216,7 +216,7 @@ def paste(values: torch.Tensor, raster: dict, background: torch.Tensor | None = 
     if background is None:
         out = torch.zeros(B * C * H * W, dtype=values.dtype, device=values.device)
     else:
-        out = background.to(values.dtype).contiguous().clone().view(-1)
+        out = background.to(values.dtype, memory_format=torch.contiguous_format, copy=True).view(-1)
     at = _pixel_index(raster, C)
     for c in range(C):
         out.scatter_(0, at + c * (H * W) if c else at, values[c])
