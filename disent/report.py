@@ -357,6 +357,103 @@ def sec_stability(rep: Report, eval_dir: Path) -> None:
             rep.add("")
 
 
+RECIPE_COLUMNS = (("normal_mean", "normals (deg)", ".2f"), ("recon_face_psnr", "face PSNR (dB)", ".2f"),
+                  ("albedo_si_mse", "albedo si-MSE", ".4f"), ("sh_error", "SH error", ".3f"))
+
+
+def sec_recipe(rep: Report, runs: list[Run]) -> None:
+    """The training recipe's leave-one-out table: run folders under a ``recipe/`` folder, one per variant
+    (folder name), ``recipe/recipe`` the full recipe; each row changes one setting back (overrides column)."""
+    rows = {r.path.name: r for r in runs if "recipe" in r.path.parts[:-1] and r.eval}
+    ref = rows.get("recipe")
+    if ref is None:
+        rep.note("no `recipe/recipe` run (ablations/recipe.sh writes the leave-one-out runs).")
+        return
+    steps, batch = ref.eval.get("steps"), (ref.cfg.get("train") or {}).get("batch_size")
+    rep.add(f"Each row trains the explicit model for the same {steps} steps of batch {batch} with one setting of the "
+            "recipe changed back (the override column), and scores it on the same 256 test images. "
+            "Lower is better except for PSNR. The trivial and pseudo-GT rows score the dataset-mean map or light and the "
+            "morphable-model fit on the same images.\n")
+    rep.add("| variant | override | " + " | ".join(c[1] for c in RECIPE_COLUMNS) + " | train min |",
+            "|---|---|" + "---|" * (len(RECIPE_COLUMNS) + 1))
+
+    def cell(r, key, fmt):
+        v, base = r.eval.get(key), ref.eval.get(key)
+        if v is None:
+            return "–"
+        return f"{v:{fmt}}" + ("" if r is ref or base is None else f" ({v - base:+{fmt}})")
+
+    for name in ["recipe", *sorted(n for n in rows if n != "recipe")]:
+        r = rows[name]
+        changed = [o for o in map(str, r.overrides) if o not in map(str, ref.overrides)]
+        rep.add(f"| {name} | {' '.join(f'`{o}`' for o in changed) or '–'} | "
+                + " | ".join(cell(r, k, f) for k, _, f in RECIPE_COLUMNS)
+                + f" | {(r.eval.get('train_seconds') or 0) / 60:.1f} |")
+    e = ref.eval
+    rep.add(f"| trivial (dataset mean) | – | {e.get('trivial_normal_mean', float('nan')):.2f} | – | "
+            f"{e.get('trivial_albedo_si_mse', float('nan')):.4f} | {e.get('trivial_sh_error', float('nan')):.3f} | – |",
+            f"| pseudo-GT | – | {e.get('pseudo_normal_mean', float('nan')):.2f} | – | – | "
+            f"{e.get('pseudo_sh_error', float('nan')):.3f} | – |", "")
+
+
+CURVE_PANELS = (  # (val key, trivial key, pseudo-GT key, label); every panel: lower is better except PSNR
+    ("normal_mean", "trivial_normal_mean", "pseudo_normal_mean", "normal error (deg)"),
+    ("albedo_si_mse", "trivial_albedo_si_mse", None, "albedo scale-inv. MSE"),
+    ("sh_error", "trivial_sh_error", "pseudo_sh_error", "SH error"),
+    ("recon_face_psnr", None, None, "face PSNR (dB)"),
+)
+
+
+def val_curves(run: Run) -> list[dict]:
+    """The run's periodic ``val`` records, each with ``images`` (step x batch) and ``minutes`` (training wall)."""
+    batch = (run.cfg.get("train") or {}).get("batch_size") or 1
+    return [{**r["val"], "images": r["step"] * batch, "minutes": r["wall"] / 60}
+            for r in run.metrics if isinstance(r.get("val"), dict)]
+
+
+def plot_learning_curves(runs: list[Run], path: Path, title: str = "") -> bool:
+    """Each accuracy of the ``val`` records against training images (top) and wall minutes (bottom), one
+    line per run, with the trivial (dataset-mean) baseline dashed and the pseudo-GT dotted."""
+    curves = [(r, val_curves(r)) for r in runs]
+    curves = [(r, c) for r, c in curves if c]
+    if not curves:
+        return False
+    plt = _plt()
+    fig, axes = plt.subplots(2, len(CURVE_PANELS), figsize=(4 * len(CURVE_PANELS), 6.4), squeeze=False)
+    for col, (key, trivial, pseudo, label) in enumerate(CURVE_PANELS):
+        for row, x in enumerate(("images", "minutes")):
+            ax = axes[row][col]
+            for k, (r, c) in enumerate(curves):
+                pts = [(v[x], v[key]) for v in c if v.get(key) is not None]
+                if pts:
+                    ax.plot(*zip(*pts), color=f"C{k % 10}", lw=1.2, label=f"{r.variant} ({r.path.name})")
+            for ref, style, name in ((trivial, "--", "dataset mean"), (pseudo, ":", "pseudo-GT")):
+                vals = [c[-1][ref] for _, c in curves if ref and c[-1].get(ref) is not None]
+                if vals:
+                    ax.axhline(float(np.mean(vals)), color="k", ls=style, lw=1, label=name)
+            ax.set_xlabel("training images" if x == "images" else "training wall minutes")
+            ax.set_ylabel(label)
+            ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=6)
+    if title:
+        fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
+def sec_learning_curves(rep: Report, runs: list[Run]) -> None:
+    path = rep.fig / "learning_curves.png"
+    if not plot_learning_curves(runs, path, "validation accuracy while training (64 val images)"):
+        rep.note("no run logged `val` records (`train.val_every`).")
+        return
+    rep.image(path, "learning curves")
+    rep.add("_A layer counts as learned only below its dashed line (the dataset-mean map or light, "
+            "`disent.eval.trivial`); the dotted line is the pseudo ground truth that supervised it._\n")
+
+
 def pareto_front(x, y) -> list[int]:
     """Indices of points not dominated when ``x`` is to be maximised and ``y`` minimised, by increasing x."""
     order = sorted(range(len(x)), key=lambda i: (-x[i], y[i]))
@@ -594,6 +691,8 @@ def build(out="reports", roots=RUN_ROOTS, n_vis: int = 6, compute: bool = False,
     rep.section("Lighting stability: SH variance (supplement protocol)", sec_sh_variance, eval_dir)
     rep.section("Ablations", sec_ablation, runs)
     rep.section("Stability where methods fail", sec_stability, eval_dir)
+    rep.section("Training recipe: leave-one-out", sec_recipe, runs)
+    rep.section("Learning curves", sec_learning_curves, runs)
     rep.section("Speed against accuracy", sec_speed, runs)
     rep.section("Benchmarks (`reports/bench*.json`)", sec_bench, out)
     rep.section("L-hat uncertainty (`reports/lighting/`)", sec_lighting, out)

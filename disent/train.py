@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import math
 import queue
 import threading
 import time
@@ -145,6 +146,35 @@ def tune_malloc() -> bool:
         return False
 
 
+OPTIMIZERS = {"rmsprop": torch.optim.RMSprop, "adam": torch.optim.Adam}
+SCHEDULES = ("epoch_decay", "cosine")
+
+
+def learning_rate(t, step: int, steps_per_epoch: int, total_steps: int) -> float:
+    """``train.lr`` after a linear warm-up of ``train.warmup_steps``, then ``train.schedule``: ``epoch_decay``
+    (the release: x ``train.lr_decay`` per epoch) or ``cosine`` (half a cosine from lr to 0 over the run's steps)."""
+    schedule = t.get("schedule", "epoch_decay")
+    if schedule not in SCHEDULES:
+        raise ValueError(f"train.schedule={schedule!r}; choose from {', '.join(SCHEDULES)}")
+    warm = min(1.0, (step + 1) / max(t.warmup_steps, 1))
+    if schedule == "cosine":
+        return t.lr * warm * 0.5 * (1 + math.cos(math.pi * step / max(total_steps, 1)))
+    return t.lr * warm * t.lr_decay ** (step // steps_per_epoch)
+
+
+def make_optimizer(module, cfg_train) -> torch.optim.Optimizer:
+    """``train.optimizer`` (rmsprop as in the release, or adam) over ``module``'s parameters at ``train.lr``."""
+    name = cfg_train.get("optimizer", "rmsprop")
+    if name not in OPTIMIZERS:
+        raise ValueError(f"train.optimizer={name!r}; choose from {', '.join(OPTIMIZERS)}")
+    return OPTIMIZERS[name](module.parameters(), lr=cfg_train.lr)
+
+
+def build_discriminator(model) -> Discriminator:
+    """The EBGAN discriminator, with the generator's layer choices (normalisation, input centring)."""
+    return Discriminator(model.resolution, layers=model.layers)
+
+
 def train_step(model, disc, opt_g, opt_d, batch, cfg_loss) -> dict:
     """One simultaneous generator/discriminator update; returns every term (detached floats later)."""
     weights = dict(cfg_loss.weights)
@@ -172,29 +202,45 @@ def train_step(model, disc, opt_g, opt_d, batch, cfg_loss) -> dict:
     return losses
 
 
+VAL_KEYS = ("recon_psnr", "recon_face_psnr", "normal_mean", "pseudo_normal_mean", "albedo_si_mse", "sh_error",
+            "pseudo_sh_error")
+
+
 def validate(model, batch: dict) -> dict:
-    """The cheap periodic check: on a fixed validation batch, the network's mean normal angular
-    error and the pseudo-GT's on the same pixels (degrees), and the reconstruction PSNR (dB)."""
-    from disent.eval.evaluate import normal_metrics, predict
-    from disent.eval.metrics import reconstruction_metrics
+    """The periodic check on a fixed validation batch: recon PSNR (whole image and face), normal angular
+    error of the network and of the pseudo-GT on the same pixels (degrees), albedo scale-invariant MSE
+    and SH error (:mod:`disent.eval.evaluate`'s metrics, the ``VAL_KEYS`` the batch has truth for)."""
+    from disent.eval.evaluate import metrics_from_outputs, predict
 
     out = predict(model, batch["image"])
-    m = {"recon_psnr": reconstruction_metrics(out["recon"].float().clamp(0, 1), batch["image"])["psnr"]}
-    if "normal" in out and "normal" in batch:
-        normals = normal_metrics(out["normal"].float(), batch)
-        m.update({k: normals[k] for k in ("normal_mean", "pseudo_normal_mean")})
-    return m
+    out = {k: out[k].float() for k in ("recon", "normal", "albedo", "sh") if k in out}
+    if "matte" not in batch:  # real photos: no intrinsic ground truth, the reconstruction only
+        from disent.eval.metrics import reconstruction_metrics
+
+        return {"recon_psnr": reconstruction_metrics(out["recon"].clamp(0, 1), batch["image"])["psnr"]}
+    m = metrics_from_outputs(out, batch)
+    return {k: m[k] for k in VAL_KEYS if k in m}
 
 
-def evaluate(model, cfg, n: int) -> dict:
-    """Test metrics on the first ``n`` test images (disent.eval.evaluate), on the CPU."""
+def trivial_baselines(cfg) -> dict | None:
+    """The constant estimates of :mod:`disent.eval.trivial` from this run's training split (None without
+    ground truth, e.g. real photos)."""
+    from disent.eval.trivial import dataset_means
+
+    train = make_dataset(cfg.data, "train", cfg.data.get("train_size"))
+    return dataset_means(train) if "normal" in train[0] else None
+
+
+def evaluate(model, cfg, n: int, trivial: dict | None = None) -> dict:
+    """Test metrics on the first ``n`` test images (disent.eval.evaluate), on the CPU, with the trivial
+    baselines (``trivial_*``) where the data has ground truth."""
     from disent.eval.evaluate import evaluate_model, model_outputs
     from disent.eval.metrics import reconstruction_metrics
 
     test = make_dataset(cfg.data, "test", cfg.data.get("test_size"))
     model = model.to("cpu")
     if "normal" in test[0]:
-        return evaluate_model(model, test, limit=n)
+        return evaluate_model(model, test, limit=n, trivial=trivial if trivial is not None else trivial_baselines(cfg))
     out, gt, ips = model_outputs(model, test, limit=n)  # real photos: no intrinsic ground truth
     rec = reconstruction_metrics(out["recon"].clamp(0, 1), gt["image"])
     return {**{f"recon_{k}": v for k, v in rec.items()}, "infer_images_per_s": ips, "n_eval": len(gt["image"])}
@@ -224,13 +270,20 @@ def run(cfg, run_dir) -> dict:
     val_every = val_every if val_every and val_every <= total_steps else 0
     if val_every:  # rendered once, before the prefetch thread starts using the data code
         val_data = make_dataset(cfg.data, "val", val_size)
-        val_batch = to_device(get_batch(val_data, range(min(val_size, len(val_data))), (*TRAIN_KEYS, "normal", "matte")),
-                              device, t.channels_last)
+        val_batch = to_device(get_batch(val_data, range(min(val_size, len(val_data))),
+                                        (*TRAIN_KEYS, "normal", "matte", "albedo", "sh")), device, t.channels_last)
+    trivial = trivial_baselines(cfg)  # constant estimates, scored beside the network in val records and eval.json
+    if val_every and trivial is not None and "matte" in val_batch:
+        from disent.eval.trivial import trivial_metrics
+
+        val_trivial = trivial_metrics(trivial, {k: v.cpu() for k, v in val_batch.items()})
+    else:
+        val_trivial = {}
 
     model = build_model(cfg.model).to(device, memory_format=fmt)
-    disc = Discriminator(cfg.model.resolution).to(device, memory_format=fmt) if cfg.loss.weights.adv else None
-    opt_g = torch.optim.RMSprop(model.parameters(), lr=t.lr)
-    opt_d = torch.optim.RMSprop(disc.parameters(), lr=t.lr) if disc is not None else None
+    disc = build_discriminator(model).to(device, memory_format=fmt) if cfg.loss.weights.adv else None
+    opt_g = make_optimizer(model, t)
+    opt_d = make_optimizer(disc, t) if disc is not None else None
 
     step, wall = 0, 0.0
     resume = Path(cfg.resume) if cfg.resume else (ckpt_path if ckpt_path.exists() else None)
@@ -268,7 +321,7 @@ def run(cfg, run_dir) -> dict:
                 checkpoint()
                 break
             epoch = step // steps_per_epoch
-            lr = t.lr * t.lr_decay ** epoch * min(1.0, (step + 1) / max(t.warmup_steps, 1))  # x0.99 per epoch
+            lr = learning_rate(t, step, steps_per_epoch, total_steps)
             for opt in (opt_g, opt_d):
                 for g in (opt.param_groups if opt is not None else []):
                     g["lr"] = lr
@@ -293,7 +346,8 @@ def run(cfg, run_dir) -> dict:
                 t1 = time.perf_counter()
                 val = validate(model, val_batch)
                 log.write({"step": step, "epoch": epoch, "wall": wall, "minutes": wall / 60,
-                           "val": {**val, "n": len(val_batch["image"]), "seconds": time.perf_counter() - t1}})
+                           "val": {**val, **val_trivial, "n": len(val_batch["image"]),
+                                   "seconds": time.perf_counter() - t1}})
             if t.sample_every and step % t.sample_every == 0:
                 save_samples(run_dir / "samples" / f"step{step:06d}.png", batch, model(batch["image"]))
             if step % t.checkpoint_every == 0 or step % steps_per_epoch == 0 or step == total_steps:
@@ -308,16 +362,35 @@ def run(cfg, run_dir) -> dict:
         batch = to_device(get_batch(data, range(min(8, len(data)))), device, t.channels_last)
     with torch.no_grad():
         save_samples(run_dir / "samples" / "final.png", batch, model(batch["image"]))
-    metrics = {**evaluate(model, cfg, t.eval_size), "steps": step, "stopped_by": stopped, "train_seconds": wall}
+    metrics = {**evaluate(model, cfg, t.eval_size, trivial), "steps": step, "stopped_by": stopped, "train_seconds": wall}
     log.write({"step": step, "epoch": step / steps_per_epoch, "wall": wall, "eval": metrics})
     (run_dir / "eval.json").write_text(json.dumps(metrics, indent=2))
     print_eval(metrics, run_dir)
     return metrics
 
 
+LAYERS = (  # (label, network key, trivial key, pseudo-GT key, unit): lower is better for each
+    ("normals, angular error", "normal_mean", "trivial_normal_mean", "pseudo_normal_mean", "deg"),
+    ("albedo, scale-inv. MSE", "albedo_si_mse", "trivial_albedo_si_mse", None, ""),
+    ("light, SH error", "sh_error", "trivial_sh_error", "pseudo_sh_error", ""),
+)
+
+
+def learned_layers(m: dict) -> dict:
+    """``{network key: True/False}``: whether each layer beats its trivial (dataset-mean) baseline."""
+    return {net: m[net] < m[triv] for _, net, triv, _, _ in LAYERS if net in m and triv in m}
+
+
 def print_eval(m: dict, run_dir) -> None:
     print(f"\ntest metrics ({m['n_eval']} images) -> {Path(run_dir) / 'eval.json'}")
-    print(f"  reconstruction  mse {m['recon_mse']:.5f}  psnr {m['recon_psnr']:.2f} dB  ssim {m['recon_ssim']:.3f}")
-    if "normal_mean" in m:
-        print(f"  normal angular error (deg, same pixels)  network {m['normal_mean']:.2f} (median "
-              f"{m['normal_median']:.2f})   pseudo-GT {m['pseudo_normal_mean']:.2f} (median {m['pseudo_normal_median']:.2f})")
+    print(f"  reconstruction  mse {m['recon_mse']:.5f}  psnr {m['recon_psnr']:.2f} dB  ssim {m['recon_ssim']:.3f}"
+          + (f"   face psnr {m['recon_face_psnr']:.2f} dB" if "recon_face_psnr" in m else ""))
+    learned = learned_layers(m)
+    for label, net, triv, pseudo, unit in LAYERS:
+        if net in m:
+            line = f"  {label:<24} network {m[net]:.4g}{unit}"
+            line += f"   trivial {m[triv]:.4g}{unit}" if triv in m else ""
+            line += f"   pseudo-GT {m[pseudo]:.4g}{unit}" if pseudo and pseudo in m else ""
+            if net in learned:
+                line += "   learned" if learned[net] else "   NOT learned (no better than the dataset mean)"
+            print(line)

@@ -217,8 +217,9 @@ def test_channels_last_model_computes_the_same_outputs_and_gradients(name):
         grads.append({k: p.grad for k, p in m.named_parameters()})
     for k in ("recon", "normal", "albedo", "matte", "background"):
         torch.testing.assert_close(outs[1][k], outs[0][k], rtol=1e-4, atol=1e-5)
-    for k, g in grads[0].items():
-        torch.testing.assert_close(grads[1][k], g, rtol=1e-3, atol=1e-5, msg=k)
+    for k, g in grads[0].items():  # BatchNorm's backward cancels large sums: float32 rounding scales with the
+        # tensor's largest gradient (in float64 the layouts agree to 1e-12, but the CPU kernels run in float32 only)
+        torch.testing.assert_close(grads[1][k], g, rtol=1e-3, atol=1e-5 * max(1.0, g.abs().max().item()), msg=k)
 
 
 def test_shading_stays_float32_under_mixed_precision():
@@ -231,26 +232,29 @@ def test_shading_stays_float32_under_mixed_precision():
 
 
 def test_time_to_accuracy_reads_metrics(tmp_path):
-    """Minutes of training wall time until the first validation (or the final evaluation) whose
-    network normal error beats the pseudo-GT's; else null with the best error and when."""
+    """Minutes of training wall time until the first validation (or the final evaluation) whose network
+    normal error beats the dataset-mean map's, and the pseudo-GT's; else null with the best error and when."""
     log = tmp_path / "metrics.jsonl"
     train = {"step": 5, "wall": 1.0, "total": 1.0}
     val = lambda step, wall, err: {"step": step, "wall": wall, "minutes": wall / 60,
-                                   "val": {"normal_mean": err, "pseudo_normal_mean": 20.0, "recon_psnr": 20.0}}
-    final = {"step": 40, "wall": 300.0, "eval": {"normal_mean": 18.0, "pseudo_normal_mean": 19.0}}
+                                   "val": {"normal_mean": err, "pseudo_normal_mean": 20.0, "trivial_normal_mean": 26.0}}
+    final = {"step": 40, "wall": 300.0, "eval": {"normal_mean": 18.0, "pseudo_normal_mean": 19.0, "trivial_normal_mean": 26}}
     write = lambda *recs: log.write_text("\n".join(json.dumps(r) for r in recs) + "\n")
     write(train, val(10, 60.0, 30.0), val(20, 150.0, 19.5), val(30, 240.0, 25.0), final)
     r = time_to_accuracy(log)
-    assert r["minutes"] == 2.5 and r["step"] == 20 and r["source"] == "val"
+    assert r["trivial"]["minutes"] == 2.5 and r["trivial"]["step"] == 20
+    assert r["pseudo_gt"]["minutes"] == 2.5 and r["pseudo_gt"]["source"] == "val" and r["pseudo_gt"]["target"] == 20.0
     write(train, val(10, 60.0, 30.0), val(20, 150.0, 22.0), val(30, 240.0, 25.0), final)
-    r = time_to_accuracy(log)  # only the final evaluation beats it
-    assert r["minutes"] == 5.0 and r["step"] == 40 and r["source"] == "eval"
-    write(train, val(10, 60.0, 30.0), val(20, 150.0, 22.0), val(30, 240.0, 25.0))
+    r = time_to_accuracy(log)  # the mean map is beaten at step 20, the pseudo-GT only by the final evaluation
+    assert r["trivial"]["minutes"] == 2.5 and r["trivial"]["normal_mean"] == 22.0
+    assert r["pseudo_gt"]["minutes"] == 5.0 and r["pseudo_gt"]["step"] == 40 and r["pseudo_gt"]["source"] == "eval"
+    write(train, val(10, 60.0, 30.0), val(20, 150.0, 27.0), val(30, 240.0, 28.0))
     r = time_to_accuracy(log)
-    assert r["minutes"] is None and r["best_normal_mean"] == 22.0 and r["best_step"] == 20
+    assert r["trivial"]["minutes"] is None and r["pseudo_gt"]["minutes"] is None
+    assert r["best_normal_mean"] == 27.0 and r["best_step"] == 20
     assert r["best_minutes"] == 2.5 and r["last_minutes"] == 4.0
     write(train)
-    assert time_to_accuracy(log)["minutes"] is None
+    assert "trivial" not in time_to_accuracy(log)
 
 
 @pytest.mark.parametrize("fmt", [torch.contiguous_format, torch.channels_last])

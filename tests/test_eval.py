@@ -138,3 +138,37 @@ def test_sh_variance_of_a_model_and_baseline_skipped():
     res = sh_variance_protocol(ds, {"oracle": OracleModel(ds), "baseline": NoLight()})["estimators"]
     assert "baseline" not in res
     assert res["oracle"]["mean"] == pytest.approx(0, abs=1e-12) and res["oracle"]["sh_error"] < 1e-12
+
+
+def test_trivial_baselines_are_dataset_means():
+    """The dataset-mean maps: exact on a data set of one repeated face, per-pixel means on a mix, and
+    scored by the same metrics as a network (an oracle beats them; the constant scores as itself)."""
+    from disent.eval.trivial import dataset_means, trivial_metrics, trivial_outputs
+
+    one = torch.utils.data.Subset(FakeFaces("train", size=1), [0, 0, 0])
+    means = dataset_means(one)
+    gt = default_collate([one[0]])
+    face = face_mask(gt["matte"])[0] > 0
+    torch.testing.assert_close(means["normal"][:, face[0]], gt["normal"][0][:, face[0]])
+    torch.testing.assert_close(means["sh"], gt["sh"][0])
+    assert trivial_metrics(means, gt)["trivial_normal_mean"] == pytest.approx(0, abs=1e-3)
+    assert trivial_metrics(means, gt)["trivial_sh_error"] == pytest.approx(0, abs=1e-10)
+
+    ds = FakeFaces("test", size=12)
+    means = dataset_means(ds, n=12)
+    batch = default_collate([ds[i] for i in range(12)])
+    f = face_mask(batch["matte"])
+    expect = (batch["albedo"] * f).sum(0) / f.sum(0)
+    covered = f.sum(0)[0] > 0
+    torch.testing.assert_close(means["albedo"][:, covered], expect[:, covered])
+    assert torch.all(means["normal"][:, ~covered] == torch.tensor([0.0, 0.0, 1.0])[:, None])
+    torch.testing.assert_close(means["normal"].norm(dim=0), torch.ones(means["normal"].shape[1:]))
+    t = trivial_metrics(means, batch)
+    # the fake's visible normals are the same sphere whatever the yaw (only the matte turns): the mean map is exact;
+    # its lights vary, so the mean light is not
+    assert t["trivial_normal_mean"] < 1e-3 and t["trivial_sh_error"] > 0.01
+    oracle = evaluate_model(OracleModel(ds), ds, limit=12, trivial=means)
+    assert oracle["trivial_sh_error"] == pytest.approx(t["trivial_sh_error"])
+    assert oracle["sh_error"] < 1e-12 < oracle["trivial_sh_error"]
+    same = metrics_from_outputs(trivial_outputs(means, 12), batch)  # the constant scored as a model: the same numbers
+    assert same["normal_mean"] == pytest.approx(t["trivial_normal_mean"]) and "recon_mse" not in same

@@ -190,9 +190,10 @@ def main(argv=None) -> None:
     sub = p.add_subparsers(dest="cmd", required=True)
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    run_help = "run folder, checkpoint, or a shipped model: explicit, implicit, baseline (disent/weights/)"
 
     t = sub.add_parser("traverse", parents=[common], help="move faces along an attribute (DMT or barycenter)")
-    t.add_argument("run", help="run folder or checkpoint")
+    t.add_argument("run", help=run_help)
     t.add_argument("inputs", nargs="+", help="image files, folders, or synth:INDEX")
     t.add_argument("--attribute", required=True, choices=ATTRIBUTES)
     t.add_argument("--manifolds", nargs="+", help="codes to move (default: the paper's choice for the attribute)")
@@ -207,7 +208,7 @@ def main(argv=None) -> None:
     t.set_defaults(fn=cmd_traverse)
 
     r = sub.add_parser("relight", parents=[common], help="relight faces (transfer with detailed albedo, ratio, decode)")
-    r.add_argument("run")
+    r.add_argument("run", help=run_help)
     r.add_argument("inputs", nargs="+", help="target image files, folders, or synth:INDEX")
     r.add_argument("--source", help="image whose estimated light is transferred")
     r.add_argument("--light", help="a light of the bank (see: python -m disent.edit lights)")
@@ -220,7 +221,7 @@ def main(argv=None) -> None:
     r.set_defaults(fn=cmd_relight)
 
     m = sub.add_parser("measure", parents=[common], help="the measured traversal and relighting tables on SynthFaces")
-    m.add_argument("run")
+    m.add_argument("run", help=run_help)
     m.add_argument("--out", default="reports/edit")
     m.add_argument("--attributes", nargs="+", default=list(ATTRIBUTES), choices=ATTRIBUTES)
     m.add_argument("--pool-size", type=int, default=200)

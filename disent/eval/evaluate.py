@@ -86,7 +86,7 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     """
     m = {}
     face = face_mask(gt["matte"])
-    for name, mask in (("recon", None), ("recon_face", face)):
+    for name, mask in ((("recon", None), ("recon_face", face)) if "recon" in out else ()):
         for k, v in reconstruction_metrics(out["recon"].clamp(0, 1), gt["image"], mask).items():
             m[f"{name}_{k}"] = v
     if "normal" in out:
@@ -102,10 +102,14 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     return m
 
 
-def evaluate_model(model, dataset, limit: int = 256, batch_size: int = 64) -> dict:
-    """All test metrics of ``model`` on the first ``limit`` items of ``dataset`` plus ``infer_images_per_s``."""
+def evaluate_model(model, dataset, limit: int = 256, batch_size: int = 64, trivial: dict | None = None) -> dict:
+    """All test metrics of ``model`` on the first ``limit`` items of ``dataset`` plus ``infer_images_per_s``;
+    with ``trivial`` (:func:`disent.eval.trivial.dataset_means`) the ``trivial_*`` baselines on the same images."""
+    from disent.eval.trivial import trivial_metrics
+
     out, gt, ips = model_outputs(model, dataset, limit, batch_size)
-    return {**metrics_from_outputs(out, gt), "infer_images_per_s": ips, "n_eval": len(gt["image"])}
+    m = {**metrics_from_outputs(out, gt), "infer_images_per_s": ips, "n_eval": len(gt["image"])}
+    return {**m, **trivial_metrics(trivial, gt)} if trivial is not None else m
 
 
 __all__ = ["FACE_THRESHOLD", "face_mask", "normal_metrics", "batches", "render", "predict", "model_outputs", "metrics_from_outputs", "evaluate_model"]

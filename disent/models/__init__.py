@@ -32,20 +32,27 @@ def build_model(cfg_model) -> torch.nn.Module:
 
 
 def load_run(path, map_location="cpu"):
-    """``(model, cfg)`` from a run folder (its ``checkpoints/last.pt``) or a checkpoint file.
+    """``(model, cfg)`` from a run folder (its ``checkpoints/last.pt``), a checkpoint file, or the name of a
+    shipped model (``explicit``, ``implicit``, ``baseline``: :mod:`disent.models.shipped`).
 
-    The model is in eval mode; ``cfg`` is the run's resolved OmegaConf config.
+    The model is in eval mode; ``cfg`` is the run's resolved OmegaConf config.  An unknown name lists the
+    shipped ones; a checkpoint that does not fit this code's architecture names the mismatch.
     """
     from omegaconf import OmegaConf
 
+    from disent.models.shipped import load_weights, shipped_path
+
     path = Path(path)
-    ckpt_path = path / "checkpoints" / "last.pt" if path.is_dir() else path
-    if not ckpt_path.exists():
-        raise FileNotFoundError(f"no checkpoint at {ckpt_path}")
+    if path.exists():
+        ckpt_path = path / "checkpoints" / "last.pt" if path.is_dir() else path
+        if not ckpt_path.exists():
+            raise FileNotFoundError(f"no checkpoint at {ckpt_path}")
+    else:
+        ckpt_path = shipped_path(str(path))
     ckpt = torch.load(ckpt_path, map_location=map_location, weights_only=False)
     cfg = OmegaConf.create(ckpt["cfg"])
     model = build_model(cfg.model)
-    model.load_state_dict(ckpt["model"])
+    load_weights(model, ckpt["model"], ckpt_path)
     return model.eval(), cfg
 
 

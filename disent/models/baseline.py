@@ -5,19 +5,21 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from disent.models.networks import Decoder, Encoder
+from disent.models.networks import Decoder, Encoder, Layers
 
 
 class Baseline(nn.Module):
     CODE_NAMES = ("z",)
 
-    def __init__(self, resolution: int = 64, code_dim: int = 265, matting: bool = False):
+    def __init__(self, resolution: int = 64, code_dim: int = 265, matting: bool = False,
+                 norm: str = "none", centre_input: bool = False, z_act: str = "relu"):
         super().__init__()
         if matting:
             raise ValueError("the baseline autoencoder has no matting layer (model.matting must be false)")
         self.resolution = resolution
-        self.encoder = Encoder(resolution, code_dim)
-        self.decoder = Decoder(3, resolution, code_dim)
+        self.layers = layers = Layers(norm, centre_input, z_act)  # the same layers as the rendering models
+        self.encoder = Encoder(resolution, code_dim, layers=layers)
+        self.decoder = Decoder(3, resolution, code_dim, layers=layers)
 
     def encode(self, image: torch.Tensor) -> dict:
         if image.dim() != 4 or image.shape[1] != 3 or image.shape[-2:] != (self.resolution, self.resolution):

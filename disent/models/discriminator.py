@@ -10,14 +10,14 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from disent.models.networks import Decoder, Encoder
+from disent.models.networks import Decoder, Encoder, Layers
 
 
 class Discriminator(nn.Module):
-    def __init__(self, resolution: int = 64, code_dim: int = 128):
+    def __init__(self, resolution: int = 64, code_dim: int = 128, layers: Layers = Layers()):
         super().__init__()
-        self.encoder = Encoder(resolution, code_dim)
-        self.decoder = Decoder(3, resolution, code_dim)  # no skips: D must go through its bottleneck
+        self.encoder = Encoder(resolution, code_dim, layers=layers)
+        self.decoder = Decoder(3, resolution, code_dim, layers=layers)  # no skips: D must go through its bottleneck
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         """D's reconstruction of ``image``."""

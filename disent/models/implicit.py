@@ -14,7 +14,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from disent.models.explicit import Explicit
+from disent.models.explicit import Explicit, decode_normal
 from disent.models.networks import Decoder
 from disent.render import unit
 
@@ -29,14 +29,14 @@ class Implicit(Explicit):
     CODE_NAMES = ("bg", "m", "L", "UV", "Ni", "Ai")
 
     def build_foreground(self, resolution, code_dim):
-        self.dec_UV = Decoder(2, resolution, code_dim)
-        self.dec_NA = Decoder(3, resolution, code_dim)  # shared by N_i and A_i
+        self.dec_UV = Decoder(2, resolution, code_dim, layers=self.layers)
+        self.dec_NA = Decoder(3, resolution, code_dim, layers=self.layers)  # shared by N_i and A_i
 
     def decode_foreground(self, codes: dict) -> dict:
         B = codes["Ni"].shape[0]
         uv = torch.sigmoid(self.dec_UV(codes["UV"]))
         na = self.dec_NA(torch.cat([codes["Ni"], codes["Ai"]]))  # one pass, shared weights
-        normal_uv, albedo_uv = unit(na[:B]), torch.sigmoid(na[B:])
+        normal_uv, albedo_uv = decode_normal(na[:B], self.normal_param), torch.sigmoid(na[B:])
         return {"uv": uv, "normal_uv": normal_uv, "albedo_uv": albedo_uv,
                 "normal": unit(sample_uv(normal_uv, uv)),
                 "albedo": sample_uv(albedo_uv, uv)}

@@ -10,6 +10,8 @@ neighbour, so the face passes through the bottleneck only.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -137,35 +139,74 @@ def check_resolution(resolution: int) -> int:
     return resolution // 8
 
 
+@dataclass(frozen=True)
+class Layers:
+    """Choices about the layers that the paper leaves open, shared by every encoder and decoder of a
+    model and by its discriminator, so that comparisons between them stay fair.
+
+    ``norm``: normalisation after each hidden convolution ("none" as in the paper and the release,
+    "batch" or "group"); ``centre_input``: feed the encoder ``2 * image - 1`` instead of [0, 1];
+    ``z_act``: the nonlinearity on Z_I ("relu", "sigmoid" as in the release, or "none")."""
+    norm: str = "none"
+    centre_input: bool = False
+    z_act: str = "relu"
+
+    def __post_init__(self):
+        for key, value, allowed in (("norm", self.norm, NORMS), ("z_act", self.z_act, Z_ACTS)):
+            if value not in allowed:
+                raise ValueError(f"model.{key}={value!r}; choose from {', '.join(allowed)}")
+
+
+NORMS = ("none", "batch", "group")
+Z_ACTS = ("relu", "sigmoid", "none")
+
+
+def norm_layer(kind: str, channels: int) -> nn.Module:
+    if kind == "batch":
+        return nn.BatchNorm2d(channels)
+    if kind == "group":
+        return nn.GroupNorm(8, channels)  # 4-8 channels a group at 32-64 maps
+    return nn.Identity()
+
+
 class Encoder(nn.Module):
     """Image ``[B,3,H,W]`` -> (code ``[B,code_dim]``, pooling switches, finest first)."""
 
-    def __init__(self, resolution: int = 64, code_dim: int = 128, in_channels: int = 3):
+    def __init__(self, resolution: int = 64, code_dim: int = 128, in_channels: int = 3, layers: Layers = Layers()):
         super().__init__()
         side = check_resolution(resolution)
         chans = (in_channels, *CHANNELS)
-        self.convs = nn.ModuleList(nn.Conv2d(a, b, 3, padding=1) for a, b in zip(chans[:-1], chans[1:]))
+        self.layers = layers
+        bias = layers.norm == "none"  # a normalisation layer subtracts any bias: none before one
+        self.convs = nn.ModuleList(nn.Conv2d(a, b, 3, padding=1, bias=bias) for a, b in zip(chans[:-1], chans[1:]))
+        self.norms = nn.ModuleList(norm_layer(layers.norm, b) for b in CHANNELS)
         self.fc = nn.Linear(CHANNELS[-1] * side * side, code_dim)
 
     def forward(self, image: torch.Tensor):
-        x, switches = image, []
-        for conv in self.convs:
-            x, idx = F.max_pool2d(conv(x), 2, return_indices=True)  # conv -> 2x2 max-pool -> ReLU
+        x, switches = (2 * image - 1 if self.layers.centre_input else image), []
+        for conv, norm in zip(self.convs, self.norms):
+            x, idx = F.max_pool2d(norm(conv(x)), 2, return_indices=True)  # conv -> 2x2 max-pool -> ReLU
             x = F.relu(x)
             switches.append(idx)
-        return F.relu(self.fc(x.flatten(1))), tuple(switches)
+        z = self.fc(x.flatten(1))
+        act = self.layers.z_act
+        return (F.relu(z) if act == "relu" else torch.sigmoid(z) if act == "sigmoid" else z), tuple(switches)
 
 
 class Decoder(nn.Module):
     """Code ``[B,code_dim]`` -> map ``[B,out_channels,H,W]`` (no output nonlinearity)."""
 
-    def __init__(self, out_channels: int, resolution: int = 64, code_dim: int = 128, skips: bool = False):
+    def __init__(self, out_channels: int, resolution: int = 64, code_dim: int = 128, skips: bool = False,
+                 layers: Layers = Layers()):
         super().__init__()
         self.side = check_resolution(resolution)
         self.skips = skips
         chans = (*CHANNELS[::-1], out_channels)  # 64 -> 64 -> 32 -> out, the encoder reversed
         self.fc = nn.Linear(code_dim, CHANNELS[-1] * self.side * self.side)
-        self.convs = nn.ModuleList(nn.Conv2d(a, b, 3, padding=1) for a, b in zip(chans[:-1], chans[1:]))
+        last = len(chans) - 2  # the output convolution keeps its bias; the hidden ones feed a normalisation layer
+        self.convs = nn.ModuleList(nn.Conv2d(a, b, 3, padding=1, bias=layers.norm == "none" or i == last)
+                                   for i, (a, b) in enumerate(zip(chans[:-1], chans[1:])))
+        self.norms = nn.ModuleList(norm_layer(layers.norm, b) for b in chans[1:-1])  # hidden maps only
 
     def forward(self, code: torch.Tensor, switches=None) -> torch.Tensor:
         if self.skips and switches is None:
@@ -179,7 +220,7 @@ class Decoder(nn.Module):
             else:
                 x = upsample_conv(x, conv)  # = conv(nearest 2x upsampling of x)
             if i < len(self.convs) - 1:
-                x = F.relu(x)
+                x = F.relu(self.norms[i](x))
         return x
 
 

@@ -1,0 +1,61 @@
+"""Trivial baselines: one constant estimate for every image, from the training split's ground truth.
+
+A layer counts as learned only where the network beats its trivial baseline:
+
+* normals: the dataset-mean normal map (per pixel, the normalised mean of the true normals over the
+  face pixels of the training images; the frontal normal where no face ever covers the pixel);
+* albedo: the dataset-mean albedo map (per pixel mean over face pixels), scored by the same
+  scale-invariant MSE as the network's albedo;
+* light: the mean true SH light, scored by the same scale-aligned SH error.
+
+``trivial_metrics`` scores them with :func:`disent.eval.evaluate.metrics_from_outputs`, the code that
+scores the networks, and returns its keys prefixed with ``trivial_`` (``trivial_normal_mean``,
+``trivial_albedo_si_mse``, ``trivial_sh_error``, ...).
+"""
+from __future__ import annotations
+
+import torch
+
+from disent.eval.evaluate import face_mask, metrics_from_outputs
+
+N_IMAGES = 1024  # training images the means are taken over (fewer if the split is smaller)
+KEYS = ("normal_mean", "normal_median", "albedo_si_mse", "sh_error")
+
+
+@torch.no_grad()
+def dataset_means(dataset, n: int = N_IMAGES, batch_size: int = 256) -> dict:
+    """``normal [3,H,W]``, ``albedo [3,H,W]``, ``sh [C,9]``: the constant estimates, from the first
+    ``n`` items of ``dataset`` (which must carry ``normal``, ``albedo``, ``sh`` and ``matte``)."""
+    from disent.eval.evaluate import batches
+
+    sums = {"normal": 0.0, "albedo": 0.0, "weight": 0.0, "sh": 0.0}
+    count = 0
+    for b in batches(dataset, batch_size, n):
+        face = face_mask(b["matte"].double())
+        sums["normal"] = sums["normal"] + (b["normal"].double() * face).sum(0)
+        sums["albedo"] = sums["albedo"] + (b["albedo"].double() * face).sum(0)
+        sums["weight"] = sums["weight"] + face.sum(0)
+        sums["sh"] = sums["sh"] + b["sh"].double().sum(0)
+        count += len(b["image"])
+    if count == 0:
+        raise ValueError("dataset_means: the data set is empty")
+    covered = sums["weight"] > 0
+    frontal = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)[:, None, None]
+    normal = torch.where(covered, torch.nn.functional.normalize(sums["normal"], dim=0), frontal)
+    mean_albedo = sums["albedo"].sum((1, 2)) / sums["weight"].sum().clamp_min(1)  # [C], where no face ever is
+    albedo = torch.where(covered, sums["albedo"] / sums["weight"].clamp_min(1), mean_albedo[:, None, None])
+    return {"normal": normal.float(), "albedo": albedo.float(), "sh": (sums["sh"] / count).float(), "n": count}
+
+
+def trivial_outputs(means: dict, batch: int) -> dict:
+    """The constant estimates as a model's outputs for ``batch`` images."""
+    return {k: means[k].expand(batch, *means[k].shape) for k in ("normal", "albedo", "sh")}
+
+
+def trivial_metrics(means: dict, gt: dict) -> dict:
+    """``trivial_<key>`` for each key of ``KEYS``: the constant estimates scored against ``gt``."""
+    m = metrics_from_outputs(trivial_outputs(means, len(gt["image"])), gt)
+    return {f"trivial_{k}": m[k] for k in KEYS}
+
+
+__all__ = ["dataset_means", "trivial_outputs", "trivial_metrics", "N_IMAGES"]
