@@ -173,6 +173,8 @@ def main(argv=None) -> None:
     p.add_argument("--no-bf16", dest="bf16", action="store_false", help="skip the bfloat16 figures")
     p.add_argument("--no-channels-last", action="store_true", help="NCHW instead of NHWC activations")
     p.add_argument("--models", nargs="*", default=None, help="models to benchmark (default: all)")
+    p.add_argument("--norm", choices=("none", "batch", "group"), default=None,
+                   help="the models' normalisation layers instead of conf/model's (to time what they cost)")
     p.add_argument("--run", default=None, help="run folder for time_to_accuracy (default: newest under outputs/)")
     p.add_argument("--peak-n", type=int, default=2048, help="side of the square matmul that measures the peak")
     p.add_argument("--train-batch", type=int, default=64, help="batch of the models' training steps")
@@ -185,6 +187,10 @@ def main(argv=None) -> None:
     args.malloc_tuned = False if args.no_malloc_tuning else tune_malloc()
     global DEVICE
     DEVICE = args.device
+    if args.norm:
+        from disent.models import bench as model_bench
+
+        model_bench.LAYER_OVERRIDES["norm"] = args.norm
     if args.threads:
         torch.set_num_threads(args.threads)
     else:  # the fastest thread count, by the matmul peak (on a shared machine fewer threads can win)

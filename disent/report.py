@@ -435,6 +435,7 @@ def plot_learning_curves(runs: list[Run], path: Path, title: str = "") -> bool:
             ax.set_ylabel(label)
             ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=6)
+    axes[0][-1].legend(fontsize=6)  # the baseline has a curve in the PSNR panels only
     if title:
         fig.suptitle(title, fontsize=9)
     fig.tight_layout()

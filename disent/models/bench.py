@@ -40,10 +40,13 @@ CONF = Path(__file__).resolve().parents[2] / "conf"
 MODELS = ("explicit", "implicit", "baseline")
 
 
+LAYER_OVERRIDES: dict = {}  # model settings every benchmarked model takes instead of conf/model's (--norm)
+
+
 def model_cfg(name: str, resolution: int) -> dict:
     cfg = OmegaConf.to_container(OmegaConf.load(CONF / "model" / f"{name}.yaml"))
     cfg["resolution"] = resolution
-    return cfg
+    return {**cfg, **LAYER_OVERRIDES}
 
 
 # A margin above every energy (D's per-value squared error of images in [0,1] is at most 1): each
