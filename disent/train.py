@@ -202,8 +202,8 @@ def train_step(model, disc, opt_g, opt_d, batch, cfg_loss) -> dict:
     return losses
 
 
-VAL_KEYS = ("recon_psnr", "recon_face_psnr", "normal_mean", "pseudo_normal_mean", "albedo_si_mse", "sh_error",
-            "pseudo_sh_error")
+VAL_KEYS = ("recon_psnr", "recon_face_psnr", "normal_mean", "pseudo_normal_mean", "albedo_si_mse",
+            "albedo_global_si_mse", "sh_error", "pseudo_sh_error")
 
 
 def validate(model, batch: dict) -> dict:
@@ -372,6 +372,7 @@ def run(cfg, run_dir) -> dict:
 LAYERS = (  # (label, network key, trivial key, pseudo-GT key, unit): lower is better for each
     ("normals, angular error", "normal_mean", "trivial_normal_mean", "pseudo_normal_mean", "deg"),
     ("albedo, scale-inv. MSE", "albedo_si_mse", "trivial_albedo_si_mse", None, ""),
+    ("albedo, one scale", "albedo_global_si_mse", "trivial_albedo_global_si_mse", None, ""),
     ("light, SH error", "sh_error", "trivial_sh_error", "pseudo_sh_error", ""),
 )
 

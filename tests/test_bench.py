@@ -125,7 +125,7 @@ def test_upsample_conv_equals_conv_of_nearest_upsampling(c, o):
     conv = torch.nn.Conv2d(c, o, 3, padding=1).double()
     x = torch.randn(2, c, 5, 7, dtype=torch.float64, requires_grad=True)
     ref = conv(F.interpolate(x, scale_factor=2, mode="nearest"))
-    out = upsample_conv(x, conv)
+    out = upsample_conv(x, conv.weight, conv.bias)
     torch.testing.assert_close(out, ref)
     g = torch.randn_like(ref)
     grads = torch.autograd.grad(out, (x, conv.weight, conv.bias), g)
@@ -264,3 +264,35 @@ def test_unit_equals_normalize(fmt):
     x = torch.randn(2, 3, 5, 5, dtype=torch.float64).contiguous(memory_format=fmt)
     x[0, :, 0, 0] = 0  # F.normalize's eps: a zero vector stays zero
     torch.testing.assert_close(unit(x), F.normalize(x, dim=1))
+
+
+@pytest.mark.parametrize("name", ["explicit", "implicit", "baseline"])
+def test_batchnorm_folding_is_the_same_function_in_eval_mode(name, monkeypatch):
+    """Eval mode folds each BatchNorm into the convolution before it: the same outputs and input gradients
+    as applying the BatchNorm (with non-trivial running statistics and affine weights), in both layouts."""
+    from disent.models import build_model, networks
+    from disent.models.bench import model_cfg
+
+    torch.manual_seed(0)
+    model = build_model({**model_cfg(name, 16), "norm": "batch"}).double()
+    for m in model.modules():
+        if isinstance(m, torch.nn.BatchNorm2d):
+            for t in (m.running_mean, m.weight, m.bias):
+                t.data.normal_()
+            m.running_var.data.uniform_(0.5, 2.0)
+    model.eval()
+    x = torch.rand(2, 3, 16, 16, dtype=torch.float64)
+    outs = {}
+    for fold in (True, False):
+        monkeypatch.setattr(networks, "FOLD_BATCHNORM", fold)
+        image = x.clone().requires_grad_(True)
+        out = model(image)
+        grad, = torch.autograd.grad(out["recon"].square().sum(), image)
+        outs[fold] = ({k: v for k, v in out.items() if torch.is_tensor(v)}, grad)
+    for k, v in outs[False][0].items():
+        torch.testing.assert_close(outs[True][0][k], v, msg=k)
+    torch.testing.assert_close(outs[True][1], outs[False][1])
+    assert networks.conv_then_norm(model.encoder.convs[0], model.encoder.norms[0])[2] is False  # monkeypatched off
+    model.train()  # training mode never folds: the batch statistics are the layer
+    monkeypatch.setattr(networks, "FOLD_BATCHNORM", True)
+    assert networks.conv_then_norm(model.encoder.convs[0], model.encoder.norms[0])[2] is False

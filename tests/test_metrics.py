@@ -122,3 +122,16 @@ def test_bad_input_is_rejected():
         reconstruction_metrics(n, n, torch.ones(2, 1, 4, 4))
     with pytest.raises(ValueError):
         sh_error(torch.zeros(1, 3, 4), torch.zeros(1, 3, 4))
+
+
+def test_scale_invariant_mse_global_scale_does_not_forgive_per_image_colour():
+    """per_image=False allows one scale per channel for the whole batch: a per-channel gain common to all
+    images is forgiven, a different colour per image (skin tone left to the light) is not."""
+    g = torch.Generator().manual_seed(0)
+    target = torch.rand(4, 3, 8, 8, generator=g) + 0.1
+    mask = torch.ones(4, 1, 8, 8)
+    common = target * torch.tensor([0.5, 2.0, 3.0])[None, :, None, None]
+    per_image = target * (torch.rand(4, 3, 1, 1, generator=g) + 0.5)
+    assert scale_invariant_mse(common, target, mask, per_image=False) < 1e-12  # float32 inputs: rounding only
+    assert scale_invariant_mse(per_image, target, mask) < 1e-12
+    assert scale_invariant_mse(per_image, target, mask, per_image=False) > 1e-3

@@ -90,7 +90,10 @@ def load_inputs(specs: list[str], resolution: int, seed: int = 0) -> list[tuple[
 def load_model(run: str):
     from disent.models import load_run
 
-    model, cfg = load_run(run)
+    try:
+        model, cfg = load_run(run)
+    except (FileNotFoundError, ValueError) as e:  # unknown name or path, mismatched architecture: say so, no traceback
+        raise SystemExit(f"error: {e}") from None
     return model, int(getattr(model, "resolution", 64))
 
 

@@ -81,8 +81,8 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
 
     ``recon_*`` on the whole image, ``recon_face_*`` under the true face mask; ``normal_*`` the
     model's angular error against the true normals and ``pseudo_normal_*`` the pseudo-GT's on the
-    same pixels (true face mask intersected with the pseudo mask); ``albedo_si_mse``,
-    ``shading_si_mse``; ``sh_error`` after the per-image scale alignment.
+    same pixels (true face mask intersected with the pseudo mask); ``albedo_si_mse`` (a scale per
+    image and channel), ``albedo_global_si_mse`` (a scale per channel for all images), ``shading_si_mse``; ``sh_error`` after the per-image scale alignment.
     """
     m = {}
     face = face_mask(gt["matte"])
@@ -93,6 +93,7 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
         m.update(normal_metrics(out["normal"], gt))
     if "albedo" in out:
         m["albedo_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], face)
+        m["albedo_global_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], face, per_image=False)
     if "shading" in out:
         shading = out["shading"].expand_as(gt["shading"])
         m["shading_si_mse"] = scale_invariant_mse(shading, gt["shading"], face)

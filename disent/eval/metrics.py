@@ -110,19 +110,21 @@ def optimal_scale(pred: torch.Tensor, target: torch.Tensor, weight: torch.Tensor
     return torch.where(den > 0, num / den.clamp_min(1e-300), torch.zeros_like(num))
 
 
-def scale_invariant_mse(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, reduction: str = "mean"):
+def scale_invariant_mse(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, reduction: str = "mean",
+                        per_image: bool = True):
     """Scale-invariant MSE of albedo (or shading) maps ``[B,C,H,W]`` over the mask.
 
     Each image and channel of ``pred`` is multiplied by its least-squares optimal scale
-    before the MSE over masked pixels and channels.  ``reduction="none"`` returns ``[B]``,
-    ``"mean"`` their mean as a float.
+    before the MSE over masked pixels and channels (``per_image=False``: one scale per channel
+    for the whole batch, so an albedo that leaves each face's colour to the light is not forgiven).
+    ``reduction="none"`` returns ``[B]``, ``"mean"`` their mean as a float.
     """
     _check_pair(pred, target)
     w = _mask(mask, pred).double()
     if not (w.flatten(1).sum(1) > 0).all():
         raise ValueError("scale_invariant_mse: the mask selects no pixel in some image")
     p, t = pred.detach().double(), target.detach().double()
-    s = optimal_scale(p, t, w, (2, 3))  # [B,C,1,1]
+    s = optimal_scale(p, t, w, (2, 3) if per_image else (0, 2, 3))  # [B,C,1,1] or [1,C,1,1]
     per_image = (w * (s * p - t) ** 2).sum((1, 2, 3)) / (w.sum((1, 2, 3)) * p.shape[1])
     return _reduce(per_image, reduction)
 

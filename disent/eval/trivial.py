@@ -5,12 +5,12 @@ A layer counts as learned only where the network beats its trivial baseline:
 * normals: the dataset-mean normal map (per pixel, the normalised mean of the true normals over the
   face pixels of the training images; the frontal normal where no face ever covers the pixel);
 * albedo: the dataset-mean albedo map (per pixel mean over face pixels), scored by the same
-  scale-invariant MSE as the network's albedo;
+  scale-invariant MSEs as the network's albedo;
 * light: the mean true SH light, scored by the same scale-aligned SH error.
 
 ``trivial_metrics`` scores them with :func:`disent.eval.evaluate.metrics_from_outputs`, the code that
 scores the networks, and returns its keys prefixed with ``trivial_`` (``trivial_normal_mean``,
-``trivial_albedo_si_mse``, ``trivial_sh_error``, ...).
+``trivial_albedo_si_mse``, ``trivial_albedo_global_si_mse``, ``trivial_sh_error``, ...).
 """
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ import torch
 from disent.eval.evaluate import face_mask, metrics_from_outputs
 
 N_IMAGES = 1024  # training images the means are taken over (fewer if the split is smaller)
-KEYS = ("normal_mean", "normal_median", "albedo_si_mse", "sh_error")
+KEYS = ("normal_mean", "normal_median", "albedo_si_mse", "albedo_global_si_mse", "sh_error")
 
 
 @torch.no_grad()

@@ -27,18 +27,18 @@ PHASE_TAPS = torch.tensor([[[1.0, 0, 0], [0, 1, 1], [0, 0, 0]],
                            [[0.0, 0, 0], [1, 1, 0], [0, 0, 1]]])  # [phase, low-res offset, kernel tap]
 
 
-def upsample_conv(x: torch.Tensor, conv: nn.Conv2d) -> torch.Tensor:
-    """``conv(interpolate(x, scale_factor=2, mode="nearest"))``.  A narrow layer (at most
+def upsample_conv(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:
+    """``F.conv2d(interpolate(x, scale_factor=2, mode="nearest"), weight, bias, padding=1)``.  A narrow layer (at most
     ``NARROW_MAX`` outputs, the last one) runs as one convolution with 4x the output channels
     (one per phase) and a pixel shuffle: the upsampled tensor is never built, and 3 outputs
     become 12, which runs several times faster.  Wider layers run as written: on the CPU oneDNN
     takes the full-resolution convolution faster than the 4x-wide low-resolution one."""
-    o, c = conv.weight.shape[:2]
+    o, c = weight.shape[:2]
     if o > NARROW_MAX:
-        return conv3x3(F.interpolate(x, scale_factor=2, mode="nearest"), conv.weight, conv.bias)
-    taps = PHASE_TAPS.to(conv.weight)
-    w = torch.einsum("apk,bql,ockl->oabcpq", taps, taps, conv.weight).reshape(4 * o, c, 3, 3)
-    y = conv3x3(x, w, conv.bias.repeat_interleave(4))
+        return conv3x3(F.interpolate(x, scale_factor=2, mode="nearest"), weight, bias)
+    taps = PHASE_TAPS.to(weight)
+    w = torch.einsum("apk,bql,ockl->oabcpq", taps, taps, weight).reshape(4 * o, c, 3, 3)
+    y = conv3x3(x, w, bias.repeat_interleave(4))
     return shuffle_to_planes(y) if cpu_nhwc(y) and not torch.is_grad_enabled() else F.pixel_shuffle(y, 2)
 
 
@@ -161,6 +161,23 @@ NORMS = ("none", "batch", "group")
 Z_ACTS = ("relu", "sigmoid", "none")
 
 
+FOLD_BATCHNORM = True  # eval mode: a BatchNorm after a convolution is folded into its weights (the same function)
+
+
+def conv_then_norm(conv: nn.Conv2d, norm: nn.Module):
+    """``(weight, bias, norm_done)`` of ``conv`` followed by ``norm``.  In eval mode a BatchNorm is an affine
+    map per channel, folded into the convolution (w * s, (b - mean) * s + beta with s = gamma / sqrt(var + eps)),
+    which saves a pass over the activations at inference; otherwise the convolution's own weights, and the
+    caller applies ``norm``."""
+    if FOLD_BATCHNORM and isinstance(norm, nn.BatchNorm2d) and not norm.training:
+        scale = norm.weight * torch.rsqrt(norm.running_var + norm.eps)
+        shift = norm.bias - norm.running_mean * scale
+        bias = shift if conv.bias is None else shift + conv.bias * scale
+        fmt = torch.channels_last if conv.weight.is_contiguous(memory_format=torch.channels_last) else torch.contiguous_format
+        return (conv.weight * scale[:, None, None, None]).contiguous(memory_format=fmt), bias, True  # keep the layout
+    return conv.weight, conv.bias, False
+
+
 def norm_layer(kind: str, channels: int) -> nn.Module:
     if kind == "batch":
         return nn.BatchNorm2d(channels)
@@ -185,7 +202,9 @@ class Encoder(nn.Module):
     def forward(self, image: torch.Tensor):
         x, switches = (2 * image - 1 if self.layers.centre_input else image), []
         for conv, norm in zip(self.convs, self.norms):
-            x, idx = F.max_pool2d(norm(conv(x)), 2, return_indices=True)  # conv -> 2x2 max-pool -> ReLU
+            weight, bias, norm_done = conv_then_norm(conv, norm)
+            x = F.conv2d(x, weight, bias, padding=1)
+            x, idx = F.max_pool2d(x if norm_done else norm(x), 2, return_indices=True)  # conv -> 2x2 max-pool -> ReLU
             x = F.relu(x)
             switches.append(idx)
         z = self.fc(x.flatten(1))
@@ -215,12 +234,14 @@ class Decoder(nn.Module):
         if self.convs[0].weight.is_contiguous(memory_format=torch.channels_last):
             x = x.contiguous(memory_format=torch.channels_last)  # a channels-last model: NHWC from the first map on
         for i, conv in enumerate(self.convs):
+            hidden = i < len(self.convs) - 1
+            weight, bias, norm_done = conv_then_norm(conv, self.norms[i]) if hidden else (conv.weight, conv.bias, True)
             if self.skips:
-                x = conv3x3(MaxUnpool.apply(x, switches[-1 - i]), conv.weight, conv.bias)
+                x = conv3x3(MaxUnpool.apply(x, switches[-1 - i]), weight, bias)
             else:
-                x = upsample_conv(x, conv)  # = conv(nearest 2x upsampling of x)
-            if i < len(self.convs) - 1:
-                x = F.relu(self.norms[i](x))
+                x = upsample_conv(x, weight, bias)  # = conv(nearest 2x upsampling of x)
+            if hidden:
+                x = F.relu(x if norm_done else self.norms[i](x))
         return x
 
 
