@@ -17,7 +17,7 @@ VARIANTS=(
   "z_sigmoid model.z_act=sigmoid"                # the release's sigmoid on Z_I
   "rmsprop train.optimizer=rmsprop"              # the release's optimiser
   "epoch_decay train.schedule=epoch_decay"       # the release's schedule (x0.99 per epoch)
-  "train3000 data.train_size=3000"               # the former default training set
+  "train3000 data.train_size=3000 train.epochs=5" # the former default training set (5 epochs: the same 600 steps)
   "recN_0.2 loss.weights.recon_N=0.2"            # the release's E_recon-N weight
   "recN_10 loss.weights.recon_N=10"
 )

@@ -152,7 +152,8 @@ def sec_runs(rep: Report, runs: list[Run]) -> None:
         rep.note("no run folders under `outputs/` or `multirun/`. Train with `python -m disent` or run the "
                  "suite (`ablations/README.md`), then run `python -m disent.report` again.")
         return
-    cols = ("recon_mse", "normal_mean", "pseudo_normal_mean", "albedo_si_mse", "sh_error")
+    cols = ("recon_mse", "recon_face_psnr", "normal_mean", "trivial_normal_mean", "pseudo_normal_mean", "albedo_si_mse",
+            "trivial_albedo_si_mse", "sh_error", "trivial_sh_error")
     rep.add("| run | variant | seed | status | train img/s | infer img/s | " + " | ".join(cols) + " |",
             "|" + "---|" * (6 + len(cols)))
     for r in runs:
@@ -160,7 +161,8 @@ def sec_runs(rep: Report, runs: list[Run]) -> None:
             return "–" if v is None else f"{v:.4g}"
         rep.add(f"| `{r.path}` | {r.variant} | {r.seed} | {r.status} | {f(_speed(r, TRAIN_SPEED_KEYS))} | "
                 f"{f(_speed(r, INFER_SPEED_KEYS))} | " + " | ".join(f(r.value(c)) for c in cols) + " |")
-    rep.add("")
+    rep.add("", "_`trivial_*`: the dataset-mean normal map, albedo map and light on the same test images "
+            "(`disent/eval/trivial.py`); a layer counts as learned only where it beats them._\n")
 
 
 def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
@@ -205,9 +207,11 @@ def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
     rep.image(path, "normals")
     rows = [(n, r) for n, r in chosen.items() if r.value("normal_mean") is not None]
     if rows:
-        rep.add("| run | normal error (deg) | pseudo-GT error, same pixels (deg) | under 25° ours / pseudo |", "|---|---|---|---|")
+        rep.add("| run | normal error (deg) | dataset-mean map (deg) | pseudo-GT error, same pixels (deg) | "
+                "under 25° ours / pseudo |", "|---|---|---|---|---|")
         for n, r in rows:
-            rep.add(f"| {n} | {r.value('normal_mean'):.2f} | {r.value('pseudo_normal_mean') or float('nan'):.2f} | "
+            rep.add(f"| {n} | {r.value('normal_mean'):.2f} | {r.value('trivial_normal_mean') or float('nan'):.2f} | "
+                    f"{r.value('pseudo_normal_mean') or float('nan'):.2f} | "
                     f"{r.value('normal_under_25') or float('nan'):.3f} / {r.value('pseudo_normal_under_25') or float('nan'):.3f} |")
         rep.add("", "_The paper's claim \"beyond the 3DMM subspace\" holds for a run when its error is below the "
                 "pseudo-GT's on the same pixels._\n")
@@ -239,10 +243,16 @@ def sec_sh_variance(rep: Report, eval_dir: Path) -> None:
         rep.note("no trained model's Z_L in the SH-variance table (no finished explicit/implicit run when it was computed).")
 
 
+def is_recipe_run(run: Run) -> bool:
+    """A run of the training recipe's leave-one-out (ablations/recipe.sh): a folder under a ``recipe/`` folder.
+    Each changes a setting without an ``+ablation``, so it belongs in the recipe table, not among a model's seeds."""
+    return "recipe" in run.path.parts[:-1]
+
+
 def sec_ablation(rep: Report, runs: list[Run]) -> None:
     """One table per budget (the runs' ``+experiment=``), so runs of different budgets never share a mean."""
     groups = {}
-    for r in runs:
+    for r in (r for r in runs if not is_recipe_run(r)):
         groups.setdefault(str(r.choices.get("experiment") or "none (conf defaults)"), []).append(r)
     tables = {}
     for exp, rs in sorted(groups.items()) or [("none", [])]:
@@ -364,7 +374,7 @@ RECIPE_COLUMNS = (("normal_mean", "normals (deg)", ".2f"), ("recon_face_psnr", "
 def sec_recipe(rep: Report, runs: list[Run]) -> None:
     """The training recipe's leave-one-out table: run folders under a ``recipe/`` folder, one per variant
     (folder name), ``recipe/recipe`` the full recipe; each row changes one setting back (overrides column)."""
-    rows = {r.path.name: r for r in runs if "recipe" in r.path.parts[:-1] and r.eval}
+    rows = {r.path.name: r for r in runs if is_recipe_run(r) and r.eval}
     ref = rows.get("recipe")
     if ref is None:
         rep.note("no `recipe/recipe` run (ablations/recipe.sh writes the leave-one-out runs).")
@@ -374,8 +384,8 @@ def sec_recipe(rep: Report, runs: list[Run]) -> None:
             "recipe changed back (the override column), and scores it on the same 256 test images. "
             "Lower is better except for PSNR. The trivial and pseudo-GT rows score the dataset-mean map or light and the "
             "morphable-model fit on the same images.\n")
-    rep.add("| variant | override | " + " | ".join(c[1] for c in RECIPE_COLUMNS) + " | train min |",
-            "|---|---|" + "---|" * (len(RECIPE_COLUMNS) + 1))
+    rep.add("| variant | override | steps | " + " | ".join(c[1] for c in RECIPE_COLUMNS) + " | train min |",
+            "|---|---|---|" + "---|" * (len(RECIPE_COLUMNS) + 1))
 
     def cell(r, key, fmt):
         v, base = r.eval.get(key), ref.eval.get(key)
@@ -386,13 +396,13 @@ def sec_recipe(rep: Report, runs: list[Run]) -> None:
     for name in ["recipe", *sorted(n for n in rows if n != "recipe")]:
         r = rows[name]
         changed = [o for o in map(str, r.overrides) if o not in map(str, ref.overrides)]
-        rep.add(f"| {name} | {' '.join(f'`{o}`' for o in changed) or '–'} | "
+        rep.add(f"| {name} | {' '.join(f'`{o}`' for o in changed) or '–'} | {r.eval.get('steps')} | "
                 + " | ".join(cell(r, k, f) for k, _, f in RECIPE_COLUMNS)
                 + f" | {(r.eval.get('train_seconds') or 0) / 60:.1f} |")
     e = ref.eval
-    rep.add(f"| trivial (dataset mean) | – | {e.get('trivial_normal_mean', float('nan')):.2f} | – | "
+    rep.add(f"| trivial (dataset mean) | – | – | {e.get('trivial_normal_mean', float('nan')):.2f} | – | "
             f"{e.get('trivial_albedo_si_mse', float('nan')):.4f} | {e.get('trivial_sh_error', float('nan')):.3f} | – |",
-            f"| pseudo-GT | – | {e.get('pseudo_normal_mean', float('nan')):.2f} | – | – | "
+            f"| pseudo-GT | – | – | {e.get('pseudo_normal_mean', float('nan')):.2f} | – | – | "
             f"{e.get('pseudo_sh_error', float('nan')):.3f} | – |", "")
 
 
@@ -446,11 +456,17 @@ def plot_learning_curves(runs: list[Run], path: Path, title: str = "") -> bool:
 
 
 def sec_learning_curves(rep: Report, runs: list[Run]) -> None:
-    path = rep.fig / "learning_curves.png"
-    if not plot_learning_curves(runs, path, "validation accuracy while training (64 val images)"):
+    drawn = False
+    for name, subset, title in (
+            ("learning_curves.png", [r for r in runs if not is_recipe_run(r)], "validation accuracy while training"),
+            ("learning_curves_recipe.png", [r for r in runs if is_recipe_run(r)], "the training recipe's leave-one-out")):
+        path = rep.fig / name
+        if plot_learning_curves(subset, path, f"{title} (64 val images)"):
+            rep.image(path, title)
+            drawn = True
+    if not drawn:
         rep.note("no run logged `val` records (`train.val_every`).")
         return
-    rep.image(path, "learning curves")
     rep.add("_A layer counts as learned only below its dashed line (the dataset-mean map or light, "
             "`disent.eval.trivial`); the dotted line is the pseudo ground truth that supervised it._\n")
 

@@ -75,15 +75,16 @@ class Trainer:
 
     def __init__(self, name, batch, adv, device, channels_last=True, amp=False, margin=FULL_WORK_MARGIN):
         from disent.models import build_model
-        from disent.train import build_discriminator
+        from disent.train import build_discriminator, make_optimizer
 
         fmt = torch.channels_last if channels_last else torch.contiguous_format
         res = batch["image"].shape[-1]
         torch.manual_seed(0)
         self.model = build_model(model_cfg(name, res)).to(device, memory_format=fmt)
         self.disc = build_discriminator(self.model).to(device, memory_format=fmt) if adv else None
-        self.opt_g = torch.optim.RMSprop(self.model.parameters(), lr=1e-4)
-        self.opt_d = torch.optim.RMSprop(self.disc.parameters(), lr=1e-4) if adv else None
+        cfg_train = OmegaConf.load(CONF / "train" / "default.yaml")  # the training run's optimiser (conf/train)
+        self.opt_g = make_optimizer(self.model, cfg_train)
+        self.opt_d = make_optimizer(self.disc, cfg_train) if adv else None
         self.cfg = loss_cfg(adv, margin)
         self.batch, self.amp, self.device = batch, amp, torch.device(device)
 
