@@ -222,25 +222,24 @@ def validate(model, batch: dict) -> dict:
     return {k: m[k] for k in VAL_KEYS if k in m}
 
 
-def trivial_baselines(cfg) -> dict | None:
-    """The constant estimates of :mod:`disent.eval.trivial` from this run's training split (None without
+def trivial_baselines(train) -> dict | None:
+    """The constant estimates of :mod:`disent.eval.trivial` from the training set ``train`` (None without
     ground truth, e.g. real photos)."""
     from disent.eval.trivial import dataset_means
 
-    train = make_dataset(cfg.data, "train", cfg.data.get("train_size"))
     return dataset_means(train) if "normal" in train[0] else None
 
 
-def evaluate(model, cfg, n: int, trivial: dict | None = None) -> dict:
+def evaluate(model, cfg, n: int, trivial: dict | None) -> dict:
     """Test metrics on the first ``n`` test images (disent.eval.evaluate), on the CPU, with the trivial
-    baselines (``trivial_*``) where the data has ground truth."""
+    baselines ``trivial`` (:func:`trivial_baselines`) scored on the same images where the data has ground truth."""
     from disent.eval.evaluate import evaluate_model, model_outputs
     from disent.eval.metrics import reconstruction_metrics
 
     test = make_dataset(cfg.data, "test", cfg.data.get("test_size"))
     model = model.to("cpu")
     if "normal" in test[0]:
-        return evaluate_model(model, test, limit=n, trivial=trivial if trivial is not None else trivial_baselines(cfg))
+        return evaluate_model(model, test, limit=n, trivial=trivial)
     out, gt, ips = model_outputs(model, test, limit=n)  # real photos: no intrinsic ground truth
     rec = reconstruction_metrics(out["recon"].clamp(0, 1), gt["image"])
     return {**{f"recon_{k}": v for k, v in rec.items()}, "infer_images_per_s": ips, "n_eval": len(gt["image"])}
@@ -272,7 +271,7 @@ def run(cfg, run_dir) -> dict:
         val_data = make_dataset(cfg.data, "val", val_size)
         val_batch = to_device(get_batch(val_data, range(min(val_size, len(val_data))),
                                         (*TRAIN_KEYS, "normal", "matte", "albedo", "sh")), device, t.channels_last)
-    trivial = trivial_baselines(cfg)  # constant estimates, scored beside the network in val records and eval.json
+    trivial = trivial_baselines(data)  # constant estimates, scored beside the network in val records and eval.json
     if val_every and trivial is not None and "matte" in val_batch:
         from disent.eval.trivial import trivial_metrics
 
