@@ -268,3 +268,36 @@ def test_model_and_losses_hold_no_tensor_on_the_cpu(name, monkeypatch):
     (losses["total"] + disc.energy(b["image"]).mean()).backward()  # (the margin loss reads its hinge on the host)
     assert all(v.device.type == "meta" for v in (*out.values(), *losses.values()) if torch.is_tensor(v))
     assert all(p.grad is not None and p.grad.device.type == "meta" for p in model.parameters())
+
+
+def test_hemisphere_normals_are_unit_face_the_camera_and_start_frontal():
+    """model.normal=xy (the release): unit length, n_z >= 0 everywhere, n_x and n_y pass through where
+    n_x^2 + n_y^2 < 1, and a zero decoder output is the frontal normal (0, 0, 1)."""
+    from disent.models.explicit import decode_normal
+
+    raw = torch.randn(4, 2, 8, 8, dtype=torch.float64) * 2
+    n = decode_normal(raw, "xy")
+    torch.testing.assert_close(n.norm(dim=1), torch.ones(4, 8, 8, dtype=torch.float64))
+    assert (n[:, 2] >= 0).all()
+    inside = raw.clamp(-1, 1).pow(2).sum(1) < 0.9
+    torch.testing.assert_close(n[:, :2].permute(1, 0, 2, 3)[:, inside], raw.permute(1, 0, 2, 3)[:, inside])
+    torch.testing.assert_close(decode_normal(torch.zeros(1, 2, 2, 2), "xy"),
+                               torch.tensor([0.0, 0.0, 1.0])[None, :, None, None].expand(1, 3, 2, 2))
+    free = torch.randn(2, 3, 4, 4)
+    torch.testing.assert_close(decode_normal(free, "unit"), F.normalize(free, dim=1))
+
+
+def test_layer_choices_are_checked_and_shared_with_the_discriminator():
+    from disent.models.networks import Layers
+    from disent.train import build_discriminator
+
+    with pytest.raises(ValueError, match="model.norm='batchnorm'; choose from none, batch, group"):
+        build_model(model_cfg("explicit", norm="batchnorm"))
+    with pytest.raises(ValueError, match="model.normal='xyz'"):
+        build_model(model_cfg("explicit", normal="xyz"))
+    model = build_model(model_cfg("implicit", norm="group", centre_input=True, z_act="sigmoid"))
+    assert model.layers == Layers("group", True, "sigmoid")
+    D = build_discriminator(model)
+    assert D.encoder.layers == model.layers and isinstance(D.decoder.norms[0], torch.nn.GroupNorm)
+    z, _ = model.encoder(torch.rand(2, 3, R, R))
+    assert ((z > 0) & (z < 1)).all()  # the release's sigmoid on Z_I

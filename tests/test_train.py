@@ -1,6 +1,7 @@
 """Training under Hydra: run folders, exact resume, NaN stops, config errors, prefetching in the seeded
 order, periodic validation, a multirun of the three models."""
 import json
+import math
 import subprocess
 import sys
 import threading
@@ -202,3 +203,22 @@ def test_multirun_of_the_three_models(tmp_path):
             assert {"recon_N", "recon_L", "smooth_A", "smooth_S", "BWS", "M"} <= set(train[0])
     assert names == {"baseline", "explicit", "implicit"}
     assert "test metrics" in res.stdout
+
+
+def test_learning_rate_schedules():
+    """Linear warm-up, then the release's per-epoch decay or a half cosine that reaches 0 at the last step."""
+    from omegaconf import OmegaConf
+
+    from disent.train import learning_rate
+
+    t = OmegaConf.create({"lr": 1e-3, "warmup_steps": 10, "lr_decay": 0.9, "schedule": "epoch_decay"})
+    assert learning_rate(t, 0, 100, 1000) == pytest.approx(1e-4)  # (0 + 1) / 10 of lr
+    assert learning_rate(t, 250, 100, 1000) == pytest.approx(1e-3 * 0.9 ** 2)
+    t.schedule = "cosine"
+    assert learning_rate(t, 500, 100, 1000) == pytest.approx(0.5e-3)
+    assert learning_rate(t, 999, 100, 1000) == pytest.approx(1e-3 * 0.5 * (1 + math.cos(math.pi * 0.999)))
+    lrs = [learning_rate(t, s, 100, 1000) for s in range(10, 1000)]
+    assert all(a >= b for a, b in zip(lrs, lrs[1:]))  # monotone after the warm-up
+    t.schedule = "linear"
+    with pytest.raises(ValueError, match="train.schedule='linear'; choose from epoch_decay, cosine"):
+        learning_rate(t, 0, 100, 1000)
