@@ -17,9 +17,12 @@ from omegaconf import DictConfig
 def main(cfg: DictConfig) -> float:
     from hydra.core.hydra_config import HydraConfig
 
-    from disent.train import run
+    from disent.train import ConfigError, run
 
-    metrics = run(cfg, Path(HydraConfig.get().runtime.output_dir))
+    try:
+        metrics = run(cfg, Path(HydraConfig.get().runtime.output_dir))
+    except ConfigError as e:  # a setting that cannot run: one line, no traceback
+        raise SystemExit(f"error: {e}") from None
     return metrics["recon_mse"]
 
 

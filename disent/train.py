@@ -245,7 +245,45 @@ def evaluate(model, cfg, n: int, trivial: dict | None) -> dict:
     return {**{f"recon_{k}": v for k, v in rec.items()}, "infer_images_per_s": ips, "n_eval": len(gt["image"])}
 
 
+class ConfigError(ValueError):
+    """A setting that cannot run, named with the values it accepts; raised before anything is written."""
+
+
+def check_config(cfg) -> None:
+    """Every training setting a run needs, checked before it starts (``ConfigError`` names the key)."""
+    t, d = cfg.train, cfg.data
+
+    def whole(key, value, minimum=1, optional=False):
+        if optional and value is None:
+            return
+        if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+            raise ConfigError(f"{key}={value!r}: must be a whole number >= {minimum}" + (" or null" if optional else ""))
+
+    whole("train.batch_size", t.batch_size)
+    whole("train.epochs", t.epochs)
+    whole("train.max_steps", t.max_steps, optional=True)
+    whole("train.threads", t.threads, minimum=0)
+    whole("data.train_size", d.get("train_size"), optional=True)
+    whole("data.test_size", d.get("test_size"), optional=True)
+    if isinstance(t.lr, bool) or not isinstance(t.lr, (int, float)) or not t.lr > 0:
+        raise ConfigError(f"train.lr={t.lr!r}: must be a positive number")
+    for key, value, allowed in (("train.optimizer", t.get("optimizer", "rmsprop"), OPTIMIZERS),
+                                ("train.schedule", t.get("schedule", "epoch_decay"), SCHEDULES)):
+        if value not in allowed:
+            raise ConfigError(f"{key}={value!r}; choose from {', '.join(allowed)}")
+    device = str(cfg.device)
+    kind, _, index = device.partition(":")
+    if kind not in ("cpu", "cuda") or (index and not index.isdigit()) or (kind == "cpu" and index):
+        raise ConfigError(f"device={device!r}; choose from cpu, cuda, cuda:N")
+    if kind == "cuda" and not torch.cuda.is_available():
+        raise ConfigError(f"device={device!r}, but this torch ({torch.__version__}) sees no CUDA GPU; use device=cpu, "
+                          "or install a CUDA build of torch (README, GPU install)")
+    if kind == "cuda" and index and int(index) >= torch.cuda.device_count():
+        raise ConfigError(f"device={device!r}: this machine has {torch.cuda.device_count()} CUDA device(s)")
+
+
 def run(cfg, run_dir) -> dict:
+    check_config(cfg)
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     t = cfg.train
@@ -263,7 +301,7 @@ def run(cfg, run_dir) -> dict:
     data = make_dataset(cfg.data, "train", cfg.data.get("train_size"))
     steps_per_epoch = len(data) // t.batch_size
     if steps_per_epoch == 0:
-        raise ValueError(f"train.batch_size={t.batch_size} exceeds the {len(data)} training images")
+        raise ConfigError(f"train.batch_size={t.batch_size} exceeds the {len(data)} training images (data.train_size)")
     total_steps = steps_per_epoch * t.epochs if t.max_steps is None else min(t.max_steps, steps_per_epoch * t.epochs)
     val_every, val_size = t.get("val_every", 0), t.get("val_size", 64)
     val_every = val_every if val_every and val_every <= total_steps else 0

@@ -222,3 +222,37 @@ def test_learning_rate_schedules():
     t.schedule = "linear"
     with pytest.raises(ValueError, match="train.schedule='linear'; choose from epoch_decay, cosine"):
         learning_rate(t, 0, 100, 1000)
+
+
+@pytest.mark.parametrize("override,message", [
+    ("train.batch_size=-3", "train.batch_size=-3: must be a whole number >= 1"),
+    ("train.batch_size=abc", "train.batch_size='abc': must be a whole number"),
+    ("train.batch_size=0", "train.batch_size=0: must be"),
+    ("train.batch_size=9", r"train.batch_size=9 exceeds the 8 training images \(data.train_size\)"),
+    ("train.epochs=0", "train.epochs=0"),
+    ("train.max_steps=-1", "train.max_steps=-1: must be a whole number >= 1 or null"),
+    ("train.lr=0", "train.lr=0: must be a positive number"),
+    ("train.optimizer=sgd", "train.optimizer='sgd'; choose from rmsprop, adam"),
+    ("data.train_size=0", "data.train_size=0"),
+    ("device=tpu", "device='tpu'; choose from cpu, cuda, cuda:N"),
+    ("device=cpu:1", "device='cpu:1'; choose from"),
+])
+def test_bad_settings_stop_before_anything_runs(tmp_path, override, message):
+    """A setting that cannot run is a ConfigError naming the key and what it accepts, raised before a
+    checkpoint or a metric is written (train.batch_size=-3 used to train 0 steps and report success)."""
+    from disent.train import ConfigError
+
+    with pytest.raises(ConfigError, match=message):
+        run(cfg_of(*TINY, override), tmp_path / "run")
+    assert not (tmp_path / "run" / "checkpoints").exists() and not (tmp_path / "run" / "metrics.jsonl").exists()
+
+
+def test_cuda_without_a_gpu_is_one_line(tmp_path):
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a GPU")
+    cmd = [sys.executable, "-m", "disent", *TINY, "device=cuda", f"hydra.run.dir={tmp_path / 'run'}"]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 1
+    assert res.stderr.strip().splitlines() == [
+        f"error: device='cuda', but this torch ({torch.__version__}) sees no CUDA GPU; use device=cpu, "
+        "or install a CUDA build of torch (README, GPU install)"]
