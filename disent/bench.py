@@ -181,6 +181,8 @@ def main(argv=None) -> None:
     p.add_argument("--infer-batches", type=int, nargs="+", default=[1, 64, 256], help="inference batches (64 is the headline)")
     p.add_argument("--no-malloc-tuning", action="store_true", help="leave glibc's malloc as it is (see tune_malloc)")
     args = p.parse_args(argv)
+    if args.threads is not None and args.threads < 1:
+        p.error(f"--threads {args.threads}: must be a whole number >= 1 (default: the count with the highest matmul peak)")
     args.out = args.out or bench_json(args.device)
     from disent.train import tune_malloc  # the same setting as training (train.malloc_tuning)
 

@@ -296,3 +296,11 @@ def test_batchnorm_folding_is_the_same_function_in_eval_mode(name, monkeypatch):
     model.train()  # training mode never folds: the batch statistics are the layer
     monkeypatch.setattr(networks, "FOLD_BATCHNORM", True)
     assert networks.conv_then_norm(model.encoder.convs[0], model.encoder.norms[0])[2] is False
+
+
+def test_bench_rejects_a_thread_count_below_one(capsys):
+    from disent.bench import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["models", "--threads", "-2"])
+    assert e.value.code == 2 and "--threads -2: must be a whole number >= 1" in capsys.readouterr().err
