@@ -30,7 +30,16 @@ TRAIN_KEYS = ("image", "normal_pseudo", "mask_pseudo", "sh_pseudo", "uv_pseudo",
 
 
 class NonFiniteLoss(FloatingPointError):
-    """A loss term became NaN or Inf; the run stops and keeps its last good checkpoint."""
+    """A loss term or, after an update, a weight became NaN or Inf; the run stops and keeps its last good
+    checkpoint (only finite weights are ever saved)."""
+
+
+def nonfinite_tensors(*modules) -> list[str]:
+    """Names of the parameters and buffers of ``modules`` (None skipped) holding a NaN or Inf; one device sync."""
+    named = [(f"{i}.{k}", v) for i, m in enumerate(modules) if m is not None for k, v in m.state_dict().items()
+             if v.is_floating_point()]
+    finite = torch.stack([v.isfinite().all() for _, v in named]).tolist() if named else []
+    return [k for (k, _), ok in zip(named, finite) if not ok]
 
 
 def make_dataset(cfg_data, split: str, size: int | None):
@@ -336,7 +345,17 @@ def run(cfg, run_dir) -> dict:
         log.truncate_after(step)
         print(f"resumed from {resume} at step {step}")
 
+    def last_good() -> str:
+        if ckpt_path.exists():
+            return (f"Last good checkpoint: {ckpt_path} (step {last_saved}); to continue from it, start again in "
+                    f"{run_dir} (hydra.run.dir=...) with a smaller train.lr")
+        return f"No checkpoint was written yet; start again with a smaller train.lr (now {t.lr})"
+
     def checkpoint():
+        bad = nonfinite_tensors(model, disc)
+        if bad:  # the losses were finite, the update was not: never save such weights as good
+            raise NonFiniteLoss(f"weights became non-finite by step {step} ({', '.join(bad[:4])}"
+                                f"{' ...' if len(bad) > 4 else ''}: 0 = model, 1 = D); stopped, not saved. {last_good()}")
         save_checkpoint(ckpt_path, {
             "model": model.state_dict(), "opt_g": opt_g.state_dict(),
             "disc": disc.state_dict() if disc is not None else None,
@@ -369,7 +388,7 @@ def run(cfg, run_dir) -> dict:
             if "nonfinite" in losses:
                 raise NonFiniteLoss(
                     f"loss term {', '.join(repr(k) for k in losses['nonfinite'])} is not finite at step {step} "
-                    f"(epoch {epoch}); stopped. Last good checkpoint: {ckpt_path} (step {last_saved})")
+                    f"(epoch {epoch}); stopped. {last_good()}")
             dt = time.perf_counter() - t0
             wall += dt
             step += 1

@@ -256,3 +256,34 @@ def test_cuda_without_a_gpu_is_one_line(tmp_path):
     assert res.stderr.strip().splitlines() == [
         f"error: device='cuda', but this torch ({torch.__version__}) sees no CUDA GPU; use device=cpu, "
         "or install a CUDA build of torch (README, GPU install)"]
+
+
+@pytest.mark.parametrize("corrupt_at,saved", [(2, 1), (1, None)])
+def test_nonfinite_weights_are_never_saved_as_good(tmp_path, monkeypatch, corrupt_at, saved):
+    """An update that overflows the weights while every loss was finite: the next checkpoint refuses to save
+    them and the run stops naming a checkpoint that exists (with finite weights), or saying none was written."""
+    step_fn, calls = T.train_step, []
+
+    def overflowing(model, *args, **kw):
+        out = step_fn(model, *args, **kw)
+        calls.append(1)
+        if len(calls) == corrupt_at:
+            next(model.parameters()).data.fill_(float("inf"))
+        return out
+
+    monkeypatch.setattr(T, "train_step", overflowing)
+    expect = r"Last good checkpoint: .*last.pt \(step 1\)" if saved else "No checkpoint was written yet"
+    with pytest.raises(NonFiniteLoss, match=rf"weights became non-finite by step {corrupt_at} \(0\.encoder.*{expect}"):
+        run(cfg_of(*TINY, "train.epochs=3", "train.max_steps=null", "train.checkpoint_every=1"), tmp_path)
+    path = tmp_path / "checkpoints" / "last.pt"
+    if saved is None:
+        assert not path.exists()
+    else:
+        ck = load_checkpoint(path)
+        assert ck["step"] == saved and all(torch.isfinite(v).all() for v in ck["model"].values() if v.is_floating_point())
+
+
+def test_nonfinite_loss_before_any_checkpoint_says_so(tmp_path, monkeypatch):
+    monkeypatch.setitem(L.TERM_FUNCTIONS, "BWS", lambda out, batch, c=0.75: torch.tensor(float("nan")))
+    with pytest.raises(NonFiniteLoss, match="'BWS' is not finite at step 0 .*No checkpoint was written yet"):
+        run(cfg_of(*TINY), tmp_path)
