@@ -12,16 +12,19 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 
+import disent.runs  # noqa: F401  (registers ${pid:}, used by the run folder names in conf/config.yaml)
+
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> float:
     from hydra.core.hydra_config import HydraConfig
 
+    from disent.runs import CheckpointError, RunFolderBusy
     from disent.train import ConfigError, run
 
     try:
         metrics = run(cfg, Path(HydraConfig.get().runtime.output_dir))
-    except ConfigError as e:  # a setting that cannot run: one line, no traceback
+    except (ConfigError, RunFolderBusy, CheckpointError) as e:  # one line, no traceback
         raise SystemExit(f"error: {e}") from None
     return metrics["recon_mse"]
 

@@ -2,7 +2,7 @@
 
 One step (Sec. 4.2): the model renders I_o; the EBGAN discriminator D scores it; the generator
 minimises sum_k w_k E_k (disent/losses.py) and D its margin loss, both from the same forward
-pass.  RMSprop, lr decayed per epoch.  The data order of epoch e is a permutation seeded by
+pass (optimiser and lr schedule: conf/train/default.yaml).  The data order of epoch e is a permutation seeded by
 (seed, e), so a run resumed from ``checkpoints/last.pt`` replays exactly the steps it missed.
 Batches are rendered ``train.prefetch`` steps ahead in a background thread (``Prefetcher``), in
 that same order; every ``train.val_every`` steps a fixed validation subset is scored (``validate``).
@@ -23,8 +23,8 @@ from tqdm import tqdm
 
 from disent import losses as L
 from disent.models import Discriminator, build_model
-from disent.runs import (MetricsLog, load_checkpoint, rng_state, save_checkpoint, save_samples, set_rng_state,
-                         write_git_revision)
+from disent.runs import (MetricsLog, RunLock, load_checkpoint, rng_state, save_checkpoint, save_samples,
+                         set_rng_state, write_git_revision)
 
 TRAIN_KEYS = ("image", "normal_pseudo", "mask_pseudo", "sh_pseudo", "uv_pseudo", "normal_uv_pseudo")
 
@@ -291,10 +291,37 @@ def check_config(cfg) -> None:
         raise ConfigError(f"device={device!r}: this machine has {torch.cuda.device_count()} CUDA device(s)")
 
 
+# Settings that define what a checkpoint is: resuming under other values (without resume_force) is refused.
+# Budget and bookkeeping (max_steps, epochs, time limit, threads, logging, device) may change between sessions.
+RUN_DEFINING = ("seed", "model", "data", "loss", "train.batch_size", "train.optimizer", "train.lr", "train.schedule",
+                "train.lr_decay", "train.warmup_steps", "train.amp")
+NOT_DEFINING = ("data.test_size",)  # evaluation only
+
+
+def config_differences(old: dict | None, new: dict, keys=RUN_DEFINING) -> list[str]:
+    """``key: old -> new`` for each leaf under ``keys`` whose value differs between two resolved configs."""
+    def leaves(d, prefix=""):
+        if isinstance(d, dict):
+            return {k: v for key, sub in d.items() for k, v in leaves(sub, f"{prefix}{key}.").items()}
+        return {prefix[:-1]: d}
+
+    a, b = leaves(old or {}), leaves(new)
+    under = lambda k: any(k == key or k.startswith(key + ".") for key in keys)  # noqa: E731
+    return [f"{k}: {a.get(k)!r} -> {b.get(k)!r}" for k in sorted(set(a) | set(b))
+            if under(k) and k not in NOT_DEFINING and a.get(k) != b.get(k)]
+
+
 def run(cfg, run_dir) -> dict:
+    """Train and evaluate in ``run_dir``, which this process holds (``run_dir/.lock``) while it runs."""
     check_config(cfg)
-    run_dir = Path(run_dir)
-    run_dir.mkdir(parents=True, exist_ok=True)
+    lock = RunLock(run_dir).acquire()
+    try:
+        return train_and_evaluate(cfg, Path(run_dir))
+    finally:
+        lock.release()
+
+
+def train_and_evaluate(cfg, run_dir: Path) -> dict:
     t = cfg.train
     if t.threads:
         torch.set_num_threads(t.threads)
@@ -334,7 +361,11 @@ def run(cfg, run_dir) -> dict:
     step, wall = 0, 0.0
     resume = Path(cfg.resume) if cfg.resume else (ckpt_path if ckpt_path.exists() else None)
     if resume is not None:
-        ck = load_checkpoint(resume / "checkpoints" / "last.pt" if resume.is_dir() else resume)
+        ck = load_checkpoint(resume / "checkpoints" / "last.pt" if resume.is_dir() else resume, fallback=True)
+        diffs = config_differences(ck.get("cfg"), OmegaConf.to_container(cfg, resolve=True))
+        if diffs and not cfg.get("resume_force", False):
+            raise ConfigError(f"{resume} was trained with other settings ({'; '.join(diffs[:6])}"
+                              f"{' ...' if len(diffs) > 6 else ''}); start in a new folder, or pass resume_force=true")
         model.load_state_dict(ck["model"])
         opt_g.load_state_dict(ck["opt_g"])
         if disc is not None:
@@ -343,7 +374,7 @@ def run(cfg, run_dir) -> dict:
         step, wall = ck["step"], ck["wall"]
         set_rng_state(ck["rng"])
         log.truncate_after(step)
-        print(f"resumed from {resume} at step {step}")
+        print(f"resumed from {ck.get('loaded_from', resume)} at step {step}")
 
     def last_good() -> str:
         if ckpt_path.exists():

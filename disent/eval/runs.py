@@ -161,7 +161,20 @@ class RunStatus(Callback):
 
     Registered in ``conf/config.yaml`` under ``hydra.callbacks``, so a multirun records jobs
     that stopped on a non-finite loss (``disent.train.NonFiniteLoss``) instead of losing them.
+    Before anything is written, a run folder held by another live run (``disent.runs.RunLock``)
+    stops the new run with one line: Hydra would otherwise overwrite that run's ``.hydra/`` config.
     """
+
+    def on_run_start(self, config, **kwargs) -> None:
+        from omegaconf import OmegaConf
+
+        from disent.runs import lock_holder
+
+        run_dir = OmegaConf.select(config, "hydra.run.dir")
+        holder = lock_holder(run_dir) if run_dir else None
+        if holder is not None:
+            raise SystemExit(f"error: the run folder {run_dir} is in use by process {holder}; "
+                             "give this run its own folder (hydra.run.dir=...)")
 
     def on_job_end(self, config, job_return, **kwargs) -> None:
         from hydra.core.utils import JobStatus

@@ -1,0 +1,116 @@
+"""No run, result or checkpoint lost to a mistake: unique run folders, one live run per folder, no resume
+under other settings, and a damaged checkpoint that costs at most the steps since the previous one."""
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from disent.runs import (CheckpointError, RunFolderBusy, RunLock, load_checkpoint, lock_holder, previous_checkpoint,
+                         save_checkpoint)
+from disent.train import ConfigError, run
+from test_train import TINY, cfg_of
+
+ROOT = Path(__file__).resolve().parents[1]
+CLI_TINY = [a for a in TINY if a != "train.threads=1"] + ["train.max_steps=2", "train.val_every=0"]
+
+
+def cli(args, cwd, **kw):
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}
+    return subprocess.Popen([sys.executable, "-m", "disent", *args], cwd=cwd, env=env, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, **kw)
+
+
+@pytest.fixture
+def live_pid():
+    """The PID of a live process that is not this one."""
+    p = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    yield p.pid
+    p.kill()
+    p.wait()
+
+
+def test_two_runs_started_together_get_their_own_folders(tmp_path):
+    a = cli([*CLI_TINY, "seed=0"], tmp_path)
+    b = cli([*CLI_TINY, "seed=1", "model=baseline"], tmp_path)
+    outs = [a.communicate(timeout=300)[0], b.communicate(timeout=300)[0]]
+    assert a.returncode == 0 and b.returncode == 0, outs
+    folders = sorted(p.parent.parent for p in (tmp_path / "outputs").rglob(".hydra/config.yaml"))
+    assert len(folders) == 2
+    seen = set()
+    for f in folders:
+        assert json.loads((f / "status.json").read_text())["status"] == "ok"
+        cfg = (f / ".hydra" / "config.yaml").read_text()
+        seed = int(next(l.split(":")[1] for l in cfg.splitlines() if l.startswith("seed:")))
+        steps = [json.loads(l)["step"] for l in (f / "metrics.jsonl").read_text().splitlines() if '"eval"' not in l]
+        assert steps == sorted(steps) and len(steps) == len(set(steps))  # one run's records only
+        assert torch.load(f / "checkpoints" / "last.pt", weights_only=False)["cfg"]["seed"] == seed
+        seen.add(seed)
+    assert seen == {0, 1}
+
+
+def test_a_folder_held_by_a_live_run_is_refused_before_anything_is_written(tmp_path, live_pid):
+    folder = tmp_path / "held"
+    folder.mkdir()
+    (folder / ".lock").write_text(str(live_pid))
+    assert lock_holder(folder) == live_pid
+    with pytest.raises(RunFolderBusy, match=str(live_pid)):
+        run(cfg_of(*TINY), folder)
+    p = cli([*CLI_TINY, f"hydra.run.dir={folder}"], tmp_path)
+    out = p.communicate(timeout=120)[0]
+    assert p.returncode == 1 and out.strip().splitlines()[-1].startswith("error: the run folder")
+    assert sorted(x.name for x in folder.iterdir()) == [".lock"]  # no .hydra/, log, status or checkpoint
+
+
+def test_a_lock_left_by_a_dead_process_is_taken_over_and_released(tmp_path):
+    p = subprocess.Popen([sys.executable, "-c", "pass"])
+    p.wait()  # its PID is free now
+    (tmp_path / ".lock").write_text(str(p.pid))
+    assert lock_holder(tmp_path) is None
+    with RunLock(tmp_path):
+        assert (tmp_path / ".lock").read_text() == str(os.getpid())
+    assert not (tmp_path / ".lock").exists()
+    run(cfg_of(*TINY), tmp_path / "run")
+    assert not (tmp_path / "run" / ".lock").exists() and (tmp_path / "run" / "eval.json").exists()
+
+
+def test_resuming_under_other_settings_is_refused_unless_forced(tmp_path):
+    folder = tmp_path / "run"
+    run(cfg_of(*TINY, "train.max_steps=1"), folder)
+    before = (folder / "checkpoints" / "last.pt").read_bytes()
+    with pytest.raises(ConfigError, match=r"model.code_dim: 128 -> 64; seed: 0 -> 1\)"):
+        run(cfg_of(*TINY, "train.max_steps=2", "seed=1", "model.code_dim=64"), folder)
+    assert (folder / "checkpoints" / "last.pt").read_bytes() == before  # nothing touched
+    run(cfg_of(*TINY, "train.max_steps=2", "train.eval_size=2"), folder)  # budget and eval may change
+    assert load_checkpoint(folder / "checkpoints" / "last.pt")["step"] == 2
+    run(cfg_of(*TINY, "train.epochs=2", "train.max_steps=3", "loss.weights.recon_N=1", "resume_force=true"), folder)
+    assert load_checkpoint(folder / "checkpoints" / "last.pt")["step"] == 3
+
+
+def test_a_damaged_checkpoint_falls_back_to_the_previous_one(tmp_path, capsys):
+    folder = tmp_path / "run"
+    run(cfg_of(*TINY, "train.max_steps=2", "train.checkpoint_every=1"), folder)
+    last = folder / "checkpoints" / "last.pt"
+    assert load_checkpoint(previous_checkpoint(last))["step"] == 1 and load_checkpoint(last)["step"] == 2
+    last.write_bytes(last.read_bytes()[:100])  # truncated: a bad copy, a full disk
+    with pytest.raises(CheckpointError, match=f"{last}.*cannot be read.*previous checkpoint is"):
+        load_checkpoint(last)
+    run(cfg_of(*TINY, "train.max_steps=2", "train.checkpoint_every=1"), folder)
+    out = capsys.readouterr().out
+    assert "set aside as last.pt.damaged" in out and f"resumed from {previous_checkpoint(last)} at step 1" in out
+    assert load_checkpoint(last)["step"] == 2 and (folder / "checkpoints" / "last.pt.damaged").exists()
+
+
+def test_save_checkpoint_keeps_the_one_it_replaces(tmp_path):
+    path = tmp_path / "last.pt"
+    save_checkpoint(path, {"step": 1})
+    assert not previous_checkpoint(path).exists()
+    save_checkpoint(path, {"step": 2})
+    save_checkpoint(path, {"step": 3})
+    assert load_checkpoint(path)["step"] == 3 and load_checkpoint(previous_checkpoint(path))["step"] == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["last.pt", "prev.pt"]  # no temp files left
+    with pytest.raises(CheckpointError, match="no checkpoint at"):
+        load_checkpoint(tmp_path / "missing.pt")
