@@ -337,7 +337,9 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
     data = make_dataset(cfg.data, "train", cfg.data.get("train_size"))
     steps_per_epoch = len(data) // t.batch_size
     if steps_per_epoch == 0:
-        raise ConfigError(f"train.batch_size={t.batch_size} exceeds the {len(data)} training images (data.train_size)")
+        raise ConfigError(f"train.batch_size={t.batch_size} exceeds the {len(data)} training images (data.train_size"
+                          + ("; a small photo folder: data.split_by=all" if cfg.data.get("name") == "folder" else "")
+                          + ")")
     total_steps = steps_per_epoch * t.epochs if t.max_steps is None else min(t.max_steps, steps_per_epoch * t.epochs)
     val_every, val_size = t.get("val_every", 0), t.get("val_size", 64)
     val_every = val_every if val_every and val_every <= total_steps else 0

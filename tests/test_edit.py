@@ -430,13 +430,13 @@ def test_relight_command_writes_pngs_for_a_folder(tmp_path):
     photos = tmp_path / "photos"
     photos.mkdir()
     g = torch.Generator().manual_seed(0)
-    for i in range(2):  # non-square, larger than the model: centre-cropped and resized
+    for i in range(2):  # non-square, larger than the model, no face: centre-cropped (--no-align) and resized
         arr = (torch.rand(24, 20, 3, generator=g) * 255).byte().numpy()
         Image.fromarray(arr).save(photos / f"p{i}.png")
-    assert load_image(photos / "p0.png", 16).shape == (3, 16, 16)
+    assert load_image(photos / "p0.png", 16, align=False).shape == (3, 16, 16)
     out = tmp_path / "relit"
     main(["relight", str(run), str(photos), "--direction", "0.5", "0.3", "0.8", "--method", "transfer", "ratio",
-          "decode", "--out", str(out)])
+          "decode", "--out", str(out), "--no-align"])
     names = sorted(p.name for p in out.iterdir())
     assert len(names) == 2 * 4 and "p0_transfer_dir_0.5_0.3_0.8.png" in names
     assert Image.open(out / "p1_relight_dir_0.5_0.3_0.8_strip.png").size == (6 * 16 + 5 * 2, 16)

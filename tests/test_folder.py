@@ -316,7 +316,7 @@ def test_build_passes_the_config(monkeypatch):
     folder.build(cfg, "test", 8)
     assert seen["args"] == ("/photos",)
     assert seen["kw"] == {"split": "test", "resolution": 32, "seed": 3, "size": 8, "cache_dir": None, "workers": 2,
-                          "multiple_faces": "skip"}
+                          "split_by": "hash", "multiple_faces": "skip"}
 
 
 def test_folder_faces_plain_folder_split_is_stable(tmp_path):
@@ -497,6 +497,6 @@ def test_folder_config_lists_every_setting():
     from omegaconf import OmegaConf
 
     cfg = OmegaConf.load(Path(__file__).parents[1] / "conf" / "data" / "folder.yaml")
-    dataset_keys = {"name", "root", "resolution", "train_size", "test_size", "seed", "cache_dir", "workers"}
+    dataset_keys = {"name", "root", "resolution", "train_size", "test_size", "seed", "split_by", "cache_dir", "workers"}
     assert set(cfg) - dataset_keys == set(PseudoGTSettings.__dataclass_fields__) - {"resolution"}
     assert cfg.name == "folder" and OmegaConf.is_missing(cfg, "root")

@@ -35,6 +35,7 @@ ATTRIBUTES = ("smiling", "beard", "eyeglasses", "senior")
 CELEBA_COLUMNS = {"smiling": ("Smiling", 1), "beard": ("No_Beard", -1), "eyeglasses": ("Eyeglasses", 1),
                   "senior": ("Young", -1)}
 SPLIT_FRACTIONS = {"train": 0.8, "val": 0.1, "test": 0.1}
+SPLIT_BY = ("hash", "all")  # all: train, val and test are each the whole folder (a handful of photos)
 PSEUDO_KEYS = ("normal_pseudo", "mask_pseudo", "uv_pseudo", "normal_uv_pseudo")
 
 
@@ -81,11 +82,14 @@ class FolderFaces(Dataset):
     """
 
     def __init__(self, root, split: str = "train", resolution: int = 64, seed: int = 0, size: int | None = None,
-                 cache_dir=None, workers: int = 0, progress: bool = True, detector=None, **pseudo_gt):
+                 cache_dir=None, workers: int = 0, progress: bool = True, detector=None, split_by: str = "hash",
+                 **pseudo_gt):
         self.root = Path(root).expanduser()
         if not self.root.is_dir():
             raise FileNotFoundError(f"FolderFaces: {self.root} is not a folder")
-        self.split, self.resolution, self.seed = split, resolution, seed
+        if split_by not in SPLIT_BY:
+            raise ValueError(f"FolderFaces: split_by={split_by!r}; choose from {', '.join(SPLIT_BY)}")
+        self.split, self.resolution, self.seed, self.split_by = split, resolution, seed, split_by
         self.settings = PseudoGTSettings(resolution=resolution, **pseudo_gt)
         attr_file = self.root / "list_attr_celeba.txt"
         self.attributes = read_celeba_attributes(attr_file) if attr_file.is_file() else None
@@ -119,7 +123,7 @@ class FolderFaces(Dataset):
                 log.warning("FolderFaces: %d images have no attribute labels and are left out", len(unlabeled))
             files = [p for p in files if p.name in self.attributes]
         if split in SPLIT_FRACTIONS:
-            return [p for p in files if split_of(p) == split]
+            return files if self.split_by == "all" else [p for p in files if split_of(p) == split]
         if split.startswith("pool_"):
             attr = split[len("pool_"):]
             if attr not in ATTRIBUTES:
@@ -177,4 +181,5 @@ def build(cfg, split: str = "train", size: int | None = None) -> FolderFaces:
     keys = {f.name for f in PseudoGTSettings.__dataclass_fields__.values()} - {"resolution"}
     extra = {k: cfg[k] for k in keys if k in cfg and cfg[k] is not None}
     return FolderFaces(cfg["root"], split=split, resolution=cfg["resolution"], seed=cfg.get("seed", 0), size=size,
-                       cache_dir=cfg.get("cache_dir"), workers=cfg.get("workers", 0), **extra)
+                       cache_dir=cfg.get("cache_dir"), workers=cfg.get("workers", 0),
+                       split_by=cfg.get("split_by", "hash"), **extra)

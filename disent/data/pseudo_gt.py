@@ -39,7 +39,7 @@ from disent.runs import atomic_write
 
 log = logging.getLogger(__name__)
 
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".webp", ".tif", ".tiff")
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".webp", ".tif", ".tiff", ".ppm", ".pgm", ".pbm", ".pnm")
 # iBUG 68-point layout: contour 0-16, brows 17-26, nose 27-35, eyes 36-47, mouth 48-67.
 CONTOUR = slice(0, 17)
 INNER = np.arange(17, 68)  # the landmarks that do not slide along the silhouette
@@ -495,9 +495,47 @@ def landmark_detector(settings: PseudoGTSettings) -> LandmarkDetector:
 
 
 def _init_worker():
+    """Each worker: one thread, and it exits when the process that started it is gone (killed), so an
+    interrupted pass leaves no orphaned workers behind."""
+    import threading
+    import time
+
     import torch
 
     torch.set_num_threads(1)
+    parent = os.getppid()
+
+    def watch():
+        while os.getppid() == parent:
+            time.sleep(0.5)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True).start()
+
+
+def aligned_crop(path, settings: PseudoGTSettings | None = None, align_face: bool = True) -> tuple[np.ndarray, list[str]]:
+    """Steps 1-3 for one image file: ``(crop uint8 [R,R,3], notes)``, framed as in training (landmark
+    alignment), or a centre square crop with ``align_face=False``.  Raises :class:`Skip` for a file that
+    cannot be used (unreadable, not an image, no face...), naming the reason."""
+    settings = settings or PseudoGTSettings()
+    try:
+        data = Path(path).read_bytes()
+    except OSError as e:  # missing, a dangling link, a directory
+        raise Skip("unreadable", f"{type(e).__name__}: {e.strerror or e}") from None
+    rgb, notes = decode_image(data, settings.min_side)
+    R = settings.resolution
+    if align_face:
+        landmarks, n_faces = landmark_detector(settings)(rgb)
+        if n_faces > 1:
+            notes.append(f"several faces ({n_faces}): kept the largest")
+        crop, _, _ = align(rgb, landmarks, face_model_fitter(settings).template(R), R)
+        return crop, notes
+    from PIL import Image
+
+    h, w = rgb.shape[:2]
+    s = min(h, w)
+    square = rgb[(h - s) // 2:(h - s) // 2 + s, (w - s) // 2:(w - s) // 2 + s]
+    return np.asarray(Image.fromarray(square).resize((R, R), Image.LANCZOS)), notes + ["centre crop"]
 
 
 def process_file(path: str, cache_root: str, settings: PseudoGTSettings, detector=None) -> Record:
@@ -577,7 +615,7 @@ def prepare(paths, settings: PseudoGTSettings | None = None, cache_dir=None, wor
     from tqdm.auto import tqdm
 
     settings = settings or PseudoGTSettings()
-    paths = [str(Path(p).resolve()) for p in paths]
+    paths = [os.path.abspath(p) for p in paths]  # abspath, not resolve: a link keeps its own name
     root = Path(cache_dir or default_cache_dir()) / settings.key()
     if detector is not None:
         workers = 0

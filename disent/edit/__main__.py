@@ -31,23 +31,15 @@ import torch.nn.functional as F
 
 from disent.edit.traversal import ATTRIBUTES
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".webp")
-
-
 # ----------------------------------------------------------------------------- images
-def load_image(path: Path, resolution: int) -> torch.Tensor:
-    """An image file as ``[3,R,R]`` in [0,1]: centre square crop, antialiased resize."""
-    from PIL import Image
+def load_image(path: Path, resolution: int, align: bool = True) -> torch.Tensor:
+    """An image file as ``[3,R,R]`` in [0,1], read and framed as the photos the models are applied to
+    (:func:`disent.data.pseudo_gt.aligned_crop`: EXIF rotation, gray/alpha/16-bit converted, the face
+    aligned by its landmarks; ``align=False``: centre square crop).  Raises ``pseudo_gt.Skip``."""
+    from disent.data import pseudo_gt as pg
 
-    import numpy as np
-
-    with Image.open(path) as im:
-        x = torch.from_numpy(np.asarray(im.convert("RGB"), dtype=np.float32) / 255.0).permute(2, 0, 1)
-    _, H, W = x.shape
-    s = min(H, W)
-    x = x[:, (H - s) // 2:(H - s) // 2 + s, (W - s) // 2:(W - s) // 2 + s]
-    return F.interpolate(x[None], size=(resolution, resolution), mode="bilinear", antialias=True,
-                         align_corners=False)[0].clamp(0, 1)
+    crop, _ = pg.aligned_crop(path, pg.PseudoGTSettings(resolution=resolution), align)
+    return torch.from_numpy(crop.astype("float32") / 255.0).permute(2, 0, 1)
 
 
 def save_image(x: torch.Tensor, path: Path) -> None:
@@ -64,8 +56,18 @@ def strip(images: list[torch.Tensor], pad: int = 2) -> torch.Tensor:
     return torch.cat([t for im in images for t in (im, gap)][:-1], 2)
 
 
-def load_inputs(specs: list[str], resolution: int, seed: int = 0) -> list[tuple[str, torch.Tensor]]:
-    """``(name, image [3,R,R])`` for each file, every image of each folder, and ``synth:INDEX``."""
+def load_inputs(specs: list[str], resolution: int, seed: int = 0, align: bool = True) -> list[tuple[str, torch.Tensor]]:
+    """``(name, image [3,R,R])`` for each file, every image of each folder, and ``synth:INDEX``.  In a
+    folder, a file that cannot be used is reported and left out; a single bad file is an error."""
+    from disent.data import pseudo_gt as pg
+    from disent.data.folder import list_images
+
+    if align:
+        try:
+            import dlib  # noqa: F401
+        except ImportError:
+            print("warning: face alignment needs dlib (pip install -e '.[photos]'); centre crops used")
+            align = False
     out = []
     for spec in specs:
         if spec.startswith("synth:"):
@@ -76,14 +78,23 @@ def load_inputs(specs: list[str], resolution: int, seed: int = 0) -> list[tuple[
             continue
         p = Path(spec)
         if p.is_dir():
-            files = sorted(f for f in p.iterdir() if f.suffix.lower() in IMAGE_SUFFIXES)
+            files = list_images(p)
             if not files:
-                raise SystemExit(f"no images in folder {p}")
-            out += [(f.stem, load_image(f, resolution)) for f in files]
-        elif p.is_file():
-            out.append((p.stem, load_image(p, resolution)))
+                raise SystemExit(f"error: no images ({'/'.join(pg.IMAGE_SUFFIXES)}) in folder {p}")
+            for f in files:
+                try:
+                    out.append((f.stem, load_image(f, resolution, align)))
+                except pg.Skip as e:
+                    print(f"skipped {f}: {e.reason}{f' ({e.detail})' if e.detail else ''}")
+            if not out:
+                raise SystemExit(f"error: no usable image in folder {p}")
+        elif p.exists() or p.is_symlink():
+            try:
+                out.append((p.stem, load_image(p, resolution, align)))
+            except pg.Skip as e:
+                raise SystemExit(f"error: {p}: {e.reason}{f' ({e.detail})' if e.detail else ''}") from None
         else:
-            raise SystemExit(f"input {spec!r} is neither an image, a folder, nor synth:INDEX")
+            raise SystemExit(f"error: input {spec!r} is neither an image, a folder, nor synth:INDEX")
     return out
 
 
@@ -120,7 +131,12 @@ def cmd_traverse(a) -> None:
     from disent.edit.traversal import default_manifolds, traverse
 
     model, R = load_model(a.run)
-    inputs = load_inputs(a.inputs, R, a.seed)
+    names = getattr(model, "CODE_NAMES", ())
+    bad = [m for m in a.manifolds or () if m not in names]
+    if bad:
+        raise SystemExit(f"error: --manifolds {' '.join(bad)}: not a code of this {type(model).__name__.lower()} "
+                         f"model; its codes are {', '.join(names)}")
+    inputs = load_inputs(a.inputs, R, a.seed, a.align)
     pool = build_pool(model, a.attribute, a.pool, a.pool_size, R, a.seed)
     images = torch.stack([x for _, x in inputs])
     codes = model.encode(images)
@@ -143,7 +159,7 @@ def source_light(a, model, R) -> tuple[str, torch.Tensor]:
     from disent.edit.relight import directional_light, named_light
 
     if a.source:
-        (name, img), = load_inputs([a.source], R, a.seed)
+        (name, img), = load_inputs([a.source], R, a.seed, a.align)
         return f"from_{name}", model(img[None])["sh"]
     if a.light:
         return a.light, named_light(a.light)
@@ -158,7 +174,7 @@ def cmd_relight(a) -> None:
     from disent.render import sh_shading
 
     model, R = load_model(a.run)
-    inputs = load_inputs(a.inputs, R, a.seed)
+    inputs = load_inputs(a.inputs, R, a.seed, a.align)
     label, sh = source_light(a, model, R)
     images = torch.stack([x for _, x in inputs])
     out = Path(a.out)
@@ -193,6 +209,8 @@ def main(argv=None) -> None:
     sub = p.add_subparsers(dest="cmd", required=True)
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    common.add_argument("--no-align", dest="align", action="store_false",
+                        help="centre-crop photos instead of aligning the face by its landmarks as in training")
     run_help = "run folder, checkpoint, or a shipped model: explicit, implicit, baseline (disent/weights/)"
 
     t = sub.add_parser("traverse", parents=[common], help="move faces along an attribute (DMT or barycenter)")

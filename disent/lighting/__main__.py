@@ -9,6 +9,8 @@ import hydra
 import torch
 from omegaconf import DictConfig
 
+import disent.runs  # noqa: F401  (registers ${pid:}, used by the default run folder in conf/lighting.yaml)
+
 from disent.lighting.experiments import figures_for, noisy, run_all
 from disent.lighting.order import select_order
 from disent.lighting.posterior import prepare, sample_posterior
@@ -18,12 +20,12 @@ from disent.lighting.threads import single_core
 log = logging.getLogger(__name__)
 
 
-def load_photo(path: str, resolution: int) -> dict:
+def load_photo(path: str, resolution: int, cache_dir=None) -> dict:
     """A photo with its pseudo ground truth (:mod:`disent.data.pseudo_gt`)."""
     from disent.data.pseudo_gt import PseudoGTSettings, load_cached
     from disent.data.pseudo_gt import prepare as pseudo_gt
 
-    (rec,), _ = pseudo_gt([path], PseudoGTSettings(resolution=resolution), progress=False)
+    (rec,), _ = pseudo_gt([path], PseudoGTSettings(resolution=resolution), cache_dir, progress=False)
     if not rec.used:
         raise ValueError(f"no usable face in {path}: {rec.reason} {rec.detail}")
     item = {k: torch.as_tensor(v).float() for k, v in load_cached(rec).items() if v.dtype.kind in "fiub"}
@@ -33,7 +35,7 @@ def load_photo(path: str, resolution: int) -> dict:
 
 def items(cfg: DictConfig):
     if cfg.image:
-        yield Path(cfg.image).stem, load_photo(cfg.image, cfg.data.resolution)
+        yield Path(cfg.image).stem, load_photo(cfg.image, cfg.data.resolution, cfg.get("cache_dir"))
         return
     from disent.data import SynthFaces
 
@@ -46,7 +48,8 @@ def posterior_of(cfg: DictConfig, name: str, item: dict) -> dict:
     normals = "normal_pseudo" if cfg.image else cfg.normals
     mask = item["mask_pseudo"] if normals == "normal_pseudo" else item["matte"]
     albedo = item["albedo"] if cfg.known_albedo and "albedo" in item else None
-    data = prepare(noisy(item["image"], cfg.noise, cfg.seed), item[normals], mask, albedo, gray=cfg.gray)
+    noise = cfg.noise if cfg.noise is not None else (0.0 if cfg.image else 0.01)
+    data = prepare(noisy(item["image"], noise, cfg.seed), item[normals], mask, albedo, gray=cfg.gray)
     uv_key = "uv_pseudo" if normals == "normal_pseudo" else "uv"
     texture = None
     if albedo is None and cfg.texture_components > 0 and uv_key in item and not cfg.gray:

@@ -1,0 +1,146 @@
+"""``python -m disent.photos PATH [PATH ...]``: your own photos through the suite in one command.
+
+    python -m disent.photos ~/portraits                 # the shipped explicit model
+    python -m disent.photos a.jpg b.png --run implicit  # a shipped name, a run folder or a checkpoint
+
+Every image file under each PATH goes through the pseudo-ground-truth pipeline
+(:mod:`disent.data.pseudo_gt`: EXIF rotation, landmarks, the training crop, the morphable-model fit) and
+then through a trained model.  Into a run folder (``--out``, default ``outputs/photos/<date>/<time>-<pid>``)
+it writes, per photo ``NNN_<name>/``: ``crop.png``, ``normal_pseudo.png``, ``mask_pseudo.png``,
+``landmarks.json`` (the 68 points in the original photo's pixels and in the crop), the decomposition
+``recon.png albedo.png normal.png shading.png matte.png`` and ``relit_<light>.png`` (lighting transfer with
+detailed albedo, Sec. 5.3); for the folder, ``decomposition.png`` (one row per photo) and ``summary.json``
+with every file used or skipped and why.  Bad files are reported and left out; they never stop the batch.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from disent.data import pseudo_gt as pg
+
+RELIGHT = ("flash_az-60", "top", "flash_az+60")  # named lights of the bank (python -m disent.edit lights)
+SHOWN = 16  # rows of decomposition.png
+
+
+def collect(paths: list[str]) -> list[Path]:
+    """Image files of each folder (recursively) and each file given; a missing PATH is an error."""
+    from disent.data.folder import list_images
+
+    files = []
+    for p in map(Path, paths):
+        if p.is_dir():
+            files += list_images(p)
+        elif p.exists() or p.is_symlink():
+            files.append(p)
+        else:
+            raise SystemExit(f"error: {p} does not exist")
+    if not files:
+        raise SystemExit(f"error: no image files ({'/'.join(pg.IMAGE_SUFFIXES)}) under {', '.join(paths)}")
+    return files
+
+
+def photo_landmarks(arrays: dict) -> dict:
+    """The 68 landmarks in the crop and, through the inverse alignment, in the original photo's pixels."""
+    crop = arrays["landmarks"].astype(np.float64)
+    M = arrays["align"].astype(np.float64)  # photo -> crop, 3x3
+    photo = (np.c_[crop, np.ones(len(crop))] @ np.linalg.inv(M).T)[:, :2]
+    return {"photo_xy": np.round(photo, 2).tolist(), "crop_xy": np.round(crop, 2).tolist(),
+            "fit_residual_px": float(arrays["residual_px"])}
+
+
+def save(x: torch.Tensor, path: Path, kind: str = "rgb") -> None:
+    from disent.data.photos_models import _show
+    from PIL import Image
+
+    Image.fromarray((_show(x, kind) * 255).round().astype(np.uint8)).save(path)
+
+
+@torch.no_grad()
+def write_photo(folder: Path, arrays: dict, batch: dict, out: dict, relit: dict, i: int) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    save(batch["image"][i], folder / "crop.png")
+    save(batch["normal_pseudo"][i], folder / "normal_pseudo.png", "normal")
+    save(batch["mask_pseudo"][i], folder / "mask_pseudo.png", "gray")
+    (folder / "landmarks.json").write_text(json.dumps(photo_landmarks(arrays)) + "\n")
+    save(out["recon"][i].clamp(0, 1), folder / "recon.png")
+    for key, kind in (("albedo", "rgb"), ("normal", "normal"), ("matte", "gray")):
+        if key in out:
+            save(out[key][i], folder / f"{key}.png", kind)
+    if "shading" in out:
+        s = out["shading"][i]
+        save(s / s.amax().clamp_min(1e-6), folder / "shading.png")  # shown normalised
+    for name, x in relit.items():
+        save(x[i].clamp(0, 1), folder / f"relit_{name}.png")
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(prog="python -m disent.photos", description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 1)[1])
+    ap.add_argument("paths", nargs="+", help="image files and folders")
+    ap.add_argument("--run", default="explicit", help="shipped model name, run folder or checkpoint (default: explicit)")
+    ap.add_argument("--out", default=None, help="output folder (default: outputs/photos/<date>/<time>-<pid>)")
+    ap.add_argument("--faces", default="largest", choices=("largest", "skip"),
+                    help="a photo with several faces: keep the largest, or skip it")
+    ap.add_argument("--upsample", type=int, default=1, help="face detector upsampling (finds smaller faces)")
+    ap.add_argument("--workers", type=int, default=0, help="processes for the pseudo-GT pipeline (0: this one)")
+    ap.add_argument("--cache-dir", default=None, help="pseudo-GT cache (default: ~/.cache/disent/pseudo_gt)")
+    ap.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    a = ap.parse_args(argv)
+    if a.workers < 0 or a.threads < 1 or a.upsample < 0:
+        ap.error("--workers must be >= 0, --threads >= 1, --upsample >= 0")
+    torch.set_num_threads(a.threads)
+    from disent.edit.__main__ import load_model
+    from disent.edit.relight import named_light, relight
+
+    model, R = load_model(a.run)
+    files = collect(a.paths)
+    out_dir = Path(a.out or f"outputs/photos/{time.strftime('%Y-%m-%d/%H-%M-%S')}-{os.getpid()}")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    settings = pg.PseudoGTSettings(resolution=R, multiple_faces=a.faces, upsample=a.upsample)
+    try:
+        records, summary = pg.prepare(files, settings, a.cache_dir, workers=a.workers, log_summary=False)
+    except (ImportError, FileNotFoundError) as e:  # dlib or its landmark model missing: a setup error
+        raise SystemExit(f"error: the photo pipeline needs dlib and its landmark model "
+                         f"(pip install -e '.[photos]'): {e}") from None
+    used = [r for r in records if r.used]
+    report = {"run": a.run, "settings": {k: getattr(settings, k) for k in settings.__dataclass_fields__},
+              "summary": summary, "photos": []}
+    if used:
+        from disent.data.photos_models import figures, photo_batch
+
+        batch = photo_batch(used)
+        est = model(batch["image"])
+        relit = {}
+        if "sh" in est:
+            relit = {n: relight(model, batch["image"], named_light(n).expand(len(used), -1, -1)) for n in RELIGHT}
+        for i, r in enumerate(used):
+            folder = out_dir / f"{i:03d}_{Path(r.path).stem}"
+            write_photo(folder, pg.load_cached(r), batch, est, relit, i)
+            report["photos"].append({"path": r.path, "used": True, "folder": folder.name, "notes": r.notes,
+                                     "fit_residual_px": r.residual_px})
+        shown = used[:SHOWN]
+        figures(model, photo_batch(shown), [Path(r.path).stem for r in shown], out_dir, "photos")
+        (out_dir / "decomposition_photos.png").replace(out_dir / "decomposition.png")
+        if (out_dir / "relight_photos.png").exists():
+            (out_dir / "relight_photos.png").replace(out_dir / "relight.png")
+    report["photos"] += [{"path": r.path, "used": False, "reason": r.reason, "detail": r.detail}
+                         for r in records if not r.used]
+    (out_dir / "summary.json").write_text(json.dumps(report, indent=2) + "\n")
+    print(pg.format_summary(summary))
+    for r in records:
+        if not r.used:
+            print(f"  skipped {r.path}: {r.reason}{f' ({r.detail})' if r.detail else ''}")
+    print(f"{len(used)} photo(s) decomposed by {a.run} -> {out_dir}/ (summary.json, decomposition.png, one folder per photo)")
+    if not used:
+        raise SystemExit(1)
+
+
+if __name__ == "__main__":
+    main()
