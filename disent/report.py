@@ -320,10 +320,10 @@ def sec_stability(rep: Report, eval_dir: Path) -> None:
             rep.add(f"Mean ± std over seeds on {res['n']} test images. BWS pulls each channel's shading mean to 0.75; "
                     "*cast* is the spread of the three channel means; the last column is the correlation of the "
                     "estimated albedo with the true shading (0: albedo free of shading). At a fixed number of "
-                    "training images a larger batch takes fewer steps (*steps*). By default E_recon-L's target "
+                    "training images a larger batch takes fewer steps (*steps*). With BWS on, E_recon-L's target "
                     "L-hat is itself scaled so that its shading has batch mean c (`loss.lhat_white`), a second "
-                    "whitening that stays on without BWS; *raw L-hat target* turns it off too "
-                    "(`loss.lhat_white=false`).\n",
+                    "whitening; `+ablation=no_bws` turns both off (the paper's ablation), and the rows marked "
+                    "*raw L-hat target* are those without it.\n",
                     "| variant | batch | steps | seeds | shading mean r, g, b | cast | corr(albedo, true shading) |",
                     "|---|---|---|---|---|---|---|")
             groups = {}

@@ -46,6 +46,8 @@ def test_ablations_compose():
     cfg = cfg_of("+ablation=[no_bws,no_adv,no_matting]")
     w = cfg.loss.weights
     assert w.BWS == 0 and w.adv == 0 and w.M == 0 and not cfg.model.matting
+    assert not cfg.loss.lhat_white  # no_bws also drops the whitened L-hat target
+    assert cfg_of("+ablation=no_adv").loss.lhat_white
     assert w.recon > 0 and w.recon_N > 0 and w.smooth_A > 0
 
 
