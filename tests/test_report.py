@@ -91,9 +91,28 @@ def test_report_on_fake_runs(tmp_path):
 
 
 def test_report_on_empty_folder(tmp_path):
+    (tmp_path / "none").mkdir()
     path = report.build(tmp_path / "reports", roots=[tmp_path / "none"])
     md = path.read_text()
     assert md.count("**Missing:**") >= 6 and "No runs found" in md
+
+
+def test_missing_inputs_never_erase_published_sections(tmp_path):
+    fake_suite(tmp_path / "runs")
+    out = tmp_path / "reports"
+    first = report.build(out, roots=[tmp_path / "runs"], n_vis=2).read_text()
+    runs_before = report.published_sections(first)["Runs"]
+    assert any("explicit+no_bws" in line for line in runs_before)
+    (tmp_path / "empty").mkdir()
+    second = report.build(out, roots=[tmp_path / "empty"], n_vis=2).read_text()
+    runs_after = report.published_sections(second)["Runs"]
+    assert runs_after[0].startswith("> **Kept:** as published before") and "no run folders" in runs_after[0]
+    assert runs_after[1:] == runs_before  # the published table, unchanged
+    third = report.build(out, roots=[tmp_path / "empty"], n_vis=2).read_text()
+    assert report.published_sections(third)["Runs"] == runs_after  # kept again, not nested
+    with pytest.raises(SystemExit):
+        report.main(["--out", str(out), "--roots", str(tmp_path / "nonexistent")])
+    assert (out / "README.md").read_text() == third
 
 
 def test_run_status_callback_marks_nan(tmp_path):
