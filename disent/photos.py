@@ -46,6 +46,36 @@ def collect(paths: list[str]) -> list[Path]:
     return files
 
 
+def faces_choice(text: str):
+    if text in ("largest", "all", "skip"):
+        return text
+    if text.isdigit():
+        return int(text)
+    raise argparse.ArgumentTypeError(f"{text!r}: choose largest, all, skip or a face number (0: the largest)")
+
+
+def run_pipeline(files, faces, resolution: int, upsample: int, cache_dir, workers: int) -> list:
+    """Pseudo-GT records of ``files`` for the face choice ``faces``; with ``all``, one more record for each
+    further face of a photo with several (``Record.face`` says which)."""
+    base = dict(resolution=resolution, upsample=upsample)
+    if faces == "skip":
+        settings = pg.PseudoGTSettings(**base, multiple_faces="skip")
+    else:
+        settings = pg.PseudoGTSettings(**base, face=faces if isinstance(faces, int) else 0)
+    try:
+        records, _ = pg.prepare(files, settings, cache_dir, workers=workers, log_summary=False)
+        if faces == "all":
+            n_faces = {r.path: len(pg.load_cached(r)["faces"]) for r in records if r.used}
+            for k in range(1, max(n_faces.values(), default=1)):
+                more = [p for p, n in n_faces.items() if n > k]
+                records += pg.prepare(more, pg.PseudoGTSettings(**base, face=k), cache_dir, workers=workers,
+                                      log_summary=False)[0]
+    except (ImportError, FileNotFoundError) as e:  # dlib or its landmark model missing: a setup error
+        raise SystemExit(f"error: the photo pipeline needs dlib and its landmark model "
+                         f"(pip install -e '.[photos]'): {e}") from None
+    return records
+
+
 def photo_landmarks(arrays: dict) -> dict:
     """The 68 landmarks in the crop and, through the inverse alignment, in the original photo's pixels."""
     crop = arrays["landmarks"].astype(np.float64)
@@ -86,8 +116,8 @@ def main(argv=None) -> None:
     ap.add_argument("paths", nargs="+", help="image files and folders")
     ap.add_argument("--run", default="explicit", help="shipped model name, run folder or checkpoint (default: explicit)")
     ap.add_argument("--out", default=None, help="output folder (default: outputs/photos/<date>/<time>-<pid>)")
-    ap.add_argument("--faces", default="largest", choices=("largest", "skip"),
-                    help="a photo with several faces: keep the largest, or skip it")
+    ap.add_argument("--faces", default="largest", type=faces_choice,
+                    help="a photo with several faces: largest (default), all, skip, or N (the N-th by size, 0: largest)")
     ap.add_argument("--upsample", type=int, default=1, help="face detector upsampling (finds smaller faces)")
     ap.add_argument("--workers", type=int, default=0, help="processes for the pseudo-GT pipeline (0: this one)")
     ap.add_argument("--cache-dir", default=None, help="pseudo-GT cache (default: ~/.cache/disent/pseudo_gt)")
@@ -103,15 +133,10 @@ def main(argv=None) -> None:
     files = collect(a.paths)
     out_dir = Path(a.out or f"outputs/photos/{time.strftime('%Y-%m-%d/%H-%M-%S')}-{os.getpid()}")
     out_dir.mkdir(parents=True, exist_ok=True)
-    settings = pg.PseudoGTSettings(resolution=R, multiple_faces=a.faces, upsample=a.upsample)
-    try:
-        records, summary = pg.prepare(files, settings, a.cache_dir, workers=a.workers, log_summary=False)
-    except (ImportError, FileNotFoundError) as e:  # dlib or its landmark model missing: a setup error
-        raise SystemExit(f"error: the photo pipeline needs dlib and its landmark model "
-                         f"(pip install -e '.[photos]'): {e}") from None
+    records = run_pipeline(files, a.faces, R, a.upsample, a.cache_dir, a.workers)
+    summary = pg.summarize(records)
     used = [r for r in records if r.used]
-    report = {"run": a.run, "settings": {k: getattr(settings, k) for k in settings.__dataclass_fields__},
-              "summary": summary, "photos": []}
+    report = {"run": a.run, "faces": a.faces, "upsample": a.upsample, "summary": summary, "photos": []}
     if used:
         from disent.data.photos_models import figures, photo_batch
 
@@ -121,16 +146,19 @@ def main(argv=None) -> None:
         if "sh" in est:
             relit = {n: relight(model, batch["image"], named_light(n).expand(len(used), -1, -1)) for n in RELIGHT}
         for i, r in enumerate(used):
-            folder = out_dir / f"{i:03d}_{Path(r.path).stem}"
-            write_photo(folder, pg.load_cached(r), batch, est, relit, i)
-            report["photos"].append({"path": r.path, "used": True, "folder": folder.name, "notes": r.notes,
-                                     "fit_residual_px": r.residual_px})
+            folder = out_dir / f"{i:03d}_{Path(r.path).stem}{f'_face{r.face}' if r.face else ''}"
+            arrays = pg.load_cached(r)
+            write_photo(folder, arrays, batch, est, relit, i)
+            report["photos"].append({"path": r.path, "used": True, "face": r.face, "folder": folder.name,
+                                     "notes": r.notes, "fit_residual_px": r.residual_px,
+                                     "faces_found": [{"box": [round(float(v), 1) for v in f[:4]], "score": round(float(f[4]), 3)}
+                                                     for f in arrays["faces"]]})
         shown = used[:SHOWN]
         figures(model, photo_batch(shown), [Path(r.path).stem for r in shown], out_dir, "photos")
         (out_dir / "decomposition_photos.png").replace(out_dir / "decomposition.png")
         if (out_dir / "relight_photos.png").exists():
             (out_dir / "relight_photos.png").replace(out_dir / "relight.png")
-    report["photos"] += [{"path": r.path, "used": False, "reason": r.reason, "detail": r.detail}
+    report["photos"] += [{"path": r.path, "used": False, "face": r.face, "reason": r.reason, "detail": r.detail}
                          for r in records if not r.used]
     (out_dir / "summary.json").write_text(json.dumps(report, indent=2) + "\n")
     print(pg.format_summary(summary))

@@ -370,7 +370,8 @@ def test_end_to_end_on_bundled_photos(tmp_path):
     assert sum(by_name[f"lfw_{i:03d}"].used for i in range(6)) >= 3  # 25x25 faces: most are found
     assert all(by_name[f"lfw_{i:03d}"].reason == "no face found" for i in range(100, 103))
     two_rec = by_name["two_faces"]
-    assert two_rec.used and "several faces: kept the largest" in two_rec.notes
+    assert two_rec.used and any(" faces (detection scores " in n and n.endswith("kept the largest")
+                               for n in two_rec.notes), two_rec.notes
     # the kept face is Grace Hopper's (right half): its landmarks, mapped back to the photo, match hers
     def photo_landmarks(rec):
         z = pg.load_cached(rec)
@@ -389,6 +390,15 @@ def test_end_to_end_on_bundled_photos(tmp_path):
     skip = pg.prepare([tmp_path / "two_faces.png"], _dlib_settings(multiple_faces="skip"), tmp_path / "cache",
                       progress=False)[0][0]
     assert not skip.used and skip.reason == "several faces"
+    faces = pg.load_cached(two_rec)["faces"]  # [left, top, right, bottom, score], largest first
+    assert faces.shape[0] >= 2 and faces.shape[1] == 5  # (a third, weak detection may come with them)
+    assert faces[0, 0] > 256 > faces[1, 2]  # Grace Hopper on the right, the astronaut on the left
+    second = pg.prepare([tmp_path / "two_faces.png"], _dlib_settings(face=1), tmp_path / "cache", progress=False)[0][0]
+    assert second.used and "kept face 1 by size" in " ".join(second.notes)
+    assert photo_landmarks(second).mean(0)[0] < 256  # the astronaut's landmarks
+    third = pg.prepare([tmp_path / "two_faces.png"], _dlib_settings(face=len(faces)), tmp_path / "cache",
+                       progress=False)[0][0]
+    assert not third.used and third.reason == "no such face"
 
 
 @pytest.mark.slow

@@ -68,6 +68,35 @@ def test_photos_command_on_a_folder_with_bad_entries(tmp_path, template_dlib, ca
     assert "skipped" in text and str(tmp_path / "in" / "dangling.jpg") in text  # the link's own name
 
 
+class TwoFaces(TemplateDetector):
+    """Two detections, both at the template (scores 0.9 and 0.4): the choice of face is bookkeeping here."""
+
+    def __call__(self, rgb):
+        landmarks, _ = super().__call__(rgb)
+        return landmarks, [{"score": 0.9, "box": [0, 0, 60, 60], "upsample": 1},
+                           {"score": 0.4, "box": [60, 0, 90, 30], "upsample": 2}]
+
+
+def test_photos_command_reports_and_chooses_faces(tmp_path, monkeypatch):
+    from disent.photos import main
+
+    monkeypatch.setattr(pg, "landmark_detector", lambda settings: TwoFaces(settings))
+    photo_folder(tmp_path / "in")
+    args = [str(tmp_path / "in" / "plain.png"), "--cache-dir", str(tmp_path / "cache")]
+    main([*args, "--out", str(tmp_path / "all"), "--faces", "all"])
+    photos = json.loads((tmp_path / "all" / "summary.json").read_text())["photos"]
+    assert [(p["folder"], p["face"]) for p in photos] == [("000_plain", 0), ("001_plain_face1", 1)]
+    assert photos[0]["notes"] == ["2 faces (detection scores 0.90, 0.40, largest first): kept the largest"]
+    assert photos[1]["notes"][0].endswith("kept face 1 by size")
+    assert [f["score"] for f in photos[0]["faces_found"]] == [0.9, 0.4]
+    with pytest.raises(SystemExit):  # the only photo skipped: nothing decomposed, exit status 1
+        main([*args, "--out", str(tmp_path / "skip"), "--faces", "skip"])
+    skipped = json.loads((tmp_path / "skip" / "summary.json").read_text())["photos"]
+    assert skipped[0]["reason"] == "several faces"
+    with pytest.raises(SystemExit):
+        main([*args, "--faces", "most"])
+
+
 def test_landmarks_are_stored_in_the_photos_pixels(tmp_path, template_dlib):
     from disent.photos import main
 

@@ -43,7 +43,7 @@ IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".webp", ".tif", ".tiff", ".p
 # iBUG 68-point layout: contour 0-16, brows 17-26, nose 27-35, eyes 36-47, mouth 48-67.
 CONTOUR = slice(0, 17)
 INNER = np.arange(17, 68)  # the landmarks that do not slide along the silhouette
-CACHE_VERSION = 3
+CACHE_VERSION = 4
 
 
 @dataclass(frozen=True)
@@ -56,7 +56,8 @@ class PseudoGTSettings:
     detect_side: int = 320  # images whose short side is smaller are upscaled for detection,
     detect_max_side: int = 800  # and those whose short side is larger downscaled (speed)
     upsample: int = 1  # dlib's pyramid upsampling for the detector (finds smaller faces)
-    multiple_faces: str = "largest"  # "largest" keeps the largest detection; "skip" skips the image
+    multiple_faces: str = "keep"  # several faces: "keep" the one ranked ``face`` by size; "skip" the image
+    face: int = 0  # rank by size (0: the largest, ties broken by detection score) of the face kept
     contour_weight: float = 0.5  # weight of the 17 jaw-line landmarks in the fit (they slide with pose)
     lambda_identity: float = 1.0  # Gaussian prior weights on the model coefficients (unit-variance units)
     lambda_expression: float = 1.0
@@ -182,13 +183,16 @@ def _face_model_identity() -> str:
 
 
 class LandmarkDetector:
-    """dlib face detection and 68 iBUG landmarks: ``rgb uint8 [H,W,3] -> (landmarks [68, 2], n_faces)``
-    with landmarks as (x, y) pixels of ``rgb``.
+    """dlib face detection and 68 iBUG landmarks: ``rgb uint8 [H,W,3] -> (landmarks [68, 2], faces)``
+    with landmarks as (x, y) pixels of ``rgb`` and ``faces`` every detection, largest first:
+    ``{"score", "box": [left, top, right, bottom] in pixels of rgb, "upsample"}``.
 
     Images whose short side is under ``detect_side`` are upscaled (bicubic) first: dlib's
     HOG detector misses faces smaller than about 80 pixels; above ``detect_max_side`` they are
-    downscaled, which costs no accuracy at crop resolution.  With several faces the largest
-    is kept (ties broken by detector score), or the image is skipped (``multiple_faces="skip"``).
+    downscaled, which costs no accuracy at crop resolution.  Where no face is found, the detector
+    tries once more with one more level of pyramid upsampling (smaller and turned faces).  With
+    several faces the one ranked ``face`` by size is kept (:func:`process` skips the image instead
+    where ``multiple_faces="skip"``).
     """
 
     def __init__(self, settings: PseudoGTSettings):
@@ -208,15 +212,23 @@ class LandmarkDetector:
             size = (round(w * scale), round(h * scale))
             work = np.asarray(Image.fromarray(rgb).resize(size, Image.BICUBIC if scale > 1 else Image.LANCZOS))
             scale = np.array(size) / (w, h)
-        rects, scores, _ = self.detector.run(work, s.upsample, 0.0)
-        if len(rects) == 0:
-            raise Skip("no face found")
-        if len(rects) > 1 and s.multiple_faces == "skip":
-            raise Skip("several faces", f"{len(rects)} detections")
-        best = max(range(len(rects)), key=lambda i: (rects[i].area(), scores[i]))
-        shape = self.predictor(work, rects[best])
+        for upsample in (s.upsample, s.upsample + 1):
+            rects, scores, _ = self.detector.run(work, upsample, 0.0)
+            if len(rects):
+                break
+        else:
+            raise Skip("no face found", f"detector upsampling {s.upsample} and {s.upsample + 1}")
+        order = sorted(range(len(rects)), key=lambda i: (-rects[i].area(), -scores[i]))
+        if s.face >= len(order):
+            raise Skip("no such face", f"face {s.face} asked, {len(order)} found")
+        shape = self.predictor(work, rects[order[s.face]])
         pts = np.array([(p.x, p.y) for p in shape.parts()], dtype=np.float64)
-        return (pts + 0.5) / scale - 0.5, len(rects)  # pixel centres at integers in both images
+        sx, sy = np.broadcast_to(scale, 2)
+        to_rgb = lambda x, y: ((x + 0.5) / sx - 0.5, (y + 0.5) / sy - 0.5)  # noqa: E731  pixel centres at integers
+        faces = [{"score": round(float(scores[i]), 3), "upsample": upsample,
+                  "box": [round(float(v), 1) for v in (*to_rgb(rects[i].left(), rects[i].top()),
+                                                       *to_rgb(rects[i].right(), rects[i].bottom()))]} for i in order]
+        return (pts + 0.5) / scale - 0.5, faces
 
 
 # ----------------------------------------------------------------------------- 3. alignment
@@ -439,10 +451,27 @@ def render_pseudo(fit: dict, image: np.ndarray, model) -> dict:
 def process(data: bytes, settings: PseudoGTSettings, detector: LandmarkDetector | None = None) -> dict:
     """The whole pipeline on one encoded image: a dict of numpy arrays (see :func:`prepare`)."""
     rgb, notes = decode_image(data, settings.min_side)
-    landmarks, n_faces = (detector or landmark_detector(settings))(rgb)
-    if n_faces > 1:
-        notes.append("several faces: kept the largest")
-    return pseudo_gt_from_landmarks(rgb, landmarks, settings) | {"notes": notes}
+    landmarks, found = (detector or landmark_detector(settings))(rgb)
+    n_faces = len(found) if isinstance(found, list) else int(found)
+    if n_faces > 1 and settings.multiple_faces == "skip":
+        raise Skip("several faces", f"{n_faces} detections")
+    notes += face_notes(found, settings)
+    faces = found if isinstance(found, list) else []
+    table = np.array([[*f["box"], f["score"]] for f in faces], dtype=np.float32).reshape(-1, 5)
+    return pseudo_gt_from_landmarks(rgb, landmarks, settings) | {"notes": notes, "faces": table}
+
+
+def face_notes(found, settings: PseudoGTSettings) -> list[str]:
+    """What the summary says about the detections: how many, their scores, which was kept, found how."""
+    faces = found if isinstance(found, list) else [{}] * int(found)  # a stand-in detector may give a count
+    notes = []
+    if len(faces) > 1:
+        scores = ", ".join(f"{f['score']:.2f}" for f in faces if "score" in f)
+        notes.append(f"{len(faces)} faces{f' (detection scores {scores}, largest first)' if scores else ''}: "
+                     f"kept {'the largest' if settings.face == 0 else f'face {settings.face} by size'}")
+    if faces and faces[0].get("upsample", settings.upsample) != settings.upsample:
+        notes.append(f"face found at detector upsampling {faces[0]['upsample']}")
+    return notes
 
 
 def pseudo_gt_from_landmarks(rgb: np.ndarray, landmarks: np.ndarray, settings: PseudoGTSettings) -> dict:
@@ -482,6 +511,7 @@ class Record:
     residual_photo_px: float = float("nan")
     size: int = -1
     mtime_ns: int = -1
+    face: int = 0  # which face of the photo (settings.face: its rank by size)
 
 
 def default_cache_dir() -> Path:
@@ -525,9 +555,8 @@ def aligned_crop(path, settings: PseudoGTSettings | None = None, align_face: boo
     rgb, notes = decode_image(data, settings.min_side)
     R = settings.resolution
     if align_face:
-        landmarks, n_faces = landmark_detector(settings)(rgb)
-        if n_faces > 1:
-            notes.append(f"several faces ({n_faces}): kept the largest")
+        landmarks, found = landmark_detector(settings)(rgb)
+        notes += face_notes(found, settings)
         crop, _, _ = align(rgb, landmarks, face_model_fitter(settings).template(R), R)
         return crop, notes
     from PIL import Image
@@ -544,10 +573,10 @@ def process_file(path: str, cache_root: str, settings: PseudoGTSettings, detecto
         st = os.stat(path)
         data = Path(path).read_bytes()
     except OSError as e:
-        return Record(path, False, "unreadable", f"{type(e).__name__}: {e.strerror or e}")
+        return Record(path, False, "unreadable", f"{type(e).__name__}: {e.strerror or e}", face=settings.face)
     digest = hashlib.sha256(data).hexdigest()
     out = Path(cache_root) / digest[:2] / f"{digest}.npz"
-    rec = Record(path, False, digest=digest, cache=str(out), size=st.st_size, mtime_ns=st.st_mtime_ns)
+    rec = Record(path, False, digest=digest, cache=str(out), size=st.st_size, mtime_ns=st.st_mtime_ns, face=settings.face)
     if out.is_file():
         return _record_from_cache(rec)
     try:
@@ -609,7 +638,7 @@ def prepare(paths, settings: PseudoGTSettings | None = None, cache_dir=None, wor
     hash, so a second pass neither reads nor hashes unchanged files; each result is written as it
     is finished (atomic rename), so an interrupted pass loses nothing it completed.
     ``workers=0`` runs in this process; ``workers>0`` uses that many processes.  ``detector``
-    replaces dlib by any callable ``rgb -> (landmarks [68,2], n_faces)`` (in this process only;
+    replaces dlib by any callable ``rgb -> (landmarks [68,2], faces or their count)`` (in this process only;
     its results are cached apart, under its ``name`` attribute or class name).
     """
     from tqdm.auto import tqdm
