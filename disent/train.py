@@ -462,6 +462,7 @@ LAYERS = (  # (label, network key, trivial key, pseudo-GT key, unit): lower is b
     ("normals, angular error", "normal_mean", "trivial_normal_mean", "pseudo_normal_mean", "deg"),
     ("albedo, scale-inv. MSE", "albedo_si_mse", "trivial_albedo_si_mse", None, ""),
     ("albedo, one scale", "albedo_global_si_mse", "trivial_albedo_global_si_mse", None, ""),
+    ("albedo, with hair+neck", "albedo_face_si_mse", "trivial_albedo_face_si_mse", None, ""),
     ("light, SH error", "sh_error", "trivial_sh_error", "pseudo_sh_error", ""),
 )
 
@@ -476,6 +477,9 @@ def print_eval(m: dict, run_dir) -> None:
     print(f"  reconstruction  mse {m['recon_mse']:.5f}  psnr {m['recon_psnr']:.2f} dB  ssim {m['recon_ssim']:.3f}"
           + (f"   face psnr {m['recon_face_psnr']:.2f} dB" if "recon_face_psnr" in m else ""))
     learned = learned_layers(m)
+    if any(net in m for _, net, _, _, _ in LAYERS):
+        print("  intrinsic layers on the face inside the pseudo mask (the model's own foreground; the last albedo line:"
+              " the whole face, whose hair and neck the model leaves to its background layer)")
     for label, net, triv, pseudo, unit in LAYERS:
         if net in m:
             line = f"  {label:<24} network {m[net]:.4g}{unit}"

@@ -57,6 +57,23 @@ def test_perfect_model_scores_perfectly():
     assert m["infer_images_per_s"] > 0
 
 
+def test_intrinsic_layers_are_scored_where_the_model_renders_the_face():
+    """albedo, shading and normals count on the true face inside the pseudo mask; hair and neck (outside
+    M-hat, the model's background layer) only in ``albedo_face_si_mse``."""
+    from disent.eval.evaluate import decomposed_region, metrics_from_outputs
+
+    ds = FakeFaces("test", size=4)
+    gt = default_collate([ds[i] for i in range(4)])
+    gt["mask_pseudo"][..., : gt["mask_pseudo"].shape[-2] // 2, :] = 0  # M-hat leaves out the top: "hair"
+    region = decomposed_region(gt)
+    outside = (face_mask(gt["matte"]) - region) > 0
+    assert region.sum() > 0 and outside.any()
+    albedo = torch.where(outside, torch.rand_like(gt["albedo"]), gt["albedo"] * 1.7)  # exact up to a scale inside
+    m = metrics_from_outputs({"albedo": albedo, "normal": gt["normal"]}, gt)
+    assert m["albedo_si_mse"] < 1e-12 and m["albedo_global_si_mse"] < 1e-12 and m["normal_mean"] < 1e-3
+    assert m["albedo_face_si_mse"] > 1e-3
+
+
 def test_conditioning_grows_towards_profile():
     res = st.conditioning_vs_yaw(FakeFaces("test"), yaws=(0, 30, 60, 90), n=3)
     cond = [r["ls_true_cond"]["median"] for r in res["rows"]]

@@ -67,10 +67,17 @@ def model_outputs(model, dataset, limit: int = 256, batch_size: int = 64, keys=(
     return out, gt, len(gt["image"]) / max(seconds, 1e-12)
 
 
+def decomposed_region(gt: dict) -> torch.Tensor:
+    """Where the intrinsic layers are scored: the true face mask intersected with the pseudo mask M-hat.
+    The model renders the face there; its matte is trained towards M-hat (Sec. 3.3), so hair, ears and
+    neck belong to its background layer, and its albedo there is not an estimate of anything."""
+    return face_mask(gt["matte"]) * (gt["mask_pseudo"] > 0.5)
+
+
 def normal_metrics(normal: torch.Tensor, gt: dict) -> dict:
     """``normal_*``: the angular error of ``normal`` against the true normals; ``pseudo_normal_*``:
-    the pseudo-GT's, on the same pixels (the true face mask intersected with the pseudo mask)."""
-    both = face_mask(gt["matte"]) * (gt["mask_pseudo"] > 0.5)
+    the pseudo-GT's, on the same pixels (:func:`decomposed_region`)."""
+    both = decomposed_region(gt)
     m = {f"normal_{k}": v for k, v in normal_angular_error(normal, gt["normal"], both).items()}
     m.update({f"pseudo_normal_{k}": v for k, v in normal_angular_error(gt["normal_pseudo"], gt["normal"], both).items()})
     return m
@@ -79,10 +86,12 @@ def normal_metrics(normal: torch.Tensor, gt: dict) -> dict:
 def metrics_from_outputs(out: dict, gt: dict) -> dict:
     """Flat metric dict from model outputs and ground truth (same keys as SynthFaces items).
 
-    ``recon_*`` on the whole image, ``recon_face_*`` under the true face mask; ``normal_*`` the
-    model's angular error against the true normals and ``pseudo_normal_*`` the pseudo-GT's on the
-    same pixels (true face mask intersected with the pseudo mask); ``albedo_si_mse`` (a scale per
-    image and channel), ``albedo_global_si_mse`` (a scale per channel for all images), ``shading_si_mse``; ``sh_error`` after the per-image scale alignment.
+    ``recon_*`` on the whole image, ``recon_face_*`` under the true face mask.  On the pixels of
+    :func:`decomposed_region`: ``normal_*`` the model's angular error against the true normals and
+    ``pseudo_normal_*`` the pseudo-GT's; ``albedo_si_mse`` (a scale per image and channel),
+    ``albedo_global_si_mse`` (a scale per channel for all images), ``shading_si_mse``.  For reference
+    ``albedo_face_si_mse``: the albedo over the whole true face mask, hair and neck included.
+    ``sh_error`` after the per-image scale alignment.
     """
     m = {}
     face = face_mask(gt["matte"])
@@ -91,12 +100,14 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
             m[f"{name}_{k}"] = v
     if "normal" in out:
         m.update(normal_metrics(out["normal"], gt))
+    region = decomposed_region(gt)
     if "albedo" in out:
-        m["albedo_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], face)
-        m["albedo_global_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], face, per_image=False)
+        m["albedo_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], region)
+        m["albedo_global_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], region, per_image=False)
+        m["albedo_face_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], face)
     if "shading" in out:
         shading = out["shading"].expand_as(gt["shading"])
-        m["shading_si_mse"] = scale_invariant_mse(shading, gt["shading"], face)
+        m["shading_si_mse"] = scale_invariant_mse(shading, gt["shading"], region)
     if "sh" in out:
         m["sh_error"] = sh_error(out["sh"], gt["sh"])
         m["pseudo_sh_error"] = sh_error(gt["sh_pseudo"], gt["sh"])
@@ -114,3 +125,41 @@ def evaluate_model(model, dataset, limit: int = 256, batch_size: int = 64, trivi
 
 
 __all__ = ["FACE_THRESHOLD", "face_mask", "normal_metrics", "batches", "render", "predict", "model_outputs", "metrics_from_outputs", "evaluate_model"]
+
+
+def rescore(run_dir) -> dict:
+    """Score a finished run's final checkpoint again with this version's metrics: ``eval.json`` is rewritten
+    (atomically), keeping its training bookkeeping (``steps``, ``stopped_by``, ``train_seconds``)."""
+    import json
+    from pathlib import Path
+
+    from disent.models import load_run
+    from disent.runs import atomic_write
+    from disent.train import evaluate, make_dataset, trivial_baselines
+
+    run_dir = Path(run_dir)
+    old = json.loads((run_dir / "eval.json").read_text()) if (run_dir / "eval.json").exists() else {}
+    model, cfg = load_run(run_dir)
+    trivial = trivial_baselines(make_dataset(cfg.data, "train", cfg.data.get("train_size")))
+    metrics = {**evaluate(model.eval(), cfg, cfg.train.eval_size, trivial),
+               **{k: old[k] for k in ("steps", "stopped_by", "train_seconds") if k in old}}
+    atomic_write(run_dir / "eval.json", lambda f: f.write(json.dumps(metrics, indent=2).encode()))
+    return metrics
+
+
+def main(argv=None):
+    import argparse
+
+    from disent.train import print_eval
+
+    p = argparse.ArgumentParser(prog="python -m disent.eval.evaluate",
+                                description="Score finished runs again with this version's metrics (eval.json).")
+    p.add_argument("runs", nargs="+", help="run folders with checkpoints/last.pt")
+    a = p.parse_args(argv)
+    torch.set_num_threads(1)
+    for run in a.runs:
+        print_eval(rescore(run), run)
+
+
+if __name__ == "__main__":
+    main()
