@@ -170,6 +170,9 @@ def test_trivial_baselines_are_dataset_means():
     torch.testing.assert_close(means["sh"], gt["sh"][0])
     assert trivial_metrics(means, gt)["trivial_normal_mean"] == pytest.approx(0, abs=1e-3)
     assert trivial_metrics(means, gt)["trivial_sh_error"] == pytest.approx(0, abs=1e-10)
+    torch.testing.assert_close(means["sh_pseudo"], gt["sh_pseudo"][0])  # the mean L-hat, for context
+    assert trivial_metrics(means, gt)["trivial_lhat_sh_error"] == pytest.approx(
+        metrics_from_outputs({"sh": gt["sh_pseudo"]}, gt)["sh_error"])
 
     ds = FakeFaces("test", size=12)
     means = dataset_means(ds, n=12)

@@ -6,7 +6,10 @@ A layer counts as learned only where the network beats its trivial baseline:
   face pixels of the training images; the frontal normal where no face ever covers the pixel);
 * albedo: the dataset-mean albedo map (per pixel mean over face pixels), scored by the same
   scale-invariant MSEs as the network's albedo;
-* light: the mean true SH light, scored by the same scale-aligned SH error.
+* light: the mean true SH light, scored by the same scale-aligned SH error; beside it, for context,
+  ``trivial_lhat_sh_error``: the mean L-hat, the constant a network could learn from its supervision alone
+  (L-hat's constant albedo carries skin tone and the face's dark features into the light, so its mean is
+  biased where the true mean is not).
 
 ``trivial_metrics`` scores them with :func:`disent.eval.evaluate.metrics_from_outputs`, the code that
 scores the networks, and returns its keys prefixed with ``trivial_`` (``trivial_normal_mean``,
@@ -28,7 +31,7 @@ def dataset_means(dataset, n: int = N_IMAGES, batch_size: int = 256) -> dict:
     ``n`` items of ``dataset`` (which must carry ``normal``, ``albedo``, ``sh`` and ``matte``)."""
     from disent.eval.evaluate import batches
 
-    sums = {"normal": 0.0, "albedo": 0.0, "weight": 0.0, "sh": 0.0}
+    sums = {"normal": 0.0, "albedo": 0.0, "weight": 0.0, "sh": 0.0, "sh_pseudo": 0.0}
     count = 0
     for b in batches(dataset, batch_size, n):
         face = face_mask(b["matte"].double())
@@ -36,6 +39,8 @@ def dataset_means(dataset, n: int = N_IMAGES, batch_size: int = 256) -> dict:
         sums["albedo"] = sums["albedo"] + (b["albedo"].double() * face).sum(0)
         sums["weight"] = sums["weight"] + face.sum(0)
         sums["sh"] = sums["sh"] + b["sh"].double().sum(0)
+        if "sh_pseudo" in b:
+            sums["sh_pseudo"] = sums["sh_pseudo"] + b["sh_pseudo"].double().sum(0)
         count += len(b["image"])
     if count == 0:
         raise ValueError("dataset_means: the data set is empty")
@@ -44,7 +49,10 @@ def dataset_means(dataset, n: int = N_IMAGES, batch_size: int = 256) -> dict:
     normal = torch.where(covered, torch.nn.functional.normalize(sums["normal"], dim=0), frontal)
     mean_albedo = sums["albedo"].sum((1, 2)) / sums["weight"].sum().clamp_min(1)  # [C], where no face ever is
     albedo = torch.where(covered, sums["albedo"] / sums["weight"].clamp_min(1), mean_albedo[:, None, None])
-    return {"normal": normal.float(), "albedo": albedo.float(), "sh": (sums["sh"] / count).float(), "n": count}
+    means = {"normal": normal.float(), "albedo": albedo.float(), "sh": (sums["sh"] / count).float(), "n": count}
+    if torch.is_tensor(sums["sh_pseudo"]):
+        means["sh_pseudo"] = (sums["sh_pseudo"] / count).float()
+    return means
 
 
 def trivial_outputs(means: dict, batch: int) -> dict:
@@ -55,7 +63,12 @@ def trivial_outputs(means: dict, batch: int) -> dict:
 def trivial_metrics(means: dict, gt: dict) -> dict:
     """``trivial_<key>`` for each key of ``KEYS``: the constant estimates scored against ``gt``."""
     m = metrics_from_outputs(trivial_outputs(means, len(gt["image"])), gt)
-    return {f"trivial_{k}": m[k] for k in KEYS}
+    out = {f"trivial_{k}": m[k] for k in KEYS}
+    if "sh_pseudo" in means:
+        from disent.eval.metrics import sh_error
+
+        out["trivial_lhat_sh_error"] = sh_error(means["sh_pseudo"].expand_as(gt["sh"]), gt["sh"])
+    return out
 
 
 __all__ = ["dataset_means", "trivial_outputs", "trivial_metrics", "N_IMAGES"]
