@@ -489,3 +489,8 @@ def print_eval(m: dict, run_dir) -> None:
             if net in learned:
                 line += "   learned" if learned[net] else "   NOT learned (no better than the dataset mean)"
             print(line)
+    if "sh_error_coefficients" in m and "trivial_sh_error_coefficients" in m:
+        names = ("DC", "y", "z", "x", "xy", "yz", "3z2-1", "xz", "x2-y2")
+        print("  light error by SH coefficient " + " ".join(f"{n:>6}" for n in names))
+        for who, key in (("network", "sh_error_coefficients"), ("dataset mean", "trivial_sh_error_coefficients")):
+            print(f"  {who:>30} " + " ".join(f"{v:6.3f}" for v in m[key]))

@@ -94,6 +94,12 @@ def test_sh_error_alignment():
     g = torch.Generator().manual_seed(0)
     L = torch.randn(4, 3, 9, generator=g, dtype=torch.float64)
     assert sh_error(2.5 * L, L) == pytest.approx(0.0, abs=1e-20)
+    # the per-coefficient shares sum to the error; a wrong DC term lands in the DC share only
+    wrong = L.clone()
+    wrong[:, :, 0] += 1.0
+    shares = sh_error(wrong, L, reduction="coefficients")
+    assert len(shares) == 9 and sum(shares) == pytest.approx(sh_error(wrong, L))
+    assert shares[0] > 10 * max(shares[1:])
     # per-channel scales are forgiven only with per_channel=True
     Lc = L * torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64).reshape(1, 3, 1)
     assert sh_error(Lc, L, per_channel=True) == pytest.approx(0.0, abs=1e-20)

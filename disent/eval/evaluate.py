@@ -91,7 +91,7 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     ``pseudo_normal_*`` the pseudo-GT's; ``albedo_si_mse`` (a scale per image and channel),
     ``albedo_global_si_mse`` (a scale per channel for all images), ``shading_si_mse``.  For reference
     ``albedo_face_si_mse``: the albedo over the whole true face mask, hair and neck included.
-    ``sh_error`` after the per-image scale alignment.
+    ``sh_error`` after the per-image scale alignment, and ``sh_error_coefficients`` its share per coefficient.
     """
     m = {}
     face = face_mask(gt["matte"])
@@ -111,6 +111,7 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     if "sh" in out:
         m["sh_error"] = sh_error(out["sh"], gt["sh"])
         m["pseudo_sh_error"] = sh_error(gt["sh_pseudo"], gt["sh"])
+        m["sh_error_coefficients"] = sh_error(out["sh"], gt["sh"], reduction="coefficients")
     return m
 
 

@@ -135,14 +135,18 @@ def sh_error(pred_sh: torch.Tensor, true_sh: torch.Tensor, per_channel: bool = F
     Per image: ``||s pred - true||^2 / ||true||^2`` with ``s`` the optimal scale, one per image
     (default) or per image and channel (``per_channel=True``).  0 is perfect; 1 is what a
     prediction orthogonal to the truth (or zero) scores, so the number is free of the light's
-    overall brightness.  ``reduction="none"`` returns ``[B]``, ``"mean"`` a float.
+    overall brightness.  ``reduction="none"`` returns ``[B]``, ``"mean"`` a float, ``"coefficients"``
+    the mean's share of each of the 9 coefficients (DC, y, z, x, xy, yz, 3z^2-1, xz, x^2-y^2), a list
+    that sums to the mean.
     """
     if pred_sh.shape != true_sh.shape or pred_sh.dim() != 3 or pred_sh.shape[-1] != 9:
         raise ValueError(f"SH must both be [B,C,9], got {tuple(pred_sh.shape)} and {tuple(true_sh.shape)}")
     p, t = pred_sh.detach().double(), true_sh.detach().double()
     s = optimal_scale(p, t, torch.ones_like(p), (2,) if per_channel else (1, 2))
-    err = ((s * p - t) ** 2).sum((1, 2)) / t.pow(2).sum((1, 2)).clamp_min(1e-300)
-    return _reduce(err, reduction)
+    share = ((s * p - t) ** 2).sum(1) / t.pow(2).sum((1, 2)).clamp_min(1e-300)[:, None]  # [B, 9]
+    if reduction == "coefficients":
+        return share.mean(0).tolist()
+    return _reduce(share.sum(1), reduction)
 
 
 def _reduce(per_image: torch.Tensor, reduction: str):

@@ -63,7 +63,7 @@ def trivial_outputs(means: dict, batch: int) -> dict:
 def trivial_metrics(means: dict, gt: dict) -> dict:
     """``trivial_<key>`` for each key of ``KEYS``: the constant estimates scored against ``gt``."""
     m = metrics_from_outputs(trivial_outputs(means, len(gt["image"])), gt)
-    out = {f"trivial_{k}": m[k] for k in KEYS}
+    out = {f"trivial_{k}": m[k] for k in (*KEYS, "sh_error_coefficients")}
     if "sh_pseudo" in means:
         from disent.eval.metrics import sh_error
 
