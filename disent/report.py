@@ -414,7 +414,8 @@ def sec_recipe(rep: Report, runs: list[Run]) -> None:
         v, base = r.eval.get(key), ref.eval.get(key)
         if v is None:
             return "–"
-        return f"{v:{fmt}}" + ("" if r is ref or base is None else f" ({v - base:+{fmt}})")
+        old = key.startswith("albedo") and "albedo_face_si_mse" not in r.eval  # scored before the region change
+        return f"{v:{fmt}}" + ("†" if old else "") + ("" if r is ref or base is None else f" ({v - base:+{fmt}})")
 
     for name in ["recipe", *sorted(n for n in rows if n != "recipe")]:
         r = rows[name]
@@ -427,6 +428,10 @@ def sec_recipe(rep: Report, runs: list[Run]) -> None:
             f"{e.get('trivial_albedo_si_mse', float('nan')):.4f} | {e.get('trivial_sh_error', float('nan')):.3f} | – |",
             f"| pseudo-GT | – | – | {e.get('pseudo_normal_mean', float('nan')):.2f} | – | – | "
             f"{e.get('pseudo_sh_error', float('nan')):.3f} | – |", "")
+    if any("albedo_face_si_mse" not in r.eval for r in rows.values()):
+        rep.add("† scored over the whole true face mask (hair and neck included) by an earlier version; today's "
+                "`albedo_si_mse` covers the face inside the pseudo mask (`python -m disent.eval.evaluate RUN` "
+                "scores a run again where its checkpoint still loads).\n")
 
 
 CURVE_PANELS = (  # (val key, trivial key, pseudo-GT key, label); every panel: lower is better except PSNR
