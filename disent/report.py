@@ -443,10 +443,19 @@ CURVE_PANELS = (  # (val key, trivial key, pseudo-GT key, label); every panel: l
 
 
 def val_curves(run: Run) -> list[dict]:
-    """The run's periodic ``val`` records, each with ``images`` (step x batch) and ``minutes`` (training wall)."""
+    """The run's periodic ``val`` records, each with ``images`` (step x batch) and ``minutes`` (training wall).
+    Albedo values written before the albedo was scored inside the pseudo mask (records without
+    ``albedo_face_si_mse``) are left out, so that one line never mixes two definitions."""
     batch = (run.cfg.get("train") or {}).get("batch_size") or 1
-    return [{**r["val"], "images": r["step"] * batch, "minutes": r["wall"] / 60}
-            for r in run.metrics if isinstance(r.get("val"), dict)]
+    albedo = ("albedo_si_mse", "albedo_global_si_mse", "trivial_albedo_si_mse", "trivial_albedo_global_si_mse")
+    out = []
+    for r in run.metrics:
+        if isinstance(r.get("val"), dict):
+            v = {**r["val"], "images": r["step"] * batch, "minutes": r["wall"] / 60}
+            if "albedo_face_si_mse" not in v:
+                v = {k: x for k, x in v.items() if k not in albedo}
+            out.append(v)
+    return out
 
 
 def plot_learning_curves(runs: list[Run], path: Path, title: str = "") -> bool:
@@ -464,9 +473,9 @@ def plot_learning_curves(runs: list[Run], path: Path, title: str = "") -> bool:
             for k, (r, c) in enumerate(curves):
                 pts = [(v[x], v[key]) for v in c if v.get(key) is not None]
                 if pts:
-                    ax.plot(*zip(*pts), color=f"C{k % 10}", lw=1.2, label=f"{r.variant} ({r.path.name})")
+                    ax.plot(*zip(*pts), color=f"C{k % 10}", lw=1.2, label=f"{r.variant} ({r.path.parent.name}/{r.path.name})")
             for ref, style, name in ((trivial, "--", "dataset mean"), (pseudo, ":", "pseudo-GT")):
-                vals = [c[-1][ref] for _, c in curves if ref and c[-1].get(ref) is not None]
+                vals = [c[-1][ref] for _, c in curves if ref and c[-1].get(ref) is not None and c[-1].get(key) is not None]
                 if vals:
                     ax.axhline(float(np.mean(vals)), color="k", ls=style, lw=1, label=name)
             ax.set_xlabel("training images" if x == "images" else "training wall minutes")
