@@ -300,3 +300,39 @@ def test_single_core_sets_and_restores_torch_and_blas_threads():
         torch.set_num_threads(outer)
         for _, set_ in blas:
             set_(1)
+
+
+def test_cli_adds_noise_to_renders_only_and_writes_a_run_folder(monkeypatch, tmp_path):
+    """``noise: null``: 0.01 on a SynthFaces render, nothing on a photo (``image=``); the default output is
+    a run folder under outputs/, not the repository's reports/."""
+    from pathlib import Path
+
+    from omegaconf import OmegaConf
+
+    import disent.lighting.__main__ as cli
+    from disent.data import SynthFaces
+
+    cfg = OmegaConf.load(Path(__file__).resolve().parents[1] / "conf" / "lighting.yaml")
+    out = OmegaConf.to_container(cfg, resolve=False)["out"]  # ${now:...}: resolved by Hydra at run time
+    assert out.startswith("outputs/lighting/") and cfg.noise is None and "cache_dir" in cfg
+    cfg.data = {"resolution": 32}
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def spy(image, noise, seed):
+        seen.append(noise)
+        raise Stop
+
+    monkeypatch.setattr(cli, "noisy", spy)
+    item = SynthFaces("test", resolution=32, size=1)[0]
+    for image, expected in ((None, 0.01), ("face.jpg", 0.0)):
+        cfg.image = image
+        with pytest.raises(Stop):
+            cli.posterior_of(cfg, "x", item)
+        assert seen[-1] == expected
+    cfg.noise = 0.05  # asked for: added to a photo too
+    with pytest.raises(Stop):
+        cli.posterior_of(cfg, "x", item)
+    assert seen[-1] == 0.05
