@@ -315,7 +315,7 @@ def test_cli_adds_noise_to_renders_only_and_writes_a_run_folder(monkeypatch, tmp
     cfg = OmegaConf.load(Path(__file__).resolve().parents[1] / "conf" / "lighting.yaml")
     out = OmegaConf.to_container(cfg, resolve=False)["out"]  # ${now:...}: resolved by Hydra at run time
     assert out.startswith("outputs/lighting/") and cfg.noise is None and "cache_dir" in cfg
-    cfg.data = {"resolution": 32}
+    cfg.data = {"resolution": 64}
     seen = []
 
     class Stop(Exception):
@@ -326,7 +326,7 @@ def test_cli_adds_noise_to_renders_only_and_writes_a_run_folder(monkeypatch, tmp
         raise Stop
 
     monkeypatch.setattr(cli, "noisy", spy)
-    item = SynthFaces("test", resolution=32, size=1)[0]
+    item = SynthFaces("test", resolution=64, size=1)[0]
     for image, expected in ((None, 0.01), ("face.jpg", 0.0)):
         cfg.image = image
         with pytest.raises(Stop):
