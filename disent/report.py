@@ -176,7 +176,8 @@ def sec_runs(rep: Report, runs: list[Run]) -> None:
                  "suite (`ablations/README.md`), then run `python -m disent.report` again.")
         return
     cols = ("recon_mse", "recon_face_psnr", "normal_mean", "trivial_normal_mean", "pseudo_normal_mean", "albedo_si_mse",
-            "trivial_albedo_si_mse", "sh_error", "trivial_sh_error")
+            "trivial_albedo_si_mse", "sh_error", "trivial_sh_error", "light_shading_si_mse",
+            "trivial_light_shading_si_mse")
     rep.add("| run | variant | seed | status | train img/s | infer img/s | " + " | ".join(cols) + " |",
             "|" + "---|" * (6 + len(cols)))
     for r in runs:
@@ -185,7 +186,10 @@ def sec_runs(rep: Report, runs: list[Run]) -> None:
         rep.add(f"| `{r.path}` | {r.variant} | {r.seed} | {r.status} | {f(_speed(r, TRAIN_SPEED_KEYS))} | "
                 f"{f(_speed(r, INFER_SPEED_KEYS))} | " + " | ".join(f(r.value(c)) for c in cols) + " |")
     rep.add("", "_`trivial_*`: the dataset-mean normal map, albedo map and light on the same test images "
-            "(`disent/eval/trivial.py`); a layer counts as learned only where it beats them._\n")
+            "(`disent/eval/trivial.py`); a layer counts as learned only where it beats them. Normals, albedo and "
+            "`light_shading_si_mse` (the light's shading through the true normals) are scored on the face inside "
+            "the pseudo mask, the model's own foreground; `sh_error` on the 27 SH coefficients, including the "
+            "directions a face's normals cannot reveal._\n")
 
 
 def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:

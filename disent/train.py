@@ -212,7 +212,7 @@ def train_step(model, disc, opt_g, opt_d, batch, cfg_loss) -> dict:
 
 
 VAL_KEYS = ("recon_psnr", "recon_face_psnr", "normal_mean", "pseudo_normal_mean", "albedo_si_mse",
-            "albedo_global_si_mse", "albedo_face_si_mse", "sh_error", "pseudo_sh_error")
+            "albedo_global_si_mse", "albedo_face_si_mse", "sh_error", "pseudo_sh_error", "light_shading_si_mse")
 
 
 def validate(model, batch: dict) -> dict:
@@ -464,6 +464,7 @@ LAYERS = (  # (label, network key, trivial key, pseudo-GT key, unit): lower is b
     ("albedo, one scale", "albedo_global_si_mse", "trivial_albedo_global_si_mse", None, ""),
     ("albedo, with hair+neck", "albedo_face_si_mse", "trivial_albedo_face_si_mse", None, ""),
     ("light, SH error", "sh_error", "trivial_sh_error", "pseudo_sh_error", ""),
+    ("light, on the face", "light_shading_si_mse", "trivial_light_shading_si_mse", "pseudo_light_shading_si_mse", ""),
 )
 
 

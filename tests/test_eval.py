@@ -54,6 +54,7 @@ def test_perfect_model_scores_perfectly():
     assert m["normal_mean"] == pytest.approx(0, abs=1e-3) and m["normal_under_20"] == 1.0
     assert m["pseudo_normal_mean"] > 1.0  # the bent pseudo normals are wrong on the same pixels
     assert m["albedo_si_mse"] < 1e-12 and m["sh_error"] < 1e-12 and m["n_eval"] == 6
+    assert m["light_shading_si_mse"] < 1e-12
     assert m["infer_images_per_s"] > 0
 
 
@@ -72,6 +73,13 @@ def test_intrinsic_layers_are_scored_where_the_model_renders_the_face():
     m = metrics_from_outputs({"albedo": albedo, "normal": gt["normal"]}, gt)
     assert m["albedo_si_mse"] < 1e-12 and m["albedo_global_si_mse"] < 1e-12 and m["normal_mean"] < 1e-3
     assert m["albedo_face_si_mse"] > 1e-3
+    # the light on the face: a colour cast (one scale per channel) is forgiven, a wrong direction is not
+    tinted = gt["sh"] * torch.tensor([0.8, 1.0, 1.3])[None, :, None]
+    turned = gt["sh"].clone()
+    turned[:, :, 3] = -turned[:, :, 3] + 0.3  # the x component (left-right) flipped
+    m = metrics_from_outputs({"sh": tinted, "normal": gt["normal"]}, gt)
+    assert m["light_shading_si_mse"] < 1e-12 < m["sh_error"]
+    assert metrics_from_outputs({"sh": turned, "normal": gt["normal"]}, gt)["light_shading_si_mse"] > 1e-4
 
 
 def test_conditioning_grows_towards_profile():

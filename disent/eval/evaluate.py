@@ -91,7 +91,8 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     ``pseudo_normal_*`` the pseudo-GT's; ``albedo_si_mse`` (a scale per image and channel),
     ``albedo_global_si_mse`` (a scale per channel for all images), ``shading_si_mse``.  For reference
     ``albedo_face_si_mse``: the albedo over the whole true face mask, hair and neck included.
-    ``sh_error`` after the per-image scale alignment, and ``sh_error_coefficients`` its share per coefficient.
+    ``sh_error`` after the per-image scale alignment, and ``sh_error_coefficients`` its share per coefficient;
+    ``light_shading_si_mse``: the light's shading through the true normals against the true shading.
     """
     m = {}
     face = face_mask(gt["matte"])
@@ -112,6 +113,13 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
         m["sh_error"] = sh_error(out["sh"], gt["sh"])
         m["pseudo_sh_error"] = sh_error(gt["sh_pseudo"], gt["sh"])
         m["sh_error_coefficients"] = sh_error(out["sh"], gt["sh"], reduction="coefficients")
+        # the light as this face shows it: its shading through the true normals (Eq. 4), which leaves out
+        # the SH directions a face's normals cannot reveal; per image and channel scale-invariant
+        from disent.render import sh_shading
+
+        true_shading = sh_shading(gt["normal"].double(), gt["sh"].double())
+        for name, sh in (("light_shading_si_mse", out["sh"]), ("pseudo_light_shading_si_mse", gt["sh_pseudo"])):
+            m[name] = scale_invariant_mse(sh_shading(gt["normal"].double(), sh.double()), true_shading, region)
     return m
 
 

@@ -22,7 +22,8 @@ import torch
 from disent.eval.evaluate import face_mask, metrics_from_outputs
 
 N_IMAGES = 1024  # training images the means are taken over (fewer if the split is smaller)
-KEYS = ("normal_mean", "normal_median", "albedo_si_mse", "albedo_global_si_mse", "albedo_face_si_mse", "sh_error")
+KEYS = ("normal_mean", "normal_median", "albedo_si_mse", "albedo_global_si_mse", "albedo_face_si_mse", "sh_error",
+        "light_shading_si_mse")
 
 
 @torch.no_grad()
