@@ -214,10 +214,16 @@ def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
     from disent.eval.evaluate import predict
 
     outs = {name: predict(model, batch["image"]) for name, model in models.items()}
+
+    def foreground(out, k):  # the intrinsic layers where the model's own matte claims the face
+        return out[k] * (out["matte"] > 0.5) if k in ("albedo", "normal", "shading") and "matte" in out else out[k]
+
     for name, out in outs.items():
-        rows = [("input", batch["image"])] + [(k, out[k]) for k in ("recon", "albedo", "normal", "shading", "matte") if k in out]
+        rows = [("input", batch["image"])] + [(k, foreground(out, k)) for k in ("recon", "albedo", "normal", "shading",
+                                                                                 "matte") if k in out]
         path = rep.fig / f"teaser_{name}.png"
-        _grid(rows, path, f"{name} ({chosen[name].path}) on SynthFaces test images")
+        _grid(rows, path, f"{name} ({chosen[name].path}) on SynthFaces test images; albedo, normal and shading "
+                          "where its matte > 0.5")
         rep.add(f"**{name}** (`{chosen[name].path}`)\n")
         rep.image(path, f"teaser {name}")
     rec = [("input", batch["image"])] + [(f"{k} recon", outs[k]["recon"]) for k in MODELS if k in outs]
@@ -227,7 +233,7 @@ def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
     rep.image(path, "baseline vs ours")
     nrm = [("input", batch["image"]), ("normal true", batch["normal"] * batch["matte"]),
            ("normal pseudo-GT", batch["normal_pseudo"] * batch["mask_pseudo"])]
-    nrm += [(f"normal {k}", outs[k]["normal"]) for k in MODELS if k in outs and "normal" in outs[k]]
+    nrm += [(f"normal {k}", foreground(outs[k], "normal")) for k in MODELS if k in outs and "normal" in outs[k]]
     path = rep.fig / "normals.png"
     _grid(nrm, path, "Our normals against the pseudo-GT they were trained on and the true normals")
     rep.add("### Our normals against the pseudo-GT and the truth\n")
