@@ -218,10 +218,12 @@ def main(argv=None):
 
         runs = [r.path for k, r in pick_runs(find_runs()).items() if k in ("explicit", "implicit")]
         print("runs:", [str(r) for r in runs] or "none found")
-    for run in runs:
-        from disent.data.photos_models import apply_run
+    from disent.data.photos_models import apply_run, gap_markdown
 
-        apply_run(run, [r for r in records if r.used], out)
+    gaps = [apply_run(run, [r for r in records if r.used], out) for run in runs]
+    if gaps:
+        command = "python -m disent.data.photos " + " ".join(argv if argv is not None else __import__("sys").argv[1:])
+        (out / "domain_gap.md").write_text(gap_markdown(gaps, command))
 
 
 if __name__ == "__main__":

@@ -108,7 +108,8 @@ def apply_run(run_dir, records: list, out: Path, n_show: int = 8) -> dict:
     from disent.models import load_run
 
     model, cfg = load_run(run_dir)
-    tag = f"{cfg.model.name}_" + "-".join(Path(run_dir).resolve().parts[-2:])
+    shipped = not Path(run_dir).exists()  # a shipped model's name (disent/weights/)
+    tag = f"{cfg.model.name}_" + ("shipped" if shipped else "-".join(Path(run_dir).resolve().parts[-2:]))
     res = int(cfg.data.resolution)
     if pg.load_cached(records[0])["image"].shape[0] != res:
         raise ValueError(f"run {run_dir} is at {res} px; rerun the photos at --resolution {res}")
@@ -125,4 +126,21 @@ def apply_run(run_dir, records: list, out: Path, n_show: int = 8) -> dict:
             f": {budget['train_size']} images, {budget['epochs']} epochs")
     for dom in ("photos", "synthfaces_test"):
         print(f"{tag} {dom:16s} " + "  ".join(f"{k} {v:.4g}" for k, v in gap[dom].items()))
-    return gap
+    return {**gap, "tag": tag}
+
+
+def gap_markdown(gaps: list[dict], command: str) -> str:
+    """``domain_gap.md``: the gap numbers of every model applied in one invocation, with the command."""
+    lines = ["# Models trained on SynthFaces, applied to real photos\n", f"`{command}` (numbers: `domain_gap_<tag>.json`; "
+             "figures: `decomposition_<tag>.png`, `relight_<tag>.png`). Every number is against the *pseudo* ground "
+             "truth, the same landmark-fit rendering on both domains; reference: as many SynthFaces test faces.\n",
+             "| model (tag) | training | domain | n | recon PSNR (dB) | normal vs normal_pseudo (deg) | SH vs sh_pseudo | "
+             "matte covers mask_pseudo | matte IoU |", "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    for g in gaps:
+        t = g["training"]
+        for dom, label in (("photos", "photos"), ("synthfaces_test", "SynthFaces test")):
+            m, f = g[dom], lambda k, d=2: "-" if k not in g[dom] else f"{g[dom][k]:.{d}f}"  # noqa: E731
+            lines.append(f"| {g['model']} ({g['tag']}) | {t.get('max_steps') or str(t.get('epochs')) + ' epochs of'} steps, {t.get('train_size')} images | {label} | "
+                         f"{m['n']} | {f('recon_psnr')} | {f('normal_vs_pseudo_deg')} | {f('sh_vs_pseudo_mse', 3)} | "
+                         f"{f('matte_covers_mask_pseudo', 3)} | {f('matte_iou_mask_pseudo', 3)} |")
+    return "\n".join(lines) + "\n"
