@@ -486,7 +486,8 @@ def print_eval(m: dict, run_dir) -> None:
             line = f"  {label:<24} network {m[net]:.4g}{unit}"
             line += f"   trivial {m[triv]:.4g}{unit}" if triv in m else ""
             line += f"   pseudo-GT {m[pseudo]:.4g}{unit}" if pseudo and pseudo in m else ""
-            line += f"   mean L-hat {m['trivial_lhat_sh_error']:.4g}" if net == "sh_error" and "trivial_lhat_sh_error" in m else ""
+            if net == "sh_error" and "trivial_lhat_sh_error" in m:
+                line += f"   mean L-hat {m['trivial_lhat_sh_error']:.4g}"
             if net in learned:
                 line += "   learned" if learned[net] else "   NOT learned (no better than the dataset mean)"
             print(line)
