@@ -20,6 +20,12 @@ Each model is scored, with i.i.d. Gaussian noise of unknown sigma, by
   ``N(1, 1)``, log sigma uniform on ``[log 1e-4, 0]``) and the Gauss-Newton Hessian; the
   positivity constraint is ignored here.
 
+On pseudo geometry (the coarse fit's normals) the misfit is not i.i.d.: a normal off by ``delta n``
+moves a pixel by ``a (grad_n S) . delta n``.  With ``normal_sigma`` (the per-axis std of the normal error
+in the tangent plane, radians) each pixel's variance becomes ``sigma^2 + normal_sigma^2 |a P_t grad_n S|^2``,
+evaluated at the candidate's own light (iteratively reweighted Gauss-Newton), so misfit that the geometry
+error explains is not taken as evidence for more SH terms.  Default 0: the i.i.d. model.
+
 The choice is the smallest model whose score is within ``threshold`` (log units, default
 log 20, "strong" evidence on Kass & Raftery's scale) of the best one.
 
@@ -76,6 +82,36 @@ def _predict(theta, A, gray):
     return (s * g[:, None]).T, J.reshape(C * P, K + C - 1)
 
 
+def sh_basis_gradient(n: np.ndarray, K: int = 9) -> np.ndarray:
+    """``[P, K, 3]``: d Y_k / d n of :func:`disent.render.sh_basis` at unit normals ``n [P, 3]``."""
+    from disent.render import C1, C2, C3
+
+    nx, ny, nz = n.T
+    z = np.zeros_like(nx)
+    g = np.zeros((len(n), 9, 3))
+    g[:, 1, 1] = g[:, 2, 2] = g[:, 3, 0] = 2 * C2
+    g[:, 4] = np.stack([2 * C1 * ny, 2 * C1 * nx, z], 1)
+    g[:, 5] = np.stack([z, 2 * C1 * nz, 2 * C1 * ny], 1)
+    g[:, 6] = np.stack([z, z, 2 * C3 * nz], 1)
+    g[:, 7] = np.stack([2 * C1 * nz, z, 2 * C1 * nx], 1)
+    g[:, 8] = np.stack([2 * C1 * nx, -2 * C1 * ny, z], 1)
+    return g[:, :K]
+
+
+def geometry_variance(data: LightingData, light: np.ndarray, normal_sigma: float) -> np.ndarray:
+    """``[C*P]`` (channel-major): the variance a normal error of per-axis std ``normal_sigma`` adds to each
+    pixel under ``light [C, K]``: ``normal_sigma^2 |a P_t grad_n S(n; L_c)|^2``."""
+    from disent.render import C2
+
+    K = light.shape[1]
+    albedo = data.albedo if data.albedo is not None else np.ones_like(data.y)
+    n = data.basis[:, [3, 1, 2]] / (2 * C2)  # the basis holds 2 C2 (n_y, n_z, n_x) at indices 1-3
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    grad = np.einsum("pkj,ck->pcj", sh_basis_gradient(n, K), light) * albedo[:, :, None]  # [P, C, 3]
+    tangent = grad - (grad * n[:, None]).sum(-1, keepdims=True) * n[:, None]
+    return (normal_sigma**2 * (tangent**2).sum(-1)).T.reshape(-1)
+
+
 def _initial(A, y, gray):
     """Least squares per channel; for gray light, channel 0's light and the channels' gains."""
     L = np.stack([np.linalg.lstsq(A[c], y[:, c], rcond=None)[0] for c in range(A.shape[0])])  # [C, K]
@@ -84,31 +120,54 @@ def _initial(A, y, gray):
     return np.concatenate([L[0], L[1:] @ L[0] / (L[0] @ L[0])])
 
 
-def _fit(data: LightingData, order: int, gray: bool, prior_scale: float, iterations: int | None):
-    """MAP of one candidate by Gauss-Newton (sigma at its conditional mode): ``(theta, pred, J, s2, prior)``."""
+def _light(theta, C, K, gray):
+    if not gray:
+        return theta.reshape(C, K)
+    return np.concatenate([[1.0], theta[K:]])[:, None] * theta[None, :K]
+
+
+def _fit(data: LightingData, order: int, gray: bool, prior_scale: float, iterations: int | None,
+         normal_sigma: float = 0.0):
+    """MAP of one candidate by (reweighted) Gauss-Newton, sigma at its conditional mode:
+    ``(theta, pred, J, v, prior)`` with ``v [C*P]`` each value's noise variance."""
     A, y = data.design(order), data.y
     N = y.size
     theta = _initial(A, y, gray)
-    iterations = iterations or (8 if gray else 2)  # linear models need one step per sigma update
+    geometry = normal_sigma > 0
+    iterations = iterations or (8 if gray or geometry else 2)  # linear i.i.d. models need one step per sigma update
     d = theta.size
     prior_mean = np.zeros(d)
     prior_prec = np.full(d, 1.0 / prior_scale**2)
     if gray:
         prior_mean[N_COEFFS[order]:], prior_prec[N_COEFFS[order]:] = 1.0, 1.0
-    for _ in range(iterations):  # Gauss-Newton on the log posterior, sigma at its conditional mode
+
+    def variance(theta, r):
+        if not geometry:
+            return np.full(N, max(r @ r / N, 1e-300))
+        extra = geometry_variance(data, _light(theta, A.shape[0], A.shape[2], gray), normal_sigma)
+        lo, hi = 1e-300, max(r @ r / N, 1e-300)  # sigma^2 with sum (r^2 - v) / v^2 = 0 (the likelihood's stationarity)
+        for _ in range(80):
+            s2 = math.sqrt(lo * hi)
+            v = s2 + extra
+            lo, hi = (s2, hi) if ((r**2 - v) / v**2).sum() > 0 else (lo, s2)
+        return s2 + extra
+
+    for _ in range(iterations):  # Gauss-Newton on the log posterior, the noise at its conditional mode
         pred, J = _predict(theta, A, gray)
         r = (y - pred).T.reshape(-1)
-        s2 = max(r @ r / N, 1e-300)
-        H = J.T @ J / s2 + np.diag(prior_prec)
-        theta = theta + np.linalg.solve(H, J.T @ r / s2 - prior_prec * (theta - prior_mean))
+        w = 1.0 / variance(theta, r)
+        H = (J * w[:, None]).T @ J + np.diag(prior_prec)
+        theta = theta + np.linalg.solve(H, (J * w[:, None]).T @ r - prior_prec * (theta - prior_mean))
     pred, J = _predict(theta, A, gray)
     r = (y - pred).T.reshape(-1)
-    return theta, pred, J, max(r @ r / N, 1e-300), (prior_mean, prior_prec)
+    return theta, pred, J, variance(theta, r), (prior_mean, prior_prec)
 
 
 def score(data: LightingData, order: int, gray: bool = False, prior_scale: float = 2.0,
-          iterations: int | None = None, texture: tuple | None = None, texture_iterations: int = 10) -> dict:
-    """Maximised log-likelihood, BIC and Laplace log evidence of one candidate.
+          iterations: int | None = None, texture: tuple | None = None, texture_iterations: int = 10,
+          normal_sigma: float = 0.0) -> dict:
+    """Maximised log-likelihood, BIC and Laplace log evidence of one candidate (``normal_sigma``: the
+    geometry-error noise model of the module docstring).
 
     ``texture = (pixels [1+J, P, C], variance [J])`` (:meth:`TextureModel.at_pixels` and
     its PCA variances): the albedo is ``T_0 + sum_j beta_j T_j`` with ``beta_j ~ N(0,
@@ -129,30 +188,33 @@ def score(data: LightingData, order: int, gray: bool = False, prior_scale: float
         beta = np.zeros(len(variance))
         for _ in range(texture_iterations):
             albedo = albedo_of(beta)
-            theta, pred, J, s2, prior = _fit(replace(data, albedo=albedo), order, gray, prior_scale, iterations)
+            theta, pred, J, v, prior = _fit(replace(data, albedo=albedo), order, gray, prior_scale, iterations,
+                                            normal_sigma)
             shading = pred / albedo  # [P, C]: the candidate's light through S(n, L_c)
-            X = (tex[1:] * shading[None]).reshape(len(variance), -1).T  # [P*C, J]
-            H_beta = X.T @ X / s2 + np.diag(1.0 / variance)
-            beta = np.linalg.solve(H_beta, X.T @ (data.y - tex[0] * shading).reshape(-1) / s2)
+            X = (tex[1:] * shading[None]).reshape(len(variance), -1).T  # [P*C, J], pixel-major
+            w = v.reshape(-1, data.n_pixels).T.reshape(-1)  # the noise variances in the same pixel-major order
+            H_beta = (X / w[:, None]).T @ X + np.diag(1.0 / variance)
+            beta = np.linalg.solve(H_beta, (X / w[:, None]).T @ (data.y - tex[0] * shading).reshape(-1))
         data = replace(data, albedo=albedo_of(beta))
         extra = (-0.5 * (beta**2 / variance).sum() - 0.5 * np.log(variance).sum()
                  - 0.5 * np.linalg.slogdet(H_beta)[1])  # log N(beta; 0, var) + J/2 log 2 pi - 1/2 log det H
-    theta, pred, J, s2, (prior_mean, prior_prec) = _fit(data, order, gray, prior_scale, iterations)
+    theta, pred, J, v, (prior_mean, prior_prec) = _fit(data, order, gray, prior_scale, iterations, normal_sigma)
     d = theta.size + (0 if beta is None else beta.size)
-    loglik = -0.5 * N * (math.log(2 * math.pi * s2) + 1)
-    H = J.T @ J / s2 + np.diag(prior_prec)
+    r = (data.y - pred).T.reshape(-1)
+    loglik = -0.5 * (np.log(2 * math.pi * v) + r**2 / v).sum()  # i.i.d.: -N/2 (log 2 pi s2 + 1)
+    H = (J / v[:, None]).T @ J + np.diag(prior_prec)
     log_prior = (-0.5 * (prior_prec * (theta - prior_mean) ** 2).sum() + 0.5 * np.log(prior_prec / (2 * math.pi)).sum()
                  - math.log(LOG_SIGMA_RANGE[1] - LOG_SIGMA_RANGE[0]))
     # Laplace: log Z = log p(y, theta*, t*) + (d+1)/2 log 2 pi - 1/2 log det H; H_tt = 2N for t = log sigma
     log_evidence = (loglik + log_prior + 0.5 * (theta.size + 1) * math.log(2 * math.pi)
                     - 0.5 * np.linalg.slogdet(H)[1] - 0.5 * math.log(2 * N) + extra)
-    return {"order": order, "gray": gray, "n_params": d, "loglik": float(loglik), "sigma": float(math.sqrt(s2)),
+    return {"order": order, "gray": gray, "n_params": d, "loglik": float(loglik), "sigma": float(math.sqrt(v.min())),
             "bic": float(-2 * loglik + (d + 1) * math.log(N)), "log_evidence": float(log_evidence),
             "texture": None if beta is None else beta.tolist()}
 
 
 def select_order(data: LightingData, criterion: str = "evidence", threshold: float = DEFAULT_THRESHOLD,
-                 prior_scale: float = 2.0, texture: tuple | None = None) -> dict:
+                 prior_scale: float = 2.0, texture: tuple | None = None, normal_sigma: float = 0.0) -> dict:
     """Score every candidate; choose the smallest within ``threshold`` of the best.
 
     ``criterion``: ``"evidence"`` (Laplace log evidence) or ``"bic"`` (compared as -BIC/2,
@@ -160,7 +222,7 @@ def select_order(data: LightingData, criterion: str = "evidence", threshold: flo
     candidate); without it the albedo is constant (L-hat) or ``data``'s known albedo.
     Returns ``{"choice", "order", "gray", "scores"}``.
     """
-    scores = {name: score(data, order, gray, prior_scale, texture=texture)
+    scores = {name: score(data, order, gray, prior_scale, texture=texture, normal_sigma=normal_sigma)
               for name, order, gray in candidates(data.n_channels)}
     return choose(scores, criterion, threshold)
 
@@ -177,4 +239,5 @@ def choose(scores: dict, criterion: str = "evidence", threshold: float = DEFAULT
             "criterion": criterion, "scores": scores}
 
 
-__all__ = ["candidates", "n_params", "score", "select_order", "choose", "DEFAULT_THRESHOLD"]
+__all__ = ["candidates", "n_params", "score", "select_order", "choose", "geometry_variance", "sh_basis_gradient",
+           "DEFAULT_THRESHOLD"]
