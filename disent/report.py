@@ -448,6 +448,7 @@ CURVE_PANELS = (  # (val key, trivial key, pseudo-GT key, label); every panel: l
     ("normal_mean", "trivial_normal_mean", "pseudo_normal_mean", "normal error (deg)"),
     ("albedo_si_mse", "trivial_albedo_si_mse", None, "albedo scale-inv. MSE"),
     ("sh_error", "trivial_sh_error", "pseudo_sh_error", "SH error"),
+    ("light_shading_si_mse", "trivial_light_shading_si_mse", "pseudo_light_shading_si_mse", "light on the face (si-MSE)"),
     ("recon_face_psnr", None, None, "face PSNR (dB)"),
 )
 

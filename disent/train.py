@@ -212,7 +212,8 @@ def train_step(model, disc, opt_g, opt_d, batch, cfg_loss) -> dict:
 
 
 VAL_KEYS = ("recon_psnr", "recon_face_psnr", "normal_mean", "pseudo_normal_mean", "albedo_si_mse",
-            "albedo_global_si_mse", "albedo_face_si_mse", "sh_error", "pseudo_sh_error", "light_shading_si_mse")
+            "albedo_global_si_mse", "albedo_face_si_mse", "sh_error", "pseudo_sh_error", "light_shading_si_mse",
+            "pseudo_light_shading_si_mse")
 
 
 def validate(model, batch: dict) -> dict:
