@@ -22,7 +22,7 @@ SAMPLE_COLUMNS = ("image", "recon", "albedo", "normal", "shading", "matte")
 
 # ${pid:} in conf/config.yaml's hydra.run.dir / hydra.sweep.dir: two runs started in the same second
 # get different folders
-OmegaConf.register_new_resolver("pid", os.getpid, replace=True)
+OmegaConf.register_new_resolver("pid", os.getpid, replace=True, use_cache=True)  # cached: jobs in worker processes reuse it
 
 
 def write_git_revision(run_dir: Path) -> None:

@@ -114,3 +114,13 @@ def test_save_checkpoint_keeps_the_one_it_replaces(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["last.pt", "prev.pt"]  # no temp files left
     with pytest.raises(CheckpointError, match="no checkpoint at"):
         load_checkpoint(tmp_path / "missing.pt")
+
+
+def test_parallel_sweep_jobs_share_one_sweep_folder(tmp_path):
+    """The joblib launcher runs jobs in worker processes: the folder name's ${pid:} is the launcher's."""
+    p = cli(["-m", "hydra/launcher=local", *CLI_TINY, "model=baseline,explicit"], tmp_path)
+    out = p.communicate(timeout=300)[0]
+    assert p.returncode == 0, out
+    sweeps = list((tmp_path / "multirun").glob("*/*"))
+    assert len(sweeps) == 1 and sorted(x.name for x in sweeps[0].iterdir() if x.is_dir()) == ["0", "1"]
+    assert all((sweeps[0] / j / "eval.json").is_file() for j in ("0", "1"))
