@@ -218,9 +218,13 @@ def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
     def foreground(out, k):  # the intrinsic layers where the model's own matte claims the face
         return out[k] * (out["matte"] > 0.5) if k in ("albedo", "normal", "shading") and "matte" in out else out[k]
 
+    def shown(out, k):  # shading (mean 0.75 by BWS, peaks above 1) divided by each image's maximum
+        x = foreground(out, k)
+        return x / x.amax((1, 2, 3), keepdim=True).clamp_min(1e-6) if k == "shading" else x
+
     for name, out in outs.items():
-        rows = [("input", batch["image"])] + [(k, foreground(out, k)) for k in ("recon", "albedo", "normal", "shading",
-                                                                                 "matte") if k in out]
+        rows = [("input", batch["image"])] + [(k + (" / max" if k == "shading" else ""), shown(out, k))
+                                              for k in ("recon", "albedo", "normal", "shading", "matte") if k in out]
         path = rep.fig / f"teaser_{name}.png"
         _grid(rows, path, f"{name} ({chosen[name].path}) on SynthFaces test images; albedo, normal and shading "
                           "where its matte > 0.5")

@@ -72,7 +72,7 @@ def figures(model, batch: dict, names: list[str], out: Path, tag: str, budget: s
     if "normal" in res:
         cols += [("matte", res["matte"], "gray"), ("normal", res["normal"], "normal"),
                  ("normal_pseudo", batch["normal_pseudo"], "normal"), ("albedo", res["albedo"], "rgb"),
-                 ("shading", res["shading"], "rgb")]
+                 ("shading / max", res["shading"] / res["shading"].amax((1, 2, 3), keepdim=True).clamp_min(1e-6), "rgb")]
     n = len(names)
     fig, axes = plt.subplots(n, len(cols), figsize=(1.3 * len(cols), 1.3 * n), squeeze=False)
     for i in range(n):
