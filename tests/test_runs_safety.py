@@ -124,3 +124,15 @@ def test_parallel_sweep_jobs_share_one_sweep_folder(tmp_path):
     sweeps = list((tmp_path / "multirun").glob("*/*"))
     assert len(sweeps) == 1 and sorted(x.name for x in sweeps[0].iterdir() if x.is_dir()) == ["0", "1"]
     assert all((sweeps[0] / j / "eval.json").is_file() for j in ("0", "1"))
+
+
+def test_loading_a_damaged_checkpoint_names_the_file(tmp_path):
+    from disent.edit.__main__ import load_model
+    from disent.models import load_run
+
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"PK\x03\x04 not a whole checkpoint")
+    with pytest.raises(CheckpointError, match=f"the checkpoint {bad} cannot be read"):
+        load_run(bad)
+    with pytest.raises(SystemExit, match=f"^error: the checkpoint {bad} cannot be read"):
+        load_model(str(bad))

@@ -100,10 +100,11 @@ def load_inputs(specs: list[str], resolution: int, seed: int = 0, align: bool = 
 
 def load_model(run: str):
     from disent.models import load_run
+    from disent.runs import CheckpointError
 
     try:
         model, cfg = load_run(run)
-    except (FileNotFoundError, ValueError) as e:  # unknown name or path, mismatched architecture: say so, no traceback
+    except (FileNotFoundError, ValueError, CheckpointError) as e:  # unknown, mismatched or unreadable: one line
         raise SystemExit(f"error: {e}") from None
     return model, int(getattr(model, "resolution", 64))
 

@@ -11,6 +11,7 @@ import torch
 from torch.utils.data import DataLoader, Subset, default_collate
 
 from disent.eval.metrics import normal_angular_error, reconstruction_metrics, scale_invariant_mse, sh_error
+from disent.render import sh_shading
 
 FACE_THRESHOLD = 0.99  # matte above this is face without background mixing
 
@@ -115,8 +116,6 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
         m["sh_error_coefficients"] = sh_error(out["sh"], gt["sh"], reduction="coefficients")
         # the light as this face shows it: its shading through the true normals (Eq. 4), which leaves out
         # the SH directions a face's normals cannot reveal; per image and channel scale-invariant
-        from disent.render import sh_shading
-
         true_shading = sh_shading(gt["normal"].double(), gt["sh"].double())
         for name, sh in (("light_shading_si_mse", out["sh"]), ("pseudo_light_shading_si_mse", gt["sh_pseudo"])):
             m[name] = scale_invariant_mse(sh_shading(gt["normal"].double(), sh.double()), true_shading, region)

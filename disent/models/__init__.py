@@ -31,16 +31,18 @@ def build_model(cfg_model) -> torch.nn.Module:
     return MODELS[name](**kwargs)
 
 
-def load_run(path, map_location="cpu"):
+def load_run(path):
     """``(model, cfg)`` from a run folder (its ``checkpoints/last.pt``), a checkpoint file, or the name of a
     shipped model (``explicit``, ``implicit``, ``baseline``: :mod:`disent.models.shipped`).
 
     The model is in eval mode; ``cfg`` is the run's resolved OmegaConf config.  An unknown name lists the
-    shipped ones; a checkpoint that does not fit this code's architecture names the mismatch.
+    shipped ones; a checkpoint that does not fit this code's architecture names the mismatch, and one that
+    cannot be read names the file (:func:`disent.runs.load_checkpoint`).
     """
     from omegaconf import OmegaConf
 
     from disent.models.shipped import load_weights, shipped_path
+    from disent.runs import load_checkpoint
 
     path = Path(path)
     if path.exists():
@@ -49,7 +51,7 @@ def load_run(path, map_location="cpu"):
             raise FileNotFoundError(f"no checkpoint at {ckpt_path}")
     else:
         ckpt_path = shipped_path(str(path))
-    ckpt = torch.load(ckpt_path, map_location=map_location, weights_only=False)
+    ckpt = load_checkpoint(ckpt_path)
     cfg = OmegaConf.create(ckpt["cfg"])
     model = build_model(cfg.model)
     load_weights(model, ckpt["model"], ckpt_path)

@@ -73,9 +73,10 @@ def ship(run_dir, name: str, folder: Path = WEIGHTS) -> dict:
     from omegaconf import OmegaConf
 
     from disent.models import build_model
+    from disent.runs import load_checkpoint
 
     run_dir, folder = Path(run_dir), Path(folder)
-    ckpt = torch.load(run_dir / "checkpoints" / "last.pt", map_location="cpu", weights_only=False)
+    ckpt = load_checkpoint(run_dir / "checkpoints" / "last.pt")
     eval_path = run_dir / "eval.json"
     if not eval_path.exists():
         raise FileNotFoundError(f"{run_dir} has no eval.json: only a finished, evaluated run can be shipped")
