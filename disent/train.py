@@ -296,7 +296,7 @@ def check_config(cfg) -> None:
 # Budget and bookkeeping (max_steps, epochs, time limit, threads, logging, device) may change between sessions.
 RUN_DEFINING = ("seed", "model", "data", "loss", "train.batch_size", "train.optimizer", "train.lr", "train.schedule",
                 "train.lr_decay", "train.warmup_steps", "train.amp")
-NOT_DEFINING = ("data.test_size",)  # evaluation only
+NOT_DEFINING = ("data.test_size", "model.kernels")  # evaluation only; the same function computed another way
 
 
 def config_differences(old: dict | None, new: dict, keys=RUN_DEFINING) -> list[str]:

@@ -1,5 +1,5 @@
-"""``python -m disent.bench``: the JSON a tiny run writes (no timing asserts), and the fast
-paths of the models equal the plain computations they replace."""
+"""``python -m disent.bench``: the JSON a tiny run writes (no timing asserts) and what it counts.  The speed
+kernels' equality with the plain layers is tested in test_kernels.py."""
 import json
 
 import pytest
@@ -8,7 +8,6 @@ import torch.nn.functional as F
 
 from disent import bench
 from disent.models.bench import time_to_accuracy
-from disent.models.networks import upsample_conv
 from disent.render import sh_shading
 
 RATES = ("train_img_s", "train_no_d_img_s", "infer_img_s")
@@ -119,109 +118,6 @@ def test_flops_scale_with_resolution():
     assert 3.0 < f[32] / f[16] < 4.0  # the fully connected layers grow less than 4x
 
 
-@pytest.mark.parametrize("c,o", [(8, 3), (5, 4), (6, 5)])  # phase form, and a wide layer as written
-def test_upsample_conv_equals_conv_of_nearest_upsampling(c, o):
-    torch.manual_seed(0)
-    conv = torch.nn.Conv2d(c, o, 3, padding=1).double()
-    x = torch.randn(2, c, 5, 7, dtype=torch.float64, requires_grad=True)
-    ref = conv(F.interpolate(x, scale_factor=2, mode="nearest"))
-    out = upsample_conv(x, conv.weight, conv.bias)
-    torch.testing.assert_close(out, ref)
-    g = torch.randn_like(ref)
-    grads = torch.autograd.grad(out, (x, conv.weight, conv.bias), g)
-    ref_grads = torch.autograd.grad(ref, (x, conv.weight, conv.bias), g)
-    for a, b in zip(grads, ref_grads):
-        torch.testing.assert_close(a, b)
-
-
-@pytest.mark.parametrize("o", [1, 3, 12])
-@pytest.mark.parametrize("fn", ["narrow_conv", "NarrowConv"])  # autograd through it / its own backward
-def test_narrow_conv_equals_conv2d_with_gradients(o, fn):
-    import disent.models.networks as N
-
-    conv = N.narrow_conv if fn == "narrow_conv" else N.NarrowConv.apply
-    torch.manual_seed(0)
-    x = torch.randn(2, 5, 6, 7, dtype=torch.float64).contiguous(memory_format=torch.channels_last).requires_grad_()
-    w = torch.randn(o, 5, 3, 3, dtype=torch.float64, requires_grad=True)
-    b = torch.randn(o, dtype=torch.float64, requires_grad=True)
-    ref = F.conv2d(x, w, b, padding=1)
-    out = conv(x, w, b)
-    torch.testing.assert_close(out, ref)
-    g = torch.randn_like(ref)
-    for a, r in zip(torch.autograd.grad(out, (x, w, b), g), torch.autograd.grad(ref, (x, w, b), g)):
-        torch.testing.assert_close(a, r)
-    if fn == "NarrowConv":  # gradients against finite differences
-        assert torch.autograd.gradcheck(conv, (x[:1, :, :3, :4].detach().requires_grad_(), w, b))
-
-
-@pytest.mark.parametrize("channels_last", [True, False])
-def test_max_unpool_equals_torch_with_gradients(channels_last):
-    """MaxUnpool: F.max_unpool2d's output, and its gradient for channels-last (the gather along
-    NHWC pixels) and contiguous maps; gradients against finite differences too."""
-    import disent.models.networks as N
-
-    torch.manual_seed(0)
-    fmt = torch.channels_last if channels_last else torch.contiguous_format
-    pooled, switches = F.max_pool2d(torch.randn(3, 5, 8, 6, dtype=torch.float64).contiguous(memory_format=fmt), 2,
-                                    return_indices=True)
-    assert switches.is_contiguous(memory_format=fmt)
-    x = pooled.detach().requires_grad_()
-    out, ref = N.MaxUnpool.apply(x, switches), F.max_unpool2d(x, switches, 2)
-    torch.testing.assert_close(out, ref)
-    g = torch.randn_like(ref).contiguous(memory_format=fmt)
-    grad = torch.autograd.grad(out, x, g)[0]
-    torch.testing.assert_close(grad, torch.autograd.grad(ref, x, g)[0])
-    assert grad.shape == x.shape and grad.is_contiguous(memory_format=fmt)
-    assert torch.autograd.gradcheck(lambda v: N.MaxUnpool.apply(v, switches), (x,))
-
-
-def test_inference_fast_paths_leave_the_outputs_unchanged():
-    """The explicit model with and without narrow_conv at inference: the same outputs."""
-    import disent.models.networks as N
-    from disent.models import build_model
-    from disent.models.bench import model_cfg
-
-    torch.manual_seed(0)
-    model = build_model(model_cfg("explicit", 16)).eval().to(memory_format=torch.channels_last)
-    x = torch.rand(3, 3, 16, 16).contiguous(memory_format=torch.channels_last)
-    with torch.no_grad():
-        fast = model(x)
-        narrow, N.NARROW_MAX = N.NARROW_MAX, 0
-        try:
-            plain = model(x)
-        finally:
-            N.NARROW_MAX = narrow
-    assert narrow > 0
-    for k in ("recon", "background", "matte", "normal", "albedo"):
-        torch.testing.assert_close(fast[k], plain[k], rtol=1e-5, atol=1e-6)
-
-
-@pytest.mark.parametrize("name", ["explicit", "implicit"])
-def test_channels_last_model_computes_the_same_outputs_and_gradients(name):
-    """Memory format is a speed choice only: a channels-last copy of a model (NHWC from the
-    decoders' first map on) gives the contiguous model's outputs and weight gradients."""
-    import copy
-
-    from disent.models import build_model
-    from disent.models.bench import model_cfg
-
-    torch.manual_seed(0)
-    model = build_model(model_cfg(name, 16))
-    nhwc = copy.deepcopy(model).to(memory_format=torch.channels_last)
-    x = torch.rand(2, 3, 16, 16)
-    outs, grads = [], []
-    for m, image in ((model, x), (nhwc, x.contiguous(memory_format=torch.channels_last))):
-        out = m(image)
-        (out["recon"].square().mean() + out["normal"].sum()).backward()
-        outs.append(out)
-        grads.append({k: p.grad for k, p in m.named_parameters()})
-    for k in ("recon", "normal", "albedo", "matte", "background"):
-        torch.testing.assert_close(outs[1][k], outs[0][k], rtol=1e-4, atol=1e-5)
-    for k, g in grads[0].items():  # BatchNorm's backward cancels large sums: float32 rounding scales with the
-        # tensor's largest gradient (in float64 the layouts agree to 1e-12, but the CPU kernels run in float32 only)
-        torch.testing.assert_close(grads[1][k], g, rtol=1e-3, atol=1e-5 * max(1.0, g.abs().max().item()), msg=k)
-
-
 def test_shading_stays_float32_under_mixed_precision():
     normal = F.normalize(torch.randn(2, 3, 4, 4), dim=1)
     sh = torch.randn(2, 3, 9)
@@ -264,43 +160,3 @@ def test_unit_equals_normalize(fmt):
     x = torch.randn(2, 3, 5, 5, dtype=torch.float64).contiguous(memory_format=fmt)
     x[0, :, 0, 0] = 0  # F.normalize's eps: a zero vector stays zero
     torch.testing.assert_close(unit(x), F.normalize(x, dim=1))
-
-
-@pytest.mark.parametrize("name", ["explicit", "implicit", "baseline"])
-def test_batchnorm_folding_is_the_same_function_in_eval_mode(name, monkeypatch):
-    """Eval mode folds each BatchNorm into the convolution before it: the same outputs and input gradients
-    as applying the BatchNorm (with non-trivial running statistics and affine weights), in both layouts."""
-    from disent.models import build_model, networks
-    from disent.models.bench import model_cfg
-
-    torch.manual_seed(0)
-    model = build_model({**model_cfg(name, 16), "norm": "batch"}).double()
-    for m in model.modules():
-        if isinstance(m, torch.nn.BatchNorm2d):
-            for t in (m.running_mean, m.weight, m.bias):
-                t.data.normal_()
-            m.running_var.data.uniform_(0.5, 2.0)
-    model.eval()
-    x = torch.rand(2, 3, 16, 16, dtype=torch.float64)
-    outs = {}
-    for fold in (True, False):
-        monkeypatch.setattr(networks, "FOLD_BATCHNORM", fold)
-        image = x.clone().requires_grad_(True)
-        out = model(image)
-        grad, = torch.autograd.grad(out["recon"].square().sum(), image)
-        outs[fold] = ({k: v for k, v in out.items() if torch.is_tensor(v)}, grad)
-    for k, v in outs[False][0].items():
-        torch.testing.assert_close(outs[True][0][k], v, msg=k)
-    torch.testing.assert_close(outs[True][1], outs[False][1])
-    assert networks.conv_then_norm(model.encoder.convs[0], model.encoder.norms[0])[2] is False  # monkeypatched off
-    model.train()  # training mode never folds: the batch statistics are the layer
-    monkeypatch.setattr(networks, "FOLD_BATCHNORM", True)
-    assert networks.conv_then_norm(model.encoder.convs[0], model.encoder.norms[0])[2] is False
-
-
-def test_bench_rejects_a_thread_count_below_one(capsys):
-    from disent.bench import main
-
-    with pytest.raises(SystemExit) as e:
-        main(["models", "--threads", "-2"])
-    assert e.value.code == 2 and "--threads -2: must be a whole number >= 1" in capsys.readouterr().err

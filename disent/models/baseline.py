@@ -12,12 +12,13 @@ class Baseline(nn.Module):
     CODE_NAMES = ("z",)
 
     def __init__(self, resolution: int = 64, code_dim: int = 265, matting: bool = False,
-                 norm: str = "none", centre_input: bool = False, z_act: str = "relu"):
+                 norm: str = "none", centre_input: bool = False, z_act: str = "relu",
+                 kernels: bool = True):
         super().__init__()
         if matting:
             raise ValueError("the baseline autoencoder has no matting layer (model.matting must be false)")
         self.resolution = resolution
-        self.layers = layers = Layers(norm, centre_input, z_act)  # the same layers as the rendering models
+        self.layers = layers = Layers(norm, centre_input, z_act, kernels)  # the same layers as the rendering models
         self.encoder = Encoder(resolution, code_dim, layers=layers)
         self.decoder = Decoder(3, resolution, code_dim, layers=layers)
 
