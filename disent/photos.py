@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from disent.data import pseudo_gt as pg
+from disent.images import over_max, save_image
 
 RELIGHT = ("flash_az-60", "top", "flash_az+60")  # named lights of the bank (python -m disent.edit lights)
 SHOWN = 16  # rows of decomposition.png
@@ -85,29 +86,22 @@ def photo_landmarks(arrays: dict) -> dict:
             "fit_residual_px": float(arrays["residual_px"])}
 
 
-def save(x: torch.Tensor, path: Path, kind: str = "rgb") -> None:
-    from disent.data.photos_models import _show
-    from PIL import Image
-
-    Image.fromarray((_show(x, kind) * 255).round().astype(np.uint8)).save(path)
-
-
 @torch.no_grad()
 def write_photo(folder: Path, arrays: dict, batch: dict, out: dict, relit: dict, i: int) -> None:
     folder.mkdir(parents=True, exist_ok=True)
-    save(batch["image"][i], folder / "crop.png")
-    save(batch["normal_pseudo"][i], folder / "normal_pseudo.png", "normal")
-    save(batch["mask_pseudo"][i], folder / "mask_pseudo.png", "gray")
+    save_image(batch["image"][i], folder / "crop.png")
+    save_image(batch["normal_pseudo"][i], folder / "normal_pseudo.png", "normal")
+    save_image(batch["mask_pseudo"][i], folder / "mask_pseudo.png", "gray")
     (folder / "landmarks.json").write_text(json.dumps(photo_landmarks(arrays)) + "\n")
-    save(out["recon"][i].clamp(0, 1), folder / "recon.png")
+    save_image(out["recon"][i].clamp(0, 1), folder / "recon.png")
     for key, kind in (("albedo", "rgb"), ("normal", "normal"), ("matte", "gray")):
         if key in out:
-            save(out[key][i], folder / f"{key}.png", kind)
+            save_image(out[key][i], folder / f"{key}.png", kind)
     if "shading" in out:
         s = out["shading"][i]
-        save(s / s.amax().clamp_min(1e-6), folder / "shading.png")  # shown normalised
+        save_image(over_max(s), folder / "shading.png")  # shown normalised
     for name, x in relit.items():
-        save(x[i].clamp(0, 1), folder / f"relit_{name}.png")
+        save_image(x[i].clamp(0, 1), folder / f"relit_{name}.png")
 
 
 def main(argv=None) -> None:

@@ -2,7 +2,7 @@
 
 ``python -m disent.report`` (or ``disent-report``) reads
 
-* run folders under ``outputs/`` and ``multirun/`` (:mod:`disent.eval.runs`),
+* run folders under ``outputs/`` and ``multirun/`` (:mod:`disent.runs`),
 * ``reports/eval/*.json`` from :mod:`disent.eval.protocols` and :mod:`disent.eval.stability`
   (``--compute`` runs both first),
 * ``reports/bench.json`` (``python -m disent.bench``) and ``reports/lighting/``,
@@ -25,7 +25,8 @@ import numpy as np
 import torch
 
 from disent.eval import ablation as _ablation
-from disent.eval.runs import RUN_ROOTS, Run, find_runs, pick_runs
+from disent.images import over_max, to_array
+from disent.runs import RUN_ROOTS, Run, find_runs, pick_runs
 
 MODELS = ("baseline", "explicit", "implicit")
 TRAIN_SPEED_KEYS = ("train_images_per_s", "images_per_s", "train_ips")
@@ -124,16 +125,6 @@ def published_sections(markdown: str) -> dict[str, list[str]]:
 
 
 # ----------------------------------------------------------------------------- pictures from models
-def _vis(name: str, x: torch.Tensor) -> np.ndarray:
-    """``[3|1,H,W]`` tensor as an ``[H,W,3]`` array in [0,1] (normals mapped from [-1,1])."""
-    x = x.detach().float()
-    if name.startswith("normal"):
-        x = (x + 1) / 2
-    if x.shape[0] == 1:
-        x = x.expand(3, -1, -1)
-    return x.clamp(0, 1).permute(1, 2, 0).numpy()
-
-
 def _grid(rows: list[tuple[str, torch.Tensor]], path: Path, title: str) -> None:
     """One row per named ``[N,C,H,W]`` tensor, N columns."""
     plt = _plt()
@@ -142,7 +133,7 @@ def _grid(rows: list[tuple[str, torch.Tensor]], path: Path, title: str) -> None:
     for i, (name, t) in enumerate(rows):
         for j in range(n):
             ax = axes[i, j]
-            ax.imshow(_vis(name, t[j]), interpolation="nearest")
+            ax.imshow(to_array(t[j], "normal" if name.startswith("normal") else "rgb"), interpolation="nearest")
             ax.set_xticks([]), ax.set_yticks([])
             if j == 0:
                 ax.set_ylabel(name, fontsize=7)
@@ -220,7 +211,7 @@ def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
 
     def shown(out, k):  # shading (mean 0.75 by BWS, peaks above 1) divided by each image's maximum
         x = foreground(out, k)
-        return x / x.amax((1, 2, 3), keepdim=True).clamp_min(1e-6) if k == "shading" else x
+        return over_max(x) if k == "shading" else x
 
     for name, out in outs.items():
         rows = [("input", batch["image"])] + [(k + (" / max" if k == "shading" else ""), shown(out, k))

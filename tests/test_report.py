@@ -7,7 +7,7 @@ import yaml
 
 from disent import report
 from disent.eval.ablation import ablation_table, to_markdown
-from disent.eval.runs import find_runs
+from disent.runs import find_runs
 from disent.eval.stability import training_stability
 
 
@@ -119,7 +119,7 @@ def test_run_status_callback_marks_nan(tmp_path):
     from hydra.core.utils import JobReturn, JobStatus
     from omegaconf import OmegaConf
 
-    from disent.eval.runs import Run, RunStatus
+    from disent.runs import Run, RunStatus
 
     d = make_run(tmp_path, "r", losses=(1.0, 0.5))  # the log itself looks healthy
     hydra_cfg = OmegaConf.create({"hydra": {"runtime": {"output_dir": str(d)}}})
@@ -158,7 +158,7 @@ def test_outcome_catches_early_explosion_and_dead_output(tmp_path):
 
 
 def test_pick_runs_prefers_the_longest_trained_run(tmp_path):
-    from disent.eval.runs import pick_runs
+    from disent.runs import pick_runs
 
     short = make_run(tmp_path, "short", "explicit", seed=0, eval_={"steps": 30})
     long = make_run(tmp_path, "long", "explicit", seed=1, eval_={"steps": 700})

@@ -180,7 +180,7 @@ def main(argv=None):
     ap.add_argument("--cache-dir", default=None)
     ap.add_argument("--run", nargs="*", default=[],
                     help="trained run folders to apply to the crops; 'auto': the plain explicit and implicit "
-                         "runs under outputs/ and multirun/ (disent.eval.runs.pick_runs)")
+                         "runs under outputs/ and multirun/ (disent.runs.pick_runs)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     out = Path(args.out)
@@ -214,7 +214,7 @@ def main(argv=None):
     print(f"wrote {out / 'pseudo_gt.json'}, {out / 'pseudo_gt.md'} and {out / 'pseudo_gt.png'}")
     runs = args.run
     if runs == ["auto"]:
-        from disent.eval.runs import find_runs, pick_runs
+        from disent.runs import find_runs, pick_runs
 
         runs = [r.path for k, r in pick_runs(find_runs()).items() if k in ("explicit", "implicit")]
         print("runs:", [str(r) for r in runs] or "none found")

@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from disent.data import pseudo_gt as pg
+from disent.images import over_max, to_array
 
 RELIGHT_NAMES = ("flash_az-60", "flash_az+0", "flash_az+60", "top", "rim_both")
 
@@ -48,15 +49,6 @@ def gap_metrics(model, batch: dict) -> dict:
     return m
 
 
-def _show(x: torch.Tensor, kind: str) -> np.ndarray:
-    x = x.detach().float()
-    if kind == "normal":
-        x = torch.where(x.abs().sum(0, keepdim=True) > 0, 0.5 * x + 0.5, torch.zeros_like(x))
-    if x.shape[0] == 1:
-        x = x.expand(3, -1, -1)
-    return x.clamp(0, 1).permute(1, 2, 0).numpy()
-
-
 @torch.no_grad()
 def figures(model, batch: dict, names: list[str], out: Path, tag: str, budget: str = ""):
     """``decomposition_<tag>.png`` and (models with a light code) ``relight_<tag>.png``."""
@@ -72,12 +64,12 @@ def figures(model, batch: dict, names: list[str], out: Path, tag: str, budget: s
     if "normal" in res:
         cols += [("matte", res["matte"], "gray"), ("normal", res["normal"], "normal"),
                  ("normal_pseudo", batch["normal_pseudo"], "normal"), ("albedo", res["albedo"], "rgb"),
-                 ("shading / max", res["shading"] / res["shading"].amax((1, 2, 3), keepdim=True).clamp_min(1e-6), "rgb")]
+                 ("shading / max", over_max(res["shading"]), "rgb")]
     n = len(names)
     fig, axes = plt.subplots(n, len(cols), figsize=(1.3 * len(cols), 1.3 * n), squeeze=False)
     for i in range(n):
         for j, (title, x, kind) in enumerate(cols):
-            axes[i, j].imshow(_show(x[i], kind))
+            axes[i, j].imshow(to_array(x[i], kind))
             axes[i, j].axis("off")
             if i == 0:
                 axes[i, j].set_title(title, fontsize=7)
@@ -92,7 +84,7 @@ def figures(model, batch: dict, names: list[str], out: Path, tag: str, budget: s
     relit = [relight(model, batch["image"], named_light(k).expand(n, -1, -1), method="transfer") for k in RELIGHT_NAMES]
     for i in range(n):
         for j, (title, x) in enumerate([("input", batch["image"])] + list(zip(RELIGHT_NAMES, relit))):
-            axes[i, j].imshow(_show(x[i], "rgb"))
+            axes[i, j].imshow(to_array(x[i], "rgb"))
             axes[i, j].axis("off")
             if i == 0:
                 axes[i, j].set_title(title, fontsize=7)

@@ -12,28 +12,7 @@ import torch
 
 from . import LIGHT_NAMES, SynthFaces
 from .synth import ATTRIBUTES, EFFECTS
-
-
-def _rgb(x: torch.Tensor) -> torch.Tensor:
-    """Any layer -> displayable RGB ``[3, H, W]`` in [0, 1]."""
-    if x.shape[0] == 1:
-        return x.expand(3, -1, -1)
-    if x.shape[0] == 2:  # uv
-        return torch.cat([x, torch.zeros_like(x[:1])])
-    return x
-
-
-def _normal_rgb(n: torch.Tensor) -> torch.Tensor:
-    return torch.where(n.abs().sum(0, keepdim=True) > 0, 0.5 * n + 0.5, torch.zeros_like(n))
-
-
-def _row(tiles: list[torch.Tensor], pad: int = 2) -> torch.Tensor:
-    H = tiles[0].shape[1]
-    sep = torch.ones(3, H, pad)
-    out = []
-    for t in tiles:
-        out += [t.clamp(0, 1), sep]
-    return torch.cat(out[:-1], 2)
+from disent.images import display, strip
 
 
 def contact_sheet(resolution: int = 64, seed: int = 0) -> tuple[torch.Tensor, list[str]]:
@@ -45,26 +24,26 @@ def contact_sheet(resolution: int = 64, seed: int = 0) -> tuple[torch.Tensor, li
         tiles = []
         for name in layers:
             v = b[name][k]
-            tiles.append(_normal_rgb(v) if name.startswith("normal") else _rgb(v))
-        tiles += [_normal_rgb(b["normal_pseudo"][k]), _rgb(b["mask_pseudo"][k]), _rgb(b["uv_pseudo"][k]),
-                  _normal_rgb(b["normal_uv_pseudo"][k])]
-        rows.append(_row(tiles))
+            tiles.append(display(v, "normal" if name.startswith("normal") else "rgb"))
+        tiles += [display(b["normal_pseudo"][k], "normal"), display(b["mask_pseudo"][k]), display(b["uv_pseudo"][k]),
+                  display(b["normal_uv_pseudo"][k], "normal")]
+        rows.append(strip(tiles))
     labels.append("GT: image bg matte albedo shading normal uv albedo_uv normal_uv | pseudo: normal mask uv normal_uv")
     tiles = []
     for a in ATTRIBUTES:  # each attribute off / on, everything else fixed
         for s in (0.0, 1.0):
             tiles.append(train.sample(8, light="flash_az+0", **{a: s})["image"])
-    rows.append(_row(tiles))
+    rows.append(strip(tiles))
     labels.append("attributes off/on: " + ", ".join(ATTRIBUTES))
     bank = SynthFaces("lightbank", resolution, seed)
     lb = bank.get_batch(range(len(LIGHT_NAMES) * 1, len(LIGHT_NAMES) * 2))  # identity 0, frontal pose
     n = len(LIGHT_NAMES) // 2
-    rows.append(_row(list(lb["image"][:n])))
-    rows.append(_row(list(lb["image"][n:2 * n])))
+    rows.append(strip(list(lb["image"][:n])))
+    rows.append(strip(list(lb["image"][n:2 * n])))
     labels.append("light bank: " + " ".join(LIGHT_NAMES))
     tiles = [train.sample(5)["image"]] + [train.sample(5, effects={e: 1.0})["image"] for e in EFFECTS]
     tiles += [train.sample(6)["image"]] + [train.sample(6, effects={e: 0.5})["image"] for e in EFFECTS]
-    rows.append(_row(tiles))
+    rows.append(strip(tiles))
     labels.append("effects at severity 1 and 0.5: none " + " ".join(EFFECTS))
     W = max(r.shape[2] for r in rows)
     rows = [torch.cat([r, torch.ones(3, r.shape[1], W - r.shape[2])], 2) for r in rows]

@@ -27,9 +27,9 @@ import sys
 from pathlib import Path
 
 import torch
-import torch.nn.functional as F
 
 from disent.edit.traversal import ATTRIBUTES
+from disent.images import over_max, save_image, strip
 
 # ----------------------------------------------------------------------------- images
 def load_image(path: Path, resolution: int, align: bool = True) -> torch.Tensor:
@@ -40,20 +40,6 @@ def load_image(path: Path, resolution: int, align: bool = True) -> torch.Tensor:
 
     crop, _ = pg.aligned_crop(path, pg.PseudoGTSettings(resolution=resolution), align)
     return torch.from_numpy(crop.astype("float32") / 255.0).permute(2, 0, 1)
-
-
-def save_image(x: torch.Tensor, path: Path) -> None:
-    from PIL import Image
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    arr = (x.detach().clamp(0, 1).permute(1, 2, 0) * 255).round().byte().numpy()
-    Image.fromarray(arr).save(path)
-
-
-def strip(images: list[torch.Tensor], pad: int = 2) -> torch.Tensor:
-    """Images ``[3,H,W]`` side by side with a white gap."""
-    gap = torch.ones(3, images[0].shape[1], pad)
-    return torch.cat([t for im in images for t in (im, gap)][:-1], 2)
 
 
 def load_inputs(specs: list[str], resolution: int, seed: int = 0, align: bool = True) -> list[tuple[str, torch.Tensor]]:
@@ -185,8 +171,7 @@ def cmd_relight(a) -> None:
     for i, (name, x) in enumerate(inputs):
         for m, r in results.items():
             save_image(r[i], out / f"{name}_{m}_{label}.png")
-        shade = lambda s: (s / s.amax().clamp_min(1e-6)).clamp(0, 1)  # noqa: E731  shading shown normalised
-        save_image(strip([x, shade(est["shading"][i]), shade(S_transfer[i])] + [results[m][i] for m in a.method]),
+        save_image(strip([x, over_max(est["shading"][i]), over_max(S_transfer[i])] + [results[m][i] for m in a.method]),
                    out / f"{name}_relight_{label}_strip.png")
     print(f"{len(inputs)} image(s) relit ({label}) by {', '.join(a.method)}; strips (input | S_target | "
           f"S_transfer | results) in {out}/")

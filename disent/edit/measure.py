@@ -38,6 +38,7 @@ from disent.edit.classifier import MeasureNet
 from disent.edit.relight import ratio_relight, transfer_lighting, with_light
 from disent.edit.traversal import ATTRIBUTES, FACE_CODES, DEFAULT_MANIFOLDS, encode_pool, model_kind, traverse
 from disent.eval.metrics import reconstruction_metrics
+from disent.images import to_array
 from disent.render import sh_shading
 
 DEFAULT_LAMBDAS = (1.0, 0.3, 0.07, 0.05, 0.03, 0.01)  # the paper's 0.07-0.01, and two smaller steps
@@ -325,7 +326,7 @@ def image_grid(columns: list[torch.Tensor], titles: list[str], path, scale: floa
     for j, (col, title) in enumerate(zip(columns, titles)):
         for i in range(n):
             ax = axes[i, j]
-            ax.imshow(col[i].detach().clamp(0, 1).permute(1, 2, 0).numpy())
+            ax.imshow(to_array(col[i]))
             ax.set_xticks([])
             ax.set_yticks([])
             if i == 0:

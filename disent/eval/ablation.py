@@ -11,7 +11,7 @@ import json
 import math
 from pathlib import Path
 
-from disent.eval.runs import RUN_ROOTS, Run, find_runs
+from disent.runs import RUN_ROOTS, Run, find_runs
 
 # (key in eval.json, column title, lower is better)
 COLUMNS = (

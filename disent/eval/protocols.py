@@ -139,7 +139,7 @@ def plot_sh_variance(result: dict, path) -> None:
 
 def main(argv=None):
     from disent.data import SynthFaces
-    from disent.eval.runs import RUN_ROOTS, find_runs, load_models
+    from disent.runs import RUN_ROOTS, find_runs, load_models
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", default="reports/eval")

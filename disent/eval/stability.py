@@ -209,7 +209,7 @@ def bws_stats(out: dict, gt: dict) -> dict:
 def bws_study(runs, dataset, n: int = 64) -> dict:
     """:func:`bws_stats` for every finished run of the explicit/implicit models, with its BWS setting and batch size."""
     from disent.eval.ablation import budget
-    from disent.eval.runs import load_models
+    from disent.runs import load_models
 
     rows, used = [], []
     batch = next(iter(batches(dataset, n, n)))
@@ -483,7 +483,7 @@ def plot_training(res: dict, path) -> None:
 
 # ----------------------------------------------------------------------------- command
 def main(argv=None):
-    from disent.eval.runs import RUN_ROOTS, find_runs, load_models
+    from disent.runs import RUN_ROOTS, find_runs, load_models
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("studies", nargs="*", default=["conditioning", "ood", "bws", "training"])

@@ -1,0 +1,65 @@
+"""Tensors as pictures: one place for how a layer is shown and saved.
+
+A map ``[C,H,W]`` (``C`` = 1, 2 or 3) is shown as an ``[H,W,3]`` array in [0,1]: a one-channel map (matte, grey
+shading) is repeated over RGB, a UV map shows u red and v green, a normal map goes from [-1,1] to [0,1] with its zero vectors (pixels no model
+claims) left black, and everything is clipped to [0,1].  Shading under BWS has mean 0.75 and peaks above 1:
+:func:`over_max` divides it by each image's maximum before it is shown.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+
+def display(x: torch.Tensor, kind: str = "rgb") -> torch.Tensor:
+    """``[C,H,W]`` (or ``[B,C,H,W]``) -> the same with 3 channels in [0,1]; ``kind="normal"`` maps [-1,1] to [0,1]."""
+    x = x.detach().float().cpu()
+    if kind == "normal":
+        x = torch.where(x.abs().sum(-3, keepdim=True) > 0, 0.5 * x + 0.5, torch.zeros_like(x))
+    if x.shape[-3] == 1:
+        x = x.expand(*x.shape[:-3], 3, *x.shape[-2:])
+    elif x.shape[-3] == 2:  # a UV map: u red, v green
+        x = torch.cat([x, torch.zeros_like(x[..., :1, :, :])], -3)
+    return x[..., :3, :, :].clamp(0, 1)
+
+
+def to_array(x: torch.Tensor, kind: str = "rgb") -> np.ndarray:
+    """``[C,H,W]`` -> ``[H,W,3]`` float array in [0,1], for matplotlib's ``imshow``."""
+    return display(x, kind).permute(1, 2, 0).numpy()
+
+
+def to_uint8(x: torch.Tensor | np.ndarray, kind: str = "rgb") -> np.ndarray:
+    """``[C,H,W]`` tensor (or an ``[H,W,3]`` array in [0,1]) -> ``[H,W,3]`` uint8, rounded."""
+    arr = to_array(x, kind) if torch.is_tensor(x) else np.clip(x, 0, 1)
+    return (arr * 255).round().astype(np.uint8)
+
+
+def save_image(x: torch.Tensor | np.ndarray, path, kind: str = "rgb") -> None:
+    """Write a map (or an ``[H,W,3]`` uint8 / [0,1] array) as a PNG, creating its folder."""
+    from PIL import Image
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(x if isinstance(x, np.ndarray) and x.dtype == np.uint8 else to_uint8(x, kind)).save(path)
+
+
+def over_max(shading: torch.Tensor) -> torch.Tensor:
+    """Shading ``[(B,)C,H,W]`` divided by each image's maximum, for display."""
+    return shading / shading.amax((-3, -2, -1), keepdim=True).clamp_min(1e-6)
+
+
+def strip(images: list[torch.Tensor], pad: int = 2) -> torch.Tensor:
+    """Maps ``[3,H,W]`` side by side with a white gap of ``pad`` pixels."""
+    gap = torch.ones(3, images[0].shape[1], pad)
+    return torch.cat([t for im in images for t in (display(im), gap)][:-1], 2)
+
+
+def sample_grid(batch: dict, out: dict, columns, n: int = 8) -> np.ndarray:
+    """uint8 ``[n*H, k*W, 3]``: one row per image, one column per name in ``columns`` that the model has
+    (``image`` from the batch, the rest from its output)."""
+    cols = [display((batch if name == "image" else out)[name][:n], "normal" if name == "normal" else "rgb")
+            for name in columns if name == "image" or out.get(name) is not None]
+    grid = torch.cat([torch.cat(list(c), 1) for c in cols], 2)  # [3, n*H, k*W]
+    return to_uint8(grid.permute(1, 2, 0).numpy())
