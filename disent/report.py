@@ -563,8 +563,8 @@ BENCH_RATES = (("train", "train with D"), ("train_past_margin", "train, fakes pa
 
 
 def _bench_models(models: dict) -> tuple[dict, list]:
-    """The models in ``disent.models.bench.MODELS`` order, and the rates of ``BENCH_RATES`` any of them has."""
-    from disent.models.bench import MODELS
+    """The models in ``disent.bench.models.MODELS`` order, and the rates of ``BENCH_RATES`` any of them has."""
+    from disent.bench.models import MODELS
 
     models = dict(sorted(models.items(), key=lambda kv: MODELS.index(kv[0]) if kv[0] in MODELS else len(MODELS)))
     return models, [(k, label) for k, label in BENCH_RATES

@@ -12,8 +12,6 @@ from __future__ import annotations
 import importlib
 import json
 import math
-import queue
-import threading
 import time
 from pathlib import Path
 
@@ -23,6 +21,7 @@ from tqdm import tqdm
 
 from disent import losses as L
 from disent.models import Discriminator, build_model
+from disent.runtime import Prefetcher, tune_malloc
 from disent.runs import (MetricsLog, RunLock, load_checkpoint, rng_state, save_checkpoint, save_samples,
                          set_rng_state, write_git_revision)
 
@@ -75,84 +74,6 @@ def step_indices(seed: int, step: int, steps_per_epoch: int, batch_size: int, n:
 def to_device(batch: dict, device, channels_last: bool) -> dict:
     fmt = torch.channels_last if channels_last else torch.contiguous_format
     return {k: (v.to(device).contiguous(memory_format=fmt) if v.dim() == 4 else v.to(device)) for k, v in batch.items()}
-
-
-class Prefetcher:
-    """``make_batch(step)`` for ``steps`` in order, computed up to ``depth`` steps ahead in a
-    background thread while the training step runs (torch ops release the GIL).  ``get(step)``
-    returns the batch of ``step`` and checks that the steps are consumed in the order given, so
-    prefetching never changes which images a step sees.  ``depth=0``: ``make_batch`` in the caller.
-    An exception in the thread is raised again by ``get``.
-    """
-
-    def __init__(self, make_batch, steps, depth: int = 2):
-        self.make_batch, self.depth = make_batch, depth
-        self.steps = iter(steps)
-        if depth > 0:
-            # torch initialises a thread's OpenMP count lazily from the last set_num_threads of ANY
-            # thread; initialise this one now, so the worker's set_num_threads(1) leaves it alone
-            torch.get_num_threads()
-            self.queue: queue.Queue = queue.Queue(maxsize=depth)
-            self.stopped = threading.Event()
-            self.thread = threading.Thread(target=self._work, name="prefetch", daemon=True)
-            self.thread.start()
-
-    def _work(self) -> None:
-        torch.set_num_threads(1)  # rendering on one core; the training thread keeps its own count
-        try:
-            for step in self.steps:
-                item = (step, self.make_batch(step))
-                while not self.stopped.is_set():
-                    try:
-                        self.queue.put(item, timeout=0.1)
-                        break
-                    except queue.Full:
-                        pass
-                if self.stopped.is_set():
-                    return
-        except BaseException as e:  # handed to the training thread
-            self.queue.put((None, e))
-
-    def get(self, step: int) -> dict:
-        if self.depth == 0:
-            got = next(self.steps)
-            batch = self.make_batch(got)
-        else:
-            got, batch = self.queue.get()
-            if got is None:
-                raise batch
-        if got != step:
-            raise RuntimeError(f"prefetcher out of order: asked for step {step}, has step {got}")
-        return batch
-
-    def close(self) -> None:
-        if self.depth > 0:
-            self.stopped.set()
-            while self.thread.is_alive():
-                try:
-                    self.queue.get(timeout=0.1)
-                except queue.Empty:
-                    pass
-            self.thread.join()
-
-
-def tune_malloc() -> bool:
-    """Keep freed memory in glibc's heap instead of returning it to the kernel (process-wide).
-
-    glibc serves blocks above its mmap threshold (at most 32 MB, one ``[64,32,64,64]``
-    float32 activation) with fresh ``mmap`` pages, so every large activation page-faults
-    on first touch.  With mmap off and no trimming they are reused.  No-op off glibc.
-    Used by training (``train.malloc_tuning``) and by ``python -m disent.bench``.
-    """
-    import ctypes
-    import ctypes.util
-
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        M_TRIM_THRESHOLD, M_MMAP_MAX = -1, -4  # <malloc.h>
-        return bool(libc.mallopt(M_MMAP_MAX, 0) and libc.mallopt(M_TRIM_THRESHOLD, 2**31 - 1))
-    except (OSError, AttributeError):
-        return False
 
 
 OPTIMIZERS = {"rmsprop": torch.optim.RMSprop, "adam": torch.optim.Adam}

@@ -7,7 +7,8 @@ import torch
 import torch.nn.functional as F
 
 from disent import bench
-from disent.models.bench import time_to_accuracy
+from disent.bench.__main__ import main as bench_main
+from disent.bench.models import time_to_accuracy
 from disent.render import sh_shading
 
 RATES = ("train_img_s", "train_no_d_img_s", "infer_img_s")
@@ -18,7 +19,7 @@ def tiny_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("bench") / "bench.json"
     threads = torch.get_num_threads()
     try:
-        bench.main(["peak", "models", "profile", "--models", "explicit", "implicit", "--rounds", "1", "--peak-n", "256",
+        bench_main(["peak", "models", "profile", "--models", "explicit", "implicit", "--rounds", "1", "--peak-n", "256",
                     "--train-batch", "2", "--infer-batches", "1", "64", "--threads", "1", "--no-bf16", "--out", str(out)])
     finally:
         torch.set_num_threads(threads)
@@ -80,7 +81,7 @@ def test_bf16_figures_and_bf16_stays_close_to_float32():
     """bfloat16 autocast beside float32: rates, and the same weights give nearly the same losses and outputs."""
     from argparse import Namespace
 
-    from disent.models.bench import add_fractions, bench_bf16, synth_batch
+    from disent.bench.models import add_fractions, bench_bf16, synth_batch
 
     args = Namespace(train_batch=2, rounds=1, no_channels_last=False, peak_n=128)
     fig = bench_bf16("explicit", args, "cpu", lambda: None, synth_batch(2, 64, "cpu", True))
@@ -95,7 +96,7 @@ def test_bf16_figures_and_bf16_stays_close_to_float32():
 
 def test_loader_figure_renders_n_fresh_images_per_round(monkeypatch):
     from disent.data import SynthFaces
-    from disent.models.bench import loader_img_s
+    from disent.bench.models import loader_img_s
 
     seen = []
     monkeypatch.setattr(SynthFaces, "get_batch", lambda self, idx: seen.append(list(idx)))
@@ -108,7 +109,7 @@ def test_loader_figure_renders_n_fresh_images_per_round(monkeypatch):
 def test_flops_scale_with_resolution():
     """The FLOP counter sees every convolution: 4x the pixels, ~4x the convolution FLOPs."""
     from disent.models import build_model
-    from disent.models.bench import count_flops, model_cfg
+    from disent.bench.models import count_flops, model_cfg
 
     f = {}
     for res in (16, 32):

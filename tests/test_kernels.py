@@ -8,7 +8,7 @@ import torch.nn.functional as F
 
 from disent.models import build_model
 from disent.models import kernels as K
-from disent.models.bench import model_cfg
+from disent.bench.models import model_cfg
 
 
 @pytest.mark.parametrize("c,o", [(8, 3), (5, 4), (6, 5)])  # phase form, and a wide layer as written

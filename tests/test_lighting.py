@@ -10,7 +10,7 @@ from disent.lighting.posterior import (
     LogPosterior, TruncatedT, gaussian_posterior, integrated_time, prepare, robust_fit, sample_posterior,
 )
 from disent.lighting.texture import TextureModel
-from disent.lighting.threads import single_core
+from disent.runtime import single_core
 from disent.render import sh_from_directions, sh_shading
 
 
@@ -285,7 +285,7 @@ def test_cli_writes_intervals_and_diagnostics(tmp_path):
 
 
 def test_single_core_sets_and_restores_torch_and_blas_threads():
-    from disent.lighting.threads import _openblas
+    from disent.runtime import _openblas
 
     outer = torch.get_num_threads()
     torch.set_num_threads(2)

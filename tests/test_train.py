@@ -16,7 +16,8 @@ from disent import losses as L
 from disent.models import load_run
 from disent.runs import load_checkpoint
 from disent import train as T
-from disent.train import NonFiniteLoss, Prefetcher, run, step_indices
+from disent.runtime import Prefetcher
+from disent.train import NonFiniteLoss, run, step_indices
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ["+experiment=smoke", "data.train_size=8", "data.test_size=4", "train.eval_size=4",

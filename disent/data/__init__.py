@@ -26,7 +26,7 @@ from collections import OrderedDict
 import torch
 from torch.utils.data import Dataset
 
-from .face_model import single_thread
+from disent.runtime import single_thread
 from .synth import (ATTR_PRIOR, ATTRIBUTES, EFFECTS, LIGHT_BANK, LIGHT_NAMES, render_scenes, scene_params)
 
 SPLITS = {"train": 20_000, "val": 1_000, "test": 1_000, "lightbank": None,

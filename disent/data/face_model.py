@@ -34,11 +34,13 @@ first few.
 from __future__ import annotations
 
 import math
-from contextlib import ContextDecorator
+
 from dataclasses import dataclass, field
 from functools import lru_cache
 
 import torch
+
+from disent.runtime import single_thread
 
 GRID_U, GRID_V = 41, 53
 NECK_ROWS = 5  # the last rows of the grid: a short neck below the head
@@ -57,20 +59,6 @@ NOSE_TIP_Y, NOSE_BASE_Y = -0.20, -0.27
 MOUTH_Y, MOUTH_W = -0.47, 0.17
 CHIN_Y = -0.80
 HAIRLINE_Y = 0.47
-
-
-class single_thread(ContextDecorator):
-    """Run torch on one thread inside (generation is written for one core: on a shared
-    machine, intra-op threads only add synchronisation to these small tensor ops)."""
-
-    def __enter__(self):
-        self.n = torch.get_num_threads()
-        if self.n != 1:
-            torch.set_num_threads(1)
-
-    def __exit__(self, *exc):
-        if self.n != 1:
-            torch.set_num_threads(self.n)
 
 
 def _warp(s: torch.Tensor, a: float) -> torch.Tensor:

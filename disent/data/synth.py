@@ -22,7 +22,8 @@ import torch.nn.functional as F
 from disent.render import C2, C4, composite, image_formation, sh_basis, sh_from_directions, sh_matrix, solve_normal_equations
 
 from .face_model import (BROW_X, BROW_Y, CHIN_Y, EYE_H, EYE_W, EYE_X, EYE_Y, GRID_U, GRID_V, HAIRLINE_Y, MOUTH_W, MOUTH_Y,
-                         NOSE_BASE_Y, SLIT_ROWS, face_model, is_neck, layout, single_thread, uv_to_angles)
+                         NOSE_BASE_Y, SLIT_ROWS, face_model, is_neck, layout, uv_to_angles)
+from disent.runtime import single_thread
 from .raster import (grid_faces, grid_to_uv_map, grid_vertex_normals, interpolate_covered, paste, pick, rasterize_grids,
                      sample_texture, to_camera, unit_planes)
 

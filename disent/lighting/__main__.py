@@ -15,7 +15,7 @@ from disent.lighting.experiments import figures_for, noisy, run_all
 from disent.lighting.order import select_order
 from disent.lighting.posterior import prepare, sample_posterior
 from disent.lighting.texture import texture_for
-from disent.lighting.threads import single_core
+from disent.runtime import single_core
 
 log = logging.getLogger(__name__)
 

@@ -355,7 +355,7 @@ def speed(ds=None, batch: int = 256, rounds: int = 3) -> dict:
 def run_all(split: str = "test", resolution: int = 64, seed: int = 0, quick: bool = False) -> dict:
     """Every experiment of the report section; writes ``reports/lighting/*``."""
     from disent.data import SynthFaces
-    from disent.lighting.threads import single_core
+    from disent.runtime import single_core
 
     with single_core():
         return _run_all(SynthFaces(split, resolution, seed), resolution, seed, quick)

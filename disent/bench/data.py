@@ -13,7 +13,7 @@ from __future__ import annotations
 import statistics
 import time
 
-from disent.bench import print_table, register
+from disent.bench import print_table
 
 
 def generation_rates(ds, n: int, rounds: int) -> tuple[float, float]:
@@ -32,7 +32,7 @@ def generation_rates(ds, n: int, rounds: int) -> tuple[float, float]:
 
 def bench_data(args) -> dict:
     from disent.data import SynthFaces
-    from disent.data.face_model import single_thread
+    from disent.runtime import single_thread
     from disent.data.synth import render_scenes
 
     out = {"threads": 1}
@@ -52,5 +52,3 @@ def bench_data(args) -> dict:
     print_table("SynthFaces generation (one thread, fresh indices, all layers + pseudo-GT)", out)
     return out
 
-
-register("data", bench_data)

@@ -34,7 +34,7 @@ import torch
 from omegaconf import OmegaConf
 from torch.utils.flop_counter import FlopCounterMode
 
-from disent.bench import matmul, print_table, register, timed_rounds
+from disent.bench import matmul, print_table, timed_rounds
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 MODELS = ("explicit", "implicit", "baseline")
@@ -110,7 +110,7 @@ def loader_img_s(n: int, resolution: int, rounds: int) -> tuple[float, float]:
     thread runs it (one torch thread): (images per wall second, images per CPU second of
     this process; the second is the one a loaded machine leaves nearly unchanged)."""
     from disent.data import SynthFaces
-    from disent.data.bench import generation_rates
+    from disent.bench.data import generation_rates
 
     return generation_rates(SynthFaces("train", resolution=resolution, seed=0), n, rounds)
 
@@ -363,6 +363,3 @@ def bench_time_to_accuracy(args) -> dict:
     return out
 
 
-register("models", bench_models)
-register("profile", bench_profile)
-register("time_to_accuracy", bench_time_to_accuracy)

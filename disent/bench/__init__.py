@@ -1,0 +1,102 @@
+"""The benchmarks: ``python -m disent.bench [SUBCOMMAND ...]`` (:mod:`disent.bench.__main__`).
+
+This module holds what every benchmark shares (timing, the matmul peak, the JSON they write); the
+subcommands live beside it: :mod:`~disent.bench.models` (models, profile, time_to_accuracy),
+:mod:`~disent.bench.data` (SynthFaces generation), :mod:`~disent.bench.lighting` (L-hat and the posterior)
+and, in ``__main__``, the matmul peak and the shading layer.
+
+Every subcommand prints a table and merges its figures into ``reports/bench.json``, or
+``reports/bench-cuda.json`` with ``--device cuda``, so that GPU figures sit beside the CPU ones
+(the report reads every ``reports/bench*.json``).  Benchmarks print figures; no test asserts a time.
+The machine is shared and noisy, so each figure is the median of several rounds.
+"""
+from __future__ import annotations
+
+import json
+import os
+import platform
+import statistics
+import time
+from pathlib import Path
+from typing import Callable, Sequence
+
+import torch
+
+BENCH_JSON = Path("reports/bench.json")
+DEVICE = "cpu"  # set by --device
+
+
+def bench_json(device: str) -> Path:
+    """Where a run on ``device`` writes: ``reports/bench.json`` on the CPU, ``reports/bench-cuda.json``
+    on any GPU (``cuda:N`` included), so the two never overwrite each other."""
+    kind = torch.device(device).type
+    return BENCH_JSON if kind == "cpu" else BENCH_JSON.with_name(f"bench-{kind}.json")
+
+
+def timed_rounds(fns: Sequence[Callable[[], object]], rounds: int = 5, warmup: int = 1) -> list[list[float]]:
+    """Wall seconds of each of ``fns`` in every round: within a round the functions run in turn,
+    so on a shared machine they see the load of the same moments.  ``warmup`` untimed rounds first."""
+    times = [[] for _ in fns]
+    for r in range(warmup + rounds):
+        for fn, out in zip(fns, times):
+            t0 = time.perf_counter()
+            fn()
+            if r >= warmup:
+                out.append(time.perf_counter() - t0)
+    return times
+
+
+def median_time(fn: Callable[[], object], rounds: int = 5, warmup: int = 1) -> float:
+    """Median wall time in seconds of ``fn()`` over ``rounds`` after ``warmup`` calls."""
+    return statistics.median(timed_rounds([fn], rounds, warmup)[0])
+
+
+def matmul(n: int = 2048, device: str = "cpu") -> Callable[[], None]:
+    """One fp32 ``n x n`` matmul (``2 n^3`` FLOPs), synchronised: the peak's yardstick."""
+    a = torch.randn(n, n, device=device)
+    b = torch.randn(n, n, device=device)
+    sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
+
+    def mm():
+        a @ b
+        sync()
+
+    return mm
+
+
+def measure_peak_gflops(n: int = 2048, rounds: int = 5, device: str = "cpu") -> float:
+    """This machine's fp32 matmul peak in GFLOP/s at the current thread count."""
+    return 2 * n**3 / median_time(matmul(n, device), rounds) / 1e9
+
+
+def machine_info() -> dict:
+    return {
+        "torch": torch.__version__,
+        "threads": torch.get_num_threads(),
+        "device": DEVICE if DEVICE == "cpu" else f"{DEVICE} ({torch.cuda.get_device_name(DEVICE)})",
+        "cpu": platform.processor() or platform.machine(),
+        "cpu_count": os.cpu_count(),
+    }
+
+
+def save(section: str, figures: dict, path: Path = BENCH_JSON) -> None:
+    """Merge ``figures`` under ``section`` into the benchmark JSON (atomic write).
+
+    A ``"top"`` entry of ``figures`` is merged into the top level instead (e.g. ``peak_gflops``).
+    """
+    path.parent.mkdir(parents=True, exist_ok=True)
+    data = json.loads(path.read_text()) if path.exists() else {}
+    data.update(machine_info())
+    figures = dict(figures)
+    data.update(figures.pop("top", {}))
+    data[section] = figures
+    from disent.runs import atomic_write
+
+    atomic_write(path, lambda f: f.write(json.dumps(data, indent=2, sort_keys=True).encode()))
+
+
+def print_table(title: str, rows: dict) -> None:
+    print(f"\n{title}")
+    width = max(len(k) for k in rows)
+    for k, v in rows.items():
+        print(f"  {k:<{width}}  {v:,.4g}" if isinstance(v, (int, float)) else f"  {k:<{width}}  {v}")
