@@ -4,7 +4,7 @@
     python -m disent.photos a.jpg b.png --run implicit  # a shipped name, a run folder or a checkpoint
 
 Every image file under each PATH goes through the pseudo-ground-truth pipeline
-(:mod:`disent.data.pseudo_gt`: EXIF rotation, landmarks, the training crop, the morphable-model fit) and
+(:mod:`disent.data.photos.pseudo_gt`: EXIF rotation, landmarks, the training crop, the morphable-model fit) and
 then through a trained model.  Into a run folder (``--out``, default ``outputs/photos/<date>/<time>-<pid>``)
 it writes, per photo ``NNN_<name>/``: ``crop.png``, ``normal_pseudo.png``, ``mask_pseudo.png``,
 ``landmarks.json`` (the 68 points in the original photo's pixels and in the crop), the decomposition
@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from disent.data import pseudo_gt as pg
+from disent.data.photos import pseudo_gt as pg
 from disent.images import over_max, save_image
 
 RELIGHT = ("flash_az-60", "top", "flash_az+60")  # named lights of the bank (python -m disent.edit lights)
@@ -32,7 +32,7 @@ SHOWN = 16  # rows of decomposition.png
 
 def collect(paths: list[str]) -> list[Path]:
     """Image files of each folder (recursively) and each file given; a missing PATH is an error."""
-    from disent.data.folder import list_images
+    from disent.data.photos.folder import list_images
 
     files = []
     for p in map(Path, paths):
@@ -132,7 +132,7 @@ def main(argv=None) -> None:
     used = [r for r in records if r.used]
     report = {"run": a.run, "faces": a.faces, "upsample": a.upsample, "summary": summary, "photos": []}
     if used:
-        from disent.data.photos_models import figures, photo_batch
+        from disent.eval.photos import figures, photo_batch
 
         batch = photo_batch(used)
         est = model(batch["image"])

@@ -9,7 +9,6 @@ that same order; every ``train.val_every`` steps a fixed validation subset is sc
 """
 from __future__ import annotations
 
-import importlib
 import json
 import math
 import time
@@ -20,6 +19,7 @@ from omegaconf import OmegaConf
 from tqdm import tqdm
 
 from disent import losses as L
+from disent.data import get_batch, make_dataset
 from disent.models import Discriminator, build_model
 from disent.runtime import Prefetcher, tune_malloc
 from disent.runs import (MetricsLog, RunLock, load_checkpoint, rng_state, save_checkpoint, save_samples,
@@ -39,26 +39,6 @@ def nonfinite_tensors(*modules) -> list[str]:
              if v.is_floating_point()]
     finite = torch.stack([v.isfinite().all() for _, v in named]).tolist() if named else []
     return [k for (k, _), ok in zip(named, finite) if not ok]
-
-
-def make_dataset(cfg_data, split: str, size: int | None):
-    """The data set named by ``data.name``: SynthFaces, or ``disent.data.<name>.build(cfg, split, size)``."""
-    if cfg_data.name == "synth":
-        from disent.data import SynthFaces
-
-        effects = OmegaConf.to_container(cfg_data.effects) if cfg_data.get("effects") else None
-        return SynthFaces(split, resolution=cfg_data.resolution, seed=cfg_data.seed, size=size, effects=effects)
-    return importlib.import_module(f"disent.data.{cfg_data.name}").build(cfg_data, split, size)
-
-
-def get_batch(dataset, indices, keys=TRAIN_KEYS) -> dict:
-    """Stacked tensors of the items ``indices`` (through ``dataset.get_batch`` when it has one)."""
-    if hasattr(dataset, "get_batch"):
-        batch = dataset.get_batch(indices)
-    else:
-        items = [dataset[int(i)] for i in indices]
-        batch = {k: torch.stack([it[k] for it in items]) for k in keys if k in items[0]}
-    return {k: batch[k] for k in keys if k in batch}
 
 
 def epoch_order(seed: int, epoch: int, n: int) -> torch.Tensor:
@@ -320,7 +300,7 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
 
     def make_batch(s):  # on the CPU; the prefetch thread runs it
         idx = step_indices(cfg.seed, s, steps_per_epoch, t.batch_size, len(data))
-        return to_device(get_batch(data, idx), "cpu", t.channels_last)
+        return to_device(get_batch(data, idx, TRAIN_KEYS), "cpu", t.channels_last)
 
     prefetch = Prefetcher(make_batch, range(step, total_steps), t.get("prefetch", 0))
     bar = tqdm(total=total_steps, initial=step, disable=not t.progress, unit="step", dynamic_ncols=True)
@@ -370,7 +350,7 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
 
     model.eval()
     if batch is None:  # no step ran in this process (a resumed run that was already done)
-        batch = to_device(get_batch(data, range(min(8, len(data)))), device, t.channels_last)
+        batch = to_device(get_batch(data, range(min(8, len(data))), TRAIN_KEYS), device, t.channels_last)
     with torch.no_grad():
         save_samples(run_dir / "samples" / "final.png", batch, model(batch["image"]))
     metrics = {**evaluate(model, cfg, t.eval_size, trivial), "steps": step, "stopped_by": stopped, "train_seconds": wall}

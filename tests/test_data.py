@@ -6,10 +6,10 @@ import torch
 import torch.nn.functional as F
 
 from disent.data import ATTR_PRIOR, LIGHT_BANK, LIGHT_NAMES, SPLITS, SynthFaces
-from disent.data.face_model import GRID_U, GRID_V, face_model
-from disent.data.raster import (face_ids, grid_faces, grid_to_uv_map, grid_vertex_normals, interpolate, interpolate_covered, paste,
+from disent.data.synth.face_model import GRID_U, GRID_V, face_model
+from disent.data.synth.raster import (face_ids, grid_faces, grid_to_uv_map, grid_vertex_normals, interpolate, interpolate_covered, paste,
                                 pick, rasterize, rasterize_grids, render_face, sample_texture, to_camera, vertex_normals)
-from disent.data.synth import (LAYERS, _pseudo_geometry, dominant_light, fit_sh_packed, lights_to_sh, paint_layers,
+from disent.data.synth.scenes import (LAYERS, _pseudo_geometry, dominant_light, fit_sh_packed, lights_to_sh, paint_layers,
                                pseudo_mesh, pseudo_quads, sample_lights, shade, uniform)
 from disent.render import composite, fit_sh, image_formation, sh_basis, sh_from_directions, sh_shading
 
@@ -361,7 +361,7 @@ def test_paste_pick_and_texture_lookup_at_covered_pixels():
 def test_render_face_layers():
     fm = face_model()
     cam = fm.mean[None] * 0.8
-    g = render_face(cam, fm.faces, fm.uv, 64)
+    g = render_face(cam, fm.faces, fm.uv, 64, (GRID_V, GRID_U))
     m = g["mask"][0, 0] > 0
     assert 0.3 < m.float().mean() < 0.8
     assert (g["normal"][0, 2][m] > -0.3).all()  # a frontal face: normals towards the camera
@@ -397,7 +397,7 @@ def test_grid_rasterizer_matches_the_triangle_rasterizer():
 
 def test_grid_rasterizer_splits_a_batch_too_large_for_float32_pixel_ids(monkeypatch):
     """Over the pixel-id limit the batch is rasterized in halves: the same lists, offsets and all."""
-    import disent.data.raster as raster
+    import disent.data.synth.raster as raster
 
     p = SynthFaces("val", seed=2).params(range(5))
     fm = face_model()

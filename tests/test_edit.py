@@ -370,9 +370,9 @@ class FakeSynth(torch.utils.data.Dataset):
         return self.sample(index)
 
     def get_batch(self, indices, **overrides):
-        from disent.edit.measure import stack
+        from disent.data import collate
 
-        return stack([self.sample(i, **overrides) for i in indices])
+        return collate([self.sample(i, **overrides) for i in indices])
 
     def params(self, indices):
         return {"alpha": torch.tensor(indices, dtype=torch.float32)[:, None] % 5, "skin": torch.ones(len(indices), 3)}

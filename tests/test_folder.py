@@ -12,8 +12,8 @@ import pytest
 import torch
 from PIL import Image
 
-from disent.data import pseudo_gt as pg
-from disent.data.pseudo_gt import PseudoGTSettings, Skip, decode_image
+from disent.data.photos import pseudo_gt as pg
+from disent.data.photos.pseudo_gt import PseudoGTSettings, Skip, decode_image
 
 
 # ----------------------------------------------------------------------------- a bad-input corpus
@@ -283,7 +283,7 @@ def celeba_folder(root: Path, n: int = 12) -> Path:
 
 
 def test_folder_faces_celeba_layout(tmp_path):
-    from disent.data.folder import FolderFaces
+    from disent.data.photos.folder import FolderFaces
 
     root = celeba_folder(tmp_path / "celeba")
     kw = dict(resolution=32, cache_dir=tmp_path / "cache", progress=False,
@@ -307,7 +307,7 @@ def test_folder_faces_celeba_layout(tmp_path):
 
 
 def test_build_passes_the_config(monkeypatch):
-    from disent.data import folder
+    from disent.data.photos import folder
 
     seen = {}
     monkeypatch.setattr(folder, "FolderFaces", lambda *a, **k: seen.update(args=a, kw=k))
@@ -320,7 +320,7 @@ def test_build_passes_the_config(monkeypatch):
 
 
 def test_folder_faces_plain_folder_split_is_stable(tmp_path):
-    from disent.data.folder import FolderFaces, hash_split
+    from disent.data.photos.folder import FolderFaces, hash_split
 
     root = tmp_path / "plain"
     (root / "sub").mkdir(parents=True)
@@ -352,7 +352,7 @@ def _dlib_settings(**kw) -> PseudoGTSettings:
 def test_end_to_end_on_bundled_photos(tmp_path):
     """dlib + fit + rendering on the real photos bundled with scikit-image and matplotlib,
     with the bad-input cases that need a detector: no face, several faces."""
-    from disent.data.photos import bundled_photos
+    from disent.data.photos.study import bundled_photos
 
     s = _dlib_settings()
     photos = bundled_photos(tmp_path / "photos")
@@ -403,7 +403,7 @@ def test_end_to_end_on_bundled_photos(tmp_path):
 
 @pytest.mark.slow
 def test_worker_processes_match_in_process(tmp_path):
-    from disent.data.photos import bundled_photos
+    from disent.data.photos.study import bundled_photos
 
     s = _dlib_settings()
     files = bundled_photos(tmp_path / "photos")["lfw_faces"][:6]
@@ -439,10 +439,10 @@ def test_pipeline_on_synthfaces_with_exact_landmarks():
 
 
 def test_fitter_camera_matches_the_rasterizer():
-    """The fit's pixel projection and disent.data.raster.to_camera agree on every landmark."""
+    """The fit's pixel projection and disent.data.synth.raster.to_camera agree on every landmark."""
     import torch
 
-    from disent.data.raster import to_camera
+    from disent.data.synth.raster import to_camera
 
     fitter = pg.face_model_fitter(PseudoGTSettings())
     p, lm = known_face(5, fitter, resolution=128)
@@ -484,7 +484,7 @@ def photo_records_and_model(tmp_path):
 
 
 def test_domain_gap_numbers_on_photo_records(tmp_path):
-    from disent.data.photos_models import gap_metrics, photo_batch
+    from disent.eval.photos import gap_metrics, photo_batch
 
     records, model = photo_records_and_model(tmp_path)
     batch = photo_batch(records)
@@ -496,7 +496,7 @@ def test_domain_gap_numbers_on_photo_records(tmp_path):
 
 @pytest.mark.slow
 def test_photo_figures(tmp_path):
-    from disent.data.photos_models import figures, photo_batch
+    from disent.eval.photos import figures, photo_batch
 
     records, model = photo_records_and_model(tmp_path)
     figures(model, photo_batch(records), ["a", "b", "c"], tmp_path, "untrained")

@@ -15,8 +15,8 @@ import pytest
 import torch
 from PIL import Image
 
-from disent.data import pseudo_gt as pg
-from disent.data.pseudo_gt import PseudoGTSettings
+from disent.data.photos import pseudo_gt as pg
+from disent.data.photos.pseudo_gt import PseudoGTSettings
 from test_folder import TemplateDetector, portrait
 
 
@@ -159,7 +159,7 @@ def test_traverse_checks_the_manifolds_against_the_model():
 
 
 def test_small_folder_trains_with_split_by_all(tmp_path):
-    from disent.data.folder import FolderFaces
+    from disent.data.photos.folder import FolderFaces
 
     photo_folder(tmp_path / "in")
     kw = dict(resolution=32, cache_dir=tmp_path / "cache", progress=False,
@@ -174,7 +174,7 @@ WORKER_PARENT = """
 import os, sys, time
 from concurrent.futures import ProcessPoolExecutor
 import multiprocessing as mp
-from disent.data.pseudo_gt import _init_worker
+from disent.data.photos.pseudo_gt import _init_worker
 with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn"), initializer=_init_worker) as pool:
     print(pool.submit(os.getpid).result(), flush=True)
     time.sleep(60)

@@ -33,7 +33,7 @@ def generation_rates(ds, n: int, rounds: int) -> tuple[float, float]:
 def bench_data(args) -> dict:
     from disent.data import SynthFaces
     from disent.runtime import single_thread
-    from disent.data.synth import render_scenes
+    from disent.data.synth.scenes import render_scenes
 
     out = {"threads": 1}
     with single_thread():

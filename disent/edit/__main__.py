@@ -18,7 +18,7 @@ Examples::
 Inputs: an image file (centre-cropped to a square and resized to the model's resolution;
 use face crops framed like the training data), a folder of images, or ``synth:INDEX``
 (a SynthFaces test face).  Pools: ``--pool synth`` (SynthFaces ``pool_<attr>``) or a
-CelebA-style folder (``list_attr_celeba.txt``, read by :class:`disent.data.folder.FolderFaces`).
+CelebA-style folder (``list_attr_celeba.txt``, read by :class:`disent.data.photos.folder.FolderFaces`).
 """
 from __future__ import annotations
 
@@ -34,9 +34,9 @@ from disent.images import over_max, save_image, strip
 # ----------------------------------------------------------------------------- images
 def load_image(path: Path, resolution: int, align: bool = True) -> torch.Tensor:
     """An image file as ``[3,R,R]`` in [0,1], read and framed as the photos the models are applied to
-    (:func:`disent.data.pseudo_gt.aligned_crop`: EXIF rotation, gray/alpha/16-bit converted, the face
+    (:func:`disent.data.photos.pseudo_gt.aligned_crop`: EXIF rotation, gray/alpha/16-bit converted, the face
     aligned by its landmarks; ``align=False``: centre square crop).  Raises ``pseudo_gt.Skip``."""
-    from disent.data import pseudo_gt as pg
+    from disent.data.photos import pseudo_gt as pg
 
     crop, _ = pg.aligned_crop(path, pg.PseudoGTSettings(resolution=resolution), align)
     return torch.from_numpy(crop.astype("float32") / 255.0).permute(2, 0, 1)
@@ -45,8 +45,8 @@ def load_image(path: Path, resolution: int, align: bool = True) -> torch.Tensor:
 def load_inputs(specs: list[str], resolution: int, seed: int = 0, align: bool = True) -> list[tuple[str, torch.Tensor]]:
     """``(name, image [3,R,R])`` for each file, every image of each folder, and ``synth:INDEX``.  In a
     folder, a file that cannot be used is reported and left out; a single bad file is an error."""
-    from disent.data import pseudo_gt as pg
-    from disent.data.folder import list_images
+    from disent.data.photos import pseudo_gt as pg
+    from disent.data.photos.folder import list_images
 
     if align:
         try:
@@ -97,7 +97,7 @@ def load_model(run: str):
 
 # ----------------------------------------------------------------------------- pools
 def build_pool(model, attribute: str, pool: str, size: int, resolution: int, seed: int):
-    from disent.edit.measure import stack
+    from disent.data import collate
     from disent.edit.traversal import encode_pool
 
     if pool == "synth":
@@ -105,10 +105,10 @@ def build_pool(model, attribute: str, pool: str, size: int, resolution: int, see
 
         data = SynthFaces(split=f"pool_{attribute}", resolution=resolution, seed=seed, size=size)
     else:
-        from disent.data.folder import FolderFaces
+        from disent.data.photos.folder import FolderFaces
 
         data = FolderFaces(pool, split=f"pool_{attribute}", resolution=resolution, seed=seed, size=size)
-    batch = stack([data[i] for i in range(len(data))])
+    batch = collate([data[i] for i in range(len(data))])
     return encode_pool(model, batch["image"], batch["attrs"][attribute], attribute)
 
 

@@ -34,6 +34,7 @@ from pathlib import Path
 
 import torch
 
+from disent.data import get_batch
 from disent.edit.classifier import MeasureNet
 from disent.edit.relight import ratio_relight, transfer_lighting, with_light
 from disent.edit.traversal import ATTRIBUTES, FACE_CODES, DEFAULT_MANIFOLDS, encode_pool, model_kind, traverse
@@ -64,29 +65,6 @@ def manifold_choices(kind: str, attribute: str) -> dict[str, tuple[str, ...]]:
         seen.add(key)
         out[label if label != "paper" else "paper:" + "+".join(ms)] = ms
     return out
-
-
-def stack(items: list[dict]) -> dict:
-    """Collate dataset items (tensors and the nested ``attrs`` dict) into batches."""
-    out = {}
-    for k, v in items[0].items():
-        if isinstance(v, dict):
-            out[k] = {a: torch.stack([torch.as_tensor(it[k][a]) for it in items]) for a in v}
-        elif torch.is_tensor(v):
-            out[k] = torch.stack([it[k] for it in items])
-    return out
-
-
-def get_batch(data, indices, chunk: int = 256, **overrides) -> dict:
-    """Items ``indices`` of ``data`` (with generator ``overrides``) as one collated batch."""
-    indices = list(indices)
-    if not hasattr(data, "get_batch"):
-        if overrides:
-            raise ValueError(f"{type(data).__name__} cannot re-render with overrides")
-        return stack([data[i] for i in indices])
-    parts = [data.get_batch(indices[i:i + chunk], **overrides) for i in range(0, len(indices), chunk)]
-    return {k: ({a: torch.cat([p[k][a] for p in parts]) for a in v} if isinstance(v, dict)
-                else torch.cat([p[k] for p in parts])) for k, v in parts[0].items()}
 
 
 def identity_params(data, indices) -> torch.Tensor:

@@ -35,7 +35,8 @@ from dataclasses import dataclass, field
 
 import torch
 
-ATTRIBUTES = ("smiling", "beard", "eyeglasses", "senior")
+from disent.data.attributes import ATTRIBUTES
+
 
 # The paper's choice of manifolds per attribute (Sec. 5.2, supplement); explicit model: Ae, Ne.
 DEFAULT_MANIFOLDS = {

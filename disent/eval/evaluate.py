@@ -8,7 +8,7 @@ from __future__ import annotations
 import time
 
 import torch
-from torch.utils.data import DataLoader, Subset, default_collate
+from torch.utils.data import DataLoader, Subset
 
 from disent.eval.metrics import normal_angular_error, reconstruction_metrics, scale_invariant_mse, sh_error
 from disent.render import sh_shading
@@ -26,18 +26,6 @@ def batches(dataset, batch_size: int = 64, limit: int | None = None, indices=Non
     if indices is None:
         indices = range(len(dataset) if limit is None else min(limit, len(dataset)))
     return DataLoader(Subset(dataset, list(indices)), batch_size=batch_size, shuffle=False, num_workers=0)
-
-
-def render(dataset, indices, **overrides) -> dict:
-    """Collated items ``indices`` with generator overrides (``pose=``, ``sh=`` per item or shared...):
-    one vectorized ``dataset.get_batch`` when the dataset has it, else ``dataset.sample`` per item."""
-    indices = [int(i) for i in indices]
-    if hasattr(dataset, "get_batch"):
-        return dataset.get_batch(indices, **overrides)
-    sh = overrides.pop("sh", None)
-    per_item = sh is not None and sh.dim() == 3  # one light per item
-    return default_collate([dataset.sample(i, **overrides, **({"sh": sh[j] if per_item else sh} if sh is not None else {}))
-                            for j, i in enumerate(indices)])
 
 
 @torch.no_grad()
@@ -132,7 +120,7 @@ def evaluate_model(model, dataset, limit: int = 256, batch_size: int = 64, trivi
     return {**m, **trivial_metrics(trivial, gt)} if trivial is not None else m
 
 
-__all__ = ["FACE_THRESHOLD", "face_mask", "normal_metrics", "batches", "render", "predict", "model_outputs", "metrics_from_outputs", "evaluate_model"]
+__all__ = ["FACE_THRESHOLD", "face_mask", "normal_metrics", "batches", "predict", "model_outputs", "metrics_from_outputs", "evaluate_model"]
 
 
 def rescore(run_dir) -> dict:
@@ -143,7 +131,8 @@ def rescore(run_dir) -> dict:
 
     from disent.models import load_run
     from disent.runs import atomic_write
-    from disent.train import evaluate, make_dataset, trivial_baselines
+    from disent.data import make_dataset
+    from disent.train import evaluate, trivial_baselines
 
     run_dir = Path(run_dir)
     old = json.loads((run_dir / "eval.json").read_text()) if (run_dir / "eval.json").exists() else {}

@@ -29,7 +29,8 @@ from pathlib import Path
 
 import torch
 
-from disent.eval.evaluate import batches, face_mask, metrics_from_outputs, predict, render
+from disent.data import get_batch
+from disent.eval.evaluate import batches, face_mask, metrics_from_outputs, predict
 from disent.eval.metrics import sh_error
 from disent.render import design_condition, fit_sh, rotate_sh
 
@@ -92,7 +93,7 @@ def conditioning_vs_yaw(dataset, yaws=YAWS, n: int = 16) -> dict:
     rows = []
     for yaw in yaws:
         try:
-            batch = render(dataset, range(n), pose=torch.tensor([float(yaw), 0.0, 0.0]))
+            batch = get_batch(dataset, range(n), pose=torch.tensor([float(yaw), 0.0, 0.0]))
         except (ValueError, NotImplementedError) as e:  # a generator that refuses a pose beyond its range
             rows.append({"yaw": yaw, "error": str(e)})
             continue
@@ -155,9 +156,9 @@ def ood_batch(dataset_cls, effect: str, severity: float, n: int, resolution: int
     """``n`` test items with one effect at ``severity`` (``light``: the tilted light)."""
     if effect == "light":
         ds = dataset_cls(split="test", resolution=resolution, seed=0)
-        return render(ds, range(n), sh=tilt_light(render(ds, range(n))["sh"], severity))
+        return get_batch(ds, range(n), sh=tilt_light(get_batch(ds, range(n))["sh"], severity))
     ds = dataset_cls(split="test", resolution=resolution, seed=0, effects={effect: severity} if severity > 0 else None)
-    return render(ds, range(n))
+    return get_batch(ds, range(n))
 
 
 OOD_KEYS = ("recon_face_mse", "normal_mean", "albedo_si_mse", "sh_error")

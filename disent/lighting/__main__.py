@@ -21,9 +21,9 @@ log = logging.getLogger(__name__)
 
 
 def load_photo(path: str, resolution: int, cache_dir=None) -> dict:
-    """A photo with its pseudo ground truth (:mod:`disent.data.pseudo_gt`)."""
-    from disent.data.pseudo_gt import PseudoGTSettings, load_cached
-    from disent.data.pseudo_gt import prepare as pseudo_gt
+    """A photo with its pseudo ground truth (:mod:`disent.data.photos.pseudo_gt`)."""
+    from disent.data.photos.pseudo_gt import PseudoGTSettings, load_cached
+    from disent.data.photos.pseudo_gt import prepare as pseudo_gt
 
     (rec,), _ = pseudo_gt([path], PseudoGTSettings(resolution=resolution), cache_dir, progress=False)
     if not rec.used:

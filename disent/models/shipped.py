@@ -61,7 +61,7 @@ def load_weights(model: torch.nn.Module, state: dict, source) -> None:
 def check_metrics(model, cfg, n: int = CHECK_IMAGES) -> dict:
     """The ``CHECK_KEYS`` metrics of ``model`` on the first ``n`` test images of its data set."""
     from disent.eval.evaluate import evaluate_model
-    from disent.train import make_dataset
+    from disent.data import make_dataset
 
     test = make_dataset(cfg.data, "test", cfg.data.get("test_size"))
     m = evaluate_model(model, test, limit=n)

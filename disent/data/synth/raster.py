@@ -483,7 +483,7 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
 
 
 def render_face(vertices_cam: torch.Tensor, faces: torch.Tensor, uv: torch.Tensor, resolution: int,
-                vertex_normal: torch.Tensor | None = None) -> dict:
+                grid_shape: tuple[int, int], vertex_normal: torch.Tensor | None = None) -> dict:
     """Render the G-buffer of a face mesh: the layers the paper's decoders predict.
 
     Args:
@@ -491,6 +491,7 @@ def render_face(vertices_cam: torch.Tensor, faces: torch.Tensor, uv: torch.Tenso
         faces: ``[T, 3]`` int64, counter-clockwise from outside.
         uv: ``[V, 2]`` texture coordinates in ``[0, 1]`` (u right, v down).
         resolution: output size H = W.
+        grid_shape: ``(rows, columns)`` of the mesh's UV grid, for ``normal_uv``.
         vertex_normal: optional ``[B, V, 3]``; computed from the mesh when omitted.
 
     Returns a dict of ``[B, C, H, W]`` float tensors: ``mask`` (1 where the face is
@@ -506,24 +507,22 @@ def render_face(vertices_cam: torch.Tensor, faces: torch.Tensor, uv: torch.Tenso
     pix = interpolate(attrs, r)
     normal = unit(pix[:, :3], 1) * mask
     return {"mask": mask, "normal": normal, "depth": pix[:, 3:4], "uv": pix[:, 4:6],
-            "normal_uv": grid_to_uv_map(vertex_normal, resolution), "face_id": r["face_id"]}
+            "normal_uv": grid_to_uv_map(vertex_normal, resolution, grid_shape), "face_id": r["face_id"]}
 
 
-def grid_to_uv_map(vertex_attr: torch.Tensor, resolution: int, grid_shape: tuple[int, int] | None = None,
+def grid_to_uv_map(vertex_attr: torch.Tensor, resolution: int, grid_shape: tuple[int, int],
                    knots: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
     """Lay per-vertex values of a UV-grid mesh out as a ``[B, C, res, res]`` UV-space map
     (3-channel values, normals, are renormalised to unit length).
 
-    The face model's vertices form a regular ``GRID_V x GRID_U`` grid in UV space, so the
-    map is a bilinear resize of that grid (texel centres at ``linspace(0, 1, res)``, as
+    The mesh's vertices form a regular ``grid_shape = (rows, columns)`` grid in UV space (the face
+    model's is ``GRID_V x GRID_U``), so the map is a bilinear resize of that grid (texel centres at ``linspace(0, 1, res)``, as
     ``align_corners=True``); a grid with uneven rows and columns gives its ``knots``
     (v of each row, u of each column) and is interpolated linearly between them.  The
     resize is separable: along v a blend of two gathered rows per texel row, along u a
     batched product with the fixed interpolation matrix.
     """
-    from .face_model import GRID_U, GRID_V
-
-    gv, gu = grid_shape or (GRID_V, GRID_U)
+    gv, gu = grid_shape
     B, V, C = vertex_attr.shape
     if V != gv * gu:
         raise ValueError(f"vertex_attr has {V} vertices, the UV grid {gv}x{gu}")

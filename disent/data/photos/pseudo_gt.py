@@ -10,7 +10,7 @@ One photo goes through five steps, each a function here:
    frontal landmarks, so a photo is framed like a SynthFaces image at the training resolution;
 4. :func:`fit_landmarks`  the face model (pose, identity, expression) fitted to the 68
    landmarks by regularized least squares (``scipy.optimize.least_squares``);
-5. :func:`render_pseudo`  the fitted mesh rasterized to ``normal_pseudo``, ``mask_pseudo``,
+5. :func:`maps_from_fit`  the fitted mesh rasterized to ``normal_pseudo``, ``mask_pseudo``,
    ``uv_pseudo``, ``normal_uv_pseudo``; then ``sh_pseudo`` = L-hat with a constant albedo
    (:func:`disent.render.fit_sh`), by SynthFaces' own code, so both data sets share it.
 
@@ -172,8 +172,8 @@ def _file_identity(path: str) -> str:
 @functools.lru_cache(maxsize=1)
 def _face_model_identity() -> str:
     """A hash of the face model's arrays and SynthFaces' framing: a changed model invalidates the cache."""
-    from disent.data import synth
-    from disent.data.face_model import face_model
+    from disent.data.synth import scenes as synth
+    from disent.data.synth.face_model import face_model
 
     m, h = face_model(), hashlib.sha256()
     for t in (m.mean, m.identity, m.expression, m.faces, m.uv, m.landmarks, m.face_region):
@@ -280,10 +280,10 @@ def align(rgb: np.ndarray, landmarks: np.ndarray, template: np.ndarray, resoluti
 
 # ----------------------------------------------------------------------------- the face model, posed
 class FaceModelFitter:
-    """The project's face model (:mod:`disent.data.face_model`) under a scaled-orthographic camera.
+    """The project's face model (:mod:`disent.data.synth.face_model`) under a scaled-orthographic camera.
 
     Parameters ``p = [yaw, pitch, roll (radians), log scale, tx, ty, alpha_1..K, smile, open]``;
-    ``R`` is :func:`disent.data.raster.pose_matrix` of the angles (SynthFaces' ``pose``), and a
+    ``R`` is :func:`disent.data.synth.raster.pose_matrix` of the angles (SynthFaces' ``pose``), and a
     model point ``X`` lands at crop pixel ``(col, row) = (s (R X)_x + tx, -s (R X)_y + ty)``
     (pixel centres at integers, row 0 at the top, as dlib and scikit-image count), so
     camera-frame normals keep the suite's convention (+x right, +y up, +z towards the camera).  Scaled orthography is the usual
@@ -294,7 +294,7 @@ class FaceModelFitter:
     n_pose = 6
 
     def __init__(self, n_identity: int = 4):
-        from disent.data.face_model import EXPRESSIONS, face_model
+        from disent.data.synth.face_model import EXPRESSIONS, face_model
 
         m = face_model()
         self.model, self.n_identity, self.n_expression = m, n_identity, len(EXPRESSIONS)
@@ -310,7 +310,7 @@ class FaceModelFitter:
     def rotation(p: np.ndarray) -> np.ndarray:
         import torch
 
-        from disent.data.raster import pose_matrix
+        from disent.data.synth.raster import pose_matrix
 
         return pose_matrix(torch.tensor(np.degrees(p[None, :3]), dtype=torch.float64))[0].numpy()
 
@@ -331,7 +331,7 @@ class FaceModelFitter:
 
     @staticmethod
     def to_raster(p: np.ndarray, resolution: int) -> dict:
-        """Pose (degrees), scale and shift of :func:`disent.data.raster.to_camera` for ``p``:
+        """Pose (degrees), scale and shift of :func:`disent.data.synth.raster.to_camera` for ``p``:
         crop pixels -> normalised units x = (2 col + 1)/R - 1, y = 1 - (2 row + 1)/R."""
         R = resolution
         return {"pose": np.degrees(p[:3]), "scale": 2 * np.exp(p[3]) / R,
@@ -345,7 +345,7 @@ class FaceModelFitter:
 
     def synth_landmarks(self, scene: dict, resolution: int) -> np.ndarray:
         """The exact 68 landmarks ``[B, 68, 2]`` (pixels) of SynthFaces scenes (``SynthFaces.params``)."""
-        from disent.data.raster import to_camera
+        from disent.data.synth.raster import to_camera
 
         m = self.model
         verts = m.shape(scene["alpha"], scene["expression"], scene.get("senior"))[:, m.landmarks]
@@ -364,25 +364,25 @@ class FaceModelFitter:
         """The alignment target: a frontal mean face's landmarks framed as SynthFaces frames its
         faces on average (scale mid-range of ``synth.SCALE_RANGE``, shift (0, -0.02), see
         ``synth.scene_params``), so photos and synthetic images share the crop."""
-        from disent.data.synth import SCALE_RANGE
+        from disent.data.synth.scenes import SCALE_RANGE
 
         p = self.from_raster((0.0, 0.0, 0.0), float(np.mean(SCALE_RANGE)), (0.0, -0.02), resolution)
         return self.project_landmarks(p, resolution)
 
     def render(self, p: np.ndarray, resolution: int, image: np.ndarray) -> dict:
         """The pseudo-GT maps ``[C, R, R]`` and ``sh_pseudo [3, 9]`` (numpy) of the fitted face over
-        ``image [3, R, R]``, made by SynthFaces' own :func:`disent.data.synth.render_pseudo`
+        ``image [3, R, R]``, made by SynthFaces' own :func:`disent.data.synth.scenes.render_pseudo`
         (its coarse mesh, the face region as ``mask_pseudo``, L-hat with constant albedo)."""
         import torch
 
-        from disent.data.synth import render_pseudo as synth_render_pseudo
+        from disent.data.synth.scenes import render_pseudo
 
         K, cam = self.n_identity, self.to_raster(p, resolution)
         t = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float32))[None]  # noqa: E731
         scene = {"pseudo_alpha": t(p[6:6 + K]), "pseudo_expression": t(p[6 + K:]), "pseudo_pose": t(cam["pose"]),
                  "pseudo_scale": t(cam["scale"]), "pseudo_shift": t(cam["shift"])}
         try:
-            out = synth_render_pseudo(t(image), scene, resolution)
+            out = render_pseudo(t(image), scene, resolution)
         except ValueError as e:  # fit_sh: too few pixels or non-finite values
             raise Skip("fit failed", f"rendering/lighting: {e}") from None
         return {k: v[0].numpy() for k, v in out.items()}
@@ -437,7 +437,7 @@ def fit_landmarks(landmarks: np.ndarray, resolution: int, settings: PseudoGTSett
 
 
 # ----------------------------------------------------------------------------- 5. rendering
-def render_pseudo(fit: dict, image: np.ndarray, model) -> dict:
+def maps_from_fit(fit: dict, image: np.ndarray, model) -> dict:
     """The fitted face rasterized to the pseudo-GT maps, channels first, exactly as SynthFaces
     makes them: ``normal_pseudo [3,R,R]``, ``mask_pseudo [1,R,R]``, ``uv_pseudo [2,R,R]``,
     ``normal_uv_pseudo [3,R,R]``, and ``sh_pseudo [3,9]`` = L-hat of ``image [3,R,R]``."""
@@ -480,7 +480,7 @@ def pseudo_gt_from_landmarks(rgb: np.ndarray, landmarks: np.ndarray, settings: P
     R = settings.resolution
     crop, lm, M = align(rgb, landmarks, model.template(R), R)
     fit = fit_landmarks(lm, R, settings, model)
-    maps = render_pseudo(fit, crop.astype(np.float32).transpose(2, 0, 1) / 255.0, model)
+    maps = maps_from_fit(fit, crop.astype(np.float32).transpose(2, 0, 1) / 255.0, model)
     sh = maps.pop("sh_pseudo")
     scale = float(np.sqrt(abs(np.linalg.det(M[:2, :2]))))
     return {

@@ -1,13 +1,14 @@
 """Trained models on real photos: decomposition, relighting, and the domain gap in numbers.
 
-    python -m disent.data.photos --run RUN_DIR [RUN_DIR ...]
+    python -m disent.eval.photos --run RUN_DIR|NAME [...] [--out reports/photos] [--workers 2]
 
 A model trained on SynthFaces is applied to the aligned photo crops of the pseudo-GT pipeline.
 Real photos have no intrinsic ground truth, so the gap is measured on what both domains
 share, each against the *pseudo* ground truth (the same landmark-fit rendering on both):
 reconstruction error, the angle between predicted normals and ``normal_pseudo`` inside
 ``mask_pseudo``, the overlap of the predicted matte with ``mask_pseudo``, and the SH error
-against ``sh_pseudo``; the same numbers on SynthFaces' test split are the reference.
+against ``sh_pseudo``; the same numbers on SynthFaces' test split are the reference.  The crops are those
+of the bundled photos' pseudo-GT study (:mod:`disent.data.photos.study`), which this command runs first.
 """
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from disent.data import pseudo_gt as pg
+from disent.data.photos import pseudo_gt as pg
 from disent.images import over_max, to_array
 
 RELIGHT_NAMES = ("flash_az-60", "flash_az+0", "flash_az+60", "top", "rim_both")
@@ -136,3 +137,31 @@ def gap_markdown(gaps: list[dict], command: str) -> str:
                          f"{m['n']} | {f('recon_psnr')} | {f('normal_vs_pseudo_deg')} | {f('sh_vs_pseudo_mse', 3)} | "
                          f"{f('matte_covers_mask_pseudo', 3)} | {f('matte_iou_mask_pseudo', 3)} |")
     return "\n".join(lines) + "\n"
+
+
+def main(argv=None):
+    import logging
+
+    from disent.data.photos.study import arguments, run_study
+
+    ap = arguments(__doc__)
+    ap.add_argument("--run", nargs="+", required=True,
+                    help="trained run folders or shipped names to apply to the crops; 'auto': the plain explicit "
+                         "and implicit runs under outputs/ and multirun/ (disent.runs.pick_runs)")
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    records = run_study(args.out, args.resolution, args.workers, args.cache_dir)
+    runs = args.run
+    if runs == ["auto"]:
+        from disent.runs import find_runs, pick_runs
+
+        runs = [r.path for k, r in pick_runs(find_runs()).items() if k in ("explicit", "implicit")]
+        print("runs:", [str(r) for r in runs] or "none found")
+    gaps = [apply_run(run, records, Path(args.out)) for run in runs]
+    if gaps:
+        command = "python -m disent.eval.photos " + " ".join(argv if argv is not None else __import__("sys").argv[1:])
+        (Path(args.out) / "domain_gap.md").write_text(gap_markdown(gaps, command))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,4 +1,4 @@
-"""Contact sheet of SynthFaces: ``python -m disent.data.sheet [--out PATH] [--resolution 64]``.
+"""Contact sheet of SynthFaces: ``python -m disent.data.synth.sheet [--out PATH] [--resolution 64]``.
 
 Rows: samples with their ground-truth layers; pseudo ground truth beside the truth; each
 attribute off and on; the light bank on one face; the optional effects.
@@ -11,7 +11,7 @@ from pathlib import Path
 import torch
 
 from . import LIGHT_NAMES, SynthFaces
-from .synth import ATTRIBUTES, EFFECTS
+from .scenes import ATTRIBUTES, EFFECTS
 from disent.images import display, strip
 
 

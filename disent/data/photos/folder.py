@@ -1,7 +1,7 @@
 """A folder of real photos as a data set with the paper's pseudo ground truth (``data=folder``).
 
 ``FolderFaces(root)`` takes every JPEG/PNG under ``root`` (any size), runs the pseudo-GT
-pipeline of :mod:`disent.data.pseudo_gt` once (cached by content hash) and serves items with
+pipeline of :mod:`disent.data.photos.pseudo_gt` once (cached by content hash) and serves items with
 the same keys as :class:`disent.data.SynthFaces` where they exist: ``image``,
 ``normal_pseudo``, ``mask_pseudo``, ``uv_pseudo``, ``normal_uv_pseudo``, ``sh_pseudo``, and
 ``attrs`` when the folder has attribute labels.  Real photos have no ground truth, so none of
@@ -26,11 +26,11 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from disent.data.pseudo_gt import IMAGE_SUFFIXES, PseudoGTSettings, format_summary, load_cached, prepare
+from disent.data.attributes import ATTRIBUTES
+from disent.data.photos.pseudo_gt import IMAGE_SUFFIXES, PseudoGTSettings, format_summary, load_cached, prepare
 
 log = logging.getLogger(__name__)
 
-ATTRIBUTES = ("smiling", "beard", "eyeglasses", "senior")
 # CelebA column -> (our attribute, sign): beard is "not No_Beard", senior is "not Young".
 CELEBA_COLUMNS = {"smiling": ("Smiling", 1), "beard": ("No_Beard", -1), "eyeglasses": ("Eyeglasses", 1),
                   "senior": ("Young", -1)}
@@ -77,7 +77,7 @@ class FolderFaces(Dataset):
     ``split``: ``train``, ``val``, ``test``, or ``pool_<attr>`` (the test split's photos,
     balanced: even items positive for ``<attr>``, odd negative, as in SynthFaces; needs labels).
     ``size`` keeps the first ``size`` usable photos of the split.  The remaining arguments are
-    :class:`~disent.data.pseudo_gt.PseudoGTSettings` fields and the pipeline's cache, workers
+    :class:`~disent.data.photos.pseudo_gt.PseudoGTSettings` fields and the pipeline's cache, workers
     and (for tests) a ``detector`` replacing dlib.
     """
 
@@ -152,7 +152,7 @@ class FolderFaces(Dataset):
             all_recs += recs
             records += [r for r in recs if r.used]
             start += chunk
-        from disent.data.pseudo_gt import summarize
+        from disent.data.photos.pseudo_gt import summarize
 
         summary = summarize(all_recs)
         log.info("FolderFaces(%s, %s): %s", self.root, self.split, format_summary(summary))

@@ -21,13 +21,14 @@ import torch.nn.functional as F
 
 from disent.render import C2, C4, composite, image_formation, sh_basis, sh_from_directions, sh_matrix, solve_normal_equations
 
+from disent.data.attributes import ATTRIBUTES
+
 from .face_model import (BROW_X, BROW_Y, CHIN_Y, EYE_H, EYE_W, EYE_X, EYE_Y, GRID_U, GRID_V, HAIRLINE_Y, MOUTH_W, MOUTH_Y,
                          NOSE_BASE_Y, SLIT_ROWS, face_model, is_neck, layout, uv_to_angles)
 from disent.runtime import single_thread
 from .raster import (grid_faces, grid_to_uv_map, grid_vertex_normals, interpolate_covered, paste, pick, rasterize_grids,
                      sample_texture, to_camera, unit_planes)
 
-ATTRIBUTES = ("smiling", "beard", "eyeglasses", "senior")
 EFFECTS = ("specular", "cast_shadow", "noise", "occluder")
 ATTR_PRIOR = {"smiling": 0.5, "beard": 0.25, "eyeglasses": 0.2, "senior": 0.25}  # P(label = 1) in train/val/test
 POSE_RANGE = (45.0, 20.0, 10.0)  # yaw, pitch, roll half-ranges in degrees
@@ -528,7 +529,7 @@ def render_scenes(p: dict, res: int, effects: dict | None = None, pseudo: bool =
     # Eq. 2 on the face, composited over the background (Eq. 6; the matte is binary).
     image = paste(image_formation(albedo_at, pick(shading, r)), r, background)
     out = {"image": image, "background": background, "matte": matte, "normal": normal, "albedo": albedo,
-           "shading": shading, "sh": sh, "uv": uv, "normal_uv": grid_to_uv_map(vn, res), "albedo_uv": albedo_uv}
+           "shading": shading, "sh": sh, "uv": uv, "normal_uv": grid_to_uv_map(vn, res, (GRID_V, GRID_U)), "albedo_uv": albedo_uv}
     if effects:
         out["image"] = apply_effects(out, p, effects)
     if pseudo:

@@ -1,13 +1,12 @@
 """The pseudo-GT pipeline on the photos that ship with the dependencies, for the report.
 
-    python -m disent.data.photos [--out reports/photos] [--workers 2] [--run RUN_DIR ...]
+    python -m disent.data.photos [--out reports/photos] [--workers 2]
 
 Photos: scikit-image's ``astronaut``, matplotlib's ``grace_hopper`` sample and the 100 faces
 of scikit-image's ``lfw_subset`` (25x25 gray crops, bundled with scikit-image; its other 100
 images are non-faces and measure false detections).  Writes ``pseudo_gt.json`` (landmark
 success rate, fit residual in pixels) and ``pseudo_gt.png`` (pseudo normals and mask over each
-photo).  With ``--run``, a trained model (``disent.models.load_run``) decomposes the crops and
-relights them: ``decomposition_<run>.png``, ``relight_<run>.png``.
+photo).  Trained models on the same crops: :mod:`disent.eval.photos`.
 """
 from __future__ import annotations
 
@@ -18,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from disent.data import pseudo_gt as pg
+from disent.data.photos import pseudo_gt as pg
 
 N_LFW_FACES = 100  # lfw_subset: images 0-99 are faces, 100-199 are not
 
@@ -172,24 +171,16 @@ def markdown(stats: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", default="reports/photos")
-    ap.add_argument("--resolution", type=int, default=64)
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--cache-dir", default=None)
-    ap.add_argument("--run", nargs="*", default=[],
-                    help="trained run folders to apply to the crops; 'auto': the plain explicit and implicit "
-                         "runs under outputs/ and multirun/ (disent.runs.pick_runs)")
-    args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
-    out = Path(args.out)
+def run_study(out, resolution: int = 64, workers: int = 2, cache_dir=None) -> list:
+    """Pseudo ground truth of the bundled photos: ``pseudo_gt.json``, ``pseudo_gt.md`` and ``pseudo_gt.png`` in
+    ``out``; returns the records of the photos it could use (for :mod:`disent.eval.photos`)."""
+    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    settings = pg.PseudoGTSettings(resolution=args.resolution)
-    cache = Path(args.cache_dir) if args.cache_dir else pg.default_cache_dir()
+    settings = pg.PseudoGTSettings(resolution=resolution)
+    cache = Path(cache_dir) if cache_dir else pg.default_cache_dir()
     photos = bundled_photos(cache / "bundled_photos")
     paths = [p for ps in photos.values() for p in ps]
-    records, summary = pg.prepare(paths, settings, cache, workers=args.workers)
+    records, summary = pg.prepare(paths, settings, cache, workers=workers)
     by_src, i = {}, 0
     for src, ps in photos.items():
         by_src[src] = records[i:i + len(ps)]
@@ -202,7 +193,7 @@ def main(argv=None):
     (out / "pseudo_gt.json").write_text(json.dumps(stats, indent=2) + "\n")
     (out / "pseudo_gt.md").write_text(markdown(stats))
     shown = [r for src in ("astronaut", "grace_hopper", "lfw_faces") for r in by_src[src] if r.used][:24]
-    overlay_figure(shown, out / "pseudo_gt.png", args.resolution)
+    overlay_figure(shown, out / "pseudo_gt.png", resolution)
     for src in photos:
         s = stats[src]
         print(f"{src:14s} {s['used']:3d}/{s['images']:3d} used ({100 * s['success_rate']:.0f}%)  "
@@ -212,18 +203,22 @@ def main(argv=None):
     print("dlib on SynthFaces renders:", json.dumps(stats["synthfaces_dlib_check"]))
     print(markdown(stats))
     print(f"wrote {out / 'pseudo_gt.json'}, {out / 'pseudo_gt.md'} and {out / 'pseudo_gt.png'}")
-    runs = args.run
-    if runs == ["auto"]:
-        from disent.runs import find_runs, pick_runs
+    return [r for r in records if r.used]
 
-        runs = [r.path for k, r in pick_runs(find_runs()).items() if k in ("explicit", "implicit")]
-        print("runs:", [str(r) for r in runs] or "none found")
-    from disent.data.photos_models import apply_run, gap_markdown
 
-    gaps = [apply_run(run, [r for r in records if r.used], out) for run in runs]
-    if gaps:
-        command = "python -m disent.data.photos " + " ".join(argv if argv is not None else __import__("sys").argv[1:])
-        (out / "domain_gap.md").write_text(gap_markdown(gaps, command))
+def arguments(description: str) -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", default="reports/photos")
+    ap.add_argument("--resolution", type=int, default=64)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--cache-dir", default=None)
+    return ap
+
+
+def main(argv=None):
+    args = arguments(__doc__).parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    run_study(args.out, args.resolution, args.workers, args.cache_dir)
 
 
 if __name__ == "__main__":

@@ -40,6 +40,7 @@ from functools import lru_cache
 
 import torch
 
+from disent.data.synth.raster import grid_faces
 from disent.runtime import single_thread
 
 GRID_U, GRID_V = 41, 53
@@ -129,8 +130,6 @@ def is_neck(phi: torch.Tensor) -> torch.Tensor:
 @lru_cache(maxsize=1)
 def faces() -> torch.Tensor:
     """Triangles ``[T, 3]`` (int64), counter-clockwise seen from outside (x right, y up)."""
-    from .raster import grid_faces
-
     return grid_faces(GRID_V, GRID_U)
 
 

@@ -1,0 +1,3 @@
+from disent.data.photos.study import main
+
+main()
