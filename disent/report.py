@@ -26,7 +26,7 @@ import torch
 
 from disent.eval import ablation as _ablation
 from disent.images import over_max, to_array
-from disent.runs import RUN_ROOTS, Run, find_runs, pick_runs
+from disent.runs import RUN_ROOTS, Run, find_runs, pick_runs, publish, tool_folder
 
 MODELS = ("baseline", "explicit", "implicit")
 TRAIN_SPEED_KEYS = ("train_images_per_s", "images_per_s", "train_ips")
@@ -725,18 +725,24 @@ def _git_revision() -> str:
         return "unknown"
 
 
-def build(out="reports", roots=RUN_ROOTS, n_vis: int = 6, compute: bool = False, name: str = "README.md") -> Path:
-    """Write ``out/name`` and ``out/figures/*.png``; returns the Markdown path."""
+def build(out="reports", roots=RUN_ROOTS, n_vis: int = 6, compute: bool = False, name: str = "README.md",
+          publish_folders=()) -> Path:
+    """Publish each tool folder of ``publish_folders`` into ``out`` (:func:`disent.runs.publish`), then write
+    ``out/name`` and ``out/figures/*.png``; returns the Markdown path."""
     out = Path(out)
     eval_dir = out / "eval"
-    if compute:
-        from disent.eval import protocols, stability
-
-        protocols.main(["--out", str(eval_dir), "--roots", *map(str, roots)])
-        stability.main(["--out", str(eval_dir), "--roots", *map(str, roots)])
     missing = [str(r) for r in roots if not Path(r).is_dir()]
     if missing:
         raise FileNotFoundError(f"run root(s) not found: {', '.join(missing)}")
+    for folder in publish_folders:
+        print(f"published {len(publish(folder, out))} file(s) of {folder}")
+    if compute:
+        from disent.eval import protocols, stability
+
+        folder = tool_folder("eval")
+        protocols.main(["--out", str(folder), "--roots", *map(str, roots)])
+        stability.main(["--out", str(folder), "--roots", *map(str, roots)])
+        publish(folder, out)
     runs = find_runs(roots)
     published = out / name
     rep = Report(out, published.read_text() if published.is_file() else "")
@@ -771,11 +777,13 @@ def main(argv=None):
     p.add_argument("--roots", nargs="*", default=list(RUN_ROOTS))
     p.add_argument("--n-vis", type=int, default=6, help="test images per figure")
     p.add_argument("--compute", action="store_true", help="recompute reports/eval/*.json first (protocols, stability)")
+    p.add_argument("--publish", nargs="+", default=(), metavar="FOLDER",
+                   help="tool folders (edit, lighting, photos, eval, bench, sheet) to copy into the report first")
     a = p.parse_args(argv)
     torch.set_num_threads(1)
     try:
-        path = build(a.out, a.roots, a.n_vis, a.compute)
-    except FileNotFoundError as e:
+        path = build(a.out, a.roots, a.n_vis, a.compute, publish_folders=a.publish)
+    except (FileNotFoundError, ValueError) as e:
         p.error(str(e))
     print(f"wrote {path}")
 

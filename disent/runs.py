@@ -48,6 +48,59 @@ def write_git_revision(run_dir: Path) -> None:
     (run_dir / "git.txt").write_text(text)
 
 
+# ----------------------------------------------------------------------------- tool folders and publishing
+# Each tool writes into its own run folder; `python -m disent.report --publish FOLDER` copies what the report
+# cites into reports/<PUBLISH_TO[tool]>/.  Weights (*.pt) and bookkeeping files are never published.
+PUBLISH_TO = {"edit": "edit", "lighting": "lighting", "photos": "photos", "eval": "eval", "bench": ".",
+              "sheet": "figures"}
+NOT_PUBLISHED = ("git.txt", "command.txt", ".tool")
+
+
+def tool_folder(tool: str, out=None) -> Path:
+    """The folder a tool writes into: ``out`` when given, else ``outputs/<tool>/<date>/<time>-<pid>/``.  It holds
+    ``.tool`` (the tool's name, for :func:`publish`), ``command.txt`` (the command line) and ``git.txt``."""
+    import sys
+    import time
+
+    if tool not in PUBLISH_TO:
+        raise ValueError(f"unknown tool {tool!r}; one of {', '.join(PUBLISH_TO)}")
+    folder = Path(out) if out else Path("outputs") / tool / f"{time.strftime('%Y-%m-%d/%H-%M-%S')}-{os.getpid()}"
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / ".tool").write_text(tool + "\n")
+    (folder / "command.txt").write_text(" ".join(["python -m", sys.argv[0].removesuffix(".py"), *sys.argv[1:]]) + "\n")
+    write_git_revision(folder)
+    return folder
+
+
+def publish(folder, reports="reports") -> list[Path]:
+    """Copy a tool folder's results into ``reports/`` (where its ``.tool`` says); returns the files written.
+    A folder that is not a tool folder, or holds no results, is an error: nothing published is replaced by
+    nothing."""
+    folder = Path(folder)
+    marker = folder / ".tool"
+    if not marker.is_file():
+        raise FileNotFoundError(f"{folder} is not a tool folder (no .tool file); tools write one, e.g. "
+                                "python -m disent.edit measure explicit")
+    tool = marker.read_text().strip()
+    if tool not in PUBLISH_TO:
+        raise ValueError(f"{marker}: unknown tool {tool!r}")
+    files = [p for p in sorted(folder.rglob("*")) if p.is_file() and p.name not in NOT_PUBLISHED and p.suffix != ".pt"]
+    if not files:
+        raise FileNotFoundError(f"{folder} holds no results to publish")
+    dest = Path(reports) / PUBLISH_TO[tool]
+    written = []
+    for p in files:
+        target = dest / p.relative_to(folder)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        if tool == "bench" and p.suffix == ".json" and target.exists():  # the sections of this run replace theirs
+            merged = {**json.loads(target.read_text()), **json.loads(p.read_text())}
+            atomic_write(target, lambda f: f.write(json.dumps(merged, indent=2, sort_keys=True).encode()))
+        else:
+            shutil.copyfile(p, target)
+        written.append(target)
+    return written
+
+
 class MetricsLog:
     """Append-only ``metrics.jsonl``; each record is flushed at once, so a killed run keeps its log."""
 

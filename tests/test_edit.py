@@ -437,8 +437,9 @@ def test_relight_command_writes_pngs_for_a_folder(tmp_path):
     out = tmp_path / "relit"
     main(["relight", str(run), str(photos), "--direction", "0.5", "0.3", "0.8", "--method", "transfer", "ratio",
           "decode", "--out", str(out), "--no-align"])
-    names = sorted(p.name for p in out.iterdir())
+    names = sorted(p.name for p in out.glob("*.png"))
     assert len(names) == 2 * 4 and "p0_transfer_dir_0.5_0.3_0.8.png" in names
+    assert (out / ".tool").read_text() == "edit\n" and (out / "git.txt").exists()  # a tool folder (disent.runs)
     assert Image.open(out / "p1_relight_dir_0.5_0.3_0.8_strip.png").size == (6 * 16 + 5 * 2, 16)
     with pytest.raises(SystemExit):
         main(["relight", str(run), str(tmp_path / "missing.png"), "--direction", "0", "0", "1"])

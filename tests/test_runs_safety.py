@@ -136,3 +136,38 @@ def test_loading_a_damaged_checkpoint_names_the_file(tmp_path):
         load_run(bad)
     with pytest.raises(SystemExit, match=f"^error: the checkpoint {bad} cannot be read"):
         load_model(str(bad))
+
+
+def test_tool_folders_publish_their_results_and_nothing_else(tmp_path, monkeypatch):
+    """A tool writes into its own folder (outputs/<tool>/<date>/<time>-<pid>/ by default); publishing copies its
+    results into reports/<where the tool's results go>, never weights or bookkeeping, and merges benchmark
+    sections instead of replacing the file."""
+    import json
+
+    from disent.runs import publish, tool_folder
+
+    monkeypatch.chdir(tmp_path)
+    edit = tool_folder("edit")
+    assert edit.parent.parent == Path("outputs") / "edit" and edit.name.endswith(f"-{os.getpid()}")
+    assert (edit / ".tool").read_text() == "edit\n" and (edit / "git.txt").exists() and (edit / "command.txt").exists()
+    (edit / "explicit").mkdir()
+    (edit / "explicit" / "edit.md").write_text("table")
+    (edit / "measure_net.pt").write_bytes(b"weights")
+    written = publish(edit, tmp_path / "reports")
+    assert written == [tmp_path / "reports" / "edit" / "explicit" / "edit.md"]
+    assert not (tmp_path / "reports" / "edit" / "measure_net.pt").exists()
+
+    reports = tmp_path / "reports"
+    (reports / "bench.json").write_text(json.dumps({"models": {"old": 1}, "data": {"kept": 2}}))
+    bench = tool_folder("bench", tmp_path / "b")
+    (bench / "bench.json").write_text(json.dumps({"models": {"new": 3}}))
+    publish(bench, reports)
+    assert json.loads((reports / "bench.json").read_text()) == {"models": {"new": 3}, "data": {"kept": 2}}
+
+    with pytest.raises(FileNotFoundError, match="not a tool folder"):
+        publish(tmp_path / "outputs", reports)
+    empty = tool_folder("photos", tmp_path / "empty")
+    with pytest.raises(FileNotFoundError, match="holds no results"):
+        publish(empty, reports)
+    with pytest.raises(ValueError, match="unknown tool"):
+        tool_folder("nonsense")

@@ -5,9 +5,10 @@ subcommands live beside it: :mod:`~disent.bench.models` (models, profile, time_t
 :mod:`~disent.bench.data` (SynthFaces generation), :mod:`~disent.bench.lighting` (L-hat and the posterior)
 and, in ``__main__``, the matmul peak and the shading layer.
 
-Every subcommand prints a table and merges its figures into ``reports/bench.json``, or
-``reports/bench-cuda.json`` with ``--device cuda``, so that GPU figures sit beside the CPU ones
-(the report reads every ``reports/bench*.json``).  Benchmarks print figures; no test asserts a time.
+Every subcommand prints a table and merges its figures into ``bench.json`` (``bench-cuda.json`` with
+``--device cuda``) in the tool folder ``outputs/bench/<date>/<time>-<pid>/`` (or ``--out FILE``);
+``python -m disent.report --publish FOLDER`` merges its sections into ``reports/bench*.json``, which the
+report reads, so that GPU figures sit beside the CPU ones.  Benchmarks print figures; no test asserts a time.
 The machine is shared and noisy, so each figure is the median of several rounds.
 """
 from __future__ import annotations
@@ -22,13 +23,13 @@ from typing import Callable, Sequence
 
 import torch
 
-BENCH_JSON = Path("reports/bench.json")
+BENCH_JSON = Path("bench.json")  # in the bench tool folder; published to reports/bench.json
 DEVICE = "cpu"  # set by --device
 
 
 def bench_json(device: str) -> Path:
-    """Where a run on ``device`` writes: ``reports/bench.json`` on the CPU, ``reports/bench-cuda.json``
-    on any GPU (``cuda:N`` included), so the two never overwrite each other."""
+    """The file a run on ``device`` writes: ``bench.json`` on the CPU, ``bench-cuda.json`` on any GPU
+    (``cuda:N`` included), so the two never overwrite each other when published to ``reports/``."""
     kind = torch.device(device).type
     return BENCH_JSON if kind == "cpu" else BENCH_JSON.with_name(f"bench-{kind}.json")
 

@@ -12,6 +12,7 @@ import torch
 import disent.bench as bench
 from disent.bench import bench_json, measure_peak_gflops, median_time, print_table, save
 from disent.bench import data, lighting, models
+from disent.runs import tool_folder
 from disent.runtime import tune_malloc  # the same setting as training (train.malloc_tuning)
 
 
@@ -62,7 +63,8 @@ def main(argv=None) -> None:
     p.add_argument("--rounds", type=int, default=5, help="timed rounds; the median is reported")
     p.add_argument("--batch", type=int, default=256)
     p.add_argument("--size", type=int, default=64)
-    p.add_argument("--out", type=Path, default=None, help="default: reports/bench.json, reports/bench-cuda.json on a GPU")
+    p.add_argument("--out", type=Path, default=None, help="the JSON to merge into (default: bench.json, bench-cuda.json "
+                   "on a GPU, in a new tool folder outputs/bench/<date>/<time>-<pid>/)")
     p.add_argument("--device", default="cpu", help="cpu | cuda | cuda:N")
     p.add_argument("--amp", action="store_true", help="bfloat16 mixed precision (the shading layer stays float32)")
     p.add_argument("--bf16", dest="bf16", action="store_true", default=None,
@@ -81,7 +83,7 @@ def main(argv=None) -> None:
     args = p.parse_args(argv)
     if args.threads is not None and args.threads < 1:
         p.error(f"--threads {args.threads}: must be a whole number >= 1 (default: the count with the highest matmul peak)")
-    args.out = args.out or bench_json(args.device)
+    args.out = args.out or tool_folder("bench") / bench_json(args.device)
     args.malloc_tuned = False if args.no_malloc_tuning else tune_malloc()
     bench.DEVICE = args.device
     if args.norm:
@@ -100,7 +102,7 @@ def main(argv=None) -> None:
         if name not in SUBCOMMANDS:
             p.error(f"unknown benchmark {name!r}; choose from {', '.join(SUBCOMMANDS)}")
         save(name, SUBCOMMANDS[name](args), args.out)
-    print(f"\nwritten to {args.out}")
+    print(f"\nwritten to {args.out}; publish: python -m disent.report --publish {args.out.parent}")
 
 
 if __name__ == "__main__":

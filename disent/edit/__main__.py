@@ -11,7 +11,7 @@ Examples::
     python -m disent.edit relight RUN target.png --source source.png --out relit/
     python -m disent.edit relight RUN synth:0 synth:1 --light <name> --method transfer ratio decode
     python -m disent.edit relight RUN synth:0 --direction 0.5 0.3 0.8 --intensity 1.0 --ambient 0.2
-    # the measured tables and figures (reports/edit/)
+    # the measured tables and figures (a tool folder; python -m disent.report --publish FOLDER -> reports/edit/)
     python -m disent.edit measure RUN
     python -m disent.edit lights         # the light bank's names
 
@@ -30,6 +30,7 @@ import torch
 
 from disent.edit.traversal import ATTRIBUTES
 from disent.images import over_max, save_image, strip
+from disent.runs import tool_folder
 
 # ----------------------------------------------------------------------------- images
 def load_image(path: Path, resolution: int, align: bool = True) -> torch.Tensor:
@@ -131,7 +132,7 @@ def cmd_traverse(a) -> None:
     recon = model.decode(codes)["recon"]
     edits = [model.decode(traverse(codes, pool, manifolds, a.method, s, add=not a.remove))["recon"]
              for s in a.strength]
-    out = Path(a.out)
+    out = tool_folder("edit", a.out)
     key = "lam" if a.method == "dmt" else "alpha"
     tag = f"{'remove' if a.remove else 'add'}_{a.attribute}_{'+'.join(manifolds)}_{a.method}"
     for i, (name, x) in enumerate(inputs):
@@ -164,7 +165,7 @@ def cmd_relight(a) -> None:
     inputs = load_inputs(a.inputs, R, a.seed, a.align)
     label, sh = source_light(a, model, R)
     images = torch.stack([x for _, x in inputs])
-    out = Path(a.out)
+    out = tool_folder("edit", a.out)
     results = {m: relight(model, images, sh, m) for m in a.method}
     est = model(images)
     S_transfer = sh_shading(est["normal"], sh.expand(len(images), -1, -1))
@@ -210,7 +211,7 @@ def main(argv=None) -> None:
     t.add_argument("--remove", action="store_true", help="move away from the attribute instead")
     t.add_argument("--pool", default="synth", help="'synth' or a CelebA-style folder")
     t.add_argument("--pool-size", type=int, default=400)
-    t.add_argument("--out", default="edits")
+    t.add_argument("--out", default=None, help="output folder (default: outputs/edit/<date>/<time>-<pid>/)")
     t.add_argument("--seed", type=int, default=0)
     t.set_defaults(fn=cmd_traverse)
 
@@ -223,20 +224,21 @@ def main(argv=None) -> None:
     r.add_argument("--intensity", type=float, default=1.0)
     r.add_argument("--ambient", type=float, default=0.2)
     r.add_argument("--method", nargs="+", default=["transfer"], choices=("transfer", "ratio", "decode"))
-    r.add_argument("--out", default="relit")
+    r.add_argument("--out", default=None, help="output folder (default: outputs/edit/<date>/<time>-<pid>/)")
     r.add_argument("--seed", type=int, default=0)
     r.set_defaults(fn=cmd_relight)
 
     m = sub.add_parser("measure", parents=[common], help="the measured traversal and relighting tables on SynthFaces")
     m.add_argument("run", help=run_help)
-    m.add_argument("--out", default="reports/edit")
+    m.add_argument("--out", default=None, help="output folder (default: outputs/edit/<date>/<time>-<pid>/); "
+                   "python -m disent.report --publish OUT copies it to reports/edit/")
     m.add_argument("--attributes", nargs="+", default=list(ATTRIBUTES), choices=ATTRIBUTES)
     m.add_argument("--pool-size", type=int, default=200)
     m.add_argument("--sources", type=int, default=16)
     m.add_argument("--lambdas", nargs="+", type=float, default=None)
     m.add_argument("--alphas", nargs="+", type=float, default=None)
-    m.add_argument("--measure-net", default=None, help="a trained measuring net (default: <out>/measure_net.pt, "
-                   "trained when missing)")
+    m.add_argument("--measure-net", default=None, help="a trained measuring net (default: the shipped "
+                   "disent/weights/measure_net.pt; trained into the output folder when missing)")
     m.add_argument("--train-size", type=int, default=4000)
     m.add_argument("--train-steps", type=int, default=3000)
     m.add_argument("--relight-faces", type=int, default=8)

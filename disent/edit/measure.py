@@ -314,13 +314,19 @@ def image_grid(columns: list[torch.Tensor], titles: list[str], path, scale: floa
     plt.close(fig)
 
 
+SHIPPED_MEASURE_NET = Path(__file__).resolve().parents[1] / "weights" / "measure_net.pt"
+
+
 def _measure_net(a, out, data_cls, resolution):
     from disent.edit.classifier import fit_measure_net, load_measure_net, measure_accuracy, save_measure_net
 
-    path = Path(a.measure_net) if a.measure_net else out / "measure_net.pt"
+    path = Path(a.measure_net) if a.measure_net else SHIPPED_MEASURE_NET
     info_path = path.with_suffix(".json")
     if path.exists():
         return load_measure_net(path), json.loads(info_path.read_text()) if info_path.exists() else {}
+    if a.measure_net:
+        raise FileNotFoundError(f"--measure-net {path}: no such file")
+    path, info_path = out / "measure_net.pt", out / "measure_net.json"  # none shipped: train one here
 
     def tensors(split, size):
         data = data_cls(split=split, resolution=resolution, seed=a.seed, size=size)
@@ -342,8 +348,9 @@ def run_measurements(a) -> None:
     from disent.data import LIGHT_BANK, SynthFaces
     from disent.models import load_run
 
-    out = Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
+    from disent.runs import tool_folder
+
+    out = tool_folder("edit", a.out)
     torch.manual_seed(a.seed)
     model, cfg = load_run(a.run)
     R = int(getattr(model, "resolution", 64))

@@ -1,6 +1,6 @@
 """Trained models on real photos: decomposition, relighting, and the domain gap in numbers.
 
-    python -m disent.eval.photos --run RUN_DIR|NAME [...] [--out reports/photos] [--workers 2]
+    python -m disent.eval.photos --run RUN_DIR|NAME [...] [--out FOLDER] [--workers 2]
 
 A model trained on SynthFaces is applied to the aligned photo crops of the pseudo-GT pipeline.
 Real photos have no intrinsic ground truth, so the gap is measured on what both domains
@@ -143,6 +143,7 @@ def main(argv=None):
     import logging
 
     from disent.data.photos.study import arguments, run_study
+    from disent.runs import tool_folder
 
     ap = arguments(__doc__)
     ap.add_argument("--run", nargs="+", required=True,
@@ -150,17 +151,19 @@ def main(argv=None):
                          "and implicit runs under outputs/ and multirun/ (disent.runs.pick_runs)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    records = run_study(args.out, args.resolution, args.workers, args.cache_dir)
+    out = tool_folder("photos", args.out)
+    records = run_study(out, args.resolution, args.workers, args.cache_dir)
     runs = args.run
     if runs == ["auto"]:
         from disent.runs import find_runs, pick_runs
 
         runs = [r.path for k, r in pick_runs(find_runs()).items() if k in ("explicit", "implicit")]
         print("runs:", [str(r) for r in runs] or "none found")
-    gaps = [apply_run(run, records, Path(args.out)) for run in runs]
+    gaps = [apply_run(run, records, out) for run in runs]
     if gaps:
         command = "python -m disent.eval.photos " + " ".join(argv if argv is not None else __import__("sys").argv[1:])
-        (Path(args.out) / "domain_gap.md").write_text(gap_markdown(gaps, command))
+        (out / "domain_gap.md").write_text(gap_markdown(gaps, command))
+    print(f"wrote {out}; publish it with: python -m disent.report --publish {out}")
 
 
 if __name__ == "__main__":

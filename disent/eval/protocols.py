@@ -21,7 +21,7 @@ zero variance and says nothing about the light, so two more numbers sit beside i
 ``within_share``, the within-condition variance over the variance across all images (1: the
 estimate ignores the light; 0: it depends on the light only), and the SH error against the truth.
 
-``python -m disent.eval.protocols`` writes ``reports/eval/sh_variance.json`` and its bar chart.
+``python -m disent.eval.protocols`` writes ``sh_variance.json`` and its bar chart (a tool folder, published to ``reports/eval/``).
 """
 from __future__ import annotations
 
@@ -139,10 +139,10 @@ def plot_sh_variance(result: dict, path) -> None:
 
 def main(argv=None):
     from disent.data import SynthFaces
-    from disent.runs import RUN_ROOTS, find_runs, load_models
+    from disent.runs import RUN_ROOTS, find_runs, load_models, tool_folder
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--out", default="reports/eval")
+    p.add_argument("--out", default=None, help="output folder (default: outputs/eval/<date>/<time>-<pid>/)")
     p.add_argument("--limit", type=int, default=None, help="first N lightbank images (default: all)")
     p.add_argument("--resolution", type=int, default=64)
     p.add_argument("--roots", nargs="*", default=None, help="folders searched for runs (default: outputs/ multirun/)")
@@ -153,8 +153,7 @@ def main(argv=None):
     ds = SynthFaces(split="lightbank", resolution=a.resolution, seed=0)
     res = sh_variance_protocol(ds, models, a.limit)
     res["split"], res["resolution"] = "lightbank", a.resolution
-    out = Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = tool_folder("eval", a.out)
     (out / "sh_variance.json").write_text(json.dumps(res, indent=1))
     plot_sh_variance(res, out / "sh_variance.png")
     for k, v in res["estimators"].items():

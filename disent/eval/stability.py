@@ -1,4 +1,4 @@
-"""Where the methods fail, measured as curves (JSON + PNG under ``reports/eval/``).
+"""Where the methods fail, measured as curves (JSON + PNG in a tool folder, published to ``reports/eval/``).
 
 1. ``bws``: without batch-wise white shading (BWS, Sec. 4.2) does shading collapse or take a
    colour cast, and does albedo absorb shading?  Shading mean per channel over the face and
@@ -484,11 +484,11 @@ def plot_training(res: dict, path) -> None:
 
 # ----------------------------------------------------------------------------- command
 def main(argv=None):
-    from disent.runs import RUN_ROOTS, find_runs, load_models
+    from disent.runs import RUN_ROOTS, find_runs, load_models, tool_folder
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("studies", nargs="*", default=["conditioning", "ood", "bws", "training"])
-    p.add_argument("--out", default="reports/eval")
+    p.add_argument("--out", default=None, help="output folder (default: outputs/eval/<date>/<time>-<pid>/)")
     p.add_argument("--n", type=int, default=32, help="images per point")
     p.add_argument("--resolution", type=int, default=64)
     p.add_argument("--roots", nargs="*", default=list(RUN_ROOTS), help="folders searched for runs (ood: the models)")
@@ -496,8 +496,7 @@ def main(argv=None):
     p.add_argument("--training-roots", nargs="*", default=list(TRAINING_ROOTS), help="the learning-rate sweeps")
     a = p.parse_args(argv)
     torch.manual_seed(0)
-    out = Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = tool_folder("eval", a.out)
     runs = find_runs(a.roots) if "ood" in a.studies else []
 
     def write(name, res):

@@ -15,6 +15,7 @@ from disent.lighting.experiments import figures_for, noisy, run_all
 from disent.lighting.order import select_order
 from disent.lighting.posterior import prepare, sample_posterior
 from disent.lighting.texture import texture_for
+from disent.runs import tool_folder
 from disent.runtime import single_core
 
 log = logging.getLogger(__name__)
@@ -76,13 +77,13 @@ def main(cfg: DictConfig) -> None:
 
 
 def run(cfg: DictConfig) -> None:
-    if cfg.task == "report":
-        run_all(cfg.split, cfg.data.resolution, cfg.data.seed)
-        return
-    if cfg.task != "posterior":
+    if cfg.task not in ("posterior", "report"):
         raise ValueError(f"task must be 'posterior' or 'report', got {cfg.task!r}")
-    out = Path(hydra.utils.to_absolute_path(cfg.out))
-    out.mkdir(parents=True, exist_ok=True)
+    out = tool_folder("lighting", hydra.utils.to_absolute_path(cfg.out))
+    if cfg.task == "report":
+        run_all(out, cfg.split, cfg.data.resolution, cfg.data.seed)
+        log.info("wrote %s; publish it with: python -m disent.report --publish %s", out, out)
+        return
     results = []
     for k, (name, item) in enumerate(items(cfg)):
         result, post, data = posterior_of(cfg, name, item)

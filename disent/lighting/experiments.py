@@ -3,7 +3,8 @@
 Every experiment fits the known-albedo model ``image = albedo * S(n, L) + noise`` on the true
 normals and matte, so that the sampled L is the scene's SH light and can be checked against
 it; i.i.d. Gaussian noise of std ``noise`` is added to the image with a fixed seed.  Outputs
-go to ``reports/lighting/`` (JSON and PNG).
+go to the run folder (JSON and PNG); ``python -m disent.report --publish FOLDER`` copies them to
+``reports/lighting/``.
 """
 from __future__ import annotations
 
@@ -18,7 +19,6 @@ from disent.lighting.order import choose, select_order
 from disent.lighting.posterior import N_COEFFS, prepare, sample_posterior
 from disent.render import C4, fit_sh, sh_basis
 
-OUT = Path("reports/lighting")
 BANDS = {0: [0], 1: [1, 2, 3], 2: [4, 5, 6, 7, 8]}
 GEOMETRY = {"normal": ("normal", "matte", "uv"), "normal_pseudo": ("normal_pseudo", "mask_pseudo", "uv_pseudo")}
 ALBEDO = ("known", "constant", "texture")
@@ -46,9 +46,9 @@ def band_width(post, level: float = 0.68) -> dict:
     return {f"band{b}": float(w[:, k].mean()) for b, k in BANDS.items()}
 
 
-def save_json(name: str, obj) -> Path:
-    OUT.mkdir(parents=True, exist_ok=True)
-    path = OUT / f"{name}.json"
+def save_json(name: str, obj, out: Path) -> Path:
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"{name}.json"
     path.write_text(json.dumps(obj, indent=2))
     return path
 
@@ -226,21 +226,22 @@ ORDER_ROWS = (("known", "normal"), ("constant", "normal"), ("texture", "normal")
               ("known", "normal_pseudo", GEOMETRY_NOISE), ("texture", "normal_pseudo", GEOMETRY_NOISE))
 
 
-def order_study(splits=("val", "test"), rows=ORDER_ROWS, n_per_order: int = 20, noise: float = 0.02,
+def order_study(out: Path, splits=("val", "test"), rows=ORDER_ROWS, n_per_order: int = 20, noise: float = 0.02,
                 resolution: int = 64, seed: int = 0, name: str = "order") -> dict:
     """The order-choice confusion matrices of every ``(albedo, normals[, geometry noise])`` row on each split;
-    written to ``reports/lighting/<name>.json`` (the method and its constants are chosen on
+    written to ``out/<name>.json`` (the method and its constants are chosen on
     ``val``; ``test`` only reports)."""
     from disent.data import SynthFaces
 
-    out = {}
+    result = {}
     for split in splits:
         ds = SynthFaces(split, resolution, seed)
         for albedo, normals, *geometry in rows:
             key = f"{split}/{albedo}/{normals}" + ("+geometry_noise" if geometry else "")
-            out[key] = order_confusion(ds, n_per_order, noise, albedo, normals, geometry_noise=geometry[0] if geometry else None)
-            save_json(name, out)
-    return out
+            result[key] = order_confusion(ds, n_per_order, noise, albedo, normals,
+                                          geometry_noise=geometry[0] if geometry else None)
+            save_json(name, result, out)
+    return result
 
 
 def draw_confusion(ax, confusion) -> None:
@@ -352,48 +353,49 @@ def speed(ds=None, batch: int = 256, rounds: int = 3) -> dict:
 
 
 # ----------------------------------------------------------------------------- all of it
-def run_all(split: str = "test", resolution: int = 64, seed: int = 0, quick: bool = False) -> dict:
-    """Every experiment of the report section; writes ``reports/lighting/*``."""
+def run_all(out: Path, split: str = "test", resolution: int = 64, seed: int = 0, quick: bool = False) -> dict:
+    """Every experiment of the report's lighting section; writes ``out/*`` (JSON and PNG), which
+    ``python -m disent.report --publish OUT`` copies to ``reports/lighting/``."""
     from disent.data import SynthFaces
     from disent.runtime import single_core
 
     with single_core():
-        return _run_all(SynthFaces(split, resolution, seed), resolution, seed, quick)
+        return _run_all(SynthFaces(split, resolution, seed), Path(out), resolution, seed, quick)
 
 
-def _run_all(ds, resolution: int, seed: int, quick: bool) -> dict:
+def _run_all(ds, out: Path, resolution: int, seed: int, quick: bool) -> dict:
     split = ds.split
-    OUT.mkdir(parents=True, exist_ok=True)
+    out.mkdir(parents=True, exist_ok=True)
     summary, t0 = {}, time.perf_counter()
     n = 2 if quick else 1
 
     item = ds[0]
     data = item_data(item, 0.02, 0)
     post = sample_posterior(data)
-    figures_for(post, item, data, OUT / "example")
+    figures_for(post, item, data, out / "example")
     summary["example"] = post.summary() | {"true_sh": item["sh"].tolist()}
-    save_json("example", summary["example"])
+    save_json("example", summary["example"], out)
 
     summary["widths"] = widths(ds, n_faces=2 // n)
-    save_json("widths", summary["widths"])
-    plot_widths(summary["widths"], OUT / "widths.png")
+    save_json("widths", summary["widths"], out)
+    plot_widths(summary["widths"], out / "widths.png")
 
     summary["calibration"] = calibration(ds, n_images=10 // n)
-    save_json("calibration", summary["calibration"])
-    plot_calibration(summary["calibration"], OUT / "calibration.png")
+    save_json("calibration", summary["calibration"], out)
+    plot_calibration(summary["calibration"], out / "calibration.png")
 
     summary["calibration_pseudo"] = calibration(ds, n_images=8 // n, normals="normal_pseudo",
                                                 conditions=("lambertian", "specular", "cast_shadow"))
-    save_json("calibration_pseudo", summary["calibration_pseudo"])
-    plot_calibration(summary["calibration_pseudo"], OUT / "calibration_pseudo.png")
+    save_json("calibration_pseudo", summary["calibration_pseudo"], out)
+    plot_calibration(summary["calibration_pseudo"], out / "calibration_pseudo.png")
 
-    summary["order"] = order_study(("val", split), n_per_order=20 // n, resolution=resolution, seed=seed)
-    plot_order_study(summary["order"], OUT / "order_confusion.png")
+    summary["order"] = order_study(out, ("val", split), n_per_order=20 // n, resolution=resolution, seed=seed)
+    plot_order_study(summary["order"], out / "order_confusion.png")
 
     summary["speed"] = speed(ds)
-    save_json("speed", summary["speed"])
+    save_json("speed", summary["speed"], out)
     summary["seconds"] = time.perf_counter() - t0
-    save_json("summary", {k: v for k, v in summary.items() if k != "example"})
+    save_json("summary", {k: v for k, v in summary.items() if k != "example"}, out)
     return summary
 
 

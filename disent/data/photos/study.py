@@ -1,6 +1,6 @@
 """The pseudo-GT pipeline on the photos that ship with the dependencies, for the report.
 
-    python -m disent.data.photos [--out reports/photos] [--workers 2]
+    python -m disent.data.photos [--out FOLDER] [--workers 2]
 
 Photos: scikit-image's ``astronaut``, matplotlib's ``grace_hopper`` sample and the 100 faces
 of scikit-image's ``lfw_subset`` (25x25 gray crops, bundled with scikit-image; its other 100
@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from disent.data.photos import pseudo_gt as pg
+from disent.runs import tool_folder
 
 N_LFW_FACES = 100  # lfw_subset: images 0-99 are faces, 100-199 are not
 
@@ -173,9 +174,7 @@ def markdown(stats: dict) -> str:
 
 def run_study(out, resolution: int = 64, workers: int = 2, cache_dir=None) -> list:
     """Pseudo ground truth of the bundled photos: ``pseudo_gt.json``, ``pseudo_gt.md`` and ``pseudo_gt.png`` in
-    ``out``; returns the records of the photos it could use (for :mod:`disent.eval.photos`)."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    ``out`` (a tool folder: :func:`disent.runs.tool_folder`); returns the records of the photos it could use (for :mod:`disent.eval.photos`)."""
     settings = pg.PseudoGTSettings(resolution=resolution)
     cache = Path(cache_dir) if cache_dir else pg.default_cache_dir()
     photos = bundled_photos(cache / "bundled_photos")
@@ -208,7 +207,7 @@ def run_study(out, resolution: int = 64, workers: int = 2, cache_dir=None) -> li
 
 def arguments(description: str) -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", default="reports/photos")
+    ap.add_argument("--out", default=None, help="output folder (default: outputs/photos/<date>/<time>-<pid>/)")
     ap.add_argument("--resolution", type=int, default=64)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--cache-dir", default=None)
@@ -218,7 +217,7 @@ def arguments(description: str) -> argparse.ArgumentParser:
 def main(argv=None):
     args = arguments(__doc__).parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    run_study(args.out, args.resolution, args.workers, args.cache_dir)
+    run_study(tool_folder("photos", args.out), args.resolution, args.workers, args.cache_dir)
 
 
 if __name__ == "__main__":

@@ -13,6 +13,7 @@ import torch
 from . import LIGHT_NAMES, SynthFaces
 from .scenes import ATTRIBUTES, EFFECTS
 from disent.images import display, strip
+from disent.runs import tool_folder
 
 
 def contact_sheet(resolution: int = 64, seed: int = 0) -> tuple[torch.Tensor, list[str]]:
@@ -54,7 +55,8 @@ def contact_sheet(resolution: int = 64, seed: int = 0) -> tuple[torch.Tensor, li
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--out", type=Path, default=Path("reports/figures/synthfaces.png"))
+    ap.add_argument("--out", type=Path, default=None, help="PNG to write (default: synthfaces.png in a new tool folder "
+                    "outputs/sheet/<date>/<time>-<pid>/, published to reports/figures/)")
     ap.add_argument("--resolution", type=int, default=64)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--zoom", type=int, default=2)
@@ -63,9 +65,10 @@ def main(argv=None) -> None:
 
     sheet, labels = contact_sheet(args.resolution, args.seed)
     sheet = sheet.repeat_interleave(args.zoom, 1).repeat_interleave(args.zoom, 2)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    plt.imsave(args.out, sheet.permute(1, 2, 0).numpy())
-    print(f"wrote {args.out}")
+    out = args.out or tool_folder("sheet") / "synthfaces.png"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    plt.imsave(out, sheet.permute(1, 2, 0).numpy())
+    print(f"wrote {out}")
     for line in labels:
         print(" ", line)
 
