@@ -1,10 +1,11 @@
 """``python -m disent``: train and evaluate one model (Hydra; see conf/config.yaml).
 
-    python -m disent                                      # explicit model, all losses, SynthFaces 64x64
-    python -m disent model=implicit +ablation=no_bws      # one loss off
-    python -m disent -m model=baseline,explicit,implicit  # side by side (multirun)
-    python -m disent +experiment=smoke                    # a few steps, for checks
+python -m disent                                      # explicit model, all losses, SynthFaces 64x64
+python -m disent model=implicit +ablation=no_bws      # one loss off
+python -m disent -m model=baseline,explicit,implicit  # side by side (multirun)
+python -m disent +experiment=smoke                    # a few steps, for checks
 """
+
 from __future__ import annotations
 
 from pathlib import Path

@@ -1,10 +1,11 @@
 """Tensors as pictures: one place for how a layer is shown and saved.
 
-A map ``[C,H,W]`` (``C`` = 1, 2 or 3) is shown as an ``[H,W,3]`` array in [0,1]: a one-channel map (matte, grey
-shading) is repeated over RGB, a UV map shows u red and v green, a normal map goes from [-1,1] to [0,1] with its zero vectors (pixels no model
-claims) left black, and everything is clipped to [0,1].  Shading under BWS has mean 0.75 and peaks above 1:
-:func:`over_max` divides it by each image's maximum before it is shown.
+A map ``[C,H,W]`` (``C`` = 1, 2 or 3) is shown as an ``[H,W,3]`` array in [0,1]: a one-channel map (matte,
+grey shading) is repeated over RGB, a UV map shows u red and v green, a normal map goes from [-1,1] to [0,1]
+with its zero vectors (pixels no model claims) left black, and everything is clipped to [0,1].  Shading under
+BWS has mean 0.75 and peaks above 1: :func:`over_max` divides it by each image's maximum before it is shown.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -59,7 +60,10 @@ def strip(images: list[torch.Tensor], pad: int = 2) -> torch.Tensor:
 def sample_grid(batch: dict, out: dict, columns, n: int = 8) -> np.ndarray:
     """uint8 ``[n*H, k*W, 3]``: one row per image, one column per name in ``columns`` that the model has
     (``image`` from the batch, the rest from its output)."""
-    cols = [display((batch if name == "image" else out)[name][:n], "normal" if name == "normal" else "rgb")
-            for name in columns if name == "image" or out.get(name) is not None]
+    cols = [
+        display((batch if name == "image" else out)[name][:n], "normal" if name == "normal" else "rgb")
+        for name in columns
+        if name == "image" or out.get(name) is not None
+    ]
     grid = torch.cat([torch.cat(list(c), 1) for c in cols], 2)  # [3, n*H, k*W]
     return to_uint8(grid.permute(1, 2, 0).numpy())

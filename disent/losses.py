@@ -23,6 +23,7 @@ name           term                                      needs
 A term whose weight is 0 is not computed at all: it is absent from the loss dict and adds
 nothing to the gradient (that is how ablations switch terms off).
 """
+
 from __future__ import annotations
 
 import torch
@@ -111,10 +112,31 @@ def M(out, batch):
     return F.mse_loss(out["matte"], batch["mask_pseudo"])
 
 
-TERM_FUNCTIONS = {"recon": recon, "recon_fg": recon_fg, "recon_N": recon_N, "recon_L": recon_L, "smooth_A": smooth_A,
-                  "smooth_S": smooth_S, "UV": UV, "Ni": Ni, "BWS": BWS, "M": M}  # adv comes from D
-NEEDS = {"recon": "recon", "recon_fg": "foreground", "adv": "recon", "recon_N": "normal", "recon_L": "sh", "smooth_A": "albedo",
-         "smooth_S": "shading", "UV": "uv", "Ni": "normal_uv", "BWS": "shading", "M": "matte"}
+TERM_FUNCTIONS = {
+    "recon": recon,
+    "recon_fg": recon_fg,
+    "recon_N": recon_N,
+    "recon_L": recon_L,
+    "smooth_A": smooth_A,
+    "smooth_S": smooth_S,
+    "UV": UV,
+    "Ni": Ni,
+    "BWS": BWS,
+    "M": M,
+}  # adv comes from D
+NEEDS = {
+    "recon": "recon",
+    "recon_fg": "foreground",
+    "adv": "recon",
+    "recon_N": "normal",
+    "recon_L": "sh",
+    "smooth_A": "albedo",
+    "smooth_S": "shading",
+    "UV": "uv",
+    "Ni": "normal_uv",
+    "BWS": "shading",
+    "M": "matte",
+}
 
 
 def active_terms(weights: dict, out: dict) -> list[str]:
@@ -125,8 +147,15 @@ def active_terms(weights: dict, out: dict) -> list[str]:
     return [t for t in TERMS if weights.get(t, 0) and NEEDS[t] in out]
 
 
-def generator_losses(out: dict, batch: dict, weights: dict, energy_fake=None, bws_c: float = 0.75,
-                     lhat_white: bool = True, recon_L_space: str = "shading") -> dict:
+def generator_losses(
+    out: dict,
+    batch: dict,
+    weights: dict,
+    energy_fake=None,
+    bws_c: float = 0.75,
+    lhat_white: bool = True,
+    recon_L_space: str = "shading",
+) -> dict:
     """Unweighted value of every active term, plus ``total`` = sum of weight x term (E_o and the priors).
 
     ``energy_fake`` is D's energy of ``out['recon']`` (``[B]``), needed when ``adv`` is active;

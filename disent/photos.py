@@ -12,6 +12,7 @@ it writes, per photo ``NNN_<name>/``: ``crop.png``, ``normal_pseudo.png``, ``mas
 detailed albedo, Sec. 5.3); for the folder, ``decomposition.png`` (one row per photo) and ``summary.json``
 with every file used or skipped and why.  Bad files are reported and left out; they never stop the batch.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -69,11 +70,13 @@ def run_pipeline(files, faces, resolution: int, upsample: int, cache_dir, worker
             n_faces = {r.path: len(pg.load_cached(r)["faces"]) for r in records if r.used}
             for k in range(1, max(n_faces.values(), default=1)):
                 more = [p for p, n in n_faces.items() if n > k]
-                records += pg.prepare(more, pg.PseudoGTSettings(**base, face=k), cache_dir, workers=workers,
-                                      log_summary=False)[0]
+                records += pg.prepare(
+                    more, pg.PseudoGTSettings(**base, face=k), cache_dir, workers=workers, log_summary=False
+                )[0]
     except (ImportError, FileNotFoundError) as e:  # dlib or its landmark model missing: a setup error
-        raise SystemExit(f"error: the photo pipeline needs dlib and its landmark model "
-                         f"(pip install -e '.[photos]'): {e}") from None
+        raise SystemExit(
+            f"error: the photo pipeline needs dlib and its landmark model (pip install -e '.[photos]'): {e}"
+        ) from None
     return records
 
 
@@ -82,8 +85,11 @@ def photo_landmarks(arrays: dict) -> dict:
     crop = arrays["landmarks"].astype(np.float64)
     M = arrays["align"].astype(np.float64)  # photo -> crop, 3x3
     photo = (np.c_[crop, np.ones(len(crop))] @ np.linalg.inv(M).T)[:, :2]
-    return {"photo_xy": np.round(photo, 2).tolist(), "crop_xy": np.round(crop, 2).tolist(),
-            "fit_residual_px": float(arrays["residual_px"])}
+    return {
+        "photo_xy": np.round(photo, 2).tolist(),
+        "crop_xy": np.round(crop, 2).tolist(),
+        "fit_residual_px": float(arrays["residual_px"]),
+    }
 
 
 @torch.no_grad()
@@ -105,13 +111,23 @@ def write_photo(folder: Path, arrays: dict, batch: dict, out: dict, relit: dict,
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m disent.photos", description=__doc__.split("\n\n")[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 1)[1])
+    ap = argparse.ArgumentParser(
+        prog="python -m disent.photos",
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=__doc__.split("\n\n", 1)[1],
+    )
     ap.add_argument("paths", nargs="+", help="image files and folders")
-    ap.add_argument("--run", default="explicit", help="shipped model name, run folder or checkpoint (default: explicit)")
+    ap.add_argument(
+        "--run", default="explicit", help="shipped model name, run folder or checkpoint (default: explicit)"
+    )
     ap.add_argument("--out", default=None, help="output folder (default: outputs/photos/<date>/<time>-<pid>)")
-    ap.add_argument("--faces", default="largest", type=faces_choice,
-                    help="a photo with several faces: largest (default), all, skip, or N (the N-th by size, 0: largest)")
+    ap.add_argument(
+        "--faces",
+        default="largest",
+        type=faces_choice,
+        help="a photo with several faces: largest (default), all, skip, or N (the N-th by size, 0: largest)",
+    )
     ap.add_argument("--upsample", type=int, default=1, help="face detector upsampling (finds smaller faces)")
     ap.add_argument("--workers", type=int, default=0, help="processes for the pseudo-GT pipeline (0: this one)")
     ap.add_argument("--cache-dir", default=None, help="pseudo-GT cache (default: ~/.cache/disent/pseudo_gt)")
@@ -143,23 +159,39 @@ def main(argv=None) -> None:
             folder = out_dir / f"{i:03d}_{Path(r.path).stem}{f'_face{r.face}' if r.face else ''}"
             arrays = pg.load_cached(r)
             write_photo(folder, arrays, batch, est, relit, i)
-            report["photos"].append({"path": r.path, "used": True, "face": r.face, "folder": folder.name,
-                                     "notes": r.notes, "fit_residual_px": r.residual_px,
-                                     "faces_found": [{"box": [round(float(v), 1) for v in f[:4]], "score": round(float(f[4]), 3)}
-                                                     for f in arrays["faces"]]})
+            report["photos"].append(
+                {
+                    "path": r.path,
+                    "used": True,
+                    "face": r.face,
+                    "folder": folder.name,
+                    "notes": r.notes,
+                    "fit_residual_px": r.residual_px,
+                    "faces_found": [
+                        {"box": [round(float(v), 1) for v in f[:4]], "score": round(float(f[4]), 3)}
+                        for f in arrays["faces"]
+                    ],
+                }
+            )
         shown = used[:SHOWN]
         figures(model, photo_batch(shown), [Path(r.path).stem for r in shown], out_dir, "photos")
         (out_dir / "decomposition_photos.png").replace(out_dir / "decomposition.png")
         if (out_dir / "relight_photos.png").exists():
             (out_dir / "relight_photos.png").replace(out_dir / "relight.png")
-    report["photos"] += [{"path": r.path, "used": False, "face": r.face, "reason": r.reason, "detail": r.detail}
-                         for r in records if not r.used]
+    report["photos"] += [
+        {"path": r.path, "used": False, "face": r.face, "reason": r.reason, "detail": r.detail}
+        for r in records
+        if not r.used
+    ]
     (out_dir / "summary.json").write_text(json.dumps(report, indent=2) + "\n")
     print(pg.format_summary(summary))
     for r in records:
         if not r.used:
             print(f"  skipped {r.path}: {r.reason}{f' ({r.detail})' if r.detail else ''}")
-    print(f"{len(used)} photo(s) decomposed by {a.run} -> {out_dir}/ (summary.json, decomposition.png, one folder per photo)")
+    print(
+        f"{len(used)} photo(s) decomposed by {a.run} -> {out_dir}/ "
+        "(summary.json, decomposition.png, one folder per photo)"
+    )
     if not used:
         raise SystemExit(1)
 

@@ -12,6 +12,7 @@ Conventions, fixed here once for the whole suite:
 * Shading is irradiance: a unit directional light along ``d`` projected with
   :func:`sh_from_directions` gives shading close to ``max(0, n . d)``.
 """
+
 from __future__ import annotations
 
 import torch
@@ -88,11 +89,14 @@ class _SHShading(torch.autograd.Function):
             G = torch.einsum("bchw,bck->bkhw", grad, sh)  # linear in L: contract the channels first
             _, G2, G3, G4, G5, G6, G7, G8, G9 = G.unbind(1)
             nx, ny, nz = normal.unbind(1)
-            grad_normal = 2 * torch.stack((
-                C1 * (G9 * nx + G5 * ny + G8 * nz) + C2 * G4,
-                C1 * (G5 * nx - G9 * ny + G6 * nz) + C2 * G2,
-                C1 * (G8 * nx + G6 * ny) + C3 * G7 * nz + C2 * G3,
-            ), 1)
+            grad_normal = 2 * torch.stack(
+                (
+                    C1 * (G9 * nx + G5 * ny + G8 * nz) + C2 * G4,
+                    C1 * (G5 * nx - G9 * ny + G6 * nz) + C2 * G2,
+                    C1 * (G8 * nx + G6 * ny) + C3 * G7 * nz + C2 * G3,
+                ),
+                1,
+            )
         return grad_normal, grad_sh
 
 
@@ -117,7 +121,9 @@ def composite(matte: torch.Tensor, foreground: torch.Tensor, background: torch.T
     return matte * foreground + (1 - matte) * background
 
 
-def sh_from_directions(direction: torch.Tensor, intensity: torch.Tensor, ambient: torch.Tensor | float = 0.0) -> torch.Tensor:
+def sh_from_directions(
+    direction: torch.Tensor, intensity: torch.Tensor, ambient: torch.Tensor | float = 0.0
+) -> torch.Tensor:
     """Project distant lights onto L1..L9 so that shading ~ ambient + sum_k I_k max(0, n . d_k).
 
     ``direction [..., K, 3]`` (normalised here), ``intensity [..., K, C]``,
@@ -126,8 +132,17 @@ def sh_from_directions(direction: torch.Tensor, intensity: torch.Tensor, ambient
     d = direction / direction.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     x, y, z = d.unbind(-1)
     Y = torch.stack(
-        (torch.full_like(x, _Y00), _Y1 * y, _Y1 * z, _Y1 * x, _Y2 * x * y, _Y2 * y * z,
-         _Y20 * (3 * z * z - 1), _Y2 * x * z, _Y22 * (x * x - y * y)),
+        (
+            torch.full_like(x, _Y00),
+            _Y1 * y,
+            _Y1 * z,
+            _Y1 * x,
+            _Y2 * x * y,
+            _Y2 * y * z,
+            _Y20 * (3 * z * z - 1),
+            _Y2 * x * z,
+            _Y22 * (x * x - y * y),
+        ),
         -1,
     )  # [..., K, 9]
     sh = torch.einsum("...kc,...kj->...cj", intensity.to(Y.dtype), Y)
@@ -155,8 +170,16 @@ def design_condition(normal: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     return (ev[:, -1] / ev[:, 0].clamp_min(1e-300)).to(normal.dtype)
 
 
-def fit_sh(image, normal, mask, albedo=None, *, min_pixels: int = 16, max_cond: float = 1e7,
-           on_ill_conditioned: str = "regularize"):
+def fit_sh(
+    image,
+    normal,
+    mask,
+    albedo=None,
+    *,
+    min_pixels: int = 16,
+    max_cond: float = 1e7,
+    on_ill_conditioned: str = "regularize",
+):
     """The paper's L-hat (Sec. 4.2): least-squares SH light per channel over masked pixels.
 
     Solves ``image ~ sh_shading(normal, L)`` with a constant albedo whose scale is absorbed
@@ -188,8 +211,7 @@ def fit_sh(image, normal, mask, albedo=None, *, min_pixels: int = 16, max_cond: 
     counts = (mask.flatten(1) > 0).sum(1)
     if (counts < min_pixels).any():
         bad = torch.nonzero(counts < min_pixels).flatten().tolist()
-        raise ValueError(f"fit_sh needs at least {min_pixels} masked pixels; images {bad} have "
-                         f"{counts[bad].tolist()}")
+        raise ValueError(f"fit_sh needs at least {min_pixels} masked pixels; images {bad} have {counts[bad].tolist()}")
     y = target.flatten(2)  # [B,C,P]
     inside = mask.flatten(1) > 0
     if not torch.isfinite(y).all(1)[inside].all():
@@ -203,16 +225,19 @@ def fit_sh(image, normal, mask, albedo=None, *, min_pixels: int = 16, max_cond: 
     return sh.to(image.dtype), residual.sqrt().to(image.dtype)
 
 
-def solve_normal_equations(AtA: torch.Tensor, Aty: torch.Tensor, max_cond: float = 1e7,
-                           on_ill_conditioned: str = "regularize") -> torch.Tensor:
+def solve_normal_equations(
+    AtA: torch.Tensor, Aty: torch.Tensor, max_cond: float = 1e7, on_ill_conditioned: str = "regularize"
+) -> torch.Tensor:
     """L-hat from the normal equations of :func:`fit_sh`: ``AtA [B,9,9]``, ``Aty [B,9,C]`` -> ``sh [B,C,9]``
     (float64), with the ridge (or :class:`IllConditionedFit`) that :func:`fit_sh` documents."""
     ev, V = torch.linalg.eigh(AtA.double())
     cond = ev[:, -1] / ev[:, 0].clamp_min(1e-300)
     ill = cond > max_cond
     if ill.any() and on_ill_conditioned == "raise":
-        raise IllConditionedFit(f"fit_sh: design condition numbers {cond[ill].tolist()} exceed {max_cond:g} "
-                                f"for images {torch.nonzero(ill).flatten().tolist()} (normals span too narrow a cone)")
+        raise IllConditionedFit(
+            f"fit_sh: design condition numbers {cond[ill].tolist()} exceed {max_cond:g} "
+            f"for images {torch.nonzero(ill).flatten().tolist()} (normals span too narrow a cone)"
+        )
     delta = torch.where(ill, ev[:, -1] / max_cond - ev[:, 0], torch.zeros_like(cond)).clamp_min(0)
     inv = 1.0 / (ev + delta[:, None]).clamp_min(1e-300)
     return torch.einsum("bkj,bj,blj,blc->bck", V, inv, V, Aty.double())  # (A^T A + delta I)^-1 A^T y
@@ -232,14 +257,33 @@ def rotate_sh(sh: torch.Tensor, R: torch.Tensor, n_samples: int = 512) -> torch.
     """
     m = sample_sphere(n_samples, torch.Generator().manual_seed(0), torch.float64)
     m = m.T.reshape(1, 3, n_samples, 1)
-    shading = sh_shading((R.double().T @ m.reshape(3, -1)).reshape(1, 3, n_samples, 1).expand(sh.shape[0], -1, -1, -1),
-                         sh.double())
+    shading = sh_shading(
+        (R.double().T @ m.reshape(3, -1)).reshape(1, 3, n_samples, 1).expand(sh.shape[0], -1, -1, -1), sh.double()
+    )
     fitted, _ = fit_sh(shading, m.expand(sh.shape[0], -1, -1, -1), torch.ones(sh.shape[0], 1, n_samples, 1))
     return fitted.to(sh.dtype)
 
 
 __all__ = [
-    "C1", "C2", "C3", "C4", "C5", "SH_NAMES", "SH_ORDER_OF", "unit", "sh_basis", "sh_matrix", "sh_shading",
-    "sh_shading_reference", "image_formation", "composite", "sh_from_directions", "fit_sh",
-    "design_condition", "IllConditionedFit", "solve_normal_equations", "sample_sphere", "rotate_sh",
+    "C1",
+    "C2",
+    "C3",
+    "C4",
+    "C5",
+    "SH_NAMES",
+    "SH_ORDER_OF",
+    "unit",
+    "sh_basis",
+    "sh_matrix",
+    "sh_shading",
+    "sh_shading_reference",
+    "image_formation",
+    "composite",
+    "sh_from_directions",
+    "fit_sh",
+    "design_condition",
+    "IllConditionedFit",
+    "solve_normal_equations",
+    "sample_sphere",
+    "rotate_sh",
 ]

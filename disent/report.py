@@ -10,6 +10,7 @@
 and writes one Markdown report with PNG figures under ``reports/figures/``.  Every figure is
 drawn from run data; whatever is missing becomes a note in the report, never a crash.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -35,8 +36,10 @@ INFER_SPEED_KEYS = ("infer_images_per_s", "inference_images_per_s")
 
 def _plt():
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     return plt
 
 
@@ -106,9 +109,10 @@ class Report:
         new = self.lines[start:]
         old = self.previous.get(title, [])
         if all(line.startswith(MISSING) for line in new) and any(not line.startswith((MISSING, KEPT)) for line in old):
-            why = " ".join(line[len(MISSING):].strip() for line in new)
-            self.lines[start:] = [f"{KEPT} as published before; its inputs are missing in this build ({why})\n"] + \
-                [line for line in old if not line.startswith(KEPT)]
+            why = " ".join(line[len(MISSING) :].strip() for line in new)
+            self.lines[start:] = [f"{KEPT} as published before; its inputs are missing in this build ({why})\n"] + [
+                line for line in old if not line.startswith(KEPT)
+            ]
 
 
 MISSING, KEPT = "> **Missing:**", "> **Kept:**"
@@ -163,24 +167,45 @@ def _models(chosen: dict[str, Run]) -> dict:
 # ----------------------------------------------------------------------------- sections
 def sec_runs(rep: Report, runs: list[Run]) -> None:
     if not runs:
-        rep.note("no run folders under `outputs/` or `multirun/`. Train with `python -m disent` or run the "
-                 "suite (`ablations/README.md`), then run `python -m disent.report` again.")
+        rep.note(
+            "no run folders under `outputs/` or `multirun/`. Train with `python -m disent` or run the "
+            "suite (`ablations/README.md`), then run `python -m disent.report` again."
+        )
         return
-    cols = ("recon_mse", "recon_face_psnr", "normal_mean", "trivial_normal_mean", "pseudo_normal_mean", "albedo_si_mse",
-            "trivial_albedo_si_mse", "sh_error", "trivial_sh_error", "light_shading_si_mse",
-            "trivial_light_shading_si_mse")
-    rep.add("| run | variant | seed | status | train img/s | infer img/s | " + " | ".join(cols) + " |",
-            "|" + "---|" * (6 + len(cols)))
+    cols = (
+        "recon_mse",
+        "recon_face_psnr",
+        "normal_mean",
+        "trivial_normal_mean",
+        "pseudo_normal_mean",
+        "albedo_si_mse",
+        "trivial_albedo_si_mse",
+        "sh_error",
+        "trivial_sh_error",
+        "light_shading_si_mse",
+        "trivial_light_shading_si_mse",
+    )
+    rep.add(
+        "| run | variant | seed | status | train img/s | infer img/s | " + " | ".join(cols) + " |",
+        "|" + "---|" * (6 + len(cols)),
+    )
     for r in runs:
+
         def f(v):
             return "–" if v is None else f"{v:.4g}"
-        rep.add(f"| `{r.path}` | {r.variant} | {r.seed} | {r.status} | {f(_speed(r, TRAIN_SPEED_KEYS))} | "
-                f"{f(_speed(r, INFER_SPEED_KEYS))} | " + " | ".join(f(r.value(c)) for c in cols) + " |")
-    rep.add("", "_`trivial_*`: the dataset-mean normal map, albedo map and light on the same test images "
-            "(`disent/eval/trivial.py`); a layer counts as learned only where it beats them. Normals, albedo and "
-            "`light_shading_si_mse` (the light's shading through the true normals) are scored on the face inside "
-            "the pseudo mask, the model's own foreground; `sh_error` on the 27 SH coefficients, including the "
-            "directions a face's normals cannot reveal._\n")
+
+        rep.add(
+            f"| `{r.path}` | {r.variant} | {r.seed} | {r.status} | {f(_speed(r, TRAIN_SPEED_KEYS))} | "
+            f"{f(_speed(r, INFER_SPEED_KEYS))} | " + " | ".join(f(r.value(c)) for c in cols) + " |"
+        )
+    rep.add(
+        "",
+        "_`trivial_*`: the dataset-mean normal map, albedo map and light on the same test images "
+        "(`disent/eval/trivial.py`); a layer counts as learned only where it beats them. Normals, albedo and "
+        "`light_shading_si_mse` (the light's shading through the true normals) are scored on the face inside "
+        "the pseudo mask, the model's own foreground; `sh_error` on the 27 SH coefficients, including the "
+        "directions a face's normals cannot reveal._\n",
+    )
 
 
 def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
@@ -214,11 +239,17 @@ def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
         return over_max(x) if k == "shading" else x
 
     for name, out in outs.items():
-        rows = [("input", batch["image"])] + [(k + (" / max" if k == "shading" else ""), shown(out, k))
-                                              for k in ("recon", "albedo", "normal", "shading", "matte") if k in out]
+        rows = [("input", batch["image"])] + [
+            (k + (" / max" if k == "shading" else ""), shown(out, k))
+            for k in ("recon", "albedo", "normal", "shading", "matte")
+            if k in out
+        ]
         path = rep.fig / f"teaser_{name}.png"
-        _grid(rows, path, f"{name} ({chosen[name].path}) on SynthFaces test images; albedo, normal and shading "
-                          "where its matte > 0.5")
+        _grid(
+            rows,
+            path,
+            f"{name} ({chosen[name].path}) on SynthFaces test images; albedo, normal and shading where its matte > 0.5",
+        )
         rep.add(f"**{name}** (`{chosen[name].path}`)\n")
         rep.image(path, f"teaser {name}")
     rec = [("input", batch["image"])] + [(f"{k} recon", outs[k]["recon"]) for k in MODELS if k in outs]
@@ -226,8 +257,11 @@ def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
     _grid(rec, path, "Baseline autoencoder against the rendering models (paper Fig. 3)")
     rep.add("### Baseline against ours (paper Fig. 3)\n")
     rep.image(path, "baseline vs ours")
-    nrm = [("input", batch["image"]), ("normal true", batch["normal"] * batch["matte"]),
-           ("normal pseudo-GT", batch["normal_pseudo"] * batch["mask_pseudo"])]
+    nrm = [
+        ("input", batch["image"]),
+        ("normal true", batch["normal"] * batch["matte"]),
+        ("normal pseudo-GT", batch["normal_pseudo"] * batch["mask_pseudo"]),
+    ]
     nrm += [(f"normal {k}", foreground(outs[k], "normal")) for k in MODELS if k in outs and "normal" in outs[k]]
     path = rep.fig / "normals.png"
     _grid(nrm, path, "Our normals against the pseudo-GT they were trained on and the true normals")
@@ -235,14 +269,23 @@ def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
     rep.image(path, "normals")
     rows = [(n, r) for n, r in chosen.items() if r.value("normal_mean") is not None]
     if rows:
-        rep.add("| run | normal error (deg) | dataset-mean map (deg) | pseudo-GT error, same pixels (deg) | "
-                "under 25° ours / pseudo |", "|---|---|---|---|---|")
+        rep.add(
+            "| run | normal error (deg) | dataset-mean map (deg) | pseudo-GT error, same pixels (deg) | "
+            "under 25° ours / pseudo |",
+            "|---|---|---|---|---|",
+        )
         for n, r in rows:
-            rep.add(f"| {n} | {r.value('normal_mean'):.2f} | {r.value('trivial_normal_mean') or float('nan'):.2f} | "
-                    f"{r.value('pseudo_normal_mean') or float('nan'):.2f} | "
-                    f"{r.value('normal_under_25') or float('nan'):.3f} / {r.value('pseudo_normal_under_25') or float('nan'):.3f} |")
-        rep.add("", "_The paper's claim \"beyond the 3DMM subspace\" holds for a run when its error is below the "
-                "pseudo-GT's on the same pixels._\n")
+            rep.add(
+                f"| {n} | {r.value('normal_mean'):.2f} | {r.value('trivial_normal_mean') or float('nan'):.2f} | "
+                f"{r.value('pseudo_normal_mean') or float('nan'):.2f} | "
+                f"{r.value('normal_under_25') or float('nan'):.3f} / "
+                f"{r.value('pseudo_normal_under_25') or float('nan'):.3f} |"
+            )
+        rep.add(
+            "",
+            '_The paper\'s claim "beyond the 3DMM subspace" holds for a run when its error is below the '
+            "pseudo-GT's on the same pixels._\n",
+        )
 
 
 def sec_sh_variance(rep: Report, eval_dir: Path) -> None:
@@ -250,17 +293,22 @@ def sec_sh_variance(rep: Report, eval_dir: Path) -> None:
     if not res:
         rep.note("`reports/eval/sh_variance.json`; run `python -m disent.eval.protocols`.")
         return
-    rep.add(f"Protocol of the paper's supplement on the `{res.get('split', 'lightbank')}` split: for every light "
-            "condition the variance of each SH coefficient across identities and poses, averaged over conditions "
-            "and RGB. Paper: 0.36 (3DMM least squares) and 0.16 (network). *relative* divides by the estimator's "
-            "mean squared coefficient (scale-free); *within share* is the within-condition variance over the variance "
-            "across all images (1: the estimate ignores the light); SH error is relative, after per-image scale "
-            "alignment (0 perfect, 1 uninformative). A constant estimate has zero variance, so read the variance "
-            "beside the last two columns. `ls_oracle` (true normals and albedo) and `true` are checks.\n",
-            "| estimator | variance | relative | within share | SH error | conditions | images |", "|---|---|---|---|---|---|---|")
+    rep.add(
+        f"Protocol of the paper's supplement on the `{res.get('split', 'lightbank')}` split: for every light "
+        "condition the variance of each SH coefficient across identities and poses, averaged over conditions "
+        "and RGB. Paper: 0.36 (3DMM least squares) and 0.16 (network). *relative* divides by the estimator's "
+        "mean squared coefficient (scale-free); *within share* is the within-condition variance over the variance "
+        "across all images (1: the estimate ignores the light); SH error is relative, after per-image scale "
+        "alignment (0 perfect, 1 uninformative). A constant estimate has zero variance, so read the variance "
+        "beside the last two columns. `ls_oracle` (true normals and albedo) and `true` are checks.\n",
+        "| estimator | variance | relative | within share | SH error | conditions | images |",
+        "|---|---|---|---|---|---|---|",
+    )
     for k, v in res["estimators"].items():
-        rep.add(f"| {k} | {v['mean']:.4g} | {v['relative']:.4g} | {v.get('within_share', float('nan')):.3g} | "
-                f"{v['sh_error']:.4g} | {v['n_conditions']} | {v['n_images']} |")
+        rep.add(
+            f"| {k} | {v['mean']:.4g} | {v['relative']:.4g} | {v.get('within_share', float('nan')):.3g} | "
+            f"{v['sh_error']:.4g} | {v['n_conditions']} | {v['n_images']} |"
+        )
     rep.add("")
     from disent.eval.protocols import plot_sh_variance
 
@@ -268,7 +316,9 @@ def sec_sh_variance(rep: Report, eval_dir: Path) -> None:
     plot_sh_variance(res, path)
     rep.image(path, "SH variance per coefficient")
     if not any(k not in ("ls_pseudo", "ls_true", "ls_oracle", "true") for k in res["estimators"]):
-        rep.note("no trained model's Z_L in the SH-variance table (no finished explicit/implicit run when it was computed).")
+        rep.note(
+            "no trained model's Z_L in the SH-variance table (no finished explicit/implicit run when it was computed)."
+        )
 
 
 def is_recipe_run(run: Run) -> bool:
@@ -288,7 +338,9 @@ def sec_ablation(rep: Report, runs: list[Run]) -> None:
         if len(groups) > 1:
             rep.add(f"### experiment: {exp}\n")
         rep.add(_ablation.to_markdown(tables[exp]))
-    (rep.out / "ablation.json").write_text(json.dumps(tables if len(tables) > 1 else next(iter(tables.values()), {}), indent=1))
+    (rep.out / "ablation.json").write_text(
+        json.dumps(tables if len(tables) > 1 else next(iter(tables.values()), {}), indent=1)
+    )
 
 
 def sec_stability(rep: Report, eval_dir: Path) -> None:
@@ -299,30 +351,47 @@ def sec_stability(rep: Report, eval_dir: Path) -> None:
     if cond:
         path = rep.fig / "conditioning.png"
         st.plot_conditioning(cond["yaw"], cond["mask"], path)
-        rep.add(f"Median over {cond['yaw']['n']} test faces turned to each yaw (pitch = roll = 0), and over "
-                f"{cond['mask']['n']} test faces whose mask is shrunk towards its centre. `ls_oracle_noisy` fits with "
-                f"true normals and albedo on the image plus Gaussian noise (sigma {st.ORACLE_NOISE}): its error is "
-                "conditioning alone. Where the condition number passes the fit's `max_cond` (1e7) the fit is "
-                "ridge-regularised (`disent.render.fit_sh`).\n")
+        rep.add(
+            f"Median over {cond['yaw']['n']} test faces turned to each yaw (pitch = roll = 0), and over "
+            f"{cond['mask']['n']} test faces whose mask is shrunk towards its centre. `ls_oracle_noisy` fits with "
+            f"true normals and albedo on the image plus Gaussian noise (sigma {st.ORACLE_NOISE}): its error is "
+            "conditioning alone. Where the condition number passes the fit's `max_cond` (1e7) the fit is "
+            "ridge-regularised (`disent.render.fit_sh`).\n"
+        )
+
         def at(v, unit=""):
             return "never in the range" if v is None else f"**{v}{unit}**"
 
         f = cond["yaw"]["blowup_factor"]
         for est in st.LS_ESTIMATORS:
             y, m = cond["yaw"], cond["mask"]
-            rep.add(f"- `{est}`: condition number {f:g}x its frontal value at yaw {at(y.get(est + '_blowup_yaw'), '°')}, "
-                    f"SH error {f:g}x at yaw {at(y.get(est + '_blowup_yaw_error'), '°')}; against the full mask, "
-                    f"condition {f:g}x at mask share {at(m.get(est + '_blowup_fraction'))}, "
-                    f"SH error {f:g}x at {at(m.get(est + '_blowup_fraction_error'))}.")
+            rep.add(
+                f"- `{est}`: condition number {f:g}x its frontal value at yaw {at(y.get(est + '_blowup_yaw'), '°')}, "
+                f"SH error {f:g}x at yaw {at(y.get(est + '_blowup_yaw_error'), '°')}; against the full mask, "
+                f"condition {f:g}x at mask share {at(m.get(est + '_blowup_fraction'))}, "
+                f"SH error {f:g}x at {at(m.get(est + '_blowup_fraction_error'))}."
+            )
         for res, key, unit in ((cond["yaw"], "yaw", "°"), (cond["mask"], "fraction", "")):
-            rep.add("", f"| {key} | face pixels | " + " | ".join(f"cond {e} | SH err {e}" for e in st.LS_ESTIMATORS) + " |",
-                    "|" + "---|" * (2 + 2 * len(st.LS_ESTIMATORS)))
+            rep.add(
+                "",
+                f"| {key} | face pixels | " + " | ".join(f"cond {e} | SH err {e}" for e in st.LS_ESTIMATORS) + " |",
+                "|" + "---|" * (2 + 2 * len(st.LS_ESTIMATORS)),
+            )
             for r in res["rows"]:
                 if "error" in r:
-                    rep.add(f"| {r[key]}{unit} | – | " + " | ".join("–" for _ in range(2 * len(st.LS_ESTIMATORS))) + " |")
+                    rep.add(
+                        f"| {r[key]}{unit} | – | " + " | ".join("–" for _ in range(2 * len(st.LS_ESTIMATORS))) + " |"
+                    )
                     continue
-                rep.add(f"| {r[key]}{unit} | {r['face_pixels']:.0f} | " + " | ".join(
-                    f"{r[e + '_cond']['median']:.3g} | {r[e + '_sh_error']['median']:.3g}" for e in st.LS_ESTIMATORS if e + "_cond" in r) + " |")
+                rep.add(
+                    f"| {r[key]}{unit} | {r['face_pixels']:.0f} | "
+                    + " | ".join(
+                        f"{r[e + '_cond']['median']:.3g} | {r[e + '_sh_error']['median']:.3g}"
+                        for e in st.LS_ESTIMATORS
+                        if e + "_cond" in r
+                    )
+                    + " |"
+                )
         bad = [r for r in cond["yaw"]["rows"] if "error" in r]
         if bad:
             rep.add(f"- yaws the generator refused: {', '.join(str(r['yaw']) for r in bad)}")
@@ -330,14 +399,18 @@ def sec_stability(rep: Report, eval_dir: Path) -> None:
         rep.image(path, "conditioning")
     else:
         rep.note("`reports/eval/conditioning.json`; run `python -m disent.eval.stability conditioning`.")
-    for name, title, plot in (("ood", "Out of distribution: error against severity", st.plot_ood),
-                              ("bws", "Without BWS: shading cast and albedo absorbing shading", st.plot_bws),
-                              ("training", "Training stability: NaN and divergence rate", st.plot_training)):
+    for name, title, plot in (
+        ("ood", "Out of distribution: error against severity", st.plot_ood),
+        ("bws", "Without BWS: shading cast and albedo absorbing shading", st.plot_bws),
+        ("training", "Training stability: NaN and divergence rate", st.plot_training),
+    ):
         rep.add(f"### {title}\n")
         res = _load_json(eval_dir / f"{name}.json")
         if not res or (isinstance(res.get("rows"), list) and not res["rows"]):
-            rep.note(f"no data for `{name}`; run `python -m disent.eval.stability {name}` after the runs it needs "
-                     "(see `ablations/README.md`).")
+            rep.note(
+                f"no data for `{name}`; run `python -m disent.eval.stability {name}` after the runs it needs "
+                "(see `ablations/README.md`)."
+            )
             continue
         path = rep.fig / f"{name}.png"
         plot(res, path)
@@ -345,58 +418,84 @@ def sec_stability(rep: Report, eval_dir: Path) -> None:
         if "budget" in res:
             rep.add(f"_Budget of these runs (their configs): {st.budget_text(res['budget'])}._\n")
         if name == "bws":
-            rep.add(f"Mean ± std over seeds on {res['n']} test images. BWS pulls each channel's shading mean to 0.75; "
-                    "*cast* is the spread of the three channel means; the last column is the correlation of the "
-                    "estimated albedo with the true shading (0: albedo free of shading). At a fixed number of "
-                    "training images a larger batch takes fewer steps (*steps*). With BWS on, E_recon-L's target "
-                    "L-hat is itself scaled so that its shading has batch mean c (`loss.lhat_white`), a second "
-                    "whitening; `+ablation=no_bws` turns both off (the paper's ablation), and the rows marked "
-                    "*raw L-hat target* are those without it.\n",
-                    "| variant | batch | steps | seeds | shading mean r, g, b | cast | corr(albedo, true shading) |",
-                    "|---|---|---|---|---|---|---|")
+            rep.add(
+                f"Mean ± std over seeds on {res['n']} test images. BWS pulls each channel's shading mean to 0.75; "
+                "*cast* is the spread of the three channel means; the last column is the correlation of the "
+                "estimated albedo with the true shading (0: albedo free of shading). At a fixed number of "
+                "training images a larger batch takes fewer steps (*steps*). With BWS on, E_recon-L's target "
+                "L-hat is itself scaled so that its shading has batch mean c (`loss.lhat_white`), a second "
+                "whitening; `+ablation=no_bws` turns both off (the paper's ablation), and the rows marked "
+                "*raw L-hat target* are those without it.\n",
+                "| variant | batch | steps | seeds | shading mean r, g, b | cast | corr(albedo, true shading) |",
+                "|---|---|---|---|---|---|---|",
+            )
             groups = {}
             for r in res["rows"]:
                 variant = r["variant"] + ("" if r.get("lhat_white", True) else " (raw L-hat target)")
                 groups.setdefault((variant, r["batch_size"]), []).append(r)
             for (variant, bs), rs in sorted(groups.items(), key=lambda kv: (len(kv[0][0]), kv[0][0], kv[0][1] or 0)):
+
                 def ms(vals):
                     m = float(np.mean(vals))
                     return f"{m:.3f} ± {float(np.std(vals, ddof=1)):.3f}" if len(vals) > 1 else f"{m:.3f}"
+
                 rgb = ", ".join(f"{float(np.mean([r['shading_mean_rgb'][c] for r in rs])):.2f}" for c in range(3))
                 steps = "/".join(sorted({str(r.get("steps", "–")) for r in rs}))
-                rep.add(f"| {variant} | {bs} | {steps} | {len(rs)} | {rgb} | {ms([r['shading_cast'] for r in rs])} | "
-                        f"{ms([r['albedo_shading_corr'] for r in rs])} |")
+                rep.add(
+                    f"| {variant} | {bs} | {steps} | {len(rs)} | {rgb} | {ms([r['shading_cast'] for r in rs])} | "
+                    f"{ms([r['albedo_shading_corr'] for r in rs])} |"
+                )
             rep.add("")
         if name == "bws" and len({r["batch_size"] for r in res["rows"]}) < 2:
-            rep.note("the BWS batch-size sweep (one batch size only in these runs); run the `multirun/bws` sweeps of "
-                     "`ablations/README.md` for the curve against batch size.")
+            rep.note(
+                "the BWS batch-size sweep (one batch size only in these runs); run the `multirun/bws` sweeps of "
+                "`ablations/README.md` for the curve against batch size."
+            )
         if name == "training" and len({r["lr"] for r in res["rows"]}) < 2:
-            rep.note("the learning-rate sweep (one learning rate only in these runs); run the `multirun/lr` sweeps of "
-                     "`ablations/README.md` for NaN / divergence rate against learning rate.")
+            rep.note(
+                "the learning-rate sweep (one learning rate only in these runs); run the `multirun/lr` sweeps of "
+                "`ablations/README.md` for NaN / divergence rate against learning rate."
+            )
         if name == "training":
-            rep.add(f"Outcomes (`disent.eval.stability.outcome`): *NaN*, a loss term became non-finite (training stops, "
-                    "`status.json` says so); *diverged*, the last logged total loss above 2x the first; *exploded*, a "
-                    f"logged total loss above {res.get('spike', st.SPIKE):g}x the run's smallest (a blow-up before the first "
-                    "log escapes the previous rule); *collapsed*, the checkpoint's reconstructions vary across "
-                    f"{res.get('n', 'the')} test images by less than {st.COLLAPSE:g}x the images' own spread (the output "
-                    "ignores the input). Loss ratios, test recon MSE, normal error and input dependence are medians "
-                    "over the group's seeds"
-                    + (f"; the mean test image scores recon MSE {res['reference_mse']:.4f}" if res.get("reference_mse") else "")
-                    + ".\n",
-                    "| model | adversarial | lr | runs | NaN | diverged | exploded | collapsed | largest / smallest loss | "
-                    "last / first loss | test recon MSE | normal err (deg) | input dependence |", "|" + "---|" * 13)
+            rep.add(
+                f"Outcomes (`disent.eval.stability.outcome`): *NaN*, a loss term became non-finite (training stops, "
+                "`status.json` says so); *diverged*, the last logged total loss above 2x the first; *exploded*, a "
+                f"logged total loss above {res.get('spike', st.SPIKE):g}x the run's smallest "
+                "(a blow-up before the first "
+                "log escapes the previous rule); *collapsed*, the checkpoint's reconstructions vary across "
+                f"{res.get('n', 'the')} test images by less than {st.COLLAPSE:g}x the images' own spread (the output "
+                "ignores the input). Loss ratios, test recon MSE, normal error and input dependence are medians "
+                "over the group's seeds"
+                + (
+                    f"; the mean test image scores recon MSE {res['reference_mse']:.4f}"
+                    if res.get("reference_mse")
+                    else ""
+                )
+                + ".\n",
+                "| model | adversarial | lr | runs | NaN | diverged | exploded | collapsed | largest / smallest loss | "
+                "last / first loss | test recon MSE | normal err (deg) | input dependence |",
+                "|" + "---|" * 13,
+            )
+
             def g(v, fmt=".3g"):
                 return "–" if v is None else format(v, fmt)
+
             for r in res["rows"]:
-                rep.add(f"| {r['model']} | {r['adversarial']} | {r['lr']} | {r['runs']} | "
-                        + " | ".join(f"{r.get(f + '_rate', 0.0):.2f}" for f in st.FAILURES)
-                        + f" | {g(r.get('loss_spread'))} | {g(r.get('loss_ratio'))} | {g(r.get('recon_mse'), '.4f')} | "
-                        f"{g(r.get('normal_mean'), '.1f')} | {g(r.get('input_dependence'))} |")
+                rep.add(
+                    f"| {r['model']} | {r['adversarial']} | {r['lr']} | {r['runs']} | "
+                    + " | ".join(f"{r.get(f + '_rate', 0.0):.2f}" for f in st.FAILURES)
+                    + f" | {g(r.get('loss_spread'))} | {g(r.get('loss_ratio'))} | {g(r.get('recon_mse'), '.4f')} | "
+                    f"{g(r.get('normal_mean'), '.1f')} | {g(r.get('input_dependence'))} |"
+                )
             rep.add("")
 
 
-RECIPE_COLUMNS = (("normal_mean", "normals (deg)", ".2f"), ("recon_face_psnr", "face PSNR (dB)", ".2f"),
-                  ("albedo_si_mse", "albedo si-MSE", ".4f"), ("sh_error", "SH error", ".3f"))
+RECIPE_COLUMNS = (
+    ("normal_mean", "normals (deg)", ".2f"),
+    ("recon_face_psnr", "face PSNR (dB)", ".2f"),
+    ("albedo_si_mse", "albedo si-MSE", ".4f"),
+    ("sh_error", "SH error", ".3f"),
+)
 
 
 def sec_recipe(rep: Report, runs: list[Run]) -> None:
@@ -408,12 +507,16 @@ def sec_recipe(rep: Report, runs: list[Run]) -> None:
         rep.note("no `recipe/recipe` run (ablations/recipe.sh writes the leave-one-out runs).")
         return
     steps, batch = ref.eval.get("steps"), (ref.cfg.get("train") or {}).get("batch_size")
-    rep.add(f"Each row trains the explicit model for the same {steps} steps of batch {batch} with one setting of the "
-            "recipe changed back (the override column), and scores it on the same 256 test images. "
-            "Lower is better except for PSNR. The trivial and pseudo-GT rows score the dataset-mean map or light and the "
-            "morphable-model fit on the same images.\n")
-    rep.add("| variant | override | steps | " + " | ".join(c[1] for c in RECIPE_COLUMNS) + " | train min |",
-            "|---|---|---|" + "---|" * (len(RECIPE_COLUMNS) + 1))
+    rep.add(
+        f"Each row trains the explicit model for the same {steps} steps of batch {batch} with one setting of the "
+        "recipe changed back (the override column), and scores it on the same 256 test images. "
+        "Lower is better except for PSNR. The trivial and pseudo-GT rows score the dataset-mean map or light and the "
+        "morphable-model fit on the same images.\n"
+    )
+    rep.add(
+        "| variant | override | steps | " + " | ".join(c[1] for c in RECIPE_COLUMNS) + " | train min |",
+        "|---|---|---|" + "---|" * (len(RECIPE_COLUMNS) + 1),
+    )
 
     def cell(r, key, fmt):
         v, base = r.eval.get(key), ref.eval.get(key)
@@ -425,25 +528,37 @@ def sec_recipe(rep: Report, runs: list[Run]) -> None:
     for name in ["recipe", *sorted(n for n in rows if n != "recipe")]:
         r = rows[name]
         changed = [o for o in map(str, r.overrides) if o not in map(str, ref.overrides)]
-        rep.add(f"| {name} | {' '.join(f'`{o}`' for o in changed) or '–'} | {r.eval.get('steps')} | "
-                + " | ".join(cell(r, k, f) for k, _, f in RECIPE_COLUMNS)
-                + f" | {(r.eval.get('train_seconds') or 0) / 60:.1f} |")
+        rep.add(
+            f"| {name} | {' '.join(f'`{o}`' for o in changed) or '–'} | {r.eval.get('steps')} | "
+            + " | ".join(cell(r, k, f) for k, _, f in RECIPE_COLUMNS)
+            + f" | {(r.eval.get('train_seconds') or 0) / 60:.1f} |"
+        )
     e = ref.eval
-    rep.add(f"| trivial (dataset mean) | – | – | {e.get('trivial_normal_mean', float('nan')):.2f} | – | "
-            f"{e.get('trivial_albedo_si_mse', float('nan')):.4f} | {e.get('trivial_sh_error', float('nan')):.3f} | – |",
-            f"| pseudo-GT | – | – | {e.get('pseudo_normal_mean', float('nan')):.2f} | – | – | "
-            f"{e.get('pseudo_sh_error', float('nan')):.3f} | – |", "")
+    rep.add(
+        f"| trivial (dataset mean) | – | – | {e.get('trivial_normal_mean', float('nan')):.2f} | – | "
+        f"{e.get('trivial_albedo_si_mse', float('nan')):.4f} | {e.get('trivial_sh_error', float('nan')):.3f} | – |",
+        f"| pseudo-GT | – | – | {e.get('pseudo_normal_mean', float('nan')):.2f} | – | – | "
+        f"{e.get('pseudo_sh_error', float('nan')):.3f} | – |",
+        "",
+    )
     if any("albedo_face_si_mse" not in r.eval for r in rows.values()):
-        rep.add("† scored over the whole true face mask (hair and neck included) by an earlier version; today's "
-                "`albedo_si_mse` covers the face inside the pseudo mask (`python -m disent.eval.evaluate RUN` "
-                "scores a run again where its checkpoint still loads).\n")
+        rep.add(
+            "† scored over the whole true face mask (hair and neck included) by an earlier version; today's "
+            "`albedo_si_mse` covers the face inside the pseudo mask (`python -m disent.eval.evaluate RUN` "
+            "scores a run again where its checkpoint still loads).\n"
+        )
 
 
 CURVE_PANELS = (  # (val key, trivial key, pseudo-GT key, label); every panel: lower is better except PSNR
     ("normal_mean", "trivial_normal_mean", "pseudo_normal_mean", "normal error (deg)"),
     ("albedo_si_mse", "trivial_albedo_si_mse", None, "albedo scale-inv. MSE"),
     ("sh_error", "trivial_sh_error", "pseudo_sh_error", "SH error"),
-    ("light_shading_si_mse", "trivial_light_shading_si_mse", "pseudo_light_shading_si_mse", "light on the face (si-MSE)"),
+    (
+        "light_shading_si_mse",
+        "trivial_light_shading_si_mse",
+        "pseudo_light_shading_si_mse",
+        "light on the face (si-MSE)",
+    ),
     ("recon_face_psnr", None, None, "face PSNR (dB)"),
 )
 
@@ -479,9 +594,16 @@ def plot_learning_curves(runs: list[Run], path: Path, title: str = "") -> bool:
             for k, (r, c) in enumerate(curves):
                 pts = [(v[x], v[key]) for v in c if v.get(key) is not None]
                 if pts:
-                    ax.plot(*zip(*pts), color=f"C{k % 10}", lw=1.2, label=f"{r.variant} ({r.path.parent.name}/{r.path.name})")
+                    ax.plot(
+                        *zip(*pts),
+                        color=f"C{k % 10}",
+                        lw=1.2,
+                        label=f"{r.variant} ({r.path.parent.name}/{r.path.name})",
+                    )
             for ref, style, name in ((trivial, "--", "dataset mean"), (pseudo, ":", "pseudo-GT")):
-                vals = [c[-1][ref] for _, c in curves if ref and c[-1].get(ref) is not None and c[-1].get(key) is not None]
+                vals = [
+                    c[-1][ref] for _, c in curves if ref and c[-1].get(ref) is not None and c[-1].get(key) is not None
+                ]
                 if vals:
                     ax.axhline(float(np.mean(vals)), color="k", ls=style, lw=1, label=name)
             ax.set_xlabel("training images" if x == "images" else "training wall minutes")
@@ -501,8 +623,9 @@ def plot_learning_curves(runs: list[Run], path: Path, title: str = "") -> bool:
 def sec_learning_curves(rep: Report, runs: list[Run]) -> None:
     drawn = False
     for name, subset, title in (
-            ("learning_curves.png", [r for r in runs if not is_recipe_run(r)], "validation accuracy while training"),
-            ("learning_curves_recipe.png", [r for r in runs if is_recipe_run(r)], "the training recipe's leave-one-out")):
+        ("learning_curves.png", [r for r in runs if not is_recipe_run(r)], "validation accuracy while training"),
+        ("learning_curves_recipe.png", [r for r in runs if is_recipe_run(r)], "the training recipe's leave-one-out"),
+    ):
         path = rep.fig / name
         if plot_learning_curves(subset, path, f"{title} (64 val images)"):
             rep.image(path, title)
@@ -510,8 +633,10 @@ def sec_learning_curves(rep: Report, runs: list[Run]) -> None:
     if not drawn:
         rep.note("no run logged `val` records (`train.val_every`).")
         return
-    rep.add("_A layer counts as learned only below its dashed line (the dataset-mean map or light, "
-            "`disent.eval.trivial`); the dotted line is the pseudo ground truth that supervised it._\n")
+    rep.add(
+        "_A layer counts as learned only below its dashed line (the dataset-mean map or light, "
+        "`disent.eval.trivial`); the dotted line is the pseudo ground truth that supervised it._\n"
+    )
 
 
 def pareto_front(x, y) -> list[int]:
@@ -526,7 +651,9 @@ def pareto_front(x, y) -> list[int]:
 
 
 def sec_speed(rep: Report, runs: list[Run]) -> None:
-    pts = [(r, _speed(r, TRAIN_SPEED_KEYS), r.value("normal_mean"), r.value("recon_mse")) for r in runs if r.status == "ok"]
+    pts = [
+        (r, _speed(r, TRAIN_SPEED_KEYS), r.value("normal_mean"), r.value("recon_mse")) for r in runs if r.status == "ok"
+    ]
     pts = [p for p in pts if p[1] is not None]
     if not pts:
         rep.note("no finished run logged its training images/s.")
@@ -538,28 +665,54 @@ def sec_speed(rep: Report, runs: list[Run]) -> None:
         sel = [p for p in pts if p[j] is not None]
         for v in sorted({p[0].variant for p in sel}):
             vs = [p for p in sel if p[0].variant == v]
-            ax.scatter([p[1] for p in vs], [p[j] for p in vs], s=18, color=colour[v], label=v,
-                       marker="o" if "+" not in v else "x")
+            ax.scatter(
+                [p[1] for p in vs],
+                [p[j] for p in vs],
+                s=18,
+                color=colour[v],
+                label=v,
+                marker="o" if "+" not in v else "x",
+            )
         if sel:
             front = pareto_front([p[1] for p in sel], [p[j] for p in sel])
-            ax.plot([sel[i][1] for i in front], [sel[i][j] for i in front], "k--", lw=0.8, marker="s", ms=9, mfc="none",
-                    label="Pareto front")
+            ax.plot(
+                [sel[i][1] for i in front],
+                [sel[i][j] for i in front],
+                "k--",
+                lw=0.8,
+                marker="s",
+                ms=9,
+                mfc="none",
+                label="Pareto front",
+            )
         ax.set_xlabel("training images/s")
         ax.set_ylabel(label)
         ax.legend(fontsize=5, ncol=2)
-    fig.suptitle("Speed against accuracy, one point per run (up-left is worse; the front: fastest for its error)", fontsize=8)
+    fig.suptitle(
+        "Speed against accuracy, one point per run (up-left is worse; the front: fastest for its error)", fontsize=8
+    )
     rep.figure(fig, "speed_accuracy.png", "speed versus accuracy")
-    rep.add("_Training images/s is the median of the per-step rates each run logged, on whatever machine and load "
-            "it ran (see the runs table); the Pareto front joins the runs no other run beats on both axes._\n")
+    rep.add(
+        "_Training images/s is the median of the per-step rates each run logged, on whatever machine and load "
+        "it ran (see the runs table); the Pareto front joins the runs no other run beats on both axes._\n"
+    )
     if not any(p[2] is not None for p in pts):
         rep.note("no run has a normal error (baseline-only runs).")
 
 
-FRACTION_TARGETS = {"train": 0.55, "infer": 0.60}  # the explicit model on the CPU: training with D, inference at batch 64
+FRACTION_TARGETS = {
+    "train": 0.55,
+    "infer": 0.60,
+}  # the explicit model on the CPU: training with D, inference at batch 64
 RATIO_TARGET = 0.7  # the implicit model's images/s over the explicit model's, each rate
-BENCH_RATES = (("train", "train with D"), ("train_past_margin", "train, fakes past D's margin"),
-               ("train_no_d", "train without D"), ("infer_b1", "infer batch 1"), ("infer", "infer batch 64"),
-               ("infer_b256", "infer batch 256"))  # key prefix in bench.json's models.<name>, label
+BENCH_RATES = (
+    ("train", "train with D"),
+    ("train_past_margin", "train, fakes past D's margin"),
+    ("train_no_d", "train without D"),
+    ("infer_b1", "infer batch 1"),
+    ("infer", "infer batch 64"),
+    ("infer_b256", "infer batch 256"),
+)  # key prefix in bench.json's models.<name>, label
 
 
 def _bench_models(models: dict) -> tuple[dict, list]:
@@ -567,8 +720,11 @@ def _bench_models(models: dict) -> tuple[dict, list]:
     from disent.bench.models import MODELS
 
     models = dict(sorted(models.items(), key=lambda kv: MODELS.index(kv[0]) if kv[0] in MODELS else len(MODELS)))
-    return models, [(k, label) for k, label in BENCH_RATES
-                    if any(f"{k}_img_s" in m or f"{k}_fraction_of_peak" in m for m in models.values())]
+    return models, [
+        (k, label)
+        for k, label in BENCH_RATES
+        if any(f"{k}_img_s" in m or f"{k}_fraction_of_peak" in m for m in models.values())
+    ]
 
 
 def plot_fractions(rep: Report, models: dict, device: str, threads, name: str = "bench_fractions.png") -> None:
@@ -581,24 +737,37 @@ def plot_fractions(rep: Report, models: dict, device: str, threads, name: str = 
     fig, ax = plt.subplots(figsize=(7, 2.8))
     width = 0.8 / len(models)
     for j, (model, m) in enumerate(models.items()):
-        ax.bar([i + j * width for i in range(len(rates))], [m.get(f"{k}_fraction_of_peak", 0) for k, _ in rates],
-               width, label=model)
+        ax.bar(
+            [i + j * width for i in range(len(rates))],
+            [m.get(f"{k}_fraction_of_peak", 0) for k, _ in rates],
+            width,
+            label=model,
+        )
     for k, target in FRACTION_TARGETS.items():
         if k in keys and device == "cpu":
             i = keys.index(k)
             ax.hlines(target, i - width / 2, i + width * (len(models) - 0.5), colors="k", linestyles="--", lw=1)
-    ax.set_xticks([i + width * (len(models) - 1) / 2 for i in range(len(rates))],
-                  [textwrap.fill(label, 14) for _, label in rates], fontsize=7)
+    ax.set_xticks(
+        [i + width * (len(models) - 1) / 2 for i in range(len(rates))],
+        [textwrap.fill(label, 14) for _, label in rates],
+        fontsize=7,
+    )
     ax.set_ylabel("fraction of matmul peak")
-    ax.set_title(f"Achieved FLOP/s over the fp32 matmul peak of the same run ({device}, {threads} threads)"
-                 + ("; dashed: the explicit model's targets" if device == "cpu" else ""), fontsize=8)
+    ax.set_title(
+        f"Achieved FLOP/s over the fp32 matmul peak of the same run ({device}, {threads} threads)"
+        + ("; dashed: the explicit model's targets" if device == "cpu" else ""),
+        fontsize=8,
+    )
     ax.set_ylim(0, 1)
     ax.legend(fontsize=7, ncol=len(models), loc="upper left")
     rep.figure(fig, name, "fraction of peak by model and rate")
 
 
-PROFILE_GROUPS = {"convolutions": ("convolution",), "matrix products": ("aten::mm", "aten::addmm", "aten::bmm"),
-                  "pooling, unpooling": ("max_pool", "max_unpool", "gather", "fill_")}  # the rest: "other operators"
+PROFILE_GROUPS = {
+    "convolutions": ("convolution",),
+    "matrix products": ("aten::mm", "aten::addmm", "aten::bmm"),
+    "pooling, unpooling": ("max_pool", "max_unpool", "gather", "fill_"),
+}  # the rest: "other operators"
 
 
 def plot_profile(rep: Report, profile: dict, name: str = "bench_profile.png") -> None:
@@ -632,11 +801,15 @@ def plot_profile(rep: Report, profile: dict, name: str = "bench_profile.png") ->
 def models_table(models: dict) -> list[str]:
     """Markdown rows, one per model: forward GFLOP per image, then images/s (fraction of peak) per rate."""
     models, rates = _bench_models(models)
-    lines = ["| model | GFLOP / image (forward) | " + " | ".join(label for _, label in rates) + " |",
-             "|---|" + "---|" * (len(rates) + 1)]
+    lines = [
+        "| model | GFLOP / image (forward) | " + " | ".join(label for _, label in rates) + " |",
+        "|---|" + "---|" * (len(rates) + 1),
+    ]
     for name, m in models.items():
-        cells = [f"{m[f'{k}_img_s']:.1f} ({m.get(f'{k}_fraction_of_peak', math.nan):.2f})" if f"{k}_img_s" in m else "-"
-                 for k, _ in rates]
+        cells = [
+            f"{m[f'{k}_img_s']:.1f} ({m.get(f'{k}_fraction_of_peak', math.nan):.2f})" if f"{k}_img_s" in m else "-"
+            for k, _ in rates
+        ]
         lines.append(f"| {name} | {m.get('flops_per_image', math.nan) / 1e9:.3f} | " + " | ".join(cells) + " |")
     return lines
 
@@ -687,9 +860,13 @@ def sec_bench(rep: Report, out: Path) -> None:
             rep.add("Machine: " + ", ".join(f"{k}={fmt(v)}" for k, v in env.items()) + "\n")
         models = bench.get("models")
         if isinstance(models, dict) and models:
-            rep.add("Images/s (fraction of the matmul peak measured beside each rate). Each rate is timed at its own "
-                    "moment; on a shared machine compare the fractions, which divide out the load of that moment, "
-                    "rather than images/s across cells.\n", *models_table(models), "")
+            rep.add(
+                "Images/s (fraction of the matmul peak measured beside each rate). Each rate is timed at its own "
+                "moment; on a shared machine compare the fractions, which divide out the load of that moment, "
+                "rather than images/s across cells.\n",
+                *models_table(models),
+                "",
+            )
             if device == "cpu" and (checks := target_checks(bench)):
                 rep.add("Targets on the CPU:\n", *checks, "")
             plot_fractions(rep, models, device, bench.get("threads"), f"{path.stem}_fractions.png")
@@ -698,8 +875,13 @@ def sec_bench(rep: Report, out: Path) -> None:
         rep.add(f"<details><summary>Every figure in {path.name}</summary>\n")
         for section, vals in bench.items():
             if isinstance(vals, dict):
-                rep.add(f"**{section}**\n", "| quantity | value |", "|---|---|",
-                        *(f"| {k} | {fmt(v)} |" for k, v in flat(vals)), "")
+                rep.add(
+                    f"**{section}**\n",
+                    "| quantity | value |",
+                    "|---|---|",
+                    *(f"| {k} | {fmt(v)} |" for k, v in flat(vals)),
+                    "",
+                )
         rep.add("</details>\n")
 
 
@@ -719,14 +901,23 @@ def sec_lighting(rep: Report, out: Path) -> None:
 
 def _git_revision() -> str:
     try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=10,
-                              cwd=Path(__file__).parent).stdout.strip() or "unknown"
+        return (
+            subprocess.run(
+                ["git", "rev-parse", "--short", "HEAD"],
+                capture_output=True,
+                text=True,
+                timeout=10,
+                cwd=Path(__file__).parent,
+            ).stdout.strip()
+            or "unknown"
+        )
     except (OSError, subprocess.SubprocessError):
         return "unknown"
 
 
-def build(out="reports", roots=RUN_ROOTS, n_vis: int = 6, compute: bool = False, name: str = "README.md",
-          publish_folders=()) -> Path:
+def build(
+    out="reports", roots=RUN_ROOTS, n_vis: int = 6, compute: bool = False, name: str = "README.md", publish_folders=()
+) -> Path:
     """Publish each tool folder of ``publish_folders`` into ``out`` (:func:`disent.runs.publish`), then write
     ``out/name`` and ``out/figures/*.png``; returns the Markdown path."""
     out = Path(out)
@@ -747,15 +938,17 @@ def build(out="reports", roots=RUN_ROOTS, n_vis: int = 6, compute: bool = False,
     published = out / name
     rep = Report(out, published.read_text() if published.is_file() else "")
     budget = _ablation.budget(runs)
-    rep.add("# disent report\n",
-            f"Generated by `python -m disent.report` at revision `{_git_revision()}` on "
-            f"{_dt.datetime.now(_dt.timezone.utc).strftime('%Y-%m-%d %H:%M UTC')} from {len(runs)} run folder(s) under "
-            f"{', '.join(f'`{r}/`' for r in roots)}. Budget of those runs: "
-            f"{', '.join(f'{k}={v}' for k, v in budget.items()) or 'none recorded'}. "
-            "All numbers are measured on SynthFaces (its ground truth); nothing is copied from the paper "
-            "except where marked *paper*.\n",
-            "Regenerate: run the suite (`ablations/suite.sh EXPERIMENT`, see `ablations/README.md`), then "
-            f"`python -m disent.report --compute --roots {' '.join(map(str, roots))}`.\n")
+    rep.add(
+        "# disent report\n",
+        f"Generated by `python -m disent.report` at revision `{_git_revision()}` on "
+        f"{_dt.datetime.now(_dt.timezone.utc).strftime('%Y-%m-%d %H:%M UTC')} from {len(runs)} run folder(s) under "
+        f"{', '.join(f'`{r}/`' for r in roots)}. Budget of those runs: "
+        f"{', '.join(f'{k}={v}' for k, v in budget.items()) or 'none recorded'}. "
+        "All numbers are measured on SynthFaces (its ground truth); nothing is copied from the paper "
+        "except where marked *paper*.\n",
+        "Regenerate: run the suite (`ablations/suite.sh EXPERIMENT`, see `ablations/README.md`), then "
+        f"`python -m disent.report --compute --roots {' '.join(map(str, roots))}`.\n",
+    )
     rep.section("Runs", sec_runs, runs)
     rep.section("Teaser: input, recon, albedo, normal, shading, matte", sec_teaser, runs, n_vis)
     rep.section("Lighting stability: SH variance (supplement protocol)", sec_sh_variance, eval_dir)
@@ -777,8 +970,13 @@ def main(argv=None):
     p.add_argument("--roots", nargs="*", default=list(RUN_ROOTS))
     p.add_argument("--n-vis", type=int, default=6, help="test images per figure")
     p.add_argument("--compute", action="store_true", help="recompute reports/eval/*.json first (protocols, stability)")
-    p.add_argument("--publish", nargs="+", default=(), metavar="FOLDER",
-                   help="tool folders (edit, lighting, photos, eval, bench, sheet) to copy into the report first")
+    p.add_argument(
+        "--publish",
+        nargs="+",
+        default=(),
+        metavar="FOLDER",
+        help="tool folders (edit, lighting, photos, eval, bench, sheet) to copy into the report first",
+    )
     a = p.parse_args(argv)
     torch.set_num_threads(1)
     try:

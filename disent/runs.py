@@ -10,6 +10,7 @@ with the error of a failed one).  A running job holds ``.lock`` (:class:`RunLock
 Read: :class:`Run`, :func:`find_runs`, :func:`pick_runs`, :func:`load_models`.  Anything may be missing (a
 crashed or running job); readers return ``None`` or empty lists then, never raise.
 """
+
 from __future__ import annotations
 
 import json
@@ -29,7 +30,9 @@ SAMPLE_COLUMNS = ("image", "recon", "albedo", "normal", "shading", "matte")
 
 # ${pid:} in conf/config.yaml's hydra.run.dir / hydra.sweep.dir: two runs started in the same second
 # get different folders
-OmegaConf.register_new_resolver("pid", os.getpid, replace=True, use_cache=True)  # cached: jobs in worker processes reuse it
+OmegaConf.register_new_resolver(
+    "pid", os.getpid, replace=True, use_cache=True
+)  # cached: jobs in worker processes reuse it
 
 
 def write_git_revision(run_dir: Path) -> None:
@@ -51,8 +54,14 @@ def write_git_revision(run_dir: Path) -> None:
 # ----------------------------------------------------------------------------- tool folders and publishing
 # Each tool writes into its own run folder; `python -m disent.report --publish FOLDER` copies what the report
 # cites into reports/<PUBLISH_TO[tool]>/.  Weights (*.pt) and bookkeeping files are never published.
-PUBLISH_TO = {"edit": "edit", "lighting": "lighting", "photos": "photos", "eval": "eval", "bench": ".",
-              "sheet": "figures"}
+PUBLISH_TO = {
+    "edit": "edit",
+    "lighting": "lighting",
+    "photos": "photos",
+    "eval": "eval",
+    "bench": ".",
+    "sheet": "figures",
+}
 NOT_PUBLISHED = ("git.txt", "command.txt", ".tool")
 
 
@@ -79,8 +88,10 @@ def publish(folder, reports="reports") -> list[Path]:
     folder = Path(folder)
     marker = folder / ".tool"
     if not marker.is_file():
-        raise FileNotFoundError(f"{folder} is not a tool folder (no .tool file); tools write one, e.g. "
-                                "python -m disent.edit measure explicit")
+        raise FileNotFoundError(
+            f"{folder} is not a tool folder (no .tool file); tools write one, e.g. "
+            "python -m disent.edit measure explicit"
+        )
     tool = marker.read_text().strip()
     if tool not in PUBLISH_TO:
         raise ValueError(f"{marker}: unknown tool {tool!r}")
@@ -108,8 +119,9 @@ class MetricsLog:
         self.path = Path(path)
 
     def write(self, record: dict) -> None:
-        clean = {k: (float(v) if isinstance(v, (float, np.floating)) or torch.is_tensor(v) else v)
-                 for k, v in record.items()}
+        clean = {
+            k: (float(v) if isinstance(v, (float, np.floating)) or torch.is_tensor(v) else v) for k, v in record.items()
+        }
         clean = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in clean.items()}
         with self.path.open("a") as f:
             f.write(json.dumps(clean) + "\n")
@@ -180,16 +192,21 @@ def load_checkpoint(path: Path, fallback: bool = False) -> dict:
         if fallback and prev.exists():
             state = load_checkpoint(prev)
             os.replace(path, path.with_name(path.name + ".damaged"))
-            print(f"warning: {path} cannot be read ({why}); set aside as {path.name}.damaged, continuing from "
-                  f"the previous checkpoint {prev} (step {state.get('step', '?')})")
+            print(
+                f"warning: {path} cannot be read ({why}); set aside as {path.name}.damaged, continuing from "
+                f"the previous checkpoint {prev} (step {state.get('step', '?')})"
+            )
             return {**state, "loaded_from": str(prev)}
         hint = f"; the previous checkpoint is {prev}" if prev.exists() else ""
         raise CheckpointError(f"the checkpoint {path} cannot be read ({why}){hint}") from None
 
 
 def rng_state() -> dict:
-    return {"torch": torch.get_rng_state(), "numpy": np.random.get_state(),
-            "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None}
+    return {
+        "torch": torch.get_rng_state(),
+        "numpy": np.random.get_state(),
+        "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None,
+    }
 
 
 def set_rng_state(state: dict) -> None:
@@ -201,7 +218,7 @@ def set_rng_state(state: dict) -> None:
 
 def save_samples(path: Path, batch: dict, out: dict, n: int = 8) -> None:
     """A grid, one row per image; columns those of SAMPLE_COLUMNS the model has."""
-    from disent.images import save_image, sample_grid
+    from disent.images import sample_grid, save_image
 
     save_image(sample_grid(batch, out, SAMPLE_COLUMNS, n), path)
 
@@ -246,8 +263,10 @@ class RunLock:
             except FileExistsError:
                 holder = lock_holder(self.path.parent)
                 if holder is not None:
-                    raise RunFolderBusy(f"the run folder {self.path.parent} is in use by process {holder}; "
-                                        "give this run its own folder (hydra.run.dir=...)") from None
+                    raise RunFolderBusy(
+                        f"the run folder {self.path.parent} is in use by process {holder}; "
+                        "give this run its own folder (hydra.run.dir=...)"
+                    ) from None
                 self.path.unlink(missing_ok=True)  # stale: its process is gone
                 continue
             with os.fdopen(fd, "w") as f:
@@ -327,11 +346,15 @@ class Run:
     def load(cls, path) -> "Run":
         p = Path(path)
         hydra = _load_yaml(p / ".hydra" / "hydra.yaml") or {}
-        return cls(path=p, cfg=_load_yaml(p / ".hydra" / "config.yaml") or {},
-                   overrides=_load_yaml(p / ".hydra" / "overrides.yaml") or [],
-                   choices=_get(hydra, "hydra.runtime.choices", {}) or {},
-                   eval=_load_json(p / "eval.json"), metrics=read_jsonl(p / "metrics.jsonl"),
-                   ended=_load_json(p / "status.json"))
+        return cls(
+            path=p,
+            cfg=_load_yaml(p / ".hydra" / "config.yaml") or {},
+            overrides=_load_yaml(p / ".hydra" / "overrides.yaml") or [],
+            choices=_get(hydra, "hydra.runtime.choices", {}) or {},
+            eval=_load_json(p / "eval.json"),
+            metrics=read_jsonl(p / "metrics.jsonl"),
+            ended=_load_json(p / "status.json"),
+        )
 
     # --------------------------------------------------------------- labels
     @property
@@ -427,12 +450,13 @@ class RunStatus(Callback):
         run_dir = OmegaConf.select(config, "hydra.run.dir")
         holder = lock_holder(run_dir) if run_dir else None
         if holder is not None:
-            raise SystemExit(f"error: the run folder {run_dir} is in use by process {holder}; "
-                             "give this run its own folder (hydra.run.dir=...)")
+            raise SystemExit(
+                f"error: the run folder {run_dir} is in use by process {holder}; "
+                "give this run its own folder (hydra.run.dir=...)"
+            )
 
     def on_job_end(self, config, job_return, **kwargs) -> None:
         from hydra.core.utils import JobStatus
-
         from omegaconf import OmegaConf
 
         out = OmegaConf.select(job_return.hydra_cfg, "hydra.runtime.output_dir") if job_return.hydra_cfg else None
@@ -459,7 +483,6 @@ def find_runs(roots=RUN_ROOTS) -> list[Run]:
     return [Run.load(p) for p in sorted(found)]
 
 
-
 def pick_runs(runs, variants=None) -> dict[str, Run]:
     """One finished run with a checkpoint per variant: the longest trained, then the lowest seed.
 
@@ -469,7 +492,11 @@ def pick_runs(runs, variants=None) -> dict[str, Run]:
 
     def order(r):
         steps = r.value("steps")
-        return (-(steps if isinstance(steps, (int, float)) else 0), r.seed if isinstance(r.seed, int) else 1 << 30, str(r.path))
+        return (
+            -(steps if isinstance(steps, (int, float)) else 0),
+            r.seed if isinstance(r.seed, int) else 1 << 30,
+            str(r.path),
+        )
 
     for r in sorted(runs, key=order):
         if r.checkpoint is None or r.status != "ok":

@@ -5,6 +5,7 @@
 - :class:`single_thread`: one torch thread inside (SynthFaces generation is written for one core).
 - :func:`single_core`: one torch thread and one OpenBLAS thread (the lighting experiments).
 """
+
 from __future__ import annotations
 
 import ctypes
@@ -106,8 +107,12 @@ class single_thread(ContextDecorator):
             torch.set_num_threads(self.n)
 
 
-_SETTERS = ("openblas_set_num_threads", "scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads",
-            "openblas_set_num_threads64_")
+_SETTERS = (
+    "openblas_set_num_threads",
+    "scipy_openblas_set_num_threads64_",
+    "scipy_openblas_set_num_threads",
+    "openblas_set_num_threads64_",
+)
 _GETTERS = tuple(s.replace("set", "get") for s in _SETTERS)
 
 

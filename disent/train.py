@@ -7,6 +7,7 @@ pass (optimiser and lr schedule: conf/train/default.yaml).  The data order of ep
 Batches are rendered ``train.prefetch`` steps ahead in a background thread (``Prefetcher``), in
 that same order; every ``train.val_every`` steps a fixed validation subset is scored (``validate``).
 """
+
 from __future__ import annotations
 
 import json
@@ -21,9 +22,17 @@ from tqdm import tqdm
 from disent import losses as L
 from disent.data import get_batch, make_dataset
 from disent.models import Discriminator, build_model
+from disent.runs import (
+    MetricsLog,
+    RunLock,
+    load_checkpoint,
+    rng_state,
+    save_checkpoint,
+    save_samples,
+    set_rng_state,
+    write_git_revision,
+)
 from disent.runtime import Prefetcher, tune_malloc
-from disent.runs import (MetricsLog, RunLock, load_checkpoint, rng_state, save_checkpoint, save_samples,
-                         set_rng_state, write_git_revision)
 
 TRAIN_KEYS = ("image", "normal_pseudo", "mask_pseudo", "sh_pseudo", "uv_pseudo", "normal_uv_pseudo")
 
@@ -35,8 +44,13 @@ class NonFiniteLoss(FloatingPointError):
 
 def nonfinite_tensors(*modules) -> list[str]:
     """Names of the parameters and buffers of ``modules`` (None skipped) holding a NaN or Inf; one device sync."""
-    named = [(f"{i}.{k}", v) for i, m in enumerate(modules) if m is not None for k, v in m.state_dict().items()
-             if v.is_floating_point()]
+    named = [
+        (f"{i}.{k}", v)
+        for i, m in enumerate(modules)
+        if m is not None
+        for k, v in m.state_dict().items()
+        if v.is_floating_point()
+    ]
     finite = torch.stack([v.isfinite().all() for _, v in named]).tolist() if named else []
     return [k for (k, _), ok in zip(named, finite) if not ok]
 
@@ -48,7 +62,7 @@ def epoch_order(seed: int, epoch: int, n: int) -> torch.Tensor:
 def step_indices(seed: int, step: int, steps_per_epoch: int, batch_size: int, n: int) -> torch.Tensor:
     """The data indices of training step ``step`` (0-based): its slice of its epoch's permutation."""
     epoch, i = divmod(step, steps_per_epoch)
-    return epoch_order(seed, epoch, n)[i * batch_size:(i + 1) * batch_size]
+    return epoch_order(seed, epoch, n)[i * batch_size : (i + 1) * batch_size]
 
 
 def to_device(batch: dict, device, channels_last: bool) -> dict:
@@ -90,8 +104,15 @@ def train_step(model, disc, opt_g, opt_d, batch, cfg_loss) -> dict:
     weights = dict(cfg_loss.weights)
     out = model(batch["image"])
     energy_fake = disc.energy(out["recon"]) if disc is not None else None
-    losses = L.generator_losses(out, batch, weights, energy_fake, cfg_loss.bws_c,
-                                cfg_loss.get("lhat_white", True), cfg_loss.get("recon_L_space", "shading"))
+    losses = L.generator_losses(
+        out,
+        batch,
+        weights,
+        energy_fake,
+        cfg_loss.bws_c,
+        cfg_loss.get("lhat_white", True),
+        cfg_loss.get("recon_L_space", "shading"),
+    )
     if disc is not None:
         energy_real = disc.energy(batch["image"])
         losses["D"] = L.discriminator_loss(energy_real, energy_fake, cfg_loss.margin)
@@ -112,9 +133,19 @@ def train_step(model, disc, opt_g, opt_d, batch, cfg_loss) -> dict:
     return losses
 
 
-VAL_KEYS = ("recon_psnr", "recon_face_psnr", "normal_mean", "pseudo_normal_mean", "albedo_si_mse",
-            "albedo_global_si_mse", "albedo_face_si_mse", "sh_error", "pseudo_sh_error", "light_shading_si_mse",
-            "pseudo_light_shading_si_mse")
+VAL_KEYS = (
+    "recon_psnr",
+    "recon_face_psnr",
+    "normal_mean",
+    "pseudo_normal_mean",
+    "albedo_si_mse",
+    "albedo_global_si_mse",
+    "albedo_face_si_mse",
+    "sh_error",
+    "pseudo_sh_error",
+    "light_shading_si_mse",
+    "pseudo_light_shading_si_mse",
+)
 
 
 def validate(model, batch: dict) -> dict:
@@ -168,7 +199,9 @@ def check_config(cfg) -> None:
         if optional and value is None:
             return
         if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-            raise ConfigError(f"{key}={value!r}: must be a whole number >= {minimum}" + (" or null" if optional else ""))
+            raise ConfigError(
+                f"{key}={value!r}: must be a whole number >= {minimum}" + (" or null" if optional else "")
+            )
 
     whole("train.batch_size", t.batch_size)
     whole("train.epochs", t.epochs)
@@ -178,8 +211,10 @@ def check_config(cfg) -> None:
     whole("data.test_size", d.get("test_size"), optional=True)
     if isinstance(t.lr, bool) or not isinstance(t.lr, (int, float)) or not t.lr > 0:
         raise ConfigError(f"train.lr={t.lr!r}: must be a positive number")
-    for key, value, allowed in (("train.optimizer", t.get("optimizer", "rmsprop"), OPTIMIZERS),
-                                ("train.schedule", t.get("schedule", "epoch_decay"), SCHEDULES)):
+    for key, value, allowed in (
+        ("train.optimizer", t.get("optimizer", "rmsprop"), OPTIMIZERS),
+        ("train.schedule", t.get("schedule", "epoch_decay"), SCHEDULES),
+    ):
         if value not in allowed:
             raise ConfigError(f"{key}={value!r}; choose from {', '.join(allowed)}")
     device = str(cfg.device)
@@ -187,21 +222,35 @@ def check_config(cfg) -> None:
     if kind not in ("cpu", "cuda") or (index and not index.isdigit()) or (kind == "cpu" and index):
         raise ConfigError(f"device={device!r}; choose from cpu, cuda, cuda:N")
     if kind == "cuda" and not torch.cuda.is_available():
-        raise ConfigError(f"device={device!r}, but this torch ({torch.__version__}) sees no CUDA GPU; use device=cpu, "
-                          "or install a CUDA build of torch (README, GPU install)")
+        raise ConfigError(
+            f"device={device!r}, but this torch ({torch.__version__}) sees no CUDA GPU; use device=cpu, "
+            "or install a CUDA build of torch (README, GPU install)"
+        )
     if kind == "cuda" and index and int(index) >= torch.cuda.device_count():
         raise ConfigError(f"device={device!r}: this machine has {torch.cuda.device_count()} CUDA device(s)")
 
 
 # Settings that define what a checkpoint is: resuming under other values (without resume_force) is refused.
 # Budget and bookkeeping (max_steps, epochs, time limit, threads, logging, device) may change between sessions.
-RUN_DEFINING = ("seed", "model", "data", "loss", "train.batch_size", "train.optimizer", "train.lr", "train.schedule",
-                "train.lr_decay", "train.warmup_steps", "train.amp")
+RUN_DEFINING = (
+    "seed",
+    "model",
+    "data",
+    "loss",
+    "train.batch_size",
+    "train.optimizer",
+    "train.lr",
+    "train.schedule",
+    "train.lr_decay",
+    "train.warmup_steps",
+    "train.amp",
+)
 NOT_DEFINING = ("data.test_size", "model.kernels")  # evaluation only; the same function computed another way
 
 
 def config_differences(old: dict | None, new: dict, keys=RUN_DEFINING) -> list[str]:
     """``key: old -> new`` for each leaf under ``keys`` whose value differs between two resolved configs."""
+
     def leaves(d, prefix=""):
         if isinstance(d, dict):
             return {k: v for key, sub in d.items() for k, v in leaves(sub, f"{prefix}{key}.").items()}
@@ -209,8 +258,11 @@ def config_differences(old: dict | None, new: dict, keys=RUN_DEFINING) -> list[s
 
     a, b = leaves(old or {}), leaves(new)
     under = lambda k: any(k == key or k.startswith(key + ".") for key in keys)  # noqa: E731
-    return [f"{k}: {a.get(k)!r} -> {b.get(k)!r}" for k in sorted(set(a) | set(b))
-            if under(k) and k not in NOT_DEFINING and a.get(k) != b.get(k)]
+    return [
+        f"{k}: {a.get(k)!r} -> {b.get(k)!r}"
+        for k in sorted(set(a) | set(b))
+        if under(k) and k not in NOT_DEFINING and a.get(k) != b.get(k)
+    ]
 
 
 def run(cfg, run_dir) -> dict:
@@ -239,16 +291,21 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
     data = make_dataset(cfg.data, "train", cfg.data.get("train_size"))
     steps_per_epoch = len(data) // t.batch_size
     if steps_per_epoch == 0:
-        raise ConfigError(f"train.batch_size={t.batch_size} exceeds the {len(data)} training images (data.train_size"
-                          + ("; a small photo folder: data.split_by=all" if cfg.data.get("name") == "folder" else "")
-                          + ")")
+        raise ConfigError(
+            f"train.batch_size={t.batch_size} exceeds the {len(data)} training images (data.train_size"
+            + ("; a small photo folder: data.split_by=all" if cfg.data.get("name") == "folder" else "")
+            + ")"
+        )
     total_steps = steps_per_epoch * t.epochs if t.max_steps is None else min(t.max_steps, steps_per_epoch * t.epochs)
     val_every, val_size = t.get("val_every", 0), t.get("val_size", 64)
     val_every = val_every if val_every and val_every <= total_steps else 0
     if val_every:  # rendered once, before the prefetch thread starts using the data code
         val_data = make_dataset(cfg.data, "val", val_size)
-        val_batch = to_device(get_batch(val_data, range(min(val_size, len(val_data))),
-                                        (*TRAIN_KEYS, "normal", "matte", "albedo", "sh")), device, t.channels_last)
+        val_batch = to_device(
+            get_batch(val_data, range(min(val_size, len(val_data))), (*TRAIN_KEYS, "normal", "matte", "albedo", "sh")),
+            device,
+            t.channels_last,
+        )
     trivial = trivial_baselines(data)  # constant estimates, scored beside the network in val records and eval.json
     if val_every and trivial is not None and "matte" in val_batch:
         from disent.eval.trivial import trivial_metrics
@@ -268,8 +325,10 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
         ck = load_checkpoint(resume / "checkpoints" / "last.pt" if resume.is_dir() else resume, fallback=True)
         diffs = config_differences(ck.get("cfg"), OmegaConf.to_container(cfg, resolve=True))
         if diffs and not cfg.get("resume_force", False):
-            raise ConfigError(f"{resume} was trained with other settings ({'; '.join(diffs[:6])}"
-                              f"{' ...' if len(diffs) > 6 else ''}); start in a new folder, or pass resume_force=true")
+            raise ConfigError(
+                f"{resume} was trained with other settings ({'; '.join(diffs[:6])}"
+                f"{' ...' if len(diffs) > 6 else ''}); start in a new folder, or pass resume_force=true"
+            )
         model.load_state_dict(ck["model"])
         opt_g.load_state_dict(ck["opt_g"])
         if disc is not None:
@@ -282,21 +341,33 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
 
     def last_good() -> str:
         if ckpt_path.exists():
-            return (f"Last good checkpoint: {ckpt_path} (step {last_saved}); to continue from it, start again in "
-                    f"{run_dir} (hydra.run.dir=...) with a smaller train.lr")
+            return (
+                f"Last good checkpoint: {ckpt_path} (step {last_saved}); to continue from it, start again in "
+                f"{run_dir} (hydra.run.dir=...) with a smaller train.lr"
+            )
         return f"No checkpoint was written yet; start again with a smaller train.lr (now {t.lr})"
 
     def checkpoint():
         bad = nonfinite_tensors(model, disc)
         if bad:  # the losses were finite, the update was not: never save such weights as good
-            raise NonFiniteLoss(f"weights became non-finite by step {step} ({', '.join(bad[:4])}"
-                                f"{' ...' if len(bad) > 4 else ''}: 0 = model, 1 = D); stopped, not saved. {last_good()}")
-        save_checkpoint(ckpt_path, {
-            "model": model.state_dict(), "opt_g": opt_g.state_dict(),
-            "disc": disc.state_dict() if disc is not None else None,
-            "opt_d": opt_d.state_dict() if opt_d is not None else None,
-            "step": step, "epoch": step / steps_per_epoch, "wall": wall, "rng": rng_state(),
-            "cfg": OmegaConf.to_container(cfg, resolve=True)})
+            raise NonFiniteLoss(
+                f"weights became non-finite by step {step} ({', '.join(bad[:4])}"
+                f"{' ...' if len(bad) > 4 else ''}: 0 = model, 1 = D); stopped, not saved. {last_good()}"
+            )
+        save_checkpoint(
+            ckpt_path,
+            {
+                "model": model.state_dict(),
+                "opt_g": opt_g.state_dict(),
+                "disc": disc.state_dict() if disc is not None else None,
+                "opt_d": opt_d.state_dict() if opt_d is not None else None,
+                "step": step,
+                "epoch": step / steps_per_epoch,
+                "wall": wall,
+                "rng": rng_state(),
+                "cfg": OmegaConf.to_container(cfg, resolve=True),
+            },
+        )
 
     def make_batch(s):  # on the CPU; the prefetch thread runs it
         idx = step_indices(cfg.seed, s, steps_per_epoch, t.batch_size, len(data))
@@ -314,16 +385,19 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
             epoch = step // steps_per_epoch
             lr = learning_rate(t, step, steps_per_epoch, total_steps)
             for opt in (opt_g, opt_d):
-                for g in (opt.param_groups if opt is not None else []):
+                for g in opt.param_groups if opt is not None else []:
                     g["lr"] = lr
             t0 = time.perf_counter()
             batch = to_device(prefetch.get(step), device, t.channels_last)
-            with torch.autocast(device.type, dtype=torch.bfloat16, enabled=t.get("amp", False)):  # shading stays float32
+            with torch.autocast(
+                device.type, dtype=torch.bfloat16, enabled=t.get("amp", False)
+            ):  # shading stays float32
                 losses = train_step(model, disc, opt_g, opt_d, batch, cfg.loss)
             if "nonfinite" in losses:
                 raise NonFiniteLoss(
                     f"loss term {', '.join(repr(k) for k in losses['nonfinite'])} is not finite at step {step} "
-                    f"(epoch {epoch}); stopped. {last_good()}")
+                    f"(epoch {epoch}); stopped. {last_good()}"
+                )
             dt = time.perf_counter() - t0
             wall += dt
             step += 1
@@ -331,14 +405,33 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
             bar.update(1)
             bar.set_postfix(loss=f"{losses['total'].item():.4f}", img_s=f"{ips:.0f}", epoch=epoch)
             if step % t.log_every == 0 or step == total_steps:
-                log.write({"step": step, "epoch": epoch, "wall": wall, "lr": lr, "images_per_s": ips,
-                           **{k: v.item() for k, v in losses.items()}})
+                log.write(
+                    {
+                        "step": step,
+                        "epoch": epoch,
+                        "wall": wall,
+                        "lr": lr,
+                        "images_per_s": ips,
+                        **{k: v.item() for k, v in losses.items()},
+                    }
+                )
             if val_every and step % val_every == 0:  # wall: training seconds only
                 t1 = time.perf_counter()
                 val = validate(model, val_batch)
-                log.write({"step": step, "epoch": epoch, "wall": wall, "minutes": wall / 60,
-                           "val": {**val, **val_trivial, "n": len(val_batch["image"]),
-                                   "seconds": time.perf_counter() - t1}})
+                log.write(
+                    {
+                        "step": step,
+                        "epoch": epoch,
+                        "wall": wall,
+                        "minutes": wall / 60,
+                        "val": {
+                            **val,
+                            **val_trivial,
+                            "n": len(val_batch["image"]),
+                            "seconds": time.perf_counter() - t1,
+                        },
+                    }
+                )
             if t.sample_every and step % t.sample_every == 0:
                 save_samples(run_dir / "samples" / f"step{step:06d}.png", batch, model(batch["image"]))
             if step % t.checkpoint_every == 0 or step % steps_per_epoch == 0 or step == total_steps:
@@ -353,7 +446,12 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
         batch = to_device(get_batch(data, range(min(8, len(data))), TRAIN_KEYS), device, t.channels_last)
     with torch.no_grad():
         save_samples(run_dir / "samples" / "final.png", batch, model(batch["image"]))
-    metrics = {**evaluate(model, cfg, t.eval_size, trivial), "steps": step, "stopped_by": stopped, "train_seconds": wall}
+    metrics = {
+        **evaluate(model, cfg, t.eval_size, trivial),
+        "steps": step,
+        "stopped_by": stopped,
+        "train_seconds": wall,
+    }
     log.write({"step": step, "epoch": step / steps_per_epoch, "wall": wall, "eval": metrics})
     (run_dir / "eval.json").write_text(json.dumps(metrics, indent=2))
     print_eval(metrics, run_dir)
@@ -377,12 +475,16 @@ def learned_layers(m: dict) -> dict:
 
 def print_eval(m: dict, run_dir) -> None:
     print(f"\ntest metrics ({m['n_eval']} images) -> {Path(run_dir) / 'eval.json'}")
-    print(f"  reconstruction  mse {m['recon_mse']:.5f}  psnr {m['recon_psnr']:.2f} dB  ssim {m['recon_ssim']:.3f}"
-          + (f"   face psnr {m['recon_face_psnr']:.2f} dB" if "recon_face_psnr" in m else ""))
+    print(
+        f"  reconstruction  mse {m['recon_mse']:.5f}  psnr {m['recon_psnr']:.2f} dB  ssim {m['recon_ssim']:.3f}"
+        + (f"   face psnr {m['recon_face_psnr']:.2f} dB" if "recon_face_psnr" in m else "")
+    )
     learned = learned_layers(m)
     if any(net in m for _, net, _, _, _ in LAYERS):
-        print("  intrinsic layers on the face inside the pseudo mask (the model's own foreground; the last albedo line:"
-              " the whole face, whose hair and neck the model leaves to its background layer)")
+        print(
+            "  intrinsic layers on the face inside the pseudo mask (the model's own foreground; the last albedo line:"
+            " the whole face, whose hair and neck the model leaves to its background layer)"
+        )
     for label, net, triv, pseudo, unit in LAYERS:
         if net in m:
             line = f"  {label:<24} network {m[net]:.4g}{unit}"

@@ -2,6 +2,7 @@
 
 The suite runs as two pytest-xdist workers on two cores; more threads per worker only contend.
 """
+
 import pytest
 import torch
 

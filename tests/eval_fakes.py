@@ -6,6 +6,7 @@ of normals.  Albedo is a per-identity colour with a horizontal ramp; lights come
 bank of directional lights (``light_id``) on the ``lightbank`` split.  The pseudo normals are
 the true ones bent towards +z, as a coarse fit would be.
 """
+
 import math
 
 import torch
@@ -48,7 +49,9 @@ class FakeFaces(torch.utils.data.Dataset):
             yaw = float(torch.as_tensor(pose)[0])
         g = torch.Generator().manual_seed(1000 * self.seed + index)
         if sh is None:
-            sh = self.bank[light] if light >= 0 else _bank()[index % N_LIGHTS] * (0.8 + 0.4 * torch.rand(1, generator=g))
+            sh = (
+                self.bank[light] if light >= 0 else _bank()[index % N_LIGHTS] * (0.8 + 0.4 * torch.rand(1, generator=g))
+            )
         H = W = self.res
         v, u = torch.meshgrid(torch.linspace(1, -1, H), torch.linspace(-1, 1, W), indexing="ij")
         r2 = u * u + v * v
@@ -67,10 +70,21 @@ class FakeFaces(torch.utils.data.Dataset):
         noise = (effects or self.effects).get("noise", 0.0)
         if noise:
             image = image + 0.1 * noise * torch.randn(image.shape, generator=g)
-        return {"image": image.float(), "background": bg, "matte": matte, "normal": normal, "albedo": albedo * matte,
-                "shading": shading * matte, "sh": sh.float(), "normal_pseudo": bent, "mask_pseudo": matte.clone(),
-                "sh_pseudo": sh.float(), "light_id": torch.tensor(light), "identity": torch.tensor(ident),
-                "pose": torch.tensor([yaw, 0.0, 0.0])}
+        return {
+            "image": image.float(),
+            "background": bg,
+            "matte": matte,
+            "normal": normal,
+            "albedo": albedo * matte,
+            "shading": shading * matte,
+            "sh": sh.float(),
+            "normal_pseudo": bent,
+            "mask_pseudo": matte.clone(),
+            "sh_pseudo": sh.float(),
+            "light_id": torch.tensor(light),
+            "identity": torch.tensor(ident),
+            "pose": torch.tensor([yaw, 0.0, 0.0]),
+        }
 
 
 class OracleModel(torch.nn.Module):
@@ -84,6 +98,14 @@ class OracleModel(torch.nn.Module):
         outs = []
         for im in image:
             it = next(i for i in self.items if torch.equal(i["image"], im))
-            outs.append({"recon": it["image"], "albedo": it["albedo"], "normal": it["normal"], "shading": it["shading"],
-                         "sh": it["sh"], "matte": it["matte"]})
+            outs.append(
+                {
+                    "recon": it["image"],
+                    "albedo": it["albedo"],
+                    "normal": it["normal"],
+                    "shading": it["shading"],
+                    "sh": it["sh"],
+                    "matte": it["matte"],
+                }
+            )
         return {k: torch.stack([o[k] for o in outs]) for k in outs[0]}

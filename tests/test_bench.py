@@ -1,5 +1,6 @@
 """``python -m disent.bench``: the JSON a tiny run writes (no timing asserts) and what it counts.  The speed
 kernels' equality with the plain layers is tested in test_kernels.py."""
+
 import json
 
 import pytest
@@ -19,8 +20,30 @@ def tiny_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("bench") / "bench.json"
     threads = torch.get_num_threads()
     try:
-        bench_main(["peak", "models", "profile", "--models", "explicit", "implicit", "--rounds", "1", "--peak-n", "256",
-                    "--train-batch", "2", "--infer-batches", "1", "64", "--threads", "1", "--no-bf16", "--out", str(out)])
+        bench_main(
+            [
+                "peak",
+                "models",
+                "profile",
+                "--models",
+                "explicit",
+                "implicit",
+                "--rounds",
+                "1",
+                "--peak-n",
+                "256",
+                "--train-batch",
+                "2",
+                "--infer-batches",
+                "1",
+                "64",
+                "--threads",
+                "1",
+                "--no-bf16",
+                "--out",
+                str(out),
+            ]
+        )
     finally:
         torch.set_num_threads(threads)
     return json.loads(out.read_text())
@@ -90,13 +113,15 @@ def test_bf16_figures_and_bf16_stays_close_to_float32():
     assert 0 < fig["bf16_recon_max_abs_diff"] < 0.05 and fig["bf16_normal_mean_angle_deg"] < 2
     fig.update(flops_per_image=1e9, train_flops_per_image=3e9)
     add_fractions(fig, 1.0)  # bf16 training does the FLOPs of a float32 step, stated against the float32 peak
-    assert fig["train_bf16_fraction_of_peak"] == pytest.approx(3 * fig["train_bf16_img_s"] / fig["train_bf16_peak_gflops"])
+    assert fig["train_bf16_fraction_of_peak"] == pytest.approx(
+        3 * fig["train_bf16_img_s"] / fig["train_bf16_peak_gflops"]
+    )
     assert fig["infer_bf16_fraction_of_peak"] == pytest.approx(fig["infer_bf16_img_s"] / fig["infer_bf16_peak_gflops"])
 
 
 def test_loader_figure_renders_n_fresh_images_per_round(monkeypatch):
-    from disent.data import SynthFaces
     from disent.bench.models import loader_img_s
+    from disent.data import SynthFaces
 
     seen = []
     monkeypatch.setattr(SynthFaces, "get_batch", lambda self, idx: seen.append(list(idx)))
@@ -108,8 +133,8 @@ def test_loader_figure_renders_n_fresh_images_per_round(monkeypatch):
 
 def test_flops_scale_with_resolution():
     """The FLOP counter sees every convolution: 4x the pixels, ~4x the convolution FLOPs."""
-    from disent.models import build_model
     from disent.bench.models import count_flops, model_cfg
+    from disent.models import build_model
 
     f = {}
     for res in (16, 32):
@@ -133,9 +158,17 @@ def test_time_to_accuracy_reads_metrics(tmp_path):
     normal error beats the dataset-mean map's, and the pseudo-GT's; else null with the best error and when."""
     log = tmp_path / "metrics.jsonl"
     train = {"step": 5, "wall": 1.0, "total": 1.0}
-    val = lambda step, wall, err: {"step": step, "wall": wall, "minutes": wall / 60,
-                                   "val": {"normal_mean": err, "pseudo_normal_mean": 20.0, "trivial_normal_mean": 26.0}}
-    final = {"step": 40, "wall": 300.0, "eval": {"normal_mean": 18.0, "pseudo_normal_mean": 19.0, "trivial_normal_mean": 26}}
+    val = lambda step, wall, err: {
+        "step": step,
+        "wall": wall,
+        "minutes": wall / 60,
+        "val": {"normal_mean": err, "pseudo_normal_mean": 20.0, "trivial_normal_mean": 26.0},
+    }
+    final = {
+        "step": 40,
+        "wall": 300.0,
+        "eval": {"normal_mean": 18.0, "pseudo_normal_mean": 19.0, "trivial_normal_mean": 26},
+    }
     write = lambda *recs: log.write_text("\n".join(json.dumps(r) for r in recs) + "\n")
     write(train, val(10, 60.0, 30.0), val(20, 150.0, 19.5), val(30, 240.0, 25.0), final)
     r = time_to_accuracy(log)

@@ -1,4 +1,5 @@
 """SynthFaces against its contract: the image model, ground truth, determinism, splits."""
+
 import math
 
 import pytest
@@ -7,14 +8,48 @@ import torch.nn.functional as F
 
 from disent.data import ATTR_PRIOR, LIGHT_BANK, LIGHT_NAMES, SPLITS, SynthFaces
 from disent.data.synth.face_model import GRID_U, GRID_V, face_model
-from disent.data.synth.raster import (face_ids, grid_faces, grid_to_uv_map, grid_vertex_normals, interpolate, interpolate_covered, paste,
-                                pick, rasterize, rasterize_grids, render_face, sample_texture, to_camera, vertex_normals)
-from disent.data.synth.scenes import (LAYERS, _pseudo_geometry, dominant_light, fit_sh_packed, lights_to_sh, paint_layers,
-                               pseudo_mesh, pseudo_quads, sample_lights, shade, uniform)
+from disent.data.synth.raster import (
+    face_ids,
+    grid_faces,
+    grid_to_uv_map,
+    grid_vertex_normals,
+    interpolate,
+    interpolate_covered,
+    paste,
+    pick,
+    rasterize,
+    rasterize_grids,
+    render_face,
+    sample_texture,
+    to_camera,
+    vertex_normals,
+)
+from disent.data.synth.scenes import (
+    LAYERS,
+    _pseudo_geometry,
+    dominant_light,
+    fit_sh_packed,
+    lights_to_sh,
+    paint_layers,
+    pseudo_mesh,
+    pseudo_quads,
+    sample_lights,
+    shade,
+    uniform,
+)
 from disent.render import composite, fit_sh, image_formation, sh_basis, sh_from_directions, sh_shading
 
-IMAGE_KEYS = ("image", "background", "albedo", "shading", "normal", "normal_uv", "albedo_uv", "normal_pseudo",
-              "normal_uv_pseudo")
+IMAGE_KEYS = (
+    "image",
+    "background",
+    "albedo",
+    "shading",
+    "normal",
+    "normal_uv",
+    "albedo_uv",
+    "normal_pseudo",
+    "normal_uv_pseudo",
+)
 
 
 @pytest.fixture(scope="module")
@@ -30,10 +65,24 @@ def batch(train):
 def test_item_keys_shapes_and_ranges(train, batch):
     item = train[3]
     H = 64
-    shapes = {"image": (3, H, H), "background": (3, H, H), "matte": (1, H, H), "normal": (3, H, H),
-              "albedo": (3, H, H), "shading": (3, H, H), "sh": (3, 9), "uv": (2, H, H), "normal_uv": (3, H, H),
-              "albedo_uv": (3, H, H), "normal_pseudo": (3, H, H), "mask_pseudo": (1, H, H), "uv_pseudo": (2, H, H),
-              "normal_uv_pseudo": (3, H, H), "sh_pseudo": (3, 9), "pose": (3,)}
+    shapes = {
+        "image": (3, H, H),
+        "background": (3, H, H),
+        "matte": (1, H, H),
+        "normal": (3, H, H),
+        "albedo": (3, H, H),
+        "shading": (3, H, H),
+        "sh": (3, 9),
+        "uv": (2, H, H),
+        "normal_uv": (3, H, H),
+        "albedo_uv": (3, H, H),
+        "normal_pseudo": (3, H, H),
+        "mask_pseudo": (1, H, H),
+        "uv_pseudo": (2, H, H),
+        "normal_uv_pseudo": (3, H, H),
+        "sh_pseudo": (3, 9),
+        "pose": (3,),
+    }
     for k, shape in shapes.items():
         assert item[k].shape == shape, k
         assert item[k].dtype == torch.float32, k
@@ -134,8 +183,9 @@ def _layer(*names, res=64):
     return sum(L[LAYERS.index(n)] for n in names).reshape(res, res)
 
 
-@pytest.mark.parametrize("attr,layers", [("beard", ("beard_full", "beard_goatee")),
-                                         ("eyeglasses", ("glasses_round", "glasses_square"))])
+@pytest.mark.parametrize(
+    "attr,layers", [("beard", ("beard_full", "beard_goatee")), ("eyeglasses", ("glasses_round", "glasses_square"))]
+)
 def test_albedo_attributes_change_only_their_region(train, attr, layers):
     off, on = train.sample(2, **{attr: 0.0}), train.sample(2, **{attr: 1.0})
     assert on["attrs"][attr] == 1 and off["attrs"][attr] == 0
@@ -154,7 +204,7 @@ def test_smiling_changes_the_expression_only(train):
     d = (on["normal_uv"] - off["normal_uv"]).norm(dim=0)  # in UV space: rows of the lower face only
     rows = d.amax(1)
     eye_row = int(0.38 * 64)
-    assert rows[eye_row + 8:].max() > 0.3 and rows[:eye_row].max() < 1e-3
+    assert rows[eye_row + 8 :].max() > 0.3 and rows[:eye_row].max() < 1e-3
     # Teeth show when the mouth opens: the smiling image has teeth-coloured pixels in the mouth.
     teeth = _layer("teeth") > 0.5
     uv = (on["uv"] * 63).round().long()
@@ -206,12 +256,14 @@ def test_effects_off_by_default_and_each_changes_the_image(train):
 
 def test_specular_follows_the_light_given_to_sample(train):
     """The highlight comes from the scene's SH light, so an overridden light moves it."""
+
     def highlight_x(sh):
         on = train.sample(9, sh=sh, pose=(0.0, 0.0, 0.0), effects={"specular": 1.0})
         off = train.sample(9, sh=sh, pose=(0.0, 0.0, 0.0))
         h = (on["image"] - off["image"]).sum(0).clamp_min(0)
         assert h.sum() > 0.5
         return (h * torch.arange(64.0)).sum() / h.sum()
+
     left, right = highlight_x(LIGHT_BANK["flash_az-60"]), highlight_x(LIGHT_BANK["flash_az+60"])
     assert right - left > 8, (left, right)  # light from image right: highlight on the right
     none = train.sample(9, sh=LIGHT_BANK["ambient"], effects={"specular": 1.0})
@@ -266,7 +318,11 @@ def test_split_sizes_and_balance(split):
             freq = (p[attr] >= 0.5).float().mean().item()
             n = len(idx) if attr == "smiling" else p["identity"].unique().numel()  # identity-level draws
             assert abs(freq - prior) < 4 * math.sqrt(prior * (1 - prior) / n), (attr, freq)
-        assert p["pose"][:, 0].abs().max() <= 45 and p["pose"][:, 1].abs().max() <= 20 and p["pose"][:, 2].abs().max() <= 10
+        assert (
+            p["pose"][:, 0].abs().max() <= 45
+            and p["pose"][:, 1].abs().max() <= 20
+            and p["pose"][:, 2].abs().max() <= 10
+        )
     assert SynthFaces(split, size=10).params(range(10))["identity"].shape == (10,)
 
 
@@ -391,7 +447,9 @@ def test_grid_rasterizer_matches_the_triangle_rasterizer():
             a, b = interpolate(verts, g), interpolate(verts, t)  # x, y: the pixel centres; z: depth
             centres = (torch.arange(res) * 2 + 1) / res - 1
             covered = g_id >= 0
-            assert (a[:, 0] - centres)[covered].abs().max() < 1e-3 and (a[:, 1] - centres.flip(0)[:, None])[covered].abs().max() < 1e-3
+            assert (a[:, 0] - centres)[covered].abs().max() < 1e-3 and (a[:, 1] - centres.flip(0)[:, None])[
+                covered
+            ].abs().max() < 1e-3
             assert (a - b).abs().amax(1)[same].max() < 1e-3  # slivers of the closed mouth: rounding of tiny areas
 
 
@@ -444,7 +502,9 @@ def test_grid_to_uv_map_reproduces_bilinear_functions():
     kv = torch.cat([torch.zeros(1), torch.rand(7, generator=g).sort().values * 0.9 + 0.05, torch.ones(1)]).double()
     ku = torch.cat([torch.zeros(1), torch.rand(4, generator=g).sort().values * 0.9 + 0.05, torch.ones(1)]).double()
     a, b, c, d = torch.randn(4, 2, 5, generator=g, dtype=torch.float64)
-    f = lambda v, u: a[:, :, None, None] + b[:, :, None, None] * v + c[:, :, None, None] * u + d[:, :, None, None] * u * v
+    f = lambda v, u: (
+        a[:, :, None, None] + b[:, :, None, None] * v + c[:, :, None, None] * u + d[:, :, None, None] * u * v
+    )
     vals = f(kv[:, None], ku[None]).reshape(2, 5, -1).transpose(1, 2)  # [B, V, C]
     out = grid_to_uv_map(vals, 16, (len(kv), len(ku)), knots=(kv, ku))
     t = torch.linspace(0, 1, 16, dtype=torch.float64)
@@ -457,7 +517,9 @@ def test_grid_to_uv_map_reproduces_bilinear_functions():
 def test_grid_vertex_normals_of_a_plane():
     # A tilted plane: every vertex normal is the plane's, as the triangle mesh's area-weighted normals give it.
     gv, gu = 6, 5
-    v, u = torch.meshgrid(torch.linspace(0, 1, gv, dtype=torch.float64), torch.linspace(0, 1, gu, dtype=torch.float64), indexing="ij")
+    v, u = torch.meshgrid(
+        torch.linspace(0, 1, gv, dtype=torch.float64), torch.linspace(0, 1, gu, dtype=torch.float64), indexing="ij"
+    )
     x, y = u - 0.5, 0.5 - v  # rows run down the image, columns right
     verts = torch.stack([x, y, 0.3 * x - 0.2 * y], -1).reshape(1, -1, 3)
     n = grid_vertex_normals(verts, (gv, gu))

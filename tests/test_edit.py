@@ -1,15 +1,30 @@
 """Editing: the DMT witness and its minimiser, barycenter traversal, and lighting transfer
 against ground truth built from the rendering primitives."""
+
 import math
 
 import pytest
 import torch
 from scipy.optimize import minimize_scalar
 
-from disent.edit.relight import (detailed_albedo, directional_light, ratio_relight, relight, transfer_lighting,
-                                 with_light)
-from disent.edit.traversal import (AttributePool, barycenter, choose_bandwidth, dmt, encode_pool, rbf_kernel,
-                                   traverse, witness)
+from disent.edit.relight import (
+    detailed_albedo,
+    directional_light,
+    ratio_relight,
+    relight,
+    transfer_lighting,
+    with_light,
+)
+from disent.edit.traversal import (
+    AttributePool,
+    barycenter,
+    choose_bandwidth,
+    dmt,
+    encode_pool,
+    rbf_kernel,
+    traverse,
+    witness,
+)
 from disent.render import composite, sh_from_directions, sh_shading
 
 
@@ -23,9 +38,11 @@ def gaussian_sets(D=5, n=40, shift=3.0, seed=0):
 
 def witness_grad_closed_form(z, S, T, sigma):
     """d/dz of mean_s k(z,s) - mean_t k(z,t), k = exp(-|z-x|^2 / 2 sigma^2)."""
+
     def part(X):
         k = rbf_kernel(z, X, sigma)  # [B,N]
         return -(k[..., None] * (z[:, None] - X[None])).mean(1) / sigma**2
+
     return part(S) - part(T)
 
 
@@ -34,7 +51,7 @@ def test_witness_gradient_closed_form_and_finite_differences():
     neg, pos = gaussian_sets()
     sigma = choose_bandwidth(torch.cat([neg, pos]))
     z = torch.randn(4, 5, dtype=torch.float64, generator=torch.Generator().manual_seed(1)).requires_grad_()
-    g_auto, = torch.autograd.grad(witness(z, neg, pos, sigma).sum(), z)
+    (g_auto,) = torch.autograd.grad(witness(z, neg, pos, sigma).sum(), z)
     torch.testing.assert_close(g_auto, witness_grad_closed_form(z.detach(), neg, pos, sigma), rtol=1e-10, atol=1e-12)
     h = 1e-6
     for i in range(5):
@@ -88,7 +105,7 @@ def test_dmt_solution_is_stationary_and_matches_1d_reference():
     # one source point, one target point, on a line: compare with a scalar minimiser
     s, t, sig, lam = torch.tensor([[0.0]], dtype=torch.float64), torch.tensor([[2.0]], dtype=torch.float64), 1.0, 0.3
     z1 = dmt(s, s, t, lam, sig).item()
-    f = lambda x: math.exp(-x**2 / 2) - math.exp(-(x - 2) ** 2 / 2) + lam * x**2 / 2
+    f = lambda x: math.exp(-(x**2) / 2) - math.exp(-((x - 2) ** 2) / 2) + lam * x**2 / 2
     ref = minimize_scalar(f, bounds=(0, 4), method="bounded", options={"xatol": 1e-10}).x
     assert z1 == pytest.approx(ref, abs=1e-6)
 
@@ -141,8 +158,10 @@ class FakeImplicit:
 
     def __init__(self):
         g = torch.Generator().manual_seed(0)
-        self.W = {n: torch.randn(3 * 4 * 4, d, generator=g) for n, d in
-                  (("UV", 6), ("Ni", 5), ("Ai", 4), ("L", 27), ("bg", 3), ("m", 2))}
+        self.W = {
+            n: torch.randn(3 * 4 * 4, d, generator=g)
+            for n, d in (("UV", 6), ("Ni", 5), ("Ai", 4), ("L", 27), ("bg", 3), ("m", 2))
+        }
 
     def encode(self, image):
         x = image.flatten(1)
@@ -203,8 +222,11 @@ def render(normal, matte, albedo, background, sh):
 def two_lights(ambient):
     d = torch.tensor([[[0.6, 0.3, 0.74]], [[-0.5, -0.2, 0.84]]], dtype=torch.float64)
     sh_t = sh_from_directions(d, torch.full((2, 1, 3), 0.8, dtype=torch.float64), ambient)
-    sh_s = sh_from_directions(d.flip(0) * torch.tensor([1.0, -1, 1], dtype=torch.float64),
-                              torch.tensor([[[0.9, 0.7, 0.5]], [[0.4, 0.6, 0.9]]], dtype=torch.float64), ambient)
+    sh_s = sh_from_directions(
+        d.flip(0) * torch.tensor([1.0, -1, 1], dtype=torch.float64),
+        torch.tensor([[[0.9, 0.7, 0.5]], [[0.4, 0.6, 0.9]]], dtype=torch.float64),
+        ambient,
+    )
     return sh_t, sh_s
 
 
@@ -240,8 +262,12 @@ def test_small_shading_guard_never_gives_nan_or_inf():
     g = torch.Generator().manual_seed(0)
     image = torch.rand(2, 3, 8, 8, generator=g)
     image[0, :, :2] = 0.0
-    for shading in (torch.zeros(2, 1, 8, 8), -torch.rand(2, 3, 8, 8, generator=g), torch.full((2, 3, 8, 8), 1e-30),
-                    torch.rand(2, 3, 8, 8, generator=g) * 0.1 - 0.05):
+    for shading in (
+        torch.zeros(2, 1, 8, 8),
+        -torch.rand(2, 3, 8, 8, generator=g),
+        torch.full((2, 3, 8, 8), 1e-30),
+        torch.rand(2, 3, 8, 8, generator=g) * 0.1 - 0.05,
+    ):
         A = detailed_albedo(image, shading)
         assert torch.isfinite(A).all()
         assert A.abs().max() <= image.max() / 0.05 + 1e-6
@@ -279,8 +305,15 @@ class TrueIntrinsicsModel:
     def decode(self, codes):
         sh = codes["L"].reshape(-1, 3, 9)
         shading = sh_shading(self.n, sh)
-        return {"recon": composite(self.m, self.a * shading, self.bg), "normal": self.n, "albedo": self.a,
-                "shading": shading, "matte": self.m, "sh": sh, "codes": codes}
+        return {
+            "recon": composite(self.m, self.a * shading, self.bg),
+            "normal": self.n,
+            "albedo": self.a,
+            "shading": shading,
+            "matte": self.m,
+            "sh": sh,
+            "codes": codes,
+        }
 
     def __call__(self, image):
         return self.decode({"L": self.sh.reshape(-1, 27), "Ne": torch.zeros(len(image), 1)})
@@ -307,7 +340,7 @@ def toy_measure_set(N=256, R=16, seed=0):
     images = 0.1 * torch.rand(N, 3, R, R, generator=g)
     h = R // 2
     for i, (y, x) in enumerate([(0, 0), (0, h), (h, 0), (h, h)]):
-        images[:, :, y:y + h, x:x + h] += 0.6 * attrs[:, i, None, None, None]
+        images[:, :, y : y + h, x : x + h] += 0.6 * attrs[:, i, None, None, None]
     level = torch.rand(N, generator=g)
     images = images + 0.3 * level[:, None, None, None]
     sh = torch.zeros(N, 3, 9)
@@ -354,17 +387,27 @@ class FakeSynth(torch.utils.data.Dataset):
             strengths[self.split[5:]] = float(index % 2)
         strengths.update(overrides)
         for i, a in enumerate(strengths):
-            albedo[i % 3, 3 + 3 * i:5 + 3 * i, 4:12] *= 1 - 0.7 * strengths[a]
+            albedo[i % 3, 3 + 3 * i : 5 + 3 * i, 4:12] *= 1 - 0.7 * strengths[a]
         if sh is None:
             d = torch.randn(1, 3, generator=g) + torch.tensor([0, 0, 2.0])
             sh = sh_from_directions(d, torch.full((1, 3), 0.6), 0.3)
         sh = torch.as_tensor(sh).reshape(1, 3, 9).float()
         shading = sh_shading(normal[None], sh)[0]
-        return {"image": composite(matte, albedo * shading, bg).clamp(0, 1), "background": bg, "matte": matte,
-                "normal": normal, "albedo": albedo, "shading": shading, "sh": sh[0],
-                "attrs": {**{a: torch.tensor(v) for a, v in strengths.items()},
-                          **{f"{a}_strength": torch.tensor(v) for a, v in strengths.items()}},
-                "identity": torch.tensor(index % 5), "pose": torch.zeros(3)}
+        return {
+            "image": composite(matte, albedo * shading, bg).clamp(0, 1),
+            "background": bg,
+            "matte": matte,
+            "normal": normal,
+            "albedo": albedo,
+            "shading": shading,
+            "sh": sh[0],
+            "attrs": {
+                **{a: torch.tensor(v) for a, v in strengths.items()},
+                **{f"{a}_strength": torch.tensor(v) for a, v in strengths.items()},
+            },
+            "identity": torch.tensor(index % 5),
+            "pose": torch.zeros(3),
+        }
 
     def __getitem__(self, index):
         return self.sample(index)
@@ -386,8 +429,18 @@ def test_edit_and_relight_tables_run_end_to_end_on_a_toy_generator():
     torch.manual_seed(0)
     model = build_model({"name": "implicit", "resolution": 16, "code_dim": 8}).eval()
     net = MeasureNet(16, width=4, identity_dim=3).eval()
-    rows, shown = edit_table(model, net, FakeSynth, "smiling", pool_size=12, n_sources=3, lambdas=(0.1, 0.03),
-                             alphas=(1.0,), resolution=16, truth_override=lambda a: {a: 1.0})
+    rows, shown = edit_table(
+        model,
+        net,
+        FakeSynth,
+        "smiling",
+        pool_size=12,
+        n_sources=3,
+        lambdas=(0.1, 0.03),
+        alphas=(1.0,),
+        resolution=16,
+        truth_override=lambda a: {a: 1.0},
+    )
     recon = rows[0]
     assert recon["method"] == "reconstruction" and recon["gain"] == 0 and recon["leakage"] == 0
     assert rows[1]["method"] == "truth" and rows[1]["d_bg"] == 0  # the true edit leaves the background alone
@@ -400,8 +453,10 @@ def test_edit_and_relight_tables_run_end_to_end_on_a_toy_generator():
     claims = claim_summary(rows[2:])
     assert len(claims) == 2 * 5 and {c["method"] for c in claims} == {"dmt", "barycenter"}
     assert sorted(c["rank"] for c in claims if c["method"] == "dmt") == [1, 2, 3, 4, 5]
-    bank = {"left": sh_from_directions(torch.tensor([[-1.0, 0, 1]]), torch.full((1, 3), 0.6), 0.2),
-            "right": sh_from_directions(torch.tensor([[1.0, 0.2, 1]]), torch.full((1, 3), 0.6), 0.2)}
+    bank = {
+        "left": sh_from_directions(torch.tensor([[-1.0, 0, 1]]), torch.full((1, 3), 0.6), 0.2),
+        "right": sh_from_directions(torch.tensor([[1.0, 0.2, 1]]), torch.full((1, 3), 0.6), 0.2),
+    }
     rel, example = relight_table(model, FakeSynth, bank, n_faces=2, n_lights=2, resolution=16)
     by = {r["method"]: r for r in rel}
     assert set(by) == {"transfer", "ratio", "decode", "input", "oracle"}
@@ -435,8 +490,24 @@ def test_relight_command_writes_pngs_for_a_folder(tmp_path):
         Image.fromarray(arr).save(photos / f"p{i}.png")
     assert load_image(photos / "p0.png", 16, align=False).shape == (3, 16, 16)
     out = tmp_path / "relit"
-    main(["relight", str(run), str(photos), "--direction", "0.5", "0.3", "0.8", "--method", "transfer", "ratio",
-          "decode", "--out", str(out), "--no-align"])
+    main(
+        [
+            "relight",
+            str(run),
+            str(photos),
+            "--direction",
+            "0.5",
+            "0.3",
+            "0.8",
+            "--method",
+            "transfer",
+            "ratio",
+            "decode",
+            "--out",
+            str(out),
+            "--no-align",
+        ]
+    )
     names = sorted(p.name for p in out.glob("*.png"))
     assert len(names) == 2 * 4 and "p0_transfer_dir_0.5_0.3_0.8.png" in names
     assert (out / ".tool").read_text() == "edit\n" and (out / "git.txt").exists()  # a tool folder (disent.runs)
@@ -454,13 +525,47 @@ def test_traverse_command_writes_a_lambda_strip(tmp_path, monkeypatch):
     monkeypatch.setattr(disent.data, "SynthFaces", FakeSynth, raising=False)
     run = tiny_checkpoint(tmp_path)
     out = tmp_path / "edits"
-    main(["traverse", str(run), "synth:0", "synth:3", "--attribute", "beard", "--strength", "0.07", "0.03",
-          "--pool-size", "12", "--out", str(out)])
+    main(
+        [
+            "traverse",
+            str(run),
+            "synth:0",
+            "synth:3",
+            "--attribute",
+            "beard",
+            "--strength",
+            "0.07",
+            "0.03",
+            "--pool-size",
+            "12",
+            "--out",
+            str(out),
+        ]
+    )
     strip = out / "synth00003_add_beard_Ai_dmt_strip.png"
     assert strip.exists() and Image.open(strip).size == (4 * 16 + 3 * 2, 16)
     assert (out / "synth00000_add_beard_Ai_dmt_lam0.03.png").exists()
-    main(["traverse", str(run), "synth:0", "--attribute", "smiling", "--manifolds", "Ai", "UV", "--method",
-          "barycenter", "--strength", "1", "--remove", "--pool-size", "12", "--out", str(out)])
+    main(
+        [
+            "traverse",
+            str(run),
+            "synth:0",
+            "--attribute",
+            "smiling",
+            "--manifolds",
+            "Ai",
+            "UV",
+            "--method",
+            "barycenter",
+            "--strength",
+            "1",
+            "--remove",
+            "--pool-size",
+            "12",
+            "--out",
+            str(out),
+        ]
+    )
     assert (out / "synth00000_remove_smiling_Ai+UV_barycenter_alpha1.png").exists()
 
 
@@ -473,8 +578,9 @@ def test_transfer_on_synthfaces_truth_reproduces_the_generators_relit_render():
     for name in ("flash_az-90", "overcast"):
         sh = torch.as_tensor(LIGHT_BANK[name]).float()
         truth = data.get_batch(range(4), sh=sh)["image"]
-        out = transfer_lighting(b["image"], b["normal"], b["shading"], b["matte"], sh[None].expand(4, -1, -1),
-                                b["albedo"])
+        out = transfer_lighting(
+            b["image"], b["normal"], b["shading"], b["matte"], sh[None].expand(4, -1, -1), b["albedo"]
+        )
         assert (out.clamp(0, 1) - truth).abs().max() < 1e-5
         naive = ratio_relight(b["image"], b["normal"], b["sh"], sh[None].expand(4, -1, -1))
         assert reconstruction_metrics(naive.clamp(0, 1), truth)["psnr"] < 60  # relights the background too

@@ -1,14 +1,15 @@
 """Evaluation protocols and stability studies on an analytic stand-in for SynthFaces (tests/eval_fakes.py)."""
+
 import math
 
 import pytest
 import torch
+from eval_fakes import FakeFaces, OracleModel
 from torch.utils.data import default_collate
 
 from disent.eval import stability as st
 from disent.eval.evaluate import evaluate_model, face_mask, metrics_from_outputs
 from disent.eval.protocols import sh_variance, sh_variance_protocol
-from eval_fakes import FakeFaces, OracleModel
 
 
 def test_sh_variance_matches_groupwise_var():
@@ -145,7 +146,9 @@ def test_plots_write_pngs(tmp_path):
     yaw = st.conditioning_vs_yaw(ds, yaws=(0, 90), n=2)
     mask = st.conditioning_vs_mask(ds, fractions=(1.0, 0.5), n=2)
     st.plot_conditioning(yaw, mask, tmp_path / "c.png")
-    st.plot_ood(st.ood_curves(FakeFaces, {}, effects=("noise",), severities=(0.0, 1.0), n=2, resolution=16), tmp_path / "o.png")
+    st.plot_ood(
+        st.ood_curves(FakeFaces, {}, effects=("noise",), severities=(0.0, 1.0), n=2, resolution=16), tmp_path / "o.png"
+    )
     gt = default_collate([ds[i] for i in range(2)])
     row = {"bws": True, "batch_size": 20, **st.bws_stats({"shading": gt["shading"], "albedo": gt["albedo"]}, gt)}
     st.plot_bws({"rows": [row, {**row, "bws": False}]}, tmp_path / "b.png")
@@ -180,7 +183,8 @@ def test_trivial_baselines_are_dataset_means():
     assert trivial_metrics(means, gt)["trivial_sh_error"] == pytest.approx(0, abs=1e-10)
     torch.testing.assert_close(means["sh_pseudo"], gt["sh_pseudo"][0])  # the mean L-hat, for context
     assert trivial_metrics(means, gt)["trivial_lhat_sh_error"] == pytest.approx(
-        metrics_from_outputs({"sh": gt["sh_pseudo"]}, gt)["sh_error"])
+        metrics_from_outputs({"sh": gt["sh_pseudo"]}, gt)["sh_error"]
+    )
 
     ds = FakeFaces("test", size=12)
     means = dataset_means(ds, n=12)

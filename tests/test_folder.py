@@ -1,4 +1,5 @@
 """Real photos: decoding and bad input, the landmark fit, caching, and dlib end to end."""
+
 from __future__ import annotations
 
 import io
@@ -56,8 +57,10 @@ def bad_corpus(folder: Path) -> dict[str, tuple[Path, str]]:
         "truncated.png": (encode(Image.fromarray(rgb), "PNG")[:300], "skip:truncated or corrupt"),
         "text.jpg": (b"this is a text file, not a JPEG\n" * 4, "skip:not an image"),
         "gray.png": (encode(Image.fromarray(rgb[..., 1]), "PNG"), "use:L->RGB"),
-        "rgba.png": (encode(Image.fromarray(np.dstack([rgb, np.full(rgb.shape[:2], 128, np.uint8)])), "PNG"),
-                     "use:RGBA->RGB over white"),
+        "rgba.png": (
+            encode(Image.fromarray(np.dstack([rgb, np.full(rgb.shape[:2], 128, np.uint8)])), "PNG"),
+            "use:RGBA->RGB over white",
+        ),
         "gray16.png": (png16(rgb[..., 1].astype(np.uint16) * 257), "use:I;16->8-bit"),
         "rgb16.png": (png16(rgb.astype(np.uint16) * 257), "use:16-bit->8-bit"),
         "cmyk.jpg": (encode(Image.fromarray(rgb).convert("CMYK"), "JPEG", quality=95), "use:CMYK->RGB"),
@@ -133,7 +136,7 @@ def known_face(seed: int, fitter, resolution=64):
     p = np.zeros(fitter.n_pose + fitter.n_identity + fitter.n_expression)
     p[:3] = np.radians(rng.uniform(-25, 25, 3))
     p[3], p[4:6] = np.log(0.3 * resolution), resolution / 2 + rng.normal(0, 2, 2)
-    p[6:6 + fitter.n_identity] = rng.normal(0, 1, fitter.n_identity)
+    p[6 : 6 + fitter.n_identity] = rng.normal(0, 1, fitter.n_identity)
     p[-2:] = rng.uniform(0, 1, 2)
     return p, fitter.project_landmarks(p, resolution)
 
@@ -162,7 +165,7 @@ def test_fit_prior_and_noise():
     p, lm = known_face(3, fitter)
     fw, fs = pg.fit_landmarks(lm, 64, weak, fitter), pg.fit_landmarks(lm, 64, strong, fitter)
     n = fitter.n_identity
-    assert np.linalg.norm(fs["params"][6:6 + n]) < np.linalg.norm(fw["params"][6:6 + n])
+    assert np.linalg.norm(fs["params"][6 : 6 + n]) < np.linalg.norm(fw["params"][6 : 6 + n])
     assert fs["residual_px"] > fw["residual_px"]
     noisy = lm + np.random.default_rng(0).normal(0, 1.0, lm.shape)
     fn = pg.fit_landmarks(noisy, 64, PseudoGTSettings(), fitter)
@@ -223,7 +226,9 @@ def test_prepare_handles_every_bad_input_and_caches(tmp_path, monkeypatch):
     # landmarks placed exactly on the model's frontal template: the fit is (nearly) exact and frontal
     assert records[0].residual_px < 0.05 and np.abs(np.degrees(arrays["params"][:3])).max() < 1.0
     mask = arrays["mask_pseudo"][0] > 0
-    assert mask.sum() > 100 and np.allclose(np.linalg.norm(arrays["normal_pseudo"][:, mask].astype(float), axis=0), 1, atol=2e-3)
+    assert mask.sum() > 100 and np.allclose(
+        np.linalg.norm(arrays["normal_pseudo"][:, mask].astype(float), axis=0), 1, atol=2e-3
+    )
 
     # second pass: nothing is recomputed, not even hashed; a changed file is
     monkeypatch.setattr(pg, "process", lambda *a, **k: pytest.fail("second pass recomputed a cached image"))
@@ -286,20 +291,34 @@ def test_folder_faces_celeba_layout(tmp_path):
     from disent.data.photos.folder import FolderFaces
 
     root = celeba_folder(tmp_path / "celeba")
-    kw = dict(resolution=32, cache_dir=tmp_path / "cache", progress=False,
-              detector=TemplateDetector(PseudoGTSettings(resolution=32)))
+    kw = dict(
+        resolution=32,
+        cache_dir=tmp_path / "cache",
+        progress=False,
+        detector=TemplateDetector(PseudoGTSettings(resolution=32)),
+    )
     train, val, test = (FolderFaces(root, split, **kw) for split in ("train", "val", "test"))
     assert (len(train), len(val), len(test)) == (6, 2, 4)
     item = train[1]
     assert set(item) == {"image", "normal_pseudo", "mask_pseudo", "uv_pseudo", "normal_uv_pseudo", "sh_pseudo", "attrs"}
     shapes = {k: tuple(v.shape) for k, v in item.items() if k != "attrs"}
-    assert shapes == {"image": (3, 32, 32), "normal_pseudo": (3, 32, 32), "mask_pseudo": (1, 32, 32),
-                      "uv_pseudo": (2, 32, 32), "normal_uv_pseudo": (3, 32, 32), "sh_pseudo": (3, 9)}
+    assert shapes == {
+        "image": (3, 32, 32),
+        "normal_pseudo": (3, 32, 32),
+        "mask_pseudo": (1, 32, 32),
+        "uv_pseudo": (2, 32, 32),
+        "normal_uv_pseudo": (3, 32, 32),
+        "sh_pseudo": (3, 9),
+    }
     assert all(v.dtype == torch.float32 for k, v in item.items() if k != "attrs")
     assert 0 <= item["image"].min() and item["image"].max() <= 1
     # 000002.jpg: Smiling -1, No_Beard +1, Eyeglasses -1, Young +1
-    assert {k: float(v) for k, v in item["attrs"].items() if not k.endswith("strength")} == \
-        {"smiling": 0.0, "beard": 0.0, "eyeglasses": 0.0, "senior": 0.0}
+    assert {k: float(v) for k, v in item["attrs"].items() if not k.endswith("strength")} == {
+        "smiling": 0.0,
+        "beard": 0.0,
+        "eyeglasses": 0.0,
+        "senior": 0.0,
+    }
     pool = FolderFaces(root, "pool_smiling", **kw)  # test split: 000009..000012, smiling on 9 and 11
     assert [float(pool[i]["attrs"]["smiling"]) for i in range(len(pool))] == [1, 0, 1, 0]
     with pytest.raises(ValueError, match="unknown split"):
@@ -311,12 +330,30 @@ def test_build_passes_the_config(monkeypatch):
 
     seen = {}
     monkeypatch.setattr(folder, "FolderFaces", lambda *a, **k: seen.update(args=a, kw=k))
-    cfg = {"name": "folder", "root": "/photos", "resolution": 32, "seed": 3, "cache_dir": None, "workers": 2,
-           "multiple_faces": "skip", "predictor": None, "train_size": None, "test_size": 8}
+    cfg = {
+        "name": "folder",
+        "root": "/photos",
+        "resolution": 32,
+        "seed": 3,
+        "cache_dir": None,
+        "workers": 2,
+        "multiple_faces": "skip",
+        "predictor": None,
+        "train_size": None,
+        "test_size": 8,
+    }
     folder.build(cfg, "test", 8)
     assert seen["args"] == ("/photos",)
-    assert seen["kw"] == {"split": "test", "resolution": 32, "seed": 3, "size": 8, "cache_dir": None, "workers": 2,
-                          "split_by": "hash", "multiple_faces": "skip"}
+    assert seen["kw"] == {
+        "split": "test",
+        "resolution": 32,
+        "seed": 3,
+        "size": 8,
+        "cache_dir": None,
+        "workers": 2,
+        "split_by": "hash",
+        "multiple_faces": "skip",
+    }
 
 
 def test_folder_faces_plain_folder_split_is_stable(tmp_path):
@@ -327,8 +364,12 @@ def test_folder_faces_plain_folder_split_is_stable(tmp_path):
     for i in range(20):
         Image.fromarray(portrait(48, seed=i)).save(root / ("sub" if i % 2 else "") / f"{i}.png")
     (root / "empty.png").write_bytes(b"")
-    kw = dict(resolution=32, cache_dir=tmp_path / "cache", progress=False,
-              detector=TemplateDetector(PseudoGTSettings(resolution=32)))
+    kw = dict(
+        resolution=32,
+        cache_dir=tmp_path / "cache",
+        progress=False,
+        detector=TemplateDetector(PseudoGTSettings(resolution=32)),
+    )
     splits = {s: FolderFaces(root, s, **kw) for s in ("train", "val", "test")}
     assert sum(len(d) for d in splits.values()) == 20  # every photo once, the empty file skipped
     assert sum(d.summary["skip_reasons"].get("empty file", 0) for d in splits.values()) == 1
@@ -362,16 +403,23 @@ def test_end_to_end_on_bundled_photos(tmp_path):
     two.paste(astro, (0, 0))
     two.paste(grace, (256, 0))  # the astronaut's face is the smaller one
     two.save(tmp_path / "two_faces.png")
-    files = photos["astronaut"] + photos["grace_hopper"] + photos["lfw_faces"][:6] + photos["lfw_nonfaces"][:3] \
+    files = (
+        photos["astronaut"]
+        + photos["grace_hopper"]
+        + photos["lfw_faces"][:6]
+        + photos["lfw_nonfaces"][:3]
         + [tmp_path / "two_faces.png"]
+    )
     records, summary = pg.prepare(files, s, tmp_path / "cache", progress=False)
     by_name = {Path(r.path).stem: r for r in records}
     assert by_name["astronaut"].used and by_name["grace_hopper"].used
     assert sum(by_name[f"lfw_{i:03d}"].used for i in range(6)) >= 3  # 25x25 faces: most are found
     assert all(by_name[f"lfw_{i:03d}"].reason == "no face found" for i in range(100, 103))
     two_rec = by_name["two_faces"]
-    assert two_rec.used and any(" faces (detection scores " in n and n.endswith("kept the largest")
-                               for n in two_rec.notes), two_rec.notes
+    assert two_rec.used and any(
+        " faces (detection scores " in n and n.endswith("kept the largest") for n in two_rec.notes
+    ), two_rec.notes
+
     # the kept face is Grace Hopper's (right half): its landmarks, mapped back to the photo, match hers
     def photo_landmarks(rec):
         z = pg.load_cached(rec)
@@ -387,8 +435,9 @@ def test_end_to_end_on_bundled_photos(tmp_path):
         assert np.allclose(np.linalg.norm(z["normal_pseudo"][:, mask].astype(float), axis=0), 1, atol=2e-3)
         assert (z["normal_pseudo"][2][mask] > 0).mean() > 0.99  # visible surface faces the camera
         assert by_name[name].residual_px < 4.0  # RMS landmark error, 64 px crop
-    skip = pg.prepare([tmp_path / "two_faces.png"], _dlib_settings(multiple_faces="skip"), tmp_path / "cache",
-                      progress=False)[0][0]
+    skip = pg.prepare(
+        [tmp_path / "two_faces.png"], _dlib_settings(multiple_faces="skip"), tmp_path / "cache", progress=False
+    )[0][0]
     assert not skip.used and skip.reason == "several faces"
     faces = pg.load_cached(two_rec)["faces"]  # [left, top, right, bottom, score], largest first
     assert faces.shape[0] >= 2 and faces.shape[1] == 5  # (a third, weak detection may come with them)
@@ -396,8 +445,9 @@ def test_end_to_end_on_bundled_photos(tmp_path):
     second = pg.prepare([tmp_path / "two_faces.png"], _dlib_settings(face=1), tmp_path / "cache", progress=False)[0][0]
     assert second.used and "kept face 1 by size" in " ".join(second.notes)
     assert photo_landmarks(second).mean(0)[0] < 256  # the astronaut's landmarks
-    third = pg.prepare([tmp_path / "two_faces.png"], _dlib_settings(face=len(faces)), tmp_path / "cache",
-                       progress=False)[0][0]
+    third = pg.prepare(
+        [tmp_path / "two_faces.png"], _dlib_settings(face=len(faces)), tmp_path / "cache", progress=False
+    )[0][0]
     assert not third.used and third.reason == "no such face"
 
 
@@ -448,9 +498,13 @@ def test_fitter_camera_matches_the_rasterizer():
     p, lm = known_face(5, fitter, resolution=128)
     cam = fitter.to_raster(p, 128)
     K = fitter.n_identity
-    verts = fitter.model.shape(torch.tensor(p[None, 6:6 + K]), torch.tensor(p[None, 6 + K:])).double()
-    xy = to_camera(verts[:, fitter.model.landmarks], torch.tensor(cam["pose"][None]), torch.tensor([cam["scale"]]),
-                   torch.tensor(cam["shift"][None]))[0, :, :2].numpy()
+    verts = fitter.model.shape(torch.tensor(p[None, 6 : 6 + K]), torch.tensor(p[None, 6 + K :])).double()
+    xy = to_camera(
+        verts[:, fitter.model.landmarks],
+        torch.tensor(cam["pose"][None]),
+        torch.tensor([cam["scale"]]),
+        torch.tensor(cam["shift"][None]),
+    )[0, :, :2].numpy()
     assert np.allclose(fitter.raster_to_pixels(xy, 128), lm, atol=1e-6)
     back = fitter.from_raster(cam["pose"], cam["scale"], cam["shift"], 128)
     assert np.allclose(back[:6], p[:6])
@@ -478,7 +532,9 @@ def photo_records_and_model(tmp_path):
     for i in range(3):
         Image.fromarray(portrait(64, seed=i)).save(folder / f"{i}.png")
     s = PseudoGTSettings(resolution=32)
-    records, _ = pg.prepare(sorted(folder.iterdir()), s, tmp_path / "cache", progress=False, detector=TemplateDetector(s))
+    records, _ = pg.prepare(
+        sorted(folder.iterdir()), s, tmp_path / "cache", progress=False, detector=TemplateDetector(s)
+    )
     torch.manual_seed(0)
     return records, build_model({"name": "explicit", "resolution": 32, "code_dim": 16, "matting": True}).eval()
 

@@ -1,14 +1,15 @@
 """The CPU speed kernels (disent/models/kernels.py) compute the plain layers' functions: each kernel against
 the torch operation it replaces, forward and backward, and whole models with ``kernels`` on against off."""
+
 import copy
 
 import pytest
 import torch
 import torch.nn.functional as F
 
+from disent.bench.models import model_cfg
 from disent.models import build_model
 from disent.models import kernels as K
-from disent.bench.models import model_cfg
 
 
 @pytest.mark.parametrize("c,o", [(8, 3), (5, 4), (6, 5)])  # phase form, and a wide layer as written
@@ -50,8 +51,9 @@ def test_max_unpool_equals_torch_with_gradients(channels_last):
     NHWC pixels) and contiguous maps; gradients against finite differences too."""
     torch.manual_seed(0)
     fmt = torch.channels_last if channels_last else torch.contiguous_format
-    pooled, switches = F.max_pool2d(torch.randn(3, 5, 8, 6, dtype=torch.float64).contiguous(memory_format=fmt), 2,
-                                    return_indices=True)
+    pooled, switches = F.max_pool2d(
+        torch.randn(3, 5, 8, 6, dtype=torch.float64).contiguous(memory_format=fmt), 2, return_indices=True
+    )
     assert switches.is_contiguous(memory_format=fmt)
     x = pooled.detach().requires_grad_()
     out, ref = K.MaxUnpool.apply(x, switches), F.max_unpool2d(x, switches, 2)

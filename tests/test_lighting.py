@@ -1,4 +1,5 @@
 """Lighting posterior and order choice against closed forms, on simple synthetic geometry."""
+
 import math
 
 import numpy as np
@@ -7,11 +8,17 @@ import torch
 
 from disent.lighting.order import select_order
 from disent.lighting.posterior import (
-    LogPosterior, TruncatedT, gaussian_posterior, integrated_time, prepare, robust_fit, sample_posterior,
+    LogPosterior,
+    TruncatedT,
+    gaussian_posterior,
+    integrated_time,
+    prepare,
+    robust_fit,
+    sample_posterior,
 )
 from disent.lighting.texture import TextureModel
-from disent.runtime import single_core
 from disent.render import sh_from_directions, sh_shading
+from disent.runtime import single_core
 
 
 @pytest.fixture(autouse=True)
@@ -23,8 +30,9 @@ def one_core():
 
 def ellipsoid(H=32, W=32, a=0.8, b=1.0):
     """Normals of the camera-facing half of an ellipsoid and its mask (a face-like shape)."""
-    y, x = torch.meshgrid(torch.linspace(1, -1, H, dtype=torch.float64),
-                          torch.linspace(-1, 1, W, dtype=torch.float64), indexing="ij")
+    y, x = torch.meshgrid(
+        torch.linspace(1, -1, H, dtype=torch.float64), torch.linspace(-1, 1, W, dtype=torch.float64), indexing="ij"
+    )
     r2 = (x / a) ** 2 + (y / b) ** 2
     mask = (r2 < 0.95).double()
     n = torch.stack([x / a**2, y / b**2, torch.sqrt((1 - r2).clamp_min(0))], 0)
@@ -96,6 +104,7 @@ def test_log_posterior_vectorised_matches_plain_formulas(known_albedo):
                 ll = (-0.5 * (r / s) ** 2 - math.log(s) - 0.5 * math.log(2 * math.pi)).sum()
             else:
                 from scipy.stats import t as student_t
+
                 ll = student_t.logpdf(r, df=4.0, scale=s).sum()
             want = ll - 0.5 * (L**2).sum() / 4.0
             assert got[w] == pytest.approx(want, rel=1e-10, abs=1e-8)
@@ -216,8 +225,9 @@ def test_known_albedo_recovers_the_light_itself():
     """With the albedo map given, L is the scene's light (not albedo * light): LS and posterior agree."""
     normal, mask = ellipsoid(24, 24)
     sh, albedo = directional_light([0.3, 0.4, 1.0]), textured_albedo(24, 24, seed=1)
-    image = albedo * render(normal, sh, 0.0) + 0.01 * torch.randn(3, 24, 24, generator=torch.Generator().manual_seed(2),
-                                                                   dtype=torch.float64)
+    image = albedo * render(normal, sh, 0.0) + 0.01 * torch.randn(
+        3, 24, 24, generator=torch.Generator().manual_seed(2), dtype=torch.float64
+    )
     data = prepare(image, normal, mask, albedo)
     mu, cov = gaussian_posterior(data, 0.01)
     z = (mu - sh.numpy()) / np.sqrt(np.diagonal(cov, axis1=1, axis2=2))
@@ -231,8 +241,14 @@ def feature_texture(R=32):
     t = torch.linspace(0, 1, R, dtype=torch.float64)
     v, u = torch.meshgrid(t, t, indexing="ij")
     blob = lambda cu, cv, r: torch.exp(-((u - cu) ** 2 + (v - cv) ** 2) / (2 * r * r))
-    maps = torch.stack([torch.sigmoid((0.3 - v) / 0.04), torch.sigmoid((v - 0.75) / 0.04),
-                        blob(0.33, 0.42, 0.05) + blob(0.67, 0.42, 0.05), blob(0.5, 0.7, 0.05)])
+    maps = torch.stack(
+        [
+            torch.sigmoid((0.3 - v) / 0.04),
+            torch.sigmoid((v - 0.75) / 0.04),
+            blob(0.33, 0.42, 0.05) + blob(0.67, 0.42, 0.05),
+            blob(0.5, 0.7, 0.05),
+        ]
+    )
     comps = maps[:, None] * torch.tensor([1.0, 0.9, 0.8], dtype=torch.float64)[:, None, None]
     norms = comps.flatten(1).norm(dim=1)
     comps = comps / norms[:, None, None, None]
@@ -244,8 +260,9 @@ def test_texture_model_keeps_the_order_choice_of_a_textured_face():
     texture with order-2 terms; fitting the texture model's coefficients recovers order 1."""
     H = 32
     normal, mask = ellipsoid(H, H)
-    y, x = torch.meshgrid(torch.linspace(0, 1, H, dtype=torch.float64), torch.linspace(0, 1, H, dtype=torch.float64),
-                          indexing="ij")
+    y, x = torch.meshgrid(
+        torch.linspace(0, 1, H, dtype=torch.float64), torch.linspace(0, 1, H, dtype=torch.float64), indexing="ij"
+    )
     uv = torch.stack([x, y]) * mask
     model = feature_texture()
     for seed in range(2):
@@ -253,7 +270,9 @@ def test_texture_model_keeps_the_order_choice_of_a_textured_face():
         beta = -np.sqrt(model.variance) * (1.5 + rng.random(4))  # darker features than the mean
         albedo = torch.nn.functional.grid_sample(
             torch.from_numpy(model.mean + np.einsum("j,jchw->chw", beta, model.components))[None],
-            (2 * uv - 1).permute(1, 2, 0)[None], align_corners=True)[0]
+            (2 * uv - 1).permute(1, 2, 0)[None],
+            align_corners=True,
+        )[0]
         direction = rng.normal(size=3)
         direction[2] = abs(direction[2]) + 0.3
         sh = directional_light(direction.tolist())
@@ -384,8 +403,9 @@ def test_geometry_noise_keeps_the_order_when_normals_are_bent():
     reads the structured misfit as band 2 more often than the model that expects the geometry error."""
     normal, mask = ellipsoid(32, 32)
     H, W = normal.shape[1:]
-    y, x = torch.meshgrid(torch.linspace(-1, 1, H, dtype=torch.float64), torch.linspace(-1, 1, W, dtype=torch.float64),
-                          indexing="ij")
+    y, x = torch.meshgrid(
+        torch.linspace(-1, 1, H, dtype=torch.float64), torch.linspace(-1, 1, W, dtype=torch.float64), indexing="ij"
+    )
     rng = np.random.default_rng(0)
     picks = {0.0: 0, 0.16: 0}
     for i in range(6):

@@ -1,11 +1,11 @@
 """Closed-form checks of disent.eval.metrics."""
+
 import math
 
 import pytest
 import torch
 
-from disent.eval import (angular_error_deg, normal_angular_error, reconstruction_metrics, scale_invariant_mse,
-                         sh_error)
+from disent.eval import angular_error_deg, normal_angular_error, reconstruction_metrics, scale_invariant_mse, sh_error
 
 
 def _rot_x(deg):
@@ -85,7 +85,7 @@ def test_scaled_albedo_has_zero_si_mse():
     assert scale_invariant_mse(a * scale, a, mask) == pytest.approx(0.0, abs=1e-20)
     # a non-scale change is not forgiven, and matches the closed form for a constant prediction
     c = torch.ones_like(a)
-    s = (a.sum((2, 3), keepdim=True) / 64)  # optimal scale of a constant 1 is the mean
+    s = a.sum((2, 3), keepdim=True) / 64  # optimal scale of a constant 1 is the mean
     expected = ((s - a) ** 2).mean((1, 2, 3))
     assert torch.allclose(scale_invariant_mse(c, a, mask, reduction="none"), expected)
 

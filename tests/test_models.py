@@ -1,4 +1,5 @@
 """The three models, the EBGAN discriminator and every loss term, on a small synthetic batch."""
+
 from pathlib import Path
 
 import pytest
@@ -32,8 +33,14 @@ def fake_batch(B=4, H=R, seed=0):
     background = F.interpolate(torch.rand(B, 3, 4, 4, generator=g), size=(H, H), mode="bilinear", align_corners=True)
     image = composite(mask, image_formation(albedo, shading), background).clamp(0, 1)
     uv = torch.stack([xs, -ys]) * 0.5 + 0.5
-    return {"image": image, "normal_pseudo": normal, "mask_pseudo": mask, "sh_pseudo": sh,
-            "uv_pseudo": uv.expand(B, 2, H, H) * mask, "normal_uv_pseudo": normal.clone()}
+    return {
+        "image": image,
+        "normal_pseudo": normal,
+        "mask_pseudo": mask,
+        "sh_pseudo": sh,
+        "uv_pseudo": uv.expand(B, 2, H, H) * mask,
+        "normal_uv_pseudo": normal.clone(),
+    }
 
 
 def model_cfg(name, **kw):
@@ -49,8 +56,11 @@ def test_output_shapes_and_codes(name):
     B = x.shape[0]
     assert out["recon"].shape == (B, 3, R, R)
     codes = {k: v for k, v in out["codes"].items() if k != "switches"}
-    expected = {"baseline": {"z": 265}, "explicit": dict(bg=128, m=128, L=27, Ne=128, Ae=128),
-                "implicit": dict(bg=128, m=128, L=27, UV=128, Ni=128, Ai=128)}[name]
+    expected = {
+        "baseline": {"z": 265},
+        "explicit": dict(bg=128, m=128, L=27, Ne=128, Ae=128),
+        "implicit": dict(bg=128, m=128, L=27, UV=128, Ni=128, Ai=128),
+    }[name]
     assert {k: v.shape for k, v in codes.items()} == {k: (B, d) for k, d in expected.items()}
     if name != "baseline":
         for k in ("foreground", "background", "albedo", "shading", "normal"):
@@ -60,7 +70,9 @@ def test_output_shapes_and_codes(name):
         assert 0 <= out["matte"].min() and out["matte"].max() <= 1
         # the output is exactly the rendering of its parts (Eqs. 2-6)
         torch.testing.assert_close(out["shading"], sh_shading(out["normal"], out["sh"]))
-        torch.testing.assert_close(out["recon"], composite(out["matte"], out["albedo"] * out["shading"], out["background"]))
+        torch.testing.assert_close(
+            out["recon"], composite(out["matte"], out["albedo"] * out["shading"], out["background"])
+        )
         assert torch.equal(out["sh"], out["codes"]["L"].view(B, 3, 9))
     if name == "implicit":
         assert out["uv"].shape == (B, 2, R, R) and out["normal_uv"].shape == out["albedo_uv"].shape == (B, 3, R, R)
@@ -95,8 +107,9 @@ def test_implicit_shares_the_Ni_Ai_decoder_and_samples_at_uv():
     model = build_model(model_cfg("implicit"))
     codes = model.encode(fake_batch()["image"])
     out = model.decode({**codes, "Ai": codes["Ni"]})  # same code into the shared decoder: same raw map
-    torch.testing.assert_close(F.normalize(torch.logit(out["albedo_uv"].double()), dim=1).float(), out["normal_uv"],
-                               atol=1e-4, rtol=0)
+    torch.testing.assert_close(
+        F.normalize(torch.logit(out["albedo_uv"].double()), dim=1).float(), out["normal_uv"], atol=1e-4, rtol=0
+    )
     torch.testing.assert_close(out["normal"], F.normalize(sample_uv(out["normal_uv"], out["uv"]), dim=1))
     # identity UV (u = column, v = row, texel centres at 0..1) reads the UV map back unchanged
     v, u = torch.meshgrid(torch.linspace(0, 1, R), torch.linspace(0, 1, R), indexing="ij")
@@ -146,7 +159,9 @@ def test_loss_terms_closed_forms():
     s_hat = sh_shading(b["normal_pseudo"], b["sh_pseudo"]) * mask
     white = b["sh_pseudo"] * (0.75 / (s_hat.sum((0, 2, 3)) / mask.sum()))[None, :, None]
     assert L.recon_L({"sh": white}, b, c=0.75).item() == pytest.approx(0, abs=1e-10)
-    assert L.recon_fg({"foreground": b["image"] + 0.1 * mask + 0.3 * (1 - mask)}, b).item() == pytest.approx(0.01, rel=1e-5)
+    assert L.recon_fg({"foreground": b["image"] + 0.1 * mask + 0.3 * (1 - mask)}, b).item() == pytest.approx(
+        0.01, rel=1e-5
+    )
     with pytest.raises(KeyError, match="unknown loss terms"):
         L.generator_losses(out, b, {"recon": 1, "bwss": 1})
 
@@ -157,8 +172,16 @@ def compose_cfg(*overrides):
 
 
 def test_every_ablation_config_is_listed():
-    assert {"no_bws", "no_smooth_a", "no_smooth_s", "no_smooth", "no_matting", "no_adv", "no_pseudo_normal",
-            "no_pseudo_light"} <= set(ABLATIONS)
+    assert {
+        "no_bws",
+        "no_smooth_a",
+        "no_smooth_s",
+        "no_smooth",
+        "no_matting",
+        "no_adv",
+        "no_pseudo_normal",
+        "no_pseudo_light",
+    } <= set(ABLATIONS)
 
 
 @pytest.mark.parametrize("ablation", ABLATIONS)
@@ -185,10 +208,14 @@ def test_ablation_removes_its_terms(ablation):
     for t in removed:
         assert t not in ls_abl and t in ls_full
     out = model(b["image"])
-    ls_rem = L.generator_losses(out, b, {t: w_full[t] for t in removed},
-                                D.energy(out["recon"]) if "adv" in removed else None)
-    g_rem = (torch.autograd.grad(ls_rem["total"], params, allow_unused=True) if ls_rem["total"].requires_grad
-             else [None] * len(params))  # no_matting: E_M of a constant matte has no gradient at all
+    ls_rem = L.generator_losses(
+        out, b, {t: w_full[t] for t in removed}, D.energy(out["recon"]) if "adv" in removed else None
+    )
+    g_rem = (
+        torch.autograd.grad(ls_rem["total"], params, allow_unused=True)
+        if ls_rem["total"].requires_grad
+        else [None] * len(params)
+    )  # no_matting: E_M of a constant matte has no gradient at all
     zero = torch.zeros(())
     for ga, gf, gr, p in zip(g_abl, g_full, g_rem, params):
         ga, gf, gr = (g if g is not None else zero.expand_as(p) for g in (ga, gf, gr))
@@ -258,8 +285,13 @@ def test_model_and_losses_hold_no_tensor_on_the_cpu(name, monkeypatch):
     import contextlib
 
     autocast = torch.autocast
-    monkeypatch.setattr(torch, "autocast", lambda device_type, *a, **k: contextlib.nullcontext()
-                        if device_type == "meta" else autocast(device_type, *a, **k))
+    monkeypatch.setattr(
+        torch,
+        "autocast",
+        lambda device_type, *a, **k: (
+            contextlib.nullcontext() if device_type == "meta" else autocast(device_type, *a, **k)
+        ),
+    )
     cfg = compose_cfg(f"model={name}")
     model, disc = build_model(model_cfg(name)).to("meta"), Discriminator(R).to("meta")
     b = {k: v.to("meta") for k, v in fake_batch(2).items()}
@@ -281,8 +313,10 @@ def test_hemisphere_normals_are_unit_face_the_camera_and_start_frontal():
     assert (n[:, 2] >= 0).all()
     inside = raw.clamp(-1, 1).pow(2).sum(1) < 0.9
     torch.testing.assert_close(n[:, :2].permute(1, 0, 2, 3)[:, inside], raw.permute(1, 0, 2, 3)[:, inside])
-    torch.testing.assert_close(decode_normal(torch.zeros(1, 2, 2, 2), "xy"),
-                               torch.tensor([0.0, 0.0, 1.0])[None, :, None, None].expand(1, 3, 2, 2))
+    torch.testing.assert_close(
+        decode_normal(torch.zeros(1, 2, 2, 2), "xy"),
+        torch.tensor([0.0, 0.0, 1.0])[None, :, None, None].expand(1, 3, 2, 2),
+    )
     free = torch.randn(2, 3, 4, 4)
     torch.testing.assert_close(decode_normal(free, "unit"), F.normalize(free, dim=1))
 

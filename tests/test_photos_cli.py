@@ -1,5 +1,6 @@
 """Your own photos: ``python -m disent.photos`` on a folder with bad entries, the editing commands' loader
 (aligned crops, EXIF, .ppm, bad entries), small folders, and no orphaned pipeline workers."""
+
 from __future__ import annotations
 
 import json
@@ -14,10 +15,10 @@ import numpy as np
 import pytest
 import torch
 from PIL import Image
+from test_folder import TemplateDetector, portrait
 
 from disent.data.photos import pseudo_gt as pg
 from disent.data.photos.pseudo_gt import PseudoGTSettings
-from test_folder import TemplateDetector, portrait
 
 
 def photo_folder(root: Path) -> dict[str, str]:
@@ -33,8 +34,15 @@ def photo_folder(root: Path) -> dict[str, str]:
     (root / "text.jpg").write_text("not an image\n")
     (root / "dangling.jpg").symlink_to(root / "gone.jpg")
     (root / "folder.jpg").mkdir()
-    return {"plain": "use", "netpbm": "use", "gray": "use", "rotated": "use", "text": "not an image",
-            "dangling": "unreadable", "folder": "absent"}
+    return {
+        "plain": "use",
+        "netpbm": "use",
+        "gray": "use",
+        "rotated": "use",
+        "text": "not an image",
+        "dangling": "unreadable",
+        "folder": "absent",
+    }
 
 
 @pytest.fixture
@@ -57,8 +65,18 @@ def test_photos_command_on_a_folder_with_bad_entries(tmp_path, template_dlib, ca
         elif want == "use":
             assert by_name[name]["used"], by_name[name]
             folder = out / by_name[name]["folder"]
-            for f in ("crop.png", "normal_pseudo.png", "mask_pseudo.png", "recon.png", "albedo.png", "normal.png",
-                      "shading.png", "matte.png", "relit_top.png", "landmarks.json"):
+            for f in (
+                "crop.png",
+                "normal_pseudo.png",
+                "mask_pseudo.png",
+                "recon.png",
+                "albedo.png",
+                "normal.png",
+                "shading.png",
+                "matte.png",
+                "relit_top.png",
+                "landmarks.json",
+            ):
                 assert (folder / f).is_file(), (name, f)
         else:
             assert not by_name[name]["used"] and by_name[name]["reason"] == want
@@ -73,8 +91,10 @@ class TwoFaces(TemplateDetector):
 
     def __call__(self, rgb):
         landmarks, _ = super().__call__(rgb)
-        return landmarks, [{"score": 0.9, "box": [0, 0, 60, 60], "upsample": 1},
-                           {"score": 0.4, "box": [60, 0, 90, 30], "upsample": 2}]
+        return landmarks, [
+            {"score": 0.9, "box": [0, 0, 60, 60], "upsample": 1},
+            {"score": 0.4, "box": [60, 0, 90, 30], "upsample": 2},
+        ]
 
 
 def test_photos_command_reports_and_chooses_faces(tmp_path, monkeypatch):
@@ -146,7 +166,7 @@ def test_edit_aligns_faces_as_the_photo_pipeline_does(tmp_path, template_dlib):
     from disent.edit.__main__ import load_inputs
 
     photo_folder(tmp_path / "in")
-    (name, x), = load_inputs([str(tmp_path / "in" / "plain.png")], 64)
+    ((name, x),) = load_inputs([str(tmp_path / "in" / "plain.png")], 64)
     crop, _ = pg.aligned_crop(tmp_path / "in" / "plain.png", PseudoGTSettings(resolution=64))
     assert torch.equal(x, torch.from_numpy(crop.astype("float32") / 255).permute(2, 0, 1))
 
@@ -154,7 +174,9 @@ def test_edit_aligns_faces_as_the_photo_pipeline_does(tmp_path, template_dlib):
 def test_traverse_checks_the_manifolds_against_the_model():
     from disent.edit.__main__ import main
 
-    with pytest.raises(SystemExit, match="--manifolds Ai: not a code of this explicit model; its codes are bg, m, L, Ne, Ae"):
+    with pytest.raises(
+        SystemExit, match="--manifolds Ai: not a code of this explicit model; its codes are bg, m, L, Ne, Ae"
+    ):
         main(["traverse", "explicit", "synth:0", "--attribute", "smiling", "--manifolds", "Ai"])
 
 
@@ -162,9 +184,16 @@ def test_small_folder_trains_with_split_by_all(tmp_path):
     from disent.data.photos.folder import FolderFaces
 
     photo_folder(tmp_path / "in")
-    kw = dict(resolution=32, cache_dir=tmp_path / "cache", progress=False,
-              detector=TemplateDetector(PseudoGTSettings(resolution=32)))
-    train, test = FolderFaces(tmp_path / "in", "train", split_by="all", **kw), FolderFaces(tmp_path / "in", "test", split_by="all", **kw)
+    kw = dict(
+        resolution=32,
+        cache_dir=tmp_path / "cache",
+        progress=False,
+        detector=TemplateDetector(PseudoGTSettings(resolution=32)),
+    )
+    train, test = (
+        FolderFaces(tmp_path / "in", "train", split_by="all", **kw),
+        FolderFaces(tmp_path / "in", "test", split_by="all", **kw),
+    )
     assert len(train) == len(test) == 4
     with pytest.raises(ValueError, match="split_by='random'; choose from hash, all"):
         FolderFaces(tmp_path / "in", "train", split_by="random", **kw)

@@ -1,12 +1,27 @@
 """The rendering layers against the paper's formulas, closed forms and invariances."""
+
 import math
 
 import pytest
 import torch
 
 from disent.render import (
-    C1, C2, C3, C4, C5, IllConditionedFit, composite, design_condition, fit_sh, image_formation,
-    rotate_sh, sample_sphere, sh_basis, sh_from_directions, sh_shading, sh_shading_reference,
+    C1,
+    C2,
+    C3,
+    C4,
+    C5,
+    IllConditionedFit,
+    composite,
+    design_condition,
+    fit_sh,
+    image_formation,
+    rotate_sh,
+    sample_sphere,
+    sh_basis,
+    sh_from_directions,
+    sh_shading,
+    sh_shading_reference,
 )
 
 
@@ -66,7 +81,13 @@ def test_first_order_coefficients_are_linear(k, axis):
 def test_second_order_terms_match_eq5():
     n = random_normals(1, 4, 4)
     nx, ny, nz = n[0]
-    expected = {4: 2 * C1 * nx * ny, 5: 2 * C1 * ny * nz, 6: C3 * nz**2 - C5, 7: 2 * C1 * nx * nz, 8: C1 * (nx**2 - ny**2)}
+    expected = {
+        4: 2 * C1 * nx * ny,
+        5: 2 * C1 * ny * nz,
+        6: C3 * nz**2 - C5,
+        7: 2 * C1 * nx * nz,
+        8: C1 * (nx**2 - ny**2),
+    }
     for k, e in expected.items():
         sh = torch.zeros(1, 1, 9, dtype=torch.float64)
         sh[..., k] = 1.0
@@ -168,8 +189,13 @@ def test_fit_sh_too_few_pixels_raises():
 def test_fit_sh_narrow_cone_is_regularized_or_raises():
     """Normals within ~2 degrees of +z: the design is nearly rank 3."""
     g = torch.Generator().manual_seed(0)
-    n = torch.cat([0.03 * torch.randn(1, 2, 16, 16, generator=g, dtype=torch.float64),
-                   torch.ones(1, 1, 16, 16, dtype=torch.float64)], 1)
+    n = torch.cat(
+        [
+            0.03 * torch.randn(1, 2, 16, 16, generator=g, dtype=torch.float64),
+            torch.ones(1, 1, 16, 16, dtype=torch.float64),
+        ],
+        1,
+    )
     n = torch.nn.functional.normalize(n, dim=1)
     mask = torch.ones(1, 1, 16, 16, dtype=torch.float64)
     assert design_condition(n, mask).item() > 1e7

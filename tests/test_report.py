@@ -1,4 +1,5 @@
 """The report and the run-folder readers on tiny fake run folders (no training)."""
+
 import json
 import math
 
@@ -7,22 +8,32 @@ import yaml
 
 from disent import report
 from disent.eval.ablation import ablation_table, to_markdown
-from disent.runs import find_runs
 from disent.eval.stability import training_stability
+from disent.runs import find_runs
 
 
-def make_run(root, name, model="explicit", ablations=(), seed=0, lr=1e-3, losses=(3.0, 2.0, 1.0), eval_=None,
-             ips=500.0):
+def make_run(
+    root, name, model="explicit", ablations=(), seed=0, lr=1e-3, losses=(3.0, 2.0, 1.0), eval_=None, ips=500.0
+):
     d = root / name
     (d / ".hydra").mkdir(parents=True)
-    cfg = {"model": {"name": model}, "seed": seed, "train": {"lr": lr, "batch_size": 8, "max_steps": 3},
-           "data": {"train_size": 32, "resolution": 64}, "loss": {"weights": {"adv": 1.0}}}
+    cfg = {
+        "model": {"name": model},
+        "seed": seed,
+        "train": {"lr": lr, "batch_size": 8, "max_steps": 3},
+        "data": {"train_size": 32, "resolution": 64},
+        "loss": {"weights": {"adv": 1.0}},
+    }
     (d / ".hydra" / "config.yaml").write_text(yaml.safe_dump(cfg))
     ov = [f"model={model}", f"seed={seed}"] + ([f"+ablation=[{','.join(ablations)}]"] if ablations else [])
     (d / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump(ov))
-    (d / ".hydra" / "hydra.yaml").write_text(yaml.safe_dump({"hydra": {"runtime": {"choices": {"model": model, "experiment": "smoke"}}}}))
+    (d / ".hydra" / "hydra.yaml").write_text(
+        yaml.safe_dump({"hydra": {"runtime": {"choices": {"model": model, "experiment": "smoke"}}}})
+    )
     rows = [{"step": i, "loss": l, "train_images_per_s": ips} for i, l in enumerate(losses)]
-    (d / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows) + '{"step": 9, "loss"')  # torn last line
+    (d / "metrics.jsonl").write_text(
+        "".join(json.dumps(r) + "\n" for r in rows) + '{"step": 9, "loss"'
+    )  # torn last line
     if eval_ is not None:
         (d / "eval.json").write_text(json.dumps(eval_))
     return d
@@ -123,8 +134,11 @@ def test_run_status_callback_marks_nan(tmp_path):
 
     d = make_run(tmp_path, "r", losses=(1.0, 0.5))  # the log itself looks healthy
     hydra_cfg = OmegaConf.create({"hydra": {"runtime": {"output_dir": str(d)}}})
-    ret = JobReturn(hydra_cfg=hydra_cfg, status=JobStatus.FAILED,
-                    _return_value=FloatingPointError("loss term 'BWS' is not finite at step 3"))
+    ret = JobReturn(
+        hydra_cfg=hydra_cfg,
+        status=JobStatus.FAILED,
+        _return_value=FloatingPointError("loss term 'BWS' is not finite at step 3"),
+    )
     RunStatus().on_job_end(None, ret)
     assert Run.load(d).status == "nan"
     ret = JobReturn(hydra_cfg=hydra_cfg, status=JobStatus.FAILED, _return_value=RuntimeError("out of memory"))
@@ -134,6 +148,7 @@ def test_run_status_callback_marks_nan(tmp_path):
 
 def test_outcome_catches_early_explosion_and_dead_output(tmp_path):
     import torch
+
     from disent.eval.stability import FAILURES, input_dependence, outcome
 
     # the blow-up came before the first log, then the loss fell: last/first says "ok", the spread says "exploded"
@@ -173,11 +188,23 @@ def test_pick_runs_prefers_the_longest_trained_run(tmp_path):
 def test_bench_section_charts_the_fractions_of_peak(tmp_path):
     """A bench.json with models and a profile gets the fraction-of-peak and the profile charts and
     every figure in a table; one without them gets only the tables."""
-    models = {"explicit": {"train_fraction_of_peak": 0.58, "infer_fraction_of_peak": 0.66, "train_img_s": 52.0},
-              "implicit": {"train_fraction_of_peak": 0.55, "infer_fraction_of_peak": 0.7, "train_img_s": 46.0}}
-    profile = {"explicit_train_step_ms": {"01 aten::convolution_backward": 6.0, "02 aten::mm": 2.0, "03 aten::gather": 1.0,
-                                          "other": 1.0, "total": 10.0, "convolution_share": 0.6}}
-    (tmp_path / "bench.json").write_text(json.dumps({"device": "cpu", "threads": 2, "models": models, "profile": profile}))
+    models = {
+        "explicit": {"train_fraction_of_peak": 0.58, "infer_fraction_of_peak": 0.66, "train_img_s": 52.0},
+        "implicit": {"train_fraction_of_peak": 0.55, "infer_fraction_of_peak": 0.7, "train_img_s": 46.0},
+    }
+    profile = {
+        "explicit_train_step_ms": {
+            "01 aten::convolution_backward": 6.0,
+            "02 aten::mm": 2.0,
+            "03 aten::gather": 1.0,
+            "other": 1.0,
+            "total": 10.0,
+            "convolution_share": 0.6,
+        }
+    }
+    (tmp_path / "bench.json").write_text(
+        json.dumps({"device": "cpu", "threads": 2, "models": models, "profile": profile})
+    )
     rep = report.Report(tmp_path)
     report.sec_bench(rep, tmp_path)
     text = "\n".join(rep.lines)
@@ -189,17 +216,29 @@ def test_bench_section_charts_the_fractions_of_peak(tmp_path):
     (tmp_path / "bench.json").write_text(json.dumps({"device": "cpu", "data": {"images_per_s_64": 1000.0}}))
     rep = report.Report(tmp_path)
     report.sec_bench(rep, tmp_path)
-    assert not (tmp_path / "figures" / "bench_fractions.png").exists() and "| images_per_s_64 | 1000 |" in "\n".join(rep.lines)
+    assert not (tmp_path / "figures" / "bench_fractions.png").exists() and "| images_per_s_64 | 1000 |" in "\n".join(
+        rep.lines
+    )
 
 
 def test_bench_section_puts_gpu_figures_beside_the_cpu_ones(tmp_path):
     """``bench.json`` (CPU) and ``bench-cuda.json`` (GPU) each get a subsection naming the device, a
     row per model, their own charts; the CPU targets are checked against the CPU figures only."""
+
     def bench(device, train_frac, ratio):
-        model = {"flops_per_image": 3.2e8, "train_img_s": 40.0, "train_fraction_of_peak": train_frac,
-                 "infer_img_s": 350.0, "infer_fraction_of_peak": 0.66}
-        return {"device": device, "threads": 2, "models": {"explicit": model, "implicit": dict(model)},
-                "models_setup": {"implicit_vs_explicit": {"train_img_s": ratio}, "loader_vs_fastest_training": 4.0}}
+        model = {
+            "flops_per_image": 3.2e8,
+            "train_img_s": 40.0,
+            "train_fraction_of_peak": train_frac,
+            "infer_img_s": 350.0,
+            "infer_fraction_of_peak": 0.66,
+        }
+        return {
+            "device": device,
+            "threads": 2,
+            "models": {"explicit": model, "implicit": dict(model)},
+            "models_setup": {"implicit_vs_explicit": {"train_img_s": ratio}, "loader_vs_fastest_training": 4.0},
+        }
 
     (tmp_path / "bench.json").write_text(json.dumps(bench("cpu", 0.54, 0.9)))
     (tmp_path / "bench-cuda.json").write_text(json.dumps(bench("cuda (NVIDIA H100)", 0.2, 0.6)))

@@ -1,5 +1,6 @@
 """No run, result or checkpoint lost to a mistake: unique run folders, one live run per folder, no resume
 under other settings, and a damaged checkpoint that costs at most the steps since the previous one."""
+
 import json
 import os
 import subprocess
@@ -8,11 +9,18 @@ from pathlib import Path
 
 import pytest
 import torch
-
-from disent.runs import (CheckpointError, RunFolderBusy, RunLock, load_checkpoint, lock_holder, previous_checkpoint,
-                         save_checkpoint)
-from disent.train import ConfigError, run
 from test_train import TINY, cfg_of
+
+from disent.runs import (
+    CheckpointError,
+    RunFolderBusy,
+    RunLock,
+    load_checkpoint,
+    lock_holder,
+    previous_checkpoint,
+    save_checkpoint,
+)
+from disent.train import ConfigError, run
 
 ROOT = Path(__file__).resolve().parents[1]
 CLI_TINY = [a for a in TINY if a != "train.threads=1"] + ["train.max_steps=2", "train.val_every=0"]
@@ -20,8 +28,15 @@ CLI_TINY = [a for a in TINY if a != "train.threads=1"] + ["train.max_steps=2", "
 
 def cli(args, cwd, **kw):
     env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}
-    return subprocess.Popen([sys.executable, "-m", "disent", *args], cwd=cwd, env=env, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, **kw)
+    return subprocess.Popen(
+        [sys.executable, "-m", "disent", *args],
+        cwd=cwd,
+        env=env,
+        text=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        **kw,
+    )
 
 
 @pytest.fixture

@@ -1,5 +1,6 @@
 """Shipped weights (disent/weights/): each loads by name and reproduces its recorded test metrics;
 unknown names and mismatched architectures get errors that say what is wrong."""
+
 import json
 
 import pytest

@@ -1,5 +1,6 @@
 """Training under Hydra: run folders, exact resume, NaN stops, config errors, prefetching in the seeded
 order, periodic validation, a multirun of the three models."""
+
 import json
 import math
 import subprocess
@@ -13,15 +14,21 @@ from hydra import compose, initialize_config_dir
 from hydra.errors import ConfigCompositionException, MissingConfigException
 
 from disent import losses as L
+from disent import train as T
 from disent.models import load_run
 from disent.runs import load_checkpoint
-from disent import train as T
 from disent.runtime import Prefetcher
 from disent.train import NonFiniteLoss, run, step_indices
 
 ROOT = Path(__file__).resolve().parents[1]
-TINY = ["+experiment=smoke", "data.train_size=8", "data.test_size=4", "train.eval_size=4",
-        "train.batch_size=4", "train.threads=1"]
+TINY = [
+    "+experiment=smoke",
+    "data.train_size=8",
+    "data.test_size=4",
+    "train.eval_size=4",
+    "train.batch_size=4",
+    "train.threads=1",
+]
 
 
 def cfg_of(*overrides):
@@ -55,8 +62,16 @@ def test_ablations_compose():
 def test_resume_equals_an_uninterrupted_run(tmp_path, monkeypatch):
     """2 epochs of 2 steps; one run is killed during step 4 (its last checkpoint: the end of epoch 0) and
     started again in its folder: weights, optimisers and logs agree bitwise with the uninterrupted run."""
-    common = [*TINY, "train.epochs=2", "train.max_steps=null", "train.checkpoint_every=100", "train.warmup_steps=2",
-              "train.prefetch=2", "train.val_every=1", "train.val_size=4"]
+    common = [
+        *TINY,
+        "train.epochs=2",
+        "train.max_steps=null",
+        "train.checkpoint_every=100",
+        "train.warmup_steps=2",
+        "train.prefetch=2",
+        "train.val_every=1",
+        "train.val_size=4",
+    ]
     run(cfg_of(*common), tmp_path / "full")
     step, calls = T.train_step, []
 
@@ -80,12 +95,20 @@ def test_resume_equals_an_uninterrupted_run(tmp_path, monkeypatch):
     for opt in ("opt_g", "opt_d"):
         for k, v in a[opt]["state"][0].items():
             assert torch.equal(v, b[opt]["state"][0][k]), (opt, k)
-    strip = lambda rs: [{k: ({a: b for a, b in v.items() if a != "seconds"} if k == "val" else v)
-                         for k, v in r.items() if k not in ("wall", "minutes", "images_per_s", "eval")} for r in rs]
+    strip = lambda rs: [
+        {
+            k: ({a: b for a, b in v.items() if a != "seconds"} if k == "val" else v)
+            for k, v in r.items()
+            if k not in ("wall", "minutes", "images_per_s", "eval")
+        }
+        for r in rs
+    ]
     assert strip(records(tmp_path / "full")) == strip(records(tmp_path / "cut"))
     assert [r["step"] for r in records(tmp_path / "cut") if "val" in r] == [1, 2, 3, 4]
-    assert json.loads((tmp_path / "full" / "eval.json").read_text())["recon_mse"] == \
-        json.loads((tmp_path / "cut" / "eval.json").read_text())["recon_mse"]
+    assert (
+        json.loads((tmp_path / "full" / "eval.json").read_text())["recon_mse"]
+        == json.loads((tmp_path / "cut" / "eval.json").read_text())["recon_mse"]
+    )
 
 
 def test_prefetcher_yields_make_batch_in_step_order_and_keeps_the_callers_threads():
@@ -182,8 +205,16 @@ def test_nonfinite_loss_stops_naming_the_term_and_keeps_the_last_good_checkpoint
 
 def test_multirun_of_the_three_models(tmp_path):
     """The CI multirun: baseline, explicit and implicit, two steps each on tiny data, through the CLI."""
-    cmd = [sys.executable, "-m", "disent", "-m", *TINY, "train.max_steps=2", "model=baseline,explicit,implicit",
-           f"hydra.sweep.dir={tmp_path}"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "disent",
+        "-m",
+        *TINY,
+        "train.max_steps=2",
+        "model=baseline,explicit,implicit",
+        f"hydra.sweep.dir={tmp_path}",
+    ]
     res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr[-3000:]
     jobs = sorted(p for p in tmp_path.iterdir() if p.is_dir() and (p / ".hydra").exists())
@@ -216,7 +247,7 @@ def test_learning_rate_schedules():
 
     t = OmegaConf.create({"lr": 1e-3, "warmup_steps": 10, "lr_decay": 0.9, "schedule": "epoch_decay"})
     assert learning_rate(t, 0, 100, 1000) == pytest.approx(1e-4)  # (0 + 1) / 10 of lr
-    assert learning_rate(t, 250, 100, 1000) == pytest.approx(1e-3 * 0.9 ** 2)
+    assert learning_rate(t, 250, 100, 1000) == pytest.approx(1e-3 * 0.9**2)
     t.schedule = "cosine"
     assert learning_rate(t, 500, 100, 1000) == pytest.approx(0.5e-3)
     assert learning_rate(t, 999, 100, 1000) == pytest.approx(1e-3 * 0.5 * (1 + math.cos(math.pi * 0.999)))
@@ -227,19 +258,22 @@ def test_learning_rate_schedules():
         learning_rate(t, 0, 100, 1000)
 
 
-@pytest.mark.parametrize("override,message", [
-    ("train.batch_size=-3", "train.batch_size=-3: must be a whole number >= 1"),
-    ("train.batch_size=abc", "train.batch_size='abc': must be a whole number"),
-    ("train.batch_size=0", "train.batch_size=0: must be"),
-    ("train.batch_size=9", r"train.batch_size=9 exceeds the 8 training images \(data.train_size\)"),
-    ("train.epochs=0", "train.epochs=0"),
-    ("train.max_steps=-1", "train.max_steps=-1: must be a whole number >= 1 or null"),
-    ("train.lr=0", "train.lr=0: must be a positive number"),
-    ("train.optimizer=sgd", "train.optimizer='sgd'; choose from rmsprop, adam"),
-    ("data.train_size=0", "data.train_size=0"),
-    ("device=tpu", "device='tpu'; choose from cpu, cuda, cuda:N"),
-    ("device=cpu:1", "device='cpu:1'; choose from"),
-])
+@pytest.mark.parametrize(
+    "override,message",
+    [
+        ("train.batch_size=-3", "train.batch_size=-3: must be a whole number >= 1"),
+        ("train.batch_size=abc", "train.batch_size='abc': must be a whole number"),
+        ("train.batch_size=0", "train.batch_size=0: must be"),
+        ("train.batch_size=9", r"train.batch_size=9 exceeds the 8 training images \(data.train_size\)"),
+        ("train.epochs=0", "train.epochs=0"),
+        ("train.max_steps=-1", "train.max_steps=-1: must be a whole number >= 1 or null"),
+        ("train.lr=0", "train.lr=0: must be a positive number"),
+        ("train.optimizer=sgd", "train.optimizer='sgd'; choose from rmsprop, adam"),
+        ("data.train_size=0", "data.train_size=0"),
+        ("device=tpu", "device='tpu'; choose from cpu, cuda, cuda:N"),
+        ("device=cpu:1", "device='cpu:1'; choose from"),
+    ],
+)
 def test_bad_settings_stop_before_anything_runs(tmp_path, override, message):
     """A setting that cannot run is a ConfigError naming the key and what it accepts, raised before a
     checkpoint or a metric is written (train.batch_size=-3 used to train 0 steps and report success)."""
@@ -258,7 +292,8 @@ def test_cuda_without_a_gpu_is_one_line(tmp_path):
     assert res.returncode == 1
     assert res.stderr.strip().splitlines() == [
         f"error: device='cuda', but this torch ({torch.__version__}) sees no CUDA GPU; use device=cpu, "
-        "or install a CUDA build of torch (README, GPU install)"]
+        "or install a CUDA build of torch (README, GPU install)"
+    ]
 
 
 @pytest.mark.parametrize("corrupt_at,saved", [(2, 1), (1, None)])
@@ -283,7 +318,9 @@ def test_nonfinite_weights_are_never_saved_as_good(tmp_path, monkeypatch, corrup
         assert not path.exists()
     else:
         ck = load_checkpoint(path)
-        assert ck["step"] == saved and all(torch.isfinite(v).all() for v in ck["model"].values() if v.is_floating_point())
+        assert ck["step"] == saved and all(
+            torch.isfinite(v).all() for v in ck["model"].values() if v.is_floating_point()
+        )
 
 
 def test_nonfinite_loss_before_any_checkpoint_says_so(tmp_path, monkeypatch):

@@ -11,6 +11,7 @@ Every subcommand prints a table and merges its figures into ``bench.json`` (``be
 report reads, so that GPU figures sit beside the CPU ones.  Benchmarks print figures; no test asserts a time.
 The machine is shared and noisy, so each figure is the median of several rounds.
 """
+
 from __future__ import annotations
 
 import json

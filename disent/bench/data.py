@@ -8,6 +8,7 @@ the one-core figure (the first also counts time the core spent on other work).  
 ``_without_pseudo`` figures time the same scenes without the pseudo ground truth (median
 CPU seconds).  The dataset's target is 1,000 images per CPU second at 64x64.
 """
+
 from __future__ import annotations
 
 import statistics
@@ -32,8 +33,8 @@ def generation_rates(ds, n: int, rounds: int) -> tuple[float, float]:
 
 def bench_data(args) -> dict:
     from disent.data import SynthFaces
-    from disent.runtime import single_thread
     from disent.data.synth.scenes import render_scenes
+    from disent.runtime import single_thread
 
     out = {"threads": 1}
     with single_thread():
@@ -51,4 +52,3 @@ def bench_data(args) -> dict:
         out["batch"] = B
     print_table("SynthFaces generation (one thread, fresh indices, all layers + pseudo-GT)", out)
     return out
-

@@ -1,4 +1,5 @@
 """``python -m disent.bench lighting``: the least-squares fit L-hat and the emcee posterior, timed on one core."""
+
 from __future__ import annotations
 
 
@@ -10,6 +11,9 @@ def bench_lighting(args) -> dict:
 
     with single_core():  # the posterior's target is one core (torch and BLAS threads)
         out = speed(batch=args.batch, rounds=args.rounds)
-    print_table(f"lighting: L-hat least squares (batch {out['ls_batch']}) and emcee posterior "
-                f"({out['n_pixels']} face pixels at 64x64, 1 thread)", out)
+    print_table(
+        f"lighting: L-hat least squares (batch {out['ls_batch']}) and emcee posterior "
+        f"({out['n_pixels']} face pixels at 64x64, 1 thread)",
+        out,
+    )
     return out

@@ -14,7 +14,8 @@ compares the two models' images/s timed in alternating rounds.  The data
 loader (``SynthFaces.get_batch`` on fresh indices) is timed alone at the training batch
 size, to show it outruns training (training renders batches in a background thread,
 ``train.prefetch``).  Beside the float32 figures, bfloat16 autocast ones (``*_bf16_*``; by default only
-where bf16 is native: a GPU or a CPU with AVX512-BF16/AMX; ``--bf16`` forces them) and how far bf16 moves the losses and outputs.
+where bf16 is native: a GPU or a CPU with AVX512-BF16/AMX; ``--bf16`` forces them) and how far bf16
+moves the losses and outputs.
 
 ``profile``: self CPU milliseconds by operator (``torch.profiler``) of one training step with D and
 one inference batch per model, the largest operators first.
@@ -24,6 +25,7 @@ dataset-mean normal map and the pseudo ground truth (mean angular error on the s
 ``metrics.jsonl`` (the periodic ``val`` records and the final ``eval``; the newest run under
 ``outputs/`` or ``--run DIR``).
 """
+
 from __future__ import annotations
 
 import json
@@ -98,8 +100,7 @@ class Trainer:
 
 
 def synth_batch(n: int, resolution: int, device, channels_last: bool, start: int = 0) -> dict:
-    from disent.data import SynthFaces
-    from disent.data import get_batch
+    from disent.data import SynthFaces, get_batch
     from disent.train import TRAIN_KEYS, to_device
 
     ds = SynthFaces("train", resolution=resolution, seed=0)
@@ -110,8 +111,8 @@ def loader_img_s(n: int, resolution: int, rounds: int) -> tuple[float, float]:
     """``SynthFaces.get_batch`` alone on fresh indices of ``n`` images, as training's prefetch
     thread runs it (one torch thread): (images per wall second, images per CPU second of
     this process; the second is the one a loaded machine leaves nearly unchanged)."""
-    from disent.data import SynthFaces
     from disent.bench.data import generation_rates
+    from disent.data import SynthFaces
 
     return generation_rates(SynthFaces("train", resolution=resolution, seed=0), n, rounds)
 
@@ -131,7 +132,9 @@ def autocast(device, enabled: bool):
 
 
 def inference(model, x, device, amp: bool, sync, calls: int = 1):
-    """A callable that runs ``model(x)`` ``calls`` times without autograd (bfloat16 autocast if ``amp``), synchronised."""
+    """A callable that runs ``model(x)`` ``calls`` times without autograd (bfloat16 autocast if ``amp``),
+    synchronised."""
+
     def run():
         with torch.inference_mode(), autocast(device, amp):
             for _ in range(calls):
@@ -154,13 +157,17 @@ def bench_one(name: str, args, device: str, sync) -> dict:
     res, rounds, channels_last, n = args.size, args.rounds, not args.no_channels_last, args.train_batch
     batch = synth_batch(n, res, device, channels_last)
     out = {}
-    for key, adv, margin in (("train", True, FULL_WORK_MARGIN), ("train_no_d", False, None),
-                             ("train_past_margin", True, 0.0)):  # every generated image past D's margin
+    for key, adv, margin in (
+        ("train", True, FULL_WORK_MARGIN),
+        ("train_no_d", False, None),
+        ("train_past_margin", True, 0.0),
+    ):  # every generated image past D's margin
         tr = Trainer(name, batch, adv, device, channels_last, args.amp, margin)
         out[f"{key}_flops_per_image"] = count_flops(tr.step) / n
         tr.step()  # warm-up (allocator, RMSprop state)
         out[f"{key}_img_s"], out[f"{key}_peak_gflops"] = beside_peak(
-            args, device, lambda: (tr.step(), sync()), n, rounds)
+            args, device, lambda: (tr.step(), sync()), n, rounds
+        )
     model = tr.model.eval()
     fmt = torch.channels_last if channels_last else torch.contiguous_format
     with torch.inference_mode():
@@ -170,7 +177,8 @@ def bench_one(name: str, args, device: str, sync) -> dict:
             calls = max(1, 64 // B)  # a small batch runs several times a round, as long as a batch of 64
             key = "infer" if B == 64 else f"infer_b{B}"
             out[f"{key}_img_s"], out[f"{key}_peak_gflops"] = beside_peak(
-                args, device, inference(model, x, device, args.amp, sync, calls), B * calls, rounds, warmup=2)
+                args, device, inference(model, x, device, args.amp, sync, calls), B * calls, rounds, warmup=2
+            )
     bf16 = getattr(args, "bf16", False)
     if bf16 is None:  # default: where bf16 is native
         bf16 = device.startswith("cuda") or cpu_has_bf16()
@@ -194,15 +202,19 @@ def bench_bf16(name: str, args, device: str, sync, batch: dict) -> dict:
     for amp in (False, True):  # same initial weights (Trainer seeds), one step each
         tr = Trainer(name, batch, True, device, channels_last, amp)
         with autocast(device, amp):
-            losses[amp] = {k: v.item() for k, v in train_step(tr.model, tr.disc, tr.opt_g, tr.opt_d, tr.batch, tr.cfg).items()
-                           if torch.is_tensor(v)}
+            losses[amp] = {
+                k: v.item()
+                for k, v in train_step(tr.model, tr.disc, tr.opt_g, tr.opt_d, tr.batch, tr.cfg).items()
+                if torch.is_tensor(v)
+            }
     diff = {k: abs(losses[True][k] - v) for k, v in losses[False].items()}
     out["bf16_first_step_total_rel_diff"] = diff["total"] / abs(losses[False]["total"])
     out["bf16_first_step_D_rel_diff"] = diff["D"] / abs(losses[False]["D"])
     out["bf16_first_step_term_max_abs_diff"] = max(diff.values())  # every term in its own units (~1e-3 .. 1)
     tr.step()
     out["train_bf16_img_s"], out["train_bf16_peak_gflops"] = beside_peak(
-        args, device, lambda: (tr.step(), sync()), n, rounds)
+        args, device, lambda: (tr.step(), sync()), n, rounds
+    )
     model = tr.model.eval()
     x = batch["image"]
     with torch.inference_mode():
@@ -210,7 +222,8 @@ def bench_bf16(name: str, args, device: str, sync, batch: dict) -> dict:
         with autocast(device, True):
             low = model(x)
         out["infer_bf16_img_s"], out["infer_bf16_peak_gflops"] = beside_peak(
-            args, device, inference(model, x, device, True, sync), len(x), rounds, warmup=2)
+            args, device, inference(model, x, device, True, sync), len(x), rounds, warmup=2
+        )
     diff = (low["recon"].float() - ref["recon"]).abs()
     out["bf16_recon_max_abs_diff"], out["bf16_recon_mean_abs_diff"] = diff.max().item(), diff.mean().item()
     if "normal" in ref:
@@ -230,7 +243,9 @@ def interleaved_ratios(args, device: str, sync, a: str = "implicit", b: str = "e
         t_a, t_b = timed_rounds([lambda s=s: (s(), sync()) for s in steps], args.rounds)
         out["train_img_s" if adv else "train_no_d_img_s"] = statistics.median(t_b) / statistics.median(t_a)
     models = [Trainer(name, batch, False, device, channels_last).model.eval() for name in (a, b)]
-    t_a, t_b = timed_rounds([inference(m, batch["image"], device, args.amp, sync) for m in models], args.rounds, warmup=2)
+    t_a, t_b = timed_rounds(
+        [inference(m, batch["image"], device, args.amp, sync) for m in models], args.rounds, warmup=2
+    )
     out["infer_img_s"] = statistics.median(t_b) / statistics.median(t_a)
     return out
 
@@ -238,7 +253,7 @@ def interleaved_ratios(args, device: str, sync, a: str = "implicit", b: str = "e
 def add_fractions(fig: dict, peak_gflops: float) -> None:
     """``<key>_fraction_of_peak`` = FLOPs per image x images/s / peak FLOP/s, for every rate, against
     the peak measured beside that rate (``<key>_peak_gflops``), else ``peak_gflops``."""
-    for key in [k[:-len("_img_s")] for k in fig if k.endswith("_img_s")]:
+    for key in [k[: -len("_img_s")] for k in fig if k.endswith("_img_s")]:
         train_key = "train" if key == "train_bf16" else key  # bf16 does the same FLOPs, stated against the fp32 peak
         flops = fig.get(f"{train_key}_flops_per_image", fig["flops_per_image"])  # inference: the forward FLOPs
         peak = fig.get(f"{key}_peak_gflops", peak_gflops)
@@ -253,15 +268,24 @@ def bench_models(args) -> dict:
     peak = statistics.median(peaks)
     for fig in figures.values():
         add_fractions(fig, peak)
-    setup = {"peak_gflops_min_max": [min(peaks), max(peaks)], "threads": torch.get_num_threads(), "device": device,
-             "train_batch": args.train_batch, "resolution": args.size, "amp": args.amp,
-             "channels_last": not args.no_channels_last, "malloc_tuned": getattr(args, "malloc_tuned", False),
-             "bf16_avx512_bf16_or_amx": cpu_has_bf16() if not device.startswith("cuda") else None}
+    setup = {
+        "peak_gflops_min_max": [min(peaks), max(peaks)],
+        "threads": torch.get_num_threads(),
+        "device": device,
+        "train_batch": args.train_batch,
+        "resolution": args.size,
+        "amp": args.amp,
+        "channels_last": not args.no_channels_last,
+        "malloc_tuned": getattr(args, "malloc_tuned", False),
+        "bf16_avx512_bf16_or_amx": cpu_has_bf16() if not device.startswith("cuda") else None,
+    }
     if "explicit" in figures and "implicit" in figures:
         setup["implicit_vs_explicit"] = interleaved_ratios(args, device, sync)
     if not device.startswith("cuda"):
         setup["loader_img_s"], setup["loader_img_cpu_s"] = loader_img_s(args.train_batch, args.size, args.rounds)
-        setup["loader_vs_fastest_training"] = setup["loader_img_s"] / max(f["train_no_d_img_s"] for f in figures.values())
+        setup["loader_vs_fastest_training"] = setup["loader_img_s"] / max(
+            f["train_no_d_img_s"] for f in figures.values()
+        )
         if "explicit" in figures:  # the default run's model
             setup["loader_vs_explicit_training"] = setup["loader_img_s"] / figures["explicit"]["train_img_s"]
     for name, fig in figures.items():
@@ -285,8 +309,12 @@ def top_ops(fn, calls: int = 3, top: int = 12) -> dict:
     ranked = sorted(ms.items(), key=lambda kv: -kv[1])
     total = sum(ms.values())
     conv = sum(v for k, v in ms.items() if "convolution" in k)
-    return {**{f"{i:02d} {k}": v for i, (k, v) in enumerate(ranked[:top], 1)},
-            "other": sum(v for _, v in ranked[top:]), "total": total, "convolution_share": conv / total}
+    return {
+        **{f"{i:02d} {k}": v for i, (k, v) in enumerate(ranked[:top], 1)},
+        "other": sum(v for _, v in ranked[top:]),
+        "total": total,
+        "convolution_share": conv / total,
+    }
 
 
 def bench_profile(args) -> dict:
@@ -297,11 +325,14 @@ def bench_profile(args) -> dict:
     for name in args.models or MODELS:
         tr = Trainer(name, batch, True, args.device, channels_last, args.amp)
         out[f"{name}_train_step_ms"] = top_ops(tr.step)  # (top_ops warms up: allocator, RMSprop state)
-        out[f"{name}_infer_batch_ms"] = top_ops(inference(tr.model.eval(), batch["image"], args.device, args.amp,
-                                                          lambda: None))
+        out[f"{name}_infer_batch_ms"] = top_ops(
+            inference(tr.model.eval(), batch["image"], args.device, args.amp, lambda: None)
+        )
         for key in (f"{name}_train_step_ms", f"{name}_infer_batch_ms"):
-            print_table(f"{key.replace('_', ' ')} (self CPU ms per call, batch {n}, {torch.get_num_threads()} threads)",
-                        out[key])
+            print_table(
+                f"{key.replace('_', ' ')} (self CPU ms per call, batch {n}, {torch.get_num_threads()} threads)",
+                out[key],
+            )
     return out
 
 
@@ -340,12 +371,29 @@ def time_to_accuracy(metrics_path: Path) -> dict:
     out = {"run": run}
     for name, key in TARGETS:
         hit = next((r for r in recs if r.get(key) is not None and r["normal_mean"] < r[key]), None)
-        out[name] = ({"minutes": hit["wall"] / 60, "step": hit["step"], "images": hit["step"] * batch if batch else None,
-                      "source": hit["source"], "normal_mean": hit["normal_mean"], "target": hit[key]}
-                     if hit else {"minutes": None, "target": recs[-1].get(key)})
+        out[name] = (
+            {
+                "minutes": hit["wall"] / 60,
+                "step": hit["step"],
+                "images": hit["step"] * batch if batch else None,
+                "source": hit["source"],
+                "normal_mean": hit["normal_mean"],
+                "target": hit[key],
+            }
+            if hit
+            else {"minutes": None, "target": recs[-1].get(key)}
+        )
     best = min(recs, key=lambda r: r["normal_mean"])
-    out.update({"best_normal_mean": best["normal_mean"], "best_step": best["step"], "best_minutes": best["wall"] / 60,
-                "best_source": best["source"], "last_minutes": recs[-1]["wall"] / 60, "n_records": len(recs)})
+    out.update(
+        {
+            "best_normal_mean": best["normal_mean"],
+            "best_step": best["step"],
+            "best_minutes": best["wall"] / 60,
+            "best_source": best["source"],
+            "last_minutes": recs[-1]["wall"] / 60,
+            "n_records": len(recs),
+        }
+    )
     return out
 
 
@@ -362,5 +410,3 @@ def bench_time_to_accuracy(args) -> dict:
         out = time_to_accuracy(run / "metrics.jsonl" if run.is_dir() else run)
     print_table("time to accuracy (network normals beat the dataset-mean map, then the pseudo-GT)", out)
     return out
-
-

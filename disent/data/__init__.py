@@ -8,6 +8,7 @@
 ``make_dataset(cfg_data, split, size)`` makes the data set a ``conf/data`` node names; :func:`get_batch` stacks
 items of any of them.
 """
+
 from __future__ import annotations
 
 import torch
@@ -45,20 +46,34 @@ def collate(items: list[dict]) -> dict:
 def get_batch(dataset, indices, keys=None, chunk: int = 256, **overrides) -> dict:
     """The items ``indices`` of ``dataset`` as one batch (only ``keys``, when given).
 
-    A data set with a vectorized ``get_batch`` (SynthFaces) renders them together, ``chunk`` at a time, with generator ``overrides`` (``pose=``, ``sh=`` shared ``[3,9]`` or per item ``[B,3,9]``, ...); one
-    with only ``sample(index, **overrides)`` renders them one by one; any other stacks its items.
+    A data set with a vectorized ``get_batch`` (SynthFaces) renders them together, ``chunk`` at a time, with
+    generator ``overrides`` (``pose=``, ``sh=`` shared ``[3,9]`` or per item ``[B,3,9]``, ...); one with only
+    ``sample(index, **overrides)`` renders them one by one; any other stacks its items.
     """
     indices = [int(i) for i in indices]
     if hasattr(dataset, "get_batch"):
-        parts = [dataset.get_batch(indices[i:i + chunk], **overrides) for i in range(0, len(indices), chunk)]
-        batch = parts[0] if len(parts) == 1 else {
-            k: ({a: torch.cat([p[k][a] for p in parts]) for a in v} if isinstance(v, dict)
-                else torch.cat([p[k] for p in parts])) for k, v in parts[0].items()}
+        parts = [dataset.get_batch(indices[i : i + chunk], **overrides) for i in range(0, len(indices), chunk)]
+        batch = (
+            parts[0]
+            if len(parts) == 1
+            else {
+                k: (
+                    {a: torch.cat([p[k][a] for p in parts]) for a in v}
+                    if isinstance(v, dict)
+                    else torch.cat([p[k] for p in parts])
+                )
+                for k, v in parts[0].items()
+            }
+        )
     elif overrides and hasattr(dataset, "sample"):
         sh = overrides.pop("sh", None)
         per_item = sh is not None and sh.dim() == 3
-        batch = collate([dataset.sample(i, **overrides, **({} if sh is None else {"sh": sh[j] if per_item else sh}))
-                         for j, i in enumerate(indices)])
+        batch = collate(
+            [
+                dataset.sample(i, **overrides, **({} if sh is None else {"sh": sh[j] if per_item else sh}))
+                for j, i in enumerate(indices)
+            ]
+        )
     elif overrides:
         raise ValueError(f"{type(dataset).__name__} cannot re-render its items with {', '.join(overrides)}")
     else:
@@ -66,5 +81,15 @@ def get_batch(dataset, indices, keys=None, chunk: int = 256, **overrides) -> dic
     return batch if keys is None else {k: batch[k] for k in keys if k in batch}
 
 
-__all__ = ["ATTRIBUTES", "ATTR_PRIOR", "EFFECTS", "LIGHT_BANK", "LIGHT_NAMES", "SPLITS", "SynthFaces", "make_dataset",
-           "collate", "get_batch"]
+__all__ = [
+    "ATTRIBUTES",
+    "ATTR_PRIOR",
+    "EFFECTS",
+    "LIGHT_BANK",
+    "LIGHT_NAMES",
+    "SPLITS",
+    "SynthFaces",
+    "make_dataset",
+    "collate",
+    "get_batch",
+]

@@ -6,11 +6,43 @@
 * :mod:`disent.edit.measure`    success / leakage and relighting-accuracy tables on SynthFaces;
 * ``python -m disent.edit``     the commands (see :mod:`disent.edit.__main__`).
 """
-from disent.edit.relight import (detailed_albedo, directional_light, named_light, ratio_relight, relight,
-                                 transfer_lighting, with_light)
-from disent.edit.traversal import (ATTRIBUTES, DEFAULT_MANIFOLDS, AttributePool, barycenter, choose_bandwidth, dmt,
-                                   encode_pool, traverse, witness)
 
-__all__ = ["ATTRIBUTES", "DEFAULT_MANIFOLDS", "AttributePool", "barycenter", "choose_bandwidth", "dmt", "encode_pool",
-           "traverse", "witness", "detailed_albedo", "directional_light", "named_light", "ratio_relight", "relight",
-           "transfer_lighting", "with_light"]
+from disent.edit.relight import (
+    detailed_albedo,
+    directional_light,
+    named_light,
+    ratio_relight,
+    relight,
+    transfer_lighting,
+    with_light,
+)
+from disent.edit.traversal import (
+    ATTRIBUTES,
+    DEFAULT_MANIFOLDS,
+    AttributePool,
+    barycenter,
+    choose_bandwidth,
+    dmt,
+    encode_pool,
+    traverse,
+    witness,
+)
+
+__all__ = [
+    "ATTRIBUTES",
+    "DEFAULT_MANIFOLDS",
+    "AttributePool",
+    "barycenter",
+    "choose_bandwidth",
+    "dmt",
+    "encode_pool",
+    "traverse",
+    "witness",
+    "detailed_albedo",
+    "directional_light",
+    "named_light",
+    "ratio_relight",
+    "relight",
+    "transfer_lighting",
+    "with_light",
+]

@@ -20,6 +20,7 @@ use face crops framed like the training data), a folder of images, or ``synth:IN
 (a SynthFaces test face).  Pools: ``--pool synth`` (SynthFaces ``pool_<attr>``) or a
 CelebA-style folder (``list_attr_celeba.txt``, read by :class:`disent.data.photos.folder.FolderFaces`).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -31,6 +32,7 @@ import torch
 from disent.edit.traversal import ATTRIBUTES
 from disent.images import over_max, save_image, strip
 from disent.runs import tool_folder
+
 
 # ----------------------------------------------------------------------------- images
 def load_image(path: Path, resolution: int, align: bool = True) -> torch.Tensor:
@@ -122,16 +124,17 @@ def cmd_traverse(a) -> None:
     names = getattr(model, "CODE_NAMES", ())
     bad = [m for m in a.manifolds or () if m not in names]
     if bad:
-        raise SystemExit(f"error: --manifolds {' '.join(bad)}: not a code of this {type(model).__name__.lower()} "
-                         f"model; its codes are {', '.join(names)}")
+        raise SystemExit(
+            f"error: --manifolds {' '.join(bad)}: not a code of this {type(model).__name__.lower()} "
+            f"model; its codes are {', '.join(names)}"
+        )
     inputs = load_inputs(a.inputs, R, a.seed, a.align)
     pool = build_pool(model, a.attribute, a.pool, a.pool_size, R, a.seed)
     images = torch.stack([x for _, x in inputs])
     codes = model.encode(images)
     manifolds = tuple(a.manifolds or default_manifolds(codes, a.attribute))
     recon = model.decode(codes)["recon"]
-    edits = [model.decode(traverse(codes, pool, manifolds, a.method, s, add=not a.remove))["recon"]
-             for s in a.strength]
+    edits = [model.decode(traverse(codes, pool, manifolds, a.method, s, add=not a.remove))["recon"] for s in a.strength]
     out = tool_folder("edit", a.out)
     key = "lam" if a.method == "dmt" else "alpha"
     tag = f"{'remove' if a.remove else 'add'}_{a.attribute}_{'+'.join(manifolds)}_{a.method}"
@@ -139,15 +142,17 @@ def cmd_traverse(a) -> None:
         for s, e in zip(a.strength, edits):
             save_image(e[i], out / f"{name}_{tag}_{key}{s:g}.png")
         save_image(strip([x, recon[i]] + [e[i] for e in edits]), out / f"{name}_{tag}_strip.png")
-    print(f"{len(inputs)} image(s): {tag}, {key} = {list(a.strength)}; strips (input | reconstruction | "
-          f"edits) and edits in {out}/")
+    print(
+        f"{len(inputs)} image(s): {tag}, {key} = {list(a.strength)}; strips (input | reconstruction | "
+        f"edits) and edits in {out}/"
+    )
 
 
 def source_light(a, model, R) -> tuple[str, torch.Tensor]:
     from disent.edit.relight import directional_light, named_light
 
     if a.source:
-        (name, img), = load_inputs([a.source], R, a.seed, a.align)
+        ((name, img),) = load_inputs([a.source], R, a.seed, a.align)
         return f"from_{name}", model(img[None])["sh"]
     if a.light:
         return a.light, named_light(a.light)
@@ -172,10 +177,14 @@ def cmd_relight(a) -> None:
     for i, (name, x) in enumerate(inputs):
         for m, r in results.items():
             save_image(r[i], out / f"{name}_{m}_{label}.png")
-        save_image(strip([x, over_max(est["shading"][i]), over_max(S_transfer[i])] + [results[m][i] for m in a.method]),
-                   out / f"{name}_relight_{label}_strip.png")
-    print(f"{len(inputs)} image(s) relit ({label}) by {', '.join(a.method)}; strips (input | S_target | "
-          f"S_transfer | results) in {out}/")
+        save_image(
+            strip([x, over_max(est["shading"][i]), over_max(S_transfer[i])] + [results[m][i] for m in a.method]),
+            out / f"{name}_relight_{label}_strip.png",
+        )
+    print(
+        f"{len(inputs)} image(s) relit ({label}) by {', '.join(a.method)}; strips (input | S_target | "
+        f"S_transfer | results) in {out}/"
+    )
 
 
 def cmd_lights(a) -> None:
@@ -196,8 +205,12 @@ def main(argv=None) -> None:
     sub = p.add_subparsers(dest="cmd", required=True)
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--threads", type=int, default=1, help="torch CPU threads")
-    common.add_argument("--no-align", dest="align", action="store_false",
-                        help="centre-crop photos instead of aligning the face by its landmarks as in training")
+    common.add_argument(
+        "--no-align",
+        dest="align",
+        action="store_false",
+        help="centre-crop photos instead of aligning the face by its landmarks as in training",
+    )
     run_help = "run folder, checkpoint, or a shipped model: explicit, implicit, baseline (disent/weights/)"
 
     t = sub.add_parser("traverse", parents=[common], help="move faces along an attribute (DMT or barycenter)")
@@ -206,8 +219,13 @@ def main(argv=None) -> None:
     t.add_argument("--attribute", required=True, choices=ATTRIBUTES)
     t.add_argument("--manifolds", nargs="+", help="codes to move (default: the paper's choice for the attribute)")
     t.add_argument("--method", default="dmt", choices=("dmt", "barycenter"))
-    t.add_argument("--strength", nargs="+", type=float, default=[0.07, 0.05, 0.03],
-                   help="lambda for dmt (smaller moves further; the paper's 0.07 0.05 0.03), alpha for barycenter")
+    t.add_argument(
+        "--strength",
+        nargs="+",
+        type=float,
+        default=[0.07, 0.05, 0.03],
+        help="lambda for dmt (smaller moves further; the paper's 0.07 0.05 0.03), alpha for barycenter",
+    )
     t.add_argument("--remove", action="store_true", help="move away from the attribute instead")
     t.add_argument("--pool", default="synth", help="'synth' or a CelebA-style folder")
     t.add_argument("--pool-size", type=int, default=400)
@@ -230,15 +248,23 @@ def main(argv=None) -> None:
 
     m = sub.add_parser("measure", parents=[common], help="the measured traversal and relighting tables on SynthFaces")
     m.add_argument("run", help=run_help)
-    m.add_argument("--out", default=None, help="output folder (default: outputs/edit/<date>/<time>-<pid>/); "
-                   "python -m disent.report --publish OUT copies it to reports/edit/")
+    m.add_argument(
+        "--out",
+        default=None,
+        help="output folder (default: outputs/edit/<date>/<time>-<pid>/); "
+        "python -m disent.report --publish OUT copies it to reports/edit/",
+    )
     m.add_argument("--attributes", nargs="+", default=list(ATTRIBUTES), choices=ATTRIBUTES)
     m.add_argument("--pool-size", type=int, default=200)
     m.add_argument("--sources", type=int, default=16)
     m.add_argument("--lambdas", nargs="+", type=float, default=None)
     m.add_argument("--alphas", nargs="+", type=float, default=None)
-    m.add_argument("--measure-net", default=None, help="a trained measuring net (default: the shipped "
-                   "disent/weights/measure_net.pt; trained into the output folder when missing)")
+    m.add_argument(
+        "--measure-net",
+        default=None,
+        help="a trained measuring net (default: the shipped "
+        "disent/weights/measure_net.pt; trained into the output folder when missing)",
+    )
     m.add_argument("--train-size", type=int, default=4000)
     m.add_argument("--train-steps", type=int, default=3000)
     m.add_argument("--relight-faces", type=int, default=8)

@@ -11,6 +11,7 @@
 
 It is independent of the face models being measured: it never sees their codes.
 """
+
 from __future__ import annotations
 
 import torch
@@ -48,9 +49,19 @@ class MeasureNet(nn.Module):
         return out
 
 
-def fit_measure_net(images: torch.Tensor, attrs: torch.Tensor, sh: torch.Tensor, pose: torch.Tensor,
-                    identity: torch.Tensor | None = None, steps: int = 1500, batch_size: int = 64,
-                    lr: float = 2e-3, width: int = 24, seed: int = 0, log_every: int = 0) -> MeasureNet:
+def fit_measure_net(
+    images: torch.Tensor,
+    attrs: torch.Tensor,
+    sh: torch.Tensor,
+    pose: torch.Tensor,
+    identity: torch.Tensor | None = None,
+    steps: int = 1500,
+    batch_size: int = 64,
+    lr: float = 2e-3,
+    width: int = 24,
+    seed: int = 0,
+    log_every: int = 0,
+) -> MeasureNet:
     """Train a :class:`MeasureNet` on ``images [N,3,H,W]`` with their true ``attrs [N,4]`` (0/1),
     ``sh [N,3,9]``, ``pose [N,3]`` and (optionally) ``identity [N,D]`` identity parameters.
 
@@ -89,7 +100,7 @@ def fit_measure_net(images: torch.Tensor, attrs: torch.Tensor, sh: torch.Tensor,
 def measure_accuracy(net: MeasureNet, images, attrs, sh, pose, identity=None, batch_size: int = 128) -> dict:
     """Held-out quality of the measuring net: attribute accuracy, light RMSE, pose MAE (deg),
     and the identity RMSE in training standard deviations (1 = no better than the mean)."""
-    outs = [net(images[i:i + batch_size]) for i in range(0, len(images), batch_size)]
+    outs = [net(images[i : i + batch_size]) for i in range(0, len(images), batch_size)]
     out = {k: torch.cat([o[k] for o in outs]) for k in outs[0]}
     acc = ((out["attr_logits"] > 0).float() == attrs.float()).float().mean(0)
     res = {f"acc_{a}": acc[i].item() for i, a in enumerate(ATTRIBUTES)}
@@ -104,8 +115,16 @@ def measure_accuracy(net: MeasureNet, images, attrs, sh, pose, identity=None, ba
 
 
 def save_measure_net(net: MeasureNet, path, info: dict | None = None) -> None:
-    torch.save({"state": net.state_dict(), "resolution": net.resolution, "width": net.features[0].out_channels,
-                "identity_dim": net.identity_dim, "info": info or {}}, path)
+    torch.save(
+        {
+            "state": net.state_dict(),
+            "resolution": net.resolution,
+            "width": net.features[0].out_channels,
+            "identity_dim": net.identity_dim,
+            "info": info or {},
+        },
+        path,
+    )
 
 
 def load_measure_net(path) -> MeasureNet:

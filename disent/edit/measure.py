@@ -25,6 +25,7 @@ ground truth; the light comes from the model's estimate on a *different* face un
 detailed albedo, naive ratio, decoding with the swapped ``Z_L``, and the unrelit input.
 ``oracle`` applies the transfer formulas to the generator's true intrinsics and light.
 """
+
 from __future__ import annotations
 
 import json
@@ -37,7 +38,7 @@ import torch
 from disent.data import get_batch
 from disent.edit.classifier import MeasureNet
 from disent.edit.relight import ratio_relight, transfer_lighting, with_light
-from disent.edit.traversal import ATTRIBUTES, FACE_CODES, DEFAULT_MANIFOLDS, encode_pool, model_kind, traverse
+from disent.edit.traversal import ATTRIBUTES, DEFAULT_MANIFOLDS, FACE_CODES, encode_pool, model_kind, traverse
 from disent.eval.metrics import reconstruction_metrics
 from disent.images import to_array
 from disent.render import sh_shading
@@ -79,7 +80,7 @@ def attr_matrix(batch: dict) -> torch.Tensor:
 
 @torch.no_grad()
 def read(net: MeasureNet, images: torch.Tensor, batch_size: int = 128) -> dict:
-    outs = [net(images[i:i + batch_size].clamp(0, 1)) for i in range(0, len(images), batch_size)]
+    outs = [net(images[i : i + batch_size].clamp(0, 1)) for i in range(0, len(images), batch_size)]
     out = {k: torch.cat([o[k] for o in outs]) for k in outs[0]}
     out["p"] = torch.sigmoid(out.pop("attr_logits"))
     return out
@@ -90,9 +91,11 @@ def population_spread(net: MeasureNet, batch: dict) -> dict:
     """The yardsticks leakage is divided by, from a sample of the population."""
     r = read(net, batch["image"])
     perm = torch.roll(torch.arange(len(batch["image"])), 1)
-    spread = {"light": (r["sh"] - r["sh"][perm]).pow(2).flatten(1).mean(1).sqrt().mean().item(),
-              "pose": (r["pose"] - r["pose"][perm]).abs().mean().item(),
-              "bg": (batch["background"] - batch["background"][perm]).abs().mean().item()}
+    spread = {
+        "light": (r["sh"] - r["sh"][perm]).pow(2).flatten(1).mean(1).sqrt().mean().item(),
+        "pose": (r["pose"] - r["pose"][perm]).abs().mean().item(),
+        "bg": (batch["background"] - batch["background"][perm]).abs().mean().item(),
+    }
     if "identity" in r:
         spread["identity"] = (r["identity"] - r["identity"][perm]).norm(dim=1).mean().item()
     return spread
@@ -107,8 +110,11 @@ def leakage(before: dict, after: dict, img_before, img_after, matte, attribute: 
         "d_attrs": (after["p"][:, others] - before["p"][:, others]).abs().mean(1),
     }
     outside = (matte < 0.5).float()
-    out["d_bg"] = ((img_after - img_before).abs() * outside).sum((1, 2, 3)) / (
-        3 * outside.sum((1, 2, 3)).clamp_min(1)) / spread["bg"]
+    out["d_bg"] = (
+        ((img_after - img_before).abs() * outside).sum((1, 2, 3))
+        / (3 * outside.sum((1, 2, 3)).clamp_min(1))
+        / spread["bg"]
+    )
     if "identity" in before and "identity" in spread:
         out["d_identity"] = (after["identity"] - before["identity"]).norm(dim=1) / spread["identity"]
     return out
@@ -127,8 +133,14 @@ def step_along_attribute(codes0: dict, codes: dict, pool, manifolds) -> float:
 
 def summarize(attribute, manifolds, method, strength, p0, r, leaks) -> dict:
     i = ATTRIBUTES.index(attribute)
-    row = {"attribute": attribute, "manifolds": manifolds, "method": method, "strength": strength,
-           "success": (r["p"][:, i] > 0.5).float().mean().item(), "gain": (r["p"][:, i] - p0).mean().item()}
+    row = {
+        "attribute": attribute,
+        "manifolds": manifolds,
+        "method": method,
+        "strength": strength,
+        "success": (r["p"][:, i] > 0.5).float().mean().item(),
+        "gain": (r["p"][:, i] - p0).mean().item(),
+    }
     row.update({k: v.mean().item() for k, v in leaks.items()})
     row["leakage"] = sum(row[k] for k in LEAK_KEYS if k in row) / sum(k in row for k in LEAK_KEYS)
     row["gain_per_leak"] = row["gain"] / row["leakage"] if row["leakage"] > 0 else math.nan
@@ -136,10 +148,22 @@ def summarize(attribute, manifolds, method, strength, p0, r, leaks) -> dict:
 
 
 @torch.no_grad()
-def edit_table(model, net: MeasureNet, data_cls, attribute: str, pool_size: int = 200, n_sources: int = 16,
-               lambdas=DEFAULT_LAMBDAS, alphas=DEFAULT_ALPHAS, choices: dict | None = None, resolution: int = 64,
-               seed: int = 0, truth_override=None, n_show: int = 4,
-               read_identity: bool = True) -> tuple[list[dict], dict]:
+def edit_table(
+    model,
+    net: MeasureNet,
+    data_cls,
+    attribute: str,
+    pool_size: int = 200,
+    n_sources: int = 16,
+    lambdas=DEFAULT_LAMBDAS,
+    alphas=DEFAULT_ALPHAS,
+    choices: dict | None = None,
+    resolution: int = 64,
+    seed: int = 0,
+    truth_override=None,
+    n_show: int = 4,
+    read_identity: bool = True,
+) -> tuple[list[dict], dict]:
     """Rows of the traversal table for one attribute (see the module docstring), and the first
     ``n_show`` images of each setting (``input``, ``recon``, ``truth``, ``(label, method, strength)``).
 
@@ -163,15 +187,31 @@ def edit_table(model, net: MeasureNet, data_cls, attribute: str, pool_size: int 
     r0 = read(net, recon0)
     i_attr = ATTRIBUTES.index(attribute)
     p0 = r0["p"][:, i_attr]
-    rows = [summarize(attribute, "-", "reconstruction", 0.0, p0, r0,
-                      leakage(r0, r0, recon0, recon0, src["matte"], attribute, spread))]
+    rows = [
+        summarize(
+            attribute,
+            "-",
+            "reconstruction",
+            0.0,
+            p0,
+            r0,
+            leakage(r0, r0, recon0, recon0, src["matte"], attribute, spread),
+        )
+    ]
     shown = {"input": src["image"][:n_show], "recon": recon0[:n_show]}
     if truth_override is not None:
         true_edit = get_batch(test, idx, **truth_override(attribute))
         r_in = read(net, src["image"])
         rt = read(net, true_edit["image"])
-        row = summarize(attribute, "-", "truth", 1.0, r_in["p"][:, i_attr], rt,
-                        leakage(r_in, rt, src["image"], true_edit["image"], src["matte"], attribute, spread))
+        row = summarize(
+            attribute,
+            "-",
+            "truth",
+            1.0,
+            r_in["p"][:, i_attr],
+            rt,
+            leakage(r_in, rt, src["image"], true_edit["image"], src["matte"], attribute, spread),
+        )
         rows.append(row)
         shown["truth"] = true_edit["image"][:n_show]
     choices = choices or manifold_choices(model_kind(codes0), attribute)
@@ -182,16 +222,26 @@ def edit_table(model, net: MeasureNet, data_cls, attribute: str, pool_size: int 
                 edited = model.decode(codes)["recon"]
                 r = read(net, edited)
                 shown[(label, method, s)] = edited[:n_show]
-                rows.append(summarize(attribute, label, method, s, p0, r,
-                                      leakage(r0, r, recon0, edited, src["matte"], attribute, spread)))
+                rows.append(
+                    summarize(
+                        attribute,
+                        label,
+                        method,
+                        s,
+                        p0,
+                        r,
+                        leakage(r0, r, recon0, edited, src["matte"], attribute, spread),
+                    )
+                )
                 rows[-1]["step"] = step_along_attribute(codes0, codes, pool, manifolds)
     return rows, shown
 
 
 # ----------------------------------------------------------------------------- relighting
 @torch.no_grad()
-def relight_table(model, data_cls, light_bank: dict, n_faces: int = 8, n_lights: int = 6, resolution: int = 64,
-                  seed: int = 0) -> tuple[list[dict], dict]:
+def relight_table(
+    model, data_cls, light_bank: dict, n_faces: int = 8, n_lights: int = 6, resolution: int = 64, seed: int = 0
+) -> tuple[list[dict], dict]:
     """Relighting accuracy rows (see the module docstring) and one example batch for figures."""
     test = data_cls(split="test", resolution=resolution, seed=seed)
     names = sorted(light_bank)[:: max(1, len(light_bank) // n_lights)][:n_lights]
@@ -206,13 +256,20 @@ def relight_table(model, data_cls, light_bank: dict, n_faces: int = 8, n_lights:
         sources = get_batch(test, range(n_faces, 2 * n_faces), sh=sh[0])
         sh_src = model(sources["image"])["sh"]
         preds = {
-            "transfer": transfer_lighting(targets["image"], out_t["normal"], out_t["shading"], out_t["matte"],
-                                          sh_src, out_t["albedo"]),
+            "transfer": transfer_lighting(
+                targets["image"], out_t["normal"], out_t["shading"], out_t["matte"], sh_src, out_t["albedo"]
+            ),
             "ratio": ratio_relight(targets["image"], out_t["normal"], out_t["sh"], sh_src),
             "decode": model.decode(with_light(out_t["codes"], sh_src))["recon"],
             "input": targets["image"],
-            "oracle": transfer_lighting(targets["image"], targets["normal"], targets["shading"], targets["matte"],
-                                        sh.expand(n_faces, -1, -1), targets["albedo"]),
+            "oracle": transfer_lighting(
+                targets["image"],
+                targets["normal"],
+                targets["shading"],
+                targets["matte"],
+                sh.expand(n_faces, -1, -1),
+                targets["albedo"],
+            ),
         }
         for method, pred in preds.items():
             pred = pred.clamp(0, 1)
@@ -220,18 +277,31 @@ def relight_table(model, data_cls, light_bank: dict, n_faces: int = 8, n_lights:
             face = reconstruction_metrics(pred, truth["image"], truth["matte"])
             results.setdefault(method, []).append((whole["psnr"], whole["ssim"], face["psnr"], face["ssim"]))
         if example is None:
-            example = {"target": targets["image"], "source": sources["image"], "truth": truth["image"],
-                       "S_target": out_t["shading"], "S_transfer": sh_shading(out_t["normal"], sh_src),
-                       **{m: p.clamp(0, 1) for m, p in preds.items()}, "light": name}
+            example = {
+                "target": targets["image"],
+                "source": sources["image"],
+                "truth": truth["image"],
+                "S_target": out_t["shading"],
+                "S_transfer": sh_shading(out_t["normal"], sh_src),
+                **{m: p.clamp(0, 1) for m, p in preds.items()},
+                "light": name,
+            }
     rows = []
     for method, vals in results.items():
         t = torch.tensor(vals, dtype=torch.float64)
         t[:, [0, 2]] = t[:, [0, 2]].clamp(max=PSNR_CAP)  # exact up to float error (or inf): the cap
-        rows.append({"method": method, "psnr": t[:, 0].mean().item(), "ssim": t[:, 1].mean().item(),
-                     "psnr_face": t[:, 2].mean().item(), "ssim_face": t[:, 3].mean().item(),
-                     "lights": len(names), "faces": n_faces})
+        rows.append(
+            {
+                "method": method,
+                "psnr": t[:, 0].mean().item(),
+                "ssim": t[:, 1].mean().item(),
+                "psnr_face": t[:, 2].mean().item(),
+                "ssim_face": t[:, 3].mean().item(),
+                "lights": len(names),
+                "faces": n_faces,
+            }
+        )
     return rows, example
-
 
 
 # ----------------------------------------------------------------------------- the report
@@ -253,10 +323,17 @@ def claim_summary(rows: list[dict]) -> list[dict]:
             for label in dict.fromkeys(r["manifolds"] for r in sel):
                 rs = [r for r in sel if r["manifolds"] == label]
                 gain, leak = sum(r["gain"] for r in rs), sum(r["leakage"] for r in rs)
-                group.append({"attribute": attribute, "method": method, "manifolds": label,
-                              "gain_sum": gain, "leakage_sum": leak,
-                              "gain_per_leak": gain / leak if leak > 0 else math.nan,
-                              "best_success": max(r["success"] for r in rs)})
+                group.append(
+                    {
+                        "attribute": attribute,
+                        "method": method,
+                        "manifolds": label,
+                        "gain_sum": gain,
+                        "leakage_sum": leak,
+                        "gain_per_leak": gain / leak if leak > 0 else math.nan,
+                        "best_success": max(r["success"] for r in rs),
+                    }
+                )
             order = sorted(group, key=lambda g: -g["gain_per_leak"] if math.isfinite(g["gain_per_leak"]) else math.inf)
             for g in group:
                 g["rank"] = order.index(g) + 1
@@ -277,8 +354,15 @@ def plot_success_vs_leakage(rows: list[dict], path) -> None:
             sel = [r for r in rows if r["attribute"] == attribute and r["method"] == method]
             for k, label in enumerate(dict.fromkeys(r["manifolds"] for r in sel)):
                 rs = [r for r in sel if r["manifolds"] == label]
-                ax.plot([r["leakage"] for r in rs], [r["gain"] for r in rs], style, color=f"C{k}", ms=4,
-                        label=f"{label} {method}", lw=2.2 if label.startswith("paper") else 1.0)
+                ax.plot(
+                    [r["leakage"] for r in rs],
+                    [r["gain"] for r in rs],
+                    style,
+                    color=f"C{k}",
+                    ms=4,
+                    label=f"{label} {method}",
+                    lw=2.2 if label.startswith("paper") else 1.0,
+                )
         for r in rows:
             if r["attribute"] == attribute and r["method"] == "truth":
                 ax.plot([r["leakage"]], [r["gain"]], "k*", ms=12, label="generator truth")
@@ -336,8 +420,12 @@ def _measure_net(a, out, data_cls, resolution):
     t0 = time.time()
     train = tensors("train", a.train_size)
     net = fit_measure_net(*train, steps=a.train_steps, seed=a.seed, log_every=250)
-    info = {"train_size": a.train_size, "steps": a.train_steps, "seconds": round(time.time() - t0, 1),
-            "val": measure_accuracy(net, *tensors("val", 500))}
+    info = {
+        "train_size": a.train_size,
+        "steps": a.train_steps,
+        "seconds": round(time.time() - t0, 1),
+        "val": measure_accuracy(net, *tensors("val", 500)),
+    }
     save_measure_net(net, path, info)
     info_path.write_text(json.dumps(info, indent=2))
     return net, info
@@ -347,7 +435,6 @@ def run_measurements(a) -> None:
     """``python -m disent.edit measure``: everything under ``a.out`` (tables, JSON, figures)."""
     from disent.data import LIGHT_BANK, SynthFaces
     from disent.models import load_run
-
     from disent.runs import tool_folder
 
     out = tool_folder("edit", a.out)
@@ -358,53 +445,94 @@ def run_measurements(a) -> None:
     print("measuring net (held-out):", json.dumps(net_info.get("val", {})), flush=True)
     read_identity = net_info.get("val", {}).get("identity_rmse_std", math.inf) < IDENTITY_READABLE
     if not read_identity:
-        print(f"the measuring net cannot read identity (held-out RMSE >= {IDENTITY_READABLE} std): "
-              "d_identity is left out", flush=True)
+        print(
+            f"the measuring net cannot read identity (held-out RMSE >= {IDENTITY_READABLE} std): "
+            "d_identity is left out",
+            flush=True,
+        )
     lambdas = tuple(a.lambdas or DEFAULT_LAMBDAS)
     alphas = tuple(a.alphas or DEFAULT_ALPHAS)
     rows = []
     for attribute in a.attributes:
         t0 = time.time()
-        r, shown = edit_table(model, net, SynthFaces, attribute, a.pool_size, a.sources, lambdas, alphas,
-                              resolution=R, seed=a.seed, truth_override=truth_override, read_identity=read_identity)
+        r, shown = edit_table(
+            model,
+            net,
+            SynthFaces,
+            attribute,
+            a.pool_size,
+            a.sources,
+            lambdas,
+            alphas,
+            resolution=R,
+            seed=a.seed,
+            truth_override=truth_override,
+            read_identity=read_identity,
+        )
         rows += r
         paper = next(k for k in dict.fromkeys(k[0] for k in shown if isinstance(k, tuple)) if k.startswith("paper"))
-        image_grid([shown["input"], shown["recon"]] + [shown[(paper, "dmt", s)] for s in lambdas]
-                   + [shown[(paper, "barycenter", alphas[-1])], shown["truth"]],
-                   ["input", "recon"] + [f"λ={s:g}" for s in lambdas] + [f"bary α={alphas[-1]:g}", "truth"],
-                   out / f"fig_{attribute}_progression.png")
+        image_grid(
+            [shown["input"], shown["recon"]]
+            + [shown[(paper, "dmt", s)] for s in lambdas]
+            + [shown[(paper, "barycenter", alphas[-1])], shown["truth"]],
+            ["input", "recon"] + [f"λ={s:g}" for s in lambdas] + [f"bary α={alphas[-1]:g}", "truth"],
+            out / f"fig_{attribute}_progression.png",
+        )
         labels = list(dict.fromkeys(k[0] for k in shown if isinstance(k, tuple)))
         lam = 0.03 if 0.03 in lambdas else lambdas[len(lambdas) // 2]
-        image_grid([shown["input"], shown["recon"]] + [shown[(lb, "dmt", lam)] for lb in labels],
-                   ["input", "recon"] + [f"{lb} λ={lam:g}" for lb in labels], out / f"fig_{attribute}_manifolds.png")
+        image_grid(
+            [shown["input"], shown["recon"]] + [shown[(lb, "dmt", lam)] for lb in labels],
+            ["input", "recon"] + [f"{lb} λ={lam:g}" for lb in labels],
+            out / f"fig_{attribute}_manifolds.png",
+        )
         print(f"{attribute}: {len(r)} rows in {time.time() - t0:.0f} s", flush=True)
-    keys = ["attribute", "manifolds", "method", "strength", "step", "success", "gain", *LEAK_KEYS, "leakage",
-            "gain_per_leak"]
+    keys = [
+        "attribute",
+        "manifolds",
+        "method",
+        "strength",
+        "step",
+        "success",
+        "gain",
+        *LEAK_KEYS,
+        "leakage",
+        "gain_per_leak",
+    ]
     claims = claim_summary(rows)
     plot_success_vs_leakage(rows, out / "fig_success_vs_leakage.png")
     rel_rows = []
     if "L" in getattr(model, "CODE_NAMES", ()):  # a rendering model (the baseline has no light to replace)
         rel_rows, example = relight_table(model, SynthFaces, LIGHT_BANK, a.relight_faces, seed=a.seed, resolution=R)
         shade = lambda s: s / s.flatten(1).amax(1).clamp_min(1e-6)[:, None, None, None]  # noqa: E731
-        image_grid([example[k] if not k.startswith("S_") else shade(example[k]) for k in
-                    ("target", "source", "S_target", "S_transfer", "transfer", "ratio", "decode", "truth")],
-                   ["target", "source", "S target", "S transfer", "transfer", "ratio", "decode", "truth"],
-                   out / "fig_relight.png")
+        image_grid(
+            [
+                example[k] if not k.startswith("S_") else shade(example[k])
+                for k in ("target", "source", "S_target", "S_transfer", "transfer", "ratio", "decode", "truth")
+            ],
+            ["target", "source", "S target", "S transfer", "transfer", "ratio", "decode", "truth"],
+            out / "fig_relight.png",
+        )
     rel_keys = ["method", "psnr", "ssim", "psnr_face", "ssim_face", "lights", "faces"]
-    (out / "edit.json").write_text(json.dumps({"run": str(a.run), "measure_net": net_info, "traversal": rows,
-                                               "claims": claims, "relight": rel_rows}, indent=1))
-    text = [f"# Editing measured on SynthFaces\n\nrun: `{a.run}`; pools of {a.pool_size}, {a.sources} source "
-            f"faces per attribute; measuring net (held-out): `{json.dumps(net_info.get('val', {}))}`\n",
-            "## Traversal\n",
-            "Gains and leakage are against the unedited reconstruction (`reconstruction` rows); the reader "
-            "was trained on the generator's sharp renders, so on a blurry reconstruction read the *changes*, "
-            "not the absolute success. `truth` rows: the generator's own edit of the input, same reader. "
-            "`step`: move along the pools' mean difference (barycenter: = alpha).\n",
-            markdown_table(rows, keys),
-            "\n## Success per unit leakage by manifold choice (the paper's claim: `paper:` ranks first)\n",
-            markdown_table(claims, list(claims[0])),
-            "\n## Relighting (PSNR dB / SSIM against the generator's render under the source light)\n",
-            markdown_table(rel_rows, rel_keys) if rel_rows else "(the baseline model has no lighting code)"]
+    (out / "edit.json").write_text(
+        json.dumps(
+            {"run": str(a.run), "measure_net": net_info, "traversal": rows, "claims": claims, "relight": rel_rows},
+            indent=1,
+        )
+    )
+    text = [
+        f"# Editing measured on SynthFaces\n\nrun: `{a.run}`; pools of {a.pool_size}, {a.sources} source "
+        f"faces per attribute; measuring net (held-out): `{json.dumps(net_info.get('val', {}))}`\n",
+        "## Traversal\n",
+        "Gains and leakage are against the unedited reconstruction (`reconstruction` rows); the reader "
+        "was trained on the generator's sharp renders, so on a blurry reconstruction read the *changes*, "
+        "not the absolute success. `truth` rows: the generator's own edit of the input, same reader. "
+        "`step`: move along the pools' mean difference (barycenter: = alpha).\n",
+        markdown_table(rows, keys),
+        "\n## Success per unit leakage by manifold choice (the paper's claim: `paper:` ranks first)\n",
+        markdown_table(claims, list(claims[0])),
+        "\n## Relighting (PSNR dB / SSIM against the generator's render under the source light)\n",
+        markdown_table(rel_rows, rel_keys) if rel_rows else "(the baseline model has no lighting code)",
+    ]
     (out / "edit.md").write_text("\n".join(text) + "\n")
     print("\n".join(text))
 

@@ -15,6 +15,7 @@ Where the target shading is small (``S < eps``: shadow, or the negative lobe of 
 division is not trusted: the detailed albedo falls back to a given albedo (the network's own
 estimate) and the ratio to 1, so neither can produce NaN or Inf.
 """
+
 from __future__ import annotations
 
 import torch
@@ -55,8 +56,10 @@ def directional_light(direction, intensity=1.0, ambient=0.0) -> torch.Tensor:
 def with_light(codes: dict, sh: torch.Tensor) -> dict:
     """Codes with ``Z_L`` replaced by the SH light ``sh`` (``[3,9]``, ``[1,3,9]`` or ``[B,3,9]``)."""
     if "L" not in codes:
-        raise ValueError(f"these codes have no lighting code Z_L (got {sorted(codes)}); relighting needs "
-                         "the explicit or implicit model")
+        raise ValueError(
+            f"these codes have no lighting code Z_L (got {sorted(codes)}); relighting needs "
+            "the explicit or implicit model"
+        )
     L = codes["L"]
     B = L.shape[0]
     sh = torch.as_tensor(sh, dtype=L.dtype, device=L.device).reshape(-1, 27)
@@ -66,8 +69,9 @@ def with_light(codes: dict, sh: torch.Tensor) -> dict:
 
 
 # ----------------------------------------------------------------------------- transfer
-def detailed_albedo(image: torch.Tensor, shading: torch.Tensor, fallback: torch.Tensor | None = None,
-                    eps: float = SHADING_EPS) -> torch.Tensor:
+def detailed_albedo(
+    image: torch.Tensor, shading: torch.Tensor, fallback: torch.Tensor | None = None, eps: float = SHADING_EPS
+) -> torch.Tensor:
     """``A = I / S`` (Eq. 2) where ``S >= eps``; ``fallback`` elsewhere.
 
     ``image [B,3,H,W]``, ``shading [B,1 or 3,H,W]``.  Without a ``fallback`` the small-shading
@@ -88,9 +92,15 @@ def detailed_albedo(image: torch.Tensor, shading: torch.Tensor, fallback: torch.
     return torch.where(ok, A, fallback)
 
 
-def transfer_lighting(image: torch.Tensor, normal: torch.Tensor, shading: torch.Tensor, matte: torch.Tensor,
-                      sh_source: torch.Tensor, albedo: torch.Tensor | None = None,
-                      eps: float = SHADING_EPS) -> torch.Tensor:
+def transfer_lighting(
+    image: torch.Tensor,
+    normal: torch.Tensor,
+    shading: torch.Tensor,
+    matte: torch.Tensor,
+    sh_source: torch.Tensor,
+    albedo: torch.Tensor | None = None,
+    eps: float = SHADING_EPS,
+) -> torch.Tensor:
     """Lighting transfer with detailed albedo (Sec. 5.3): the target ``image`` under ``sh_source``.
 
     ``normal``, ``shading``, ``matte`` (and the fallback ``albedo``) are the target's intrinsic
@@ -102,8 +112,13 @@ def transfer_lighting(image: torch.Tensor, normal: torch.Tensor, shading: torch.
     return composite(matte, image_formation(A, S_transfer), image)
 
 
-def ratio_relight(image: torch.Tensor, normal: torch.Tensor, sh_target: torch.Tensor, sh_source: torch.Tensor,
-                  eps: float = SHADING_EPS) -> torch.Tensor:
+def ratio_relight(
+    image: torch.Tensor,
+    normal: torch.Tensor,
+    sh_target: torch.Tensor,
+    sh_source: torch.Tensor,
+    eps: float = SHADING_EPS,
+) -> torch.Tensor:
     """The naive baseline: every pixel times ``S(N, L_source) / S(N, L_target)`` (1 where ``S_target < eps``)."""
     _check_finite("image", image)
     B = normal.shape[0]
@@ -116,8 +131,9 @@ def ratio_relight(image: torch.Tensor, normal: torch.Tensor, sh_target: torch.Te
 
 # ----------------------------------------------------------------------------- with a model
 @torch.no_grad()
-def relight(model, image: torch.Tensor, sh_source: torch.Tensor, method: str = "transfer",
-            eps: float = SHADING_EPS) -> torch.Tensor:
+def relight(
+    model, image: torch.Tensor, sh_source: torch.Tensor, method: str = "transfer", eps: float = SHADING_EPS
+) -> torch.Tensor:
     """``image`` relit under ``sh_source`` with a trained model's estimates.
 
     ``method``: ``"transfer"`` (detailed albedo), ``"ratio"`` (naive whole-image) or ``"decode"``

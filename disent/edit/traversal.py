@@ -28,6 +28,7 @@ Two traversals:
 
 The defaults for which manifolds carry an attribute are the paper's (:data:`DEFAULT_MANIFOLDS`).
 """
+
 from __future__ import annotations
 
 import math
@@ -36,7 +37,6 @@ from dataclasses import dataclass, field
 import torch
 
 from disent.data.attributes import ATTRIBUTES
-
 
 # The paper's choice of manifolds per attribute (Sec. 5.2, supplement); explicit model: Ae, Ne.
 DEFAULT_MANIFOLDS = {
@@ -106,8 +106,14 @@ def witness(z: torch.Tensor, source: torch.Tensor, target: torch.Tensor, sigma: 
 
 
 # ----------------------------------------------------------------------------- traversals
-def dmt(z0: torch.Tensor, source: torch.Tensor, target: torch.Tensor, lam: float, sigma: float | None = None,
-        max_iter: int = 200) -> torch.Tensor:
+def dmt(
+    z0: torch.Tensor,
+    source: torch.Tensor,
+    target: torch.Tensor,
+    lam: float,
+    sigma: float | None = None,
+    max_iter: int = 200,
+) -> torch.Tensor:
     """Deep Manifold Traversal of each row of ``z0 [B,D]`` from ``source`` towards ``target``.
 
     Minimises ``witness(z) + lam |z - z0|^2 / (2 sigma^2)`` by L-BFGS from ``z0`` (the rows are
@@ -115,8 +121,10 @@ def dmt(z0: torch.Tensor, source: torch.Tensor, target: torch.Tensor, lam: float
     returns ``z0``.
     """
     if any(t.dim() != 2 for t in (z0, source, target)) or not (z0.shape[1] == source.shape[1] == target.shape[1]):
-        raise ValueError(f"dmt needs z0 [B,D], source [N,D], target [M,D]; got {tuple(z0.shape)}, "
-                         f"{tuple(source.shape)}, {tuple(target.shape)}")
+        raise ValueError(
+            f"dmt needs z0 [B,D], source [N,D], target [M,D]; got {tuple(z0.shape)}, "
+            f"{tuple(source.shape)}, {tuple(target.shape)}"
+        )
     if not lam > 0:
         raise ValueError(f"lam must be > 0 (smaller moves further), got {lam}")
     if math.isinf(lam):
@@ -125,8 +133,15 @@ def dmt(z0: torch.Tensor, source: torch.Tensor, target: torch.Tensor, lam: float
         sigma = choose_bandwidth(torch.cat([source, target]))
     S, T, Z0 = source.double(), target.double(), z0.detach().double()
     z = Z0.clone().requires_grad_(True)
-    opt = torch.optim.LBFGS([z], lr=1, max_iter=max_iter, tolerance_grad=1e-12, tolerance_change=1e-15,
-                            history_size=20, line_search_fn="strong_wolfe")
+    opt = torch.optim.LBFGS(
+        [z],
+        lr=1,
+        max_iter=max_iter,
+        tolerance_grad=1e-12,
+        tolerance_change=1e-15,
+        history_size=20,
+        line_search_fn="strong_wolfe",
+    )
 
     def closure():
         opt.zero_grad()
@@ -161,23 +176,24 @@ class AttributePool:
 
 
 @torch.no_grad()
-def encode_pool(model, images: torch.Tensor, labels: torch.Tensor, attribute: str,
-                batch_size: int = 64) -> AttributePool:
+def encode_pool(
+    model, images: torch.Tensor, labels: torch.Tensor, attribute: str, batch_size: int = 64
+) -> AttributePool:
     """Encode ``images [N,3,H,W]`` with ``model.encode`` and split the face codes by ``labels [N]`` (0/1)."""
     labels = torch.as_tensor(labels).flatten() > 0.5
     if len(labels) != len(images):
         raise ValueError(f"{len(images)} images but {len(labels)} labels")
     if labels.all() or not labels.any():
         raise ValueError(f"pool for {attribute!r} needs both positive and negative examples")
-    chunks = [model.encode(images[i:i + batch_size]) for i in range(0, len(images), batch_size)]
+    chunks = [model.encode(images[i : i + batch_size]) for i in range(0, len(images), batch_size)]
     names = FACE_CODES[model_kind(chunks[0])]
     codes = {n: torch.cat([c[n].flatten(1) for c in chunks]).float() for n in names}
-    return AttributePool(attribute, {n: c[labels] for n, c in codes.items()},
-                         {n: c[~labels] for n, c in codes.items()})
+    return AttributePool(attribute, {n: c[labels] for n, c in codes.items()}, {n: c[~labels] for n, c in codes.items()})
 
 
-def traverse(codes: dict, pool: AttributePool, manifolds=None, method: str = "dmt", strength: float = 0.03,
-             add: bool = True) -> dict:
+def traverse(
+    codes: dict, pool: AttributePool, manifolds=None, method: str = "dmt", strength: float = 0.03, add: bool = True
+) -> dict:
     """Codes with ``manifolds`` moved towards (``add``) or away from ``pool``'s attribute.
 
     ``method="dmt"``: ``strength`` is lambda (smaller moves further); ``"barycenter"``: it is alpha.

@@ -4,6 +4,7 @@
 (default ``multirun/`` and ``outputs/``) and writes a Markdown table plus a JSON beside it.
 The caption states the training budget read from the runs' own configs.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -24,8 +25,15 @@ COLUMNS = (
     ("sh_error", "SH err", True),
 )
 MODEL_ORDER = ("baseline", "explicit", "implicit")
-BUDGET_KEYS = ("train.steps", "train.max_steps", "train.epochs", "train.batch_size", "data.size", "data.train_size",
-               "data.resolution")
+BUDGET_KEYS = (
+    "train.steps",
+    "train.max_steps",
+    "train.epochs",
+    "train.batch_size",
+    "data.size",
+    "data.train_size",
+    "data.resolution",
+)
 
 
 def _stats(values):
@@ -72,8 +80,16 @@ def ablation_table(runs: list[Run]) -> dict:
     for v in sorted(by_variant, key=order):
         rs = by_variant[v]
         ok = [r for r in rs if r.status == "ok"]
-        row = {"variant": v, "seeds": sorted(r.seed for r in ok if r.seed is not None), "runs": len(rs),
-               "failed": {s: sum(r.status == s for r in rs) for s in ("nan", "diverged", "incomplete") if any(r.status == s for r in rs)}}
+        row = {
+            "variant": v,
+            "seeds": sorted(r.seed for r in ok if r.seed is not None),
+            "runs": len(rs),
+            "failed": {
+                s: sum(r.status == s for r in rs)
+                for s in ("nan", "diverged", "incomplete")
+                if any(r.status == s for r in rs)
+            },
+        }
         for key, _, _ in COLUMNS:
             row[key] = _stats([r.value(key) for r in ok])
         row["train_images_per_s"] = _stats([r.value("images_per_s") for r in ok])
@@ -110,12 +126,16 @@ def to_markdown(table: dict) -> str:
             if r[key] and best.get(key) == r[key]["mean"]:
                 c = f"**{c}**"
             cells.append(c)
-        seeds = f"{len(r['seeds'])}/{r['runs']}" + (f" ({', '.join(f'{n} {s}' for s, n in r['failed'].items())})" if r["failed"] else "")
+        seeds = f"{len(r['seeds'])}/{r['runs']}" + (
+            f" ({', '.join(f'{n} {s}' for s, n in r['failed'].items())})" if r["failed"] else ""
+        )
         lines.append(f"| {r['variant']} | {seeds} | " + " | ".join(cells) + " |")
     b = ", ".join(f"{k}={v}" for k, v in table["budget"].items()) or "not recorded in the run configs"
-    caption = (f"Mean ± std over seeds (finished runs / all runs). Budget: {b}. "
-               "Errors against SynthFaces ground truth on the test split; SH error after per-image scale alignment; "
-               "pseudo-GT err is the pseudo normals' own error on the same pixels.")
+    caption = (
+        f"Mean ± std over seeds (finished runs / all runs). Budget: {b}. "
+        "Errors against SynthFaces ground truth on the test split; SH error after per-image scale alignment; "
+        "pseudo-GT err is the pseudo normals' own error on the same pixels."
+    )
     return "\n".join(lines) + f"\n\n_{caption}_\n"
 
 

@@ -3,6 +3,7 @@
 ``evaluate_model(model, dataset)`` returns the flat dict of test metrics that run folders,
 the ablation table and the report use (keys below); nothing here trains.
 """
+
 from __future__ import annotations
 
 import time
@@ -43,7 +44,9 @@ def _cat(parts):
     return {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
 
 
-def model_outputs(model, dataset, limit: int = 256, batch_size: int = 64, keys=("recon", "normal", "albedo", "shading", "sh", "matte")):
+def model_outputs(
+    model, dataset, limit: int = 256, batch_size: int = 64, keys=("recon", "normal", "albedo", "shading", "sh", "matte")
+):
     """Concatenated model outputs and ground truth over the first ``limit`` items, plus images/s."""
     outs, gts, seconds = [], [], 0.0
     for batch in batches(dataset, batch_size, limit):
@@ -68,7 +71,9 @@ def normal_metrics(normal: torch.Tensor, gt: dict) -> dict:
     the pseudo-GT's, on the same pixels (:func:`decomposed_region`)."""
     both = decomposed_region(gt)
     m = {f"normal_{k}": v for k, v in normal_angular_error(normal, gt["normal"], both).items()}
-    m.update({f"pseudo_normal_{k}": v for k, v in normal_angular_error(gt["normal_pseudo"], gt["normal"], both).items()})
+    m.update(
+        {f"pseudo_normal_{k}": v for k, v in normal_angular_error(gt["normal_pseudo"], gt["normal"], both).items()}
+    )
     return m
 
 
@@ -85,7 +90,7 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     """
     m = {}
     face = face_mask(gt["matte"])
-    for name, mask in ((("recon", None), ("recon_face", face)) if "recon" in out else ()):
+    for name, mask in (("recon", None), ("recon_face", face)) if "recon" in out else ():
         for k, v in reconstruction_metrics(out["recon"].clamp(0, 1), gt["image"], mask).items():
             m[f"{name}_{k}"] = v
     if "normal" in out:
@@ -120,7 +125,16 @@ def evaluate_model(model, dataset, limit: int = 256, batch_size: int = 64, trivi
     return {**m, **trivial_metrics(trivial, gt)} if trivial is not None else m
 
 
-__all__ = ["FACE_THRESHOLD", "face_mask", "normal_metrics", "batches", "predict", "model_outputs", "metrics_from_outputs", "evaluate_model"]
+__all__ = [
+    "FACE_THRESHOLD",
+    "face_mask",
+    "normal_metrics",
+    "batches",
+    "predict",
+    "model_outputs",
+    "metrics_from_outputs",
+    "evaluate_model",
+]
 
 
 def rescore(run_dir) -> dict:
@@ -129,17 +143,19 @@ def rescore(run_dir) -> dict:
     import json
     from pathlib import Path
 
+    from disent.data import make_dataset
     from disent.models import load_run
     from disent.runs import atomic_write
-    from disent.data import make_dataset
     from disent.train import evaluate, trivial_baselines
 
     run_dir = Path(run_dir)
     old = json.loads((run_dir / "eval.json").read_text()) if (run_dir / "eval.json").exists() else {}
     model, cfg = load_run(run_dir)
     trivial = trivial_baselines(make_dataset(cfg.data, "train", cfg.data.get("train_size")))
-    metrics = {**evaluate(model.eval(), cfg, cfg.train.eval_size, trivial),
-               **{k: old[k] for k in ("steps", "stopped_by", "train_seconds") if k in old}}
+    metrics = {
+        **evaluate(model.eval(), cfg, cfg.train.eval_size, trivial),
+        **{k: old[k] for k in ("steps", "stopped_by", "train_seconds") if k in old},
+    }
     atomic_write(run_dir / "eval.json", lambda f: f.write(json.dumps(metrics, indent=2).encode()))
     return metrics
 
@@ -149,8 +165,10 @@ def main(argv=None):
 
     from disent.train import print_eval
 
-    p = argparse.ArgumentParser(prog="python -m disent.eval.evaluate",
-                                description="Score finished runs again with this version's metrics (eval.json).")
+    p = argparse.ArgumentParser(
+        prog="python -m disent.eval.evaluate",
+        description="Score finished runs again with this version's metrics (eval.json).",
+    )
     p.add_argument("runs", nargs="+", help="run folders with checkpoints/last.pt")
     a = p.parse_args(argv)
     torch.set_num_threads(1)

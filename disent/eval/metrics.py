@@ -11,6 +11,7 @@ Scale conventions (intrinsic images are defined only up to scale, Grosse et al. 
   per image (one scalar for all 3 x 9 coefficients; ``per_channel=True`` uses one per channel,
   matching the albedo convention), then divides the squared error by the truth's squared norm.
 """
+
 from __future__ import annotations
 
 import math
@@ -110,8 +111,9 @@ def optimal_scale(pred: torch.Tensor, target: torch.Tensor, weight: torch.Tensor
     return torch.where(den > 0, num / den.clamp_min(1e-300), torch.zeros_like(num))
 
 
-def scale_invariant_mse(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, reduction: str = "mean",
-                        per_image: bool = True):
+def scale_invariant_mse(
+    pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, reduction: str = "mean", per_image: bool = True
+):
     """Scale-invariant MSE of albedo (or shading) maps ``[B,C,H,W]`` over the mask.
 
     Each image and channel of ``pred`` is multiplied by its least-squares optimal scale
@@ -157,5 +159,12 @@ def _reduce(per_image: torch.Tensor, reduction: str):
     raise ValueError(f"reduction must be 'mean' or 'none', got {reduction!r}")
 
 
-__all__ = ["angular_error_deg", "normal_angular_error", "reconstruction_metrics", "scale_invariant_mse",
-           "sh_error", "optimal_scale", "ANGLE_THRESHOLDS"]
+__all__ = [
+    "angular_error_deg",
+    "normal_angular_error",
+    "reconstruction_metrics",
+    "scale_invariant_mse",
+    "sh_error",
+    "optimal_scale",
+    "ANGLE_THRESHOLDS",
+]

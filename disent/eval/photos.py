@@ -10,6 +10,7 @@ reconstruction error, the angle between predicted normals and ``normal_pseudo`` 
 against ``sh_pseudo``; the same numbers on SynthFaces' test split are the reference.  The crops are those
 of the bundled photos' pseudo-GT study (:mod:`disent.data.photos.study`), which this command runs first.
 """
+
 from __future__ import annotations
 
 import json
@@ -28,8 +29,12 @@ def photo_batch(records: list) -> dict:
     """Stack the cached crops and pseudo ground truth of used records as float32 tensors."""
     zs = [pg.load_cached(r) for r in records]
     f = lambda k: torch.from_numpy(np.stack([z[k] for z in zs]).astype(np.float32))  # noqa: E731
-    return {"image": f("image").permute(0, 3, 1, 2) / 255.0, "normal_pseudo": f("normal_pseudo"),
-            "mask_pseudo": f("mask_pseudo"), "sh_pseudo": f("sh_pseudo")}
+    return {
+        "image": f("image").permute(0, 3, 1, 2) / 255.0,
+        "normal_pseudo": f("normal_pseudo"),
+        "mask_pseudo": f("mask_pseudo"),
+        "sh_pseudo": f("sh_pseudo"),
+    }
 
 
 @torch.no_grad()
@@ -63,9 +68,13 @@ def figures(model, batch: dict, names: list[str], out: Path, tag: str, budget: s
     res = model(batch["image"])
     cols = [("input", batch["image"], "rgb"), ("recon", res["recon"], "rgb")]
     if "normal" in res:
-        cols += [("matte", res["matte"], "gray"), ("normal", res["normal"], "normal"),
-                 ("normal_pseudo", batch["normal_pseudo"], "normal"), ("albedo", res["albedo"], "rgb"),
-                 ("shading / max", over_max(res["shading"]), "rgb")]
+        cols += [
+            ("matte", res["matte"], "gray"),
+            ("normal", res["normal"], "normal"),
+            ("normal_pseudo", batch["normal_pseudo"], "normal"),
+            ("albedo", res["albedo"], "rgb"),
+            ("shading / max", over_max(res["shading"]), "rgb"),
+        ]
     n = len(names)
     fig, axes = plt.subplots(n, len(cols), figsize=(1.3 * len(cols), 1.3 * n), squeeze=False)
     for i in range(n):
@@ -81,7 +90,9 @@ def figures(model, batch: dict, names: list[str], out: Path, tag: str, budget: s
     plt.close(fig)
     if "sh" not in res:
         return
-    fig, axes = plt.subplots(n, 1 + len(RELIGHT_NAMES), figsize=(1.3 * (1 + len(RELIGHT_NAMES)), 1.3 * n), squeeze=False)
+    fig, axes = plt.subplots(
+        n, 1 + len(RELIGHT_NAMES), figsize=(1.3 * (1 + len(RELIGHT_NAMES)), 1.3 * n), squeeze=False
+    )
     relit = [relight(model, batch["image"], named_light(k).expand(n, -1, -1), method="transfer") for k in RELIGHT_NAMES]
     for i in range(n):
         for j, (title, x) in enumerate([("input", batch["image"])] + list(zip(RELIGHT_NAMES, relit))):
@@ -108,15 +119,30 @@ def apply_run(run_dir, records: list, out: Path, n_show: int = 8) -> dict:
         raise ValueError(f"run {run_dir} is at {res} px; rerun the photos at --resolution {res}")
     photos = photo_batch(records)
     synth = SynthFaces("test", res, size=len(records)).get_batch(range(len(records)))
-    budget = {k: cfg.data.get("train_size") if k == "train_size" else cfg.train.get(k)
-              for k in ("train_size", "epochs", "max_steps")}
-    gap = {"run": str(run_dir), "model": cfg.model.name, "trained_on": cfg.data.name, "training": budget,
-           "photos": gap_metrics(model, photos), "synthfaces_test": gap_metrics(model, synth)}
+    budget = {
+        k: cfg.data.get("train_size") if k == "train_size" else cfg.train.get(k)
+        for k in ("train_size", "epochs", "max_steps")
+    }
+    gap = {
+        "run": str(run_dir),
+        "model": cfg.model.name,
+        "trained_on": cfg.data.name,
+        "training": budget,
+        "photos": gap_metrics(model, photos),
+        "synthfaces_test": gap_metrics(model, synth),
+    }
     (out / f"domain_gap_{tag}.json").write_text(json.dumps(gap, indent=2) + "\n")
-    show = [r for r in records if not Path(r.path).stem.startswith("lfw")][:2] + \
-        [r for r in records if Path(r.path).stem.startswith("lfw")][: n_show - 2]
-    figures(model, photo_batch(show), [Path(r.path).stem for r in show], out, tag,
-            f": {budget['train_size']} images, {budget['epochs']} epochs")
+    show = [r for r in records if not Path(r.path).stem.startswith("lfw")][:2] + [
+        r for r in records if Path(r.path).stem.startswith("lfw")
+    ][: n_show - 2]
+    figures(
+        model,
+        photo_batch(show),
+        [Path(r.path).stem for r in show],
+        out,
+        tag,
+        f": {budget['train_size']} images, {budget['epochs']} epochs",
+    )
     for dom in ("photos", "synthfaces_test"):
         print(f"{tag} {dom:16s} " + "  ".join(f"{k} {v:.4g}" for k, v in gap[dom].items()))
     return {**gap, "tag": tag}
@@ -124,18 +150,25 @@ def apply_run(run_dir, records: list, out: Path, n_show: int = 8) -> dict:
 
 def gap_markdown(gaps: list[dict], command: str) -> str:
     """``domain_gap.md``: the gap numbers of every model applied in one invocation, with the command."""
-    lines = ["# Models trained on SynthFaces, applied to real photos\n", f"`{command}` (numbers: `domain_gap_<tag>.json`; "
-             "figures: `decomposition_<tag>.png`, `relight_<tag>.png`). Every number is against the *pseudo* ground "
-             "truth, the same landmark-fit rendering on both domains; reference: as many SynthFaces test faces.\n",
-             "| model (tag) | training | domain | n | recon PSNR (dB) | normal vs normal_pseudo (deg) | SH vs sh_pseudo | "
-             "matte covers mask_pseudo | matte IoU |", "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    lines = [
+        "# Models trained on SynthFaces, applied to real photos\n",
+        f"`{command}` (numbers: `domain_gap_<tag>.json`; "
+        "figures: `decomposition_<tag>.png`, `relight_<tag>.png`). Every number is against the *pseudo* ground "
+        "truth, the same landmark-fit rendering on both domains; reference: as many SynthFaces test faces.\n",
+        "| model (tag) | training | domain | n | recon PSNR (dB) | normal vs normal_pseudo (deg) | SH vs sh_pseudo | "
+        "matte covers mask_pseudo | matte IoU |",
+        "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
     for g in gaps:
         t = g["training"]
         for dom, label in (("photos", "photos"), ("synthfaces_test", "SynthFaces test")):
             m, f = g[dom], lambda k, d=2: "-" if k not in g[dom] else f"{g[dom][k]:.{d}f}"  # noqa: E731
-            lines.append(f"| {g['model']} ({g['tag']}) | {t.get('max_steps') or str(t.get('epochs')) + ' epochs of'} steps, {t.get('train_size')} images | {label} | "
-                         f"{m['n']} | {f('recon_psnr')} | {f('normal_vs_pseudo_deg')} | {f('sh_vs_pseudo_mse', 3)} | "
-                         f"{f('matte_covers_mask_pseudo', 3)} | {f('matte_iou_mask_pseudo', 3)} |")
+            lines.append(
+                f"| {g['model']} ({g['tag']}) | {t.get('max_steps') or str(t.get('epochs')) + ' epochs of'} steps, "
+                f"{t.get('train_size')} images | {label} | "
+                f"{m['n']} | {f('recon_psnr')} | {f('normal_vs_pseudo_deg')} | {f('sh_vs_pseudo_mse', 3)} | "
+                f"{f('matte_covers_mask_pseudo', 3)} | {f('matte_iou_mask_pseudo', 3)} |"
+            )
     return "\n".join(lines) + "\n"
 
 
@@ -146,9 +179,13 @@ def main(argv=None):
     from disent.runs import tool_folder
 
     ap = arguments(__doc__)
-    ap.add_argument("--run", nargs="+", required=True,
-                    help="trained run folders or shipped names to apply to the crops; 'auto': the plain explicit "
-                         "and implicit runs under outputs/ and multirun/ (disent.runs.pick_runs)")
+    ap.add_argument(
+        "--run",
+        nargs="+",
+        required=True,
+        help="trained run folders or shipped names to apply to the crops; 'auto': the plain explicit "
+        "and implicit runs under outputs/ and multirun/ (disent.runs.pick_runs)",
+    )
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     out = tool_folder("photos", args.out)

@@ -21,8 +21,10 @@ zero variance and says nothing about the light, so two more numbers sit beside i
 ``within_share``, the within-condition variance over the variance across all images (1: the
 estimate ignores the light; 0: it depends on the light only), and the SH error against the truth.
 
-``python -m disent.eval.protocols`` writes ``sh_variance.json`` and its bar chart (a tool folder, published to ``reports/eval/``).
+``python -m disent.eval.protocols`` writes ``sh_variance.json`` and its bar chart (a tool folder, published
+to ``reports/eval/``).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -60,9 +62,14 @@ def sh_variance(sh: torch.Tensor, condition: torch.Tensor) -> dict:
     mean = per_coeff.mean().item()
     scale = x.pow(2).mean().item()
     total = x[keep[inv]].var(0).mean().item()  # variance over all images, conditions pooled
-    return {"per_coeff": per_coeff.tolist(), "mean": mean, "relative": mean / scale if scale > 0 else float("nan"),
-            "within_share": mean / total if total > 0 else float("nan"),
-            "n_images": int(counts[keep].sum()), "n_conditions": int(keep.sum())}
+    return {
+        "per_coeff": per_coeff.tolist(),
+        "mean": mean,
+        "relative": mean / scale if scale > 0 else float("nan"),
+        "within_share": mean / total if total > 0 else float("nan"),
+        "n_images": int(counts[keep].sum()),
+        "n_conditions": int(keep.sum()),
+    }
 
 
 def ls_estimates(batch: dict) -> dict:
@@ -113,6 +120,7 @@ def plot_sh_variance(result: dict, path) -> None:
     """Grouped bars of per-coefficient variance, one colour per estimator (the supplement's figure);
     left the raw variance, right divided by each estimator's mean squared coefficient."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import numpy as np
@@ -146,7 +154,9 @@ def main(argv=None):
     p.add_argument("--limit", type=int, default=None, help="first N lightbank images (default: all)")
     p.add_argument("--resolution", type=int, default=64)
     p.add_argument("--roots", nargs="*", default=None, help="folders searched for runs (default: outputs/ multirun/)")
-    p.add_argument("--runs", nargs="*", default=None, help="run folders (default: seed-0 run of each model under --roots)")
+    p.add_argument(
+        "--runs", nargs="*", default=None, help="run folders (default: seed-0 run of each model under --roots)"
+    )
     a = p.parse_args(argv)
     torch.manual_seed(0)
     models = load_models(a.runs if a.runs is not None else find_runs(a.roots or RUN_ROOTS))
@@ -157,8 +167,11 @@ def main(argv=None):
     (out / "sh_variance.json").write_text(json.dumps(res, indent=1))
     plot_sh_variance(res, out / "sh_variance.png")
     for k, v in res["estimators"].items():
-        print(f"{k:28s} variance {v['mean']:.4g}  relative {v['relative']:.4g}  within {v['within_share']:.3g}  sh_error {v['sh_error']:.4g}  "
-              f"({v['n_conditions']} conditions, {v['n_images']} images)")
+        print(
+            f"{k:28s} variance {v['mean']:.4g}  relative {v['relative']:.4g}  within {v['within_share']:.3g}  "
+            f"sh_error {v['sh_error']:.4g}  "
+            f"({v['n_conditions']} conditions, {v['n_images']} images)"
+        )
 
 
 if __name__ == "__main__":

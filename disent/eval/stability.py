@@ -20,6 +20,7 @@
 ``ablations/README.md``), so runs of other budgets or learning rates never mix into their curves;
 each result carries the budget read from its runs' configs.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -66,9 +67,10 @@ def _ls_errors(batch: dict, pseudo_mask=None, true_mask=None) -> dict:
     noisy = batch["image"] + ORACLE_NOISE * torch.randn(batch["image"].shape, generator=g)
     out = {}
     for name, image, normal, mask, albedo in (
-            ("ls_pseudo", batch["image"], batch["normal_pseudo"], pm, None),
-            ("ls_true", batch["image"], batch["normal"], tm, None),
-            ("ls_oracle_noisy", noisy, batch["normal"], tm, batch["albedo"])):
+        ("ls_pseudo", batch["image"], batch["normal_pseudo"], pm, None),
+        ("ls_true", batch["image"], batch["normal"], tm, None),
+        ("ls_oracle_noisy", noisy, batch["normal"], tm, batch["albedo"]),
+    ):
         sh, _ = fit_sh(image, normal, mask, albedo=albedo, min_pixels=MIN_PIXELS)
         out[f"{name}_cond"] = design_condition(normal.double(), mask.double())
         out[f"{name}_sh_error"] = sh_error(sh, batch["sh"], reduction="none")
@@ -97,8 +99,13 @@ def conditioning_vs_yaw(dataset, yaws=YAWS, n: int = 16) -> dict:
         except (ValueError, NotImplementedError) as e:  # a generator that refuses a pose beyond its range
             rows.append({"yaw": yaw, "error": str(e)})
             continue
-        rows.append({"yaw": yaw, "face_pixels": _median(face_mask(batch["matte"]).flatten(1).sum(1)),
-                     **_summarize(_ls_errors(batch))})
+        rows.append(
+            {
+                "yaw": yaw,
+                "face_pixels": _median(face_mask(batch["matte"]).flatten(1).sum(1)),
+                **_summarize(_ls_errors(batch)),
+            }
+        )
     return _with_blowups(rows, "yaw", n)
 
 
@@ -110,7 +117,8 @@ def _with_blowups(rows: list, axis: str, n: int) -> dict:
     for est in LS_ESTIMATORS:
         for q in ("cond", "sh_error") if ok else ():
             res[f"{est}_blowup_{axis}" + ("" if q == "cond" else "_error")] = _blowup(
-                [r[axis] for r in ok], [r[f"{est}_{q}"]["median"] for r in ok], ok[0][f"{est}_{q}"]["median"])
+                [r[axis] for r in ok], [r[f"{est}_{q}"]["median"] for r in ok], ok[0][f"{est}_{q}"]["median"]
+            )
     return res
 
 
@@ -164,7 +172,9 @@ def ood_batch(dataset_cls, effect: str, severity: float, n: int, resolution: int
 OOD_KEYS = ("recon_face_mse", "normal_mean", "albedo_si_mse", "sh_error")
 
 
-def ood_curves(dataset_cls, models: dict, effects=EFFECTS, severities=SEVERITIES, n: int = 32, resolution: int = 64) -> dict:
+def ood_curves(
+    dataset_cls, models: dict, effects=EFFECTS, severities=SEVERITIES, n: int = 32, resolution: int = 64
+) -> dict:
     """Error against severity per effect: least squares (pseudo and true normals) and each model."""
     res = {"severities": list(severities), "n": n, "effects": {}}
     for effect in effects:
@@ -203,8 +213,11 @@ def bws_stats(out: dict, gt: dict) -> dict:
     sm = (s * w).sum(1) / n
     cov = ((a - am[:, None]) * (s - sm[:, None]) * w).sum(1)
     den = (((a - am[:, None]) ** 2 * w).sum(1) * ((s - sm[:, None]) ** 2 * w).sum(1)).sqrt().clamp_min(1e-12)
-    return {"shading_mean_rgb": mean_c.tolist(), "shading_cast": (mean_c.max() - mean_c.min()).item(),
-            "albedo_shading_corr": (cov / den).mean().item()}
+    return {
+        "shading_mean_rgb": mean_c.tolist(),
+        "shading_cast": (mean_c.max() - mean_c.min()).item(),
+        "albedo_shading_corr": (cov / den).mean().item(),
+    }
 
 
 def bws_study(runs, dataset, n: int = 64) -> dict:
@@ -225,9 +238,19 @@ def bws_study(runs, dataset, n: int = 64) -> dict:
         steps = (r.eval or {}).get("steps")
         loss = r.cfg.get("loss") if isinstance(r.cfg.get("loss"), dict) else {}
         bws = "no_bws" not in r.ablations and bool((loss.get("weights") or {}).get("BWS", 1.0))
-        rows.append({"run": str(r.path), "variant": r.variant, "model": r.model, "seed": r.seed, "bws": bws,
-                     "lhat_white": bool(loss.get("lhat_white", True)), "batch_size": bs, "steps": steps,
-                     **bws_stats(out, batch)})
+        rows.append(
+            {
+                "run": str(r.path),
+                "variant": r.variant,
+                "model": r.model,
+                "seed": r.seed,
+                "bws": bws,
+                "lhat_white": bool(loss.get("lhat_white", True)),
+                "batch_size": bs,
+                "steps": steps,
+                **bws_stats(out, batch),
+            }
+        )
         used.append(r)
     return {"rows": rows, "n": n, "budget": budget(used)}
 
@@ -314,27 +337,41 @@ def training_stability(runs, images=None, reference_mse=None) -> dict:
             ls = [x[key] for x in r.metrics if isinstance(x.get(key), (int, float)) and math.isfinite(x[key])]
             return max(ls) / min(ls) if len(ls) >= 2 and min(ls) > 0 else None
 
-        rows.append({"model": m, "adversarial": adv, "lr": lr, "runs": len(s),
-                     **{f"{f}_rate": s.count(f) / len(s) for f in FAILURES},
-                     "loss_ratio": _median_or_none(loss_ratio(r) for r in rs),
-                     "loss_spread": _median_or_none(spread(r) for r in rs),
-                     "recon_mse": _median_or_none(r.value("recon_mse") for r in rs),
-                     "normal_mean": _median_or_none(r.value("normal_mean") for r in rs),
-                     "input_dependence": _median_or_none(dep)})
-    return {"rows": rows, "budget": budget([r for rs in groups.values() for r in rs]), "reference_mse": reference_mse,
-            "spike": SPIKE}
+        rows.append(
+            {
+                "model": m,
+                "adversarial": adv,
+                "lr": lr,
+                "runs": len(s),
+                **{f"{f}_rate": s.count(f) / len(s) for f in FAILURES},
+                "loss_ratio": _median_or_none(loss_ratio(r) for r in rs),
+                "loss_spread": _median_or_none(spread(r) for r in rs),
+                "recon_mse": _median_or_none(r.value("recon_mse") for r in rs),
+                "normal_mean": _median_or_none(r.value("normal_mean") for r in rs),
+                "input_dependence": _median_or_none(dep),
+            }
+        )
+    return {
+        "rows": rows,
+        "budget": budget([r for rs in groups.values() for r in rs]),
+        "reference_mse": reference_mse,
+        "spike": SPIKE,
+    }
 
 
 # ----------------------------------------------------------------------------- plots
 def _plt():
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     return plt
 
 
 def budget_text(budget) -> str:
     """``key=value, ...`` of a result's ``budget`` (the runs' own configs), for titles and captions."""
+
     def num(v):
         try:
             return (0, float(v), "")
@@ -343,8 +380,10 @@ def budget_text(budget) -> str:
 
     if not budget:
         return "budget not recorded"
-    return ", ".join(f"{k.split('.')[-1]}={'/'.join(sorted(map(str, v), key=num)) if isinstance(v, list) else v}"
-                     for k, v in budget.items())
+    return ", ".join(
+        f"{k.split('.')[-1]}={'/'.join(sorted(map(str, v), key=num)) if isinstance(v, list) else v}"
+        for k, v in budget.items()
+    )
 
 
 def _save(fig, path):
@@ -357,7 +396,9 @@ def _save(fig, path):
 def plot_conditioning(yaw: dict, mask: dict, path) -> None:
     plt = _plt()
     fig, axes = plt.subplots(2, 2, figsize=(8, 5.5), sharex="col")
-    for col, (res, key, label) in enumerate(((yaw, "yaw", "yaw (degrees)"), (mask, "fraction", "share of face mask kept"))):
+    for col, (res, key, label) in enumerate(
+        ((yaw, "yaw", "yaw (degrees)"), (mask, "fraction", "share of face mask kept"))
+    ):
         ok = [r for r in res["rows"] if "error" not in r]
         xs = [r[key] for r in ok]
         for k, (est, style) in enumerate(zip(LS_ESTIMATORS, ("o-", "s--", "^:"))):
@@ -407,8 +448,11 @@ def plot_bws(res: dict, path) -> None:
     plt = _plt()
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.8))
     rows = res["rows"]
-    arms = ((True, True, "o", "-", "with BWS"), (False, True, "x", "--", "without BWS (L-hat target still white)"),
-            (False, False, "^", ":", "without BWS, raw L-hat target"))
+    arms = (
+        (True, True, "o", "-", "with BWS"),
+        (False, True, "x", "--", "without BWS (L-hat target still white)"),
+        (False, False, "^", ":", "without BWS, raw L-hat target"),
+    )
     for bws, white, marker, ls, label in arms:
         by_bs = {}
         for r in rows:
@@ -424,21 +468,38 @@ def plot_bws(res: dict, path) -> None:
         seeds = max(len(v) for v in by_bs.values())
         label += f", {seeds} seed{'s' if seeds > 1 else ''}"
         for c, color in enumerate(("r", "g", "b")):
-            axes[0].plot(bs, mean("shading_mean_rgb", c), marker + ls, color=color, label=f"{label} ({color})" if c == 0 else None)
+            axes[0].plot(
+                bs,
+                mean("shading_mean_rgb", c),
+                marker + ls,
+                color=color,
+                label=f"{label} ({color})" if c == 0 else None,
+            )
         axes[1].plot(bs, mean("shading_cast"), marker + ls, label=label)
         axes[2].plot(bs, mean("albedo_shading_corr"), marker + ls, label=label)
     axes[0].axhline(0.75, color="k", lw=0.6, ls=":")
     steps = {r["batch_size"]: r.get("steps") for r in rows if r["batch_size"] is not None}
     steps_text = ", ".join(f"{b}:{steps[b]}" for b in sorted(steps) if steps[b] is not None)
-    for ax, t in zip(axes, ("shading mean per channel (BWS target 0.75)", "colour cast (max - min channel mean)",
-                            "corr(albedo, true shading)")):
+    for ax, t in zip(
+        axes,
+        (
+            "shading mean per channel (BWS target 0.75)",
+            "colour cast (max - min channel mean)",
+            "corr(albedo, true shading)",
+        ),
+    ):
         ax.set_xscale("log")
-        ax.set_xlabel("training batch size (BWS averages over it)" + (f"\nsteps per batch size: {steps_text}" if steps_text else ""),
-                      fontsize=7)
+        ax.set_xlabel(
+            "training batch size (BWS averages over it)"
+            + (f"\nsteps per batch size: {steps_text}" if steps_text else ""),
+            fontsize=7,
+        )
         ax.set_title(t, fontsize=8)
         ax.legend(fontsize=6)
-    fig.suptitle(f"BWS against batch size, mean over seeds ({budget_text(res.get('budget'))}; {res.get('n', '?')} test images)",
-                 fontsize=8)
+    fig.suptitle(
+        f"BWS against batch size, mean over seeds ({budget_text(res.get('budget'))}; {res.get('n', '?')} test images)",
+        fontsize=8,
+    )
     _save(fig, path)
 
 
@@ -451,11 +512,17 @@ def plot_training(res: dict, path) -> None:
     plt = _plt()
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.6))
     models = sorted({r["model"] for r in res["rows"]})
-    panels = ((None, "share of seeds failed\n(NaN, diverged, exploded or collapsed)"),
-              ("loss_spread", "largest / smallest logged total loss (median)"), ("recon_mse", "test recon MSE (median)"))
+    panels = (
+        (None, "share of seeds failed\n(NaN, diverged, exploded or collapsed)"),
+        ("loss_spread", "largest / smallest logged total loss (median)"),
+        ("recon_mse", "test recon MSE (median)"),
+    )
     for k, m in enumerate(models):
         for adv, ls in ((True, "-"), (False, "--")):
-            sel = sorted((r for r in res["rows"] if r["model"] == m and r["adversarial"] == adv and r["lr"]), key=lambda r: r["lr"])
+            sel = sorted(
+                (r for r in res["rows"] if r["model"] == m and r["adversarial"] == adv and r["lr"]),
+                key=lambda r: r["lr"],
+            )
             if not sel:
                 continue
             label = f"{m} {'adv' if adv else 'no adv'}"
@@ -463,7 +530,9 @@ def plot_training(res: dict, path) -> None:
                 shift = 1 + 0.05 * (2 * k + (not adv) - len(models))  # side by side where curves coincide
                 pts = [(r["lr"] * shift, failure_rate(r) if key is None else r.get(key)) for r in sel]
                 pts = [p for p in pts if p[1] is not None]
-                ax.plot([p[0] for p in pts], [p[1] for p in pts], ("o" if adv else "x") + ls, color=f"C{k}", label=label)
+                ax.plot(
+                    [p[0] for p in pts], [p[1] for p in pts], ("o" if adv else "x") + ls, color=f"C{k}", label=label
+                )
     for ax, (key, ylabel) in zip(axes, panels):
         ax.set_xscale("log")
         ax.set_xlabel("learning rate")
@@ -511,9 +580,12 @@ def main(argv=None):
         write("conditioning", {"yaw": yaw, "mask": mask})
         plot_conditioning(yaw, mask, out / "conditioning.png")
         for est in LS_ESTIMATORS:
-            print(f"{est}: x{BLOWUP:g} condition at yaw {yaw.get(est + '_blowup_yaw')}, mask fraction "
-                  f"{mask.get(est + '_blowup_fraction')}; x{BLOWUP:g} SH error at yaw {yaw.get(est + '_blowup_yaw_error')}, "
-                  f"mask fraction {mask.get(est + '_blowup_fraction_error')}")
+            print(
+                f"{est}: x{BLOWUP:g} condition at yaw {yaw.get(est + '_blowup_yaw')}, mask fraction "
+                f"{mask.get(est + '_blowup_fraction')}; x{BLOWUP:g} SH error at yaw "
+                f"{yaw.get(est + '_blowup_yaw_error')}, "
+                f"mask fraction {mask.get(est + '_blowup_fraction_error')}"
+            )
     if "ood" in a.studies:
         res = ood_curves(SynthFaces, load_models(runs), n=a.n, resolution=a.resolution)
         write("ood", res)

@@ -15,6 +15,7 @@ A layer counts as learned only where the network beats its trivial baseline:
 scores the networks, and returns its keys prefixed with ``trivial_`` (``trivial_normal_mean``,
 ``trivial_albedo_si_mse``, ``trivial_albedo_global_si_mse``, ``trivial_sh_error``, ...).
 """
+
 from __future__ import annotations
 
 import torch
@@ -22,8 +23,15 @@ import torch
 from disent.eval.evaluate import face_mask, metrics_from_outputs
 
 N_IMAGES = 1024  # training images the means are taken over (fewer if the split is smaller)
-KEYS = ("normal_mean", "normal_median", "albedo_si_mse", "albedo_global_si_mse", "albedo_face_si_mse", "sh_error",
-        "light_shading_si_mse")
+KEYS = (
+    "normal_mean",
+    "normal_median",
+    "albedo_si_mse",
+    "albedo_global_si_mse",
+    "albedo_face_si_mse",
+    "sh_error",
+    "light_shading_si_mse",
+)
 
 
 @torch.no_grad()

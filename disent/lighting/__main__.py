@@ -1,4 +1,5 @@
 """``python -m disent.lighting``: the lighting posterior of one image or a split (conf/lighting.yaml)."""
+
 from __future__ import annotations
 
 import json
@@ -10,7 +11,6 @@ import torch
 from omegaconf import DictConfig
 
 import disent.runs  # noqa: F401  (registers ${pid:}, used by the default run folder in conf/lighting.yaml)
-
 from disent.lighting.experiments import figures_for, noisy, run_all
 from disent.lighting.order import select_order
 from disent.lighting.posterior import prepare, sample_posterior
@@ -55,8 +55,9 @@ def posterior_of(cfg: DictConfig, name: str, item: dict) -> dict:
     texture = None
     if albedo is None and cfg.texture_components > 0 and uv_key in item and not cfg.gray:
         texture = texture_for(data, item[uv_key], cfg.texture_components)
-    post = sample_posterior(data, order=cfg.order, likelihood=cfg.likelihood, nu=cfg.nu, seed=cfg.seed,
-                            max_steps=cfg.max_steps)
+    post = sample_posterior(
+        data, order=cfg.order, likelihood=cfg.likelihood, nu=cfg.nu, seed=cfg.seed, max_steps=cfg.max_steps
+    )
     result = {"name": name, "normals": normals, "known_albedo": albedo is not None} | post.summary()
     result["order_choice"] = {k: v for k, v in select_order(data, texture=texture).items() if k != "criterion"}
     result["order_choice"]["texture_components"] = 0 if texture is None else len(texture[1])
@@ -88,12 +89,22 @@ def run(cfg: DictConfig) -> None:
     for k, (name, item) in enumerate(items(cfg)):
         result, post, data = posterior_of(cfg, name, item)
         if cfg.figures and k < 4:
-            result["figures"] = [str(p) for p in figures_for(post, item, data, out / name,
-                                                             "normal_pseudo" if cfg.image else cfg.normals)]
+            result["figures"] = [
+                str(p) for p in figures_for(post, item, data, out / name, "normal_pseudo" if cfg.image else cfg.normals)
+            ]
         d = result["diagnostics"]
-        log.info("%s: %d pixels, %d steps, tau %.1f, acceptance %.2f, ESS %.0f, converged %s, %.2f s; order choice %s",
-                 name, d["n_pixels"], d["n_steps"], d["tau_max"], d["acceptance_fraction"], d["ess_min"],
-                 d["converged"], d["seconds"], result["order_choice"]["choice"])
+        log.info(
+            "%s: %d pixels, %d steps, tau %.1f, acceptance %.2f, ESS %.0f, converged %s, %.2f s; order choice %s",
+            name,
+            d["n_pixels"],
+            d["n_steps"],
+            d["tau_max"],
+            d["acceptance_fraction"],
+            d["ess_min"],
+            d["converged"],
+            d["seconds"],
+            result["order_choice"]["choice"],
+        )
         results.append(result)
     path = out / "posterior.json"
     path.write_text(json.dumps(results if len(results) > 1 else results[0], indent=2))

@@ -6,6 +6,7 @@ it; i.i.d. Gaussian noise of std ``noise`` is added to the image with a fixed se
 go to the run folder (JSON and PNG); ``python -m disent.report --publish FOLDER`` copies them to
 ``reports/lighting/``.
 """
+
 from __future__ import annotations
 
 import json
@@ -29,14 +30,22 @@ def noisy(image: torch.Tensor, noise: float, seed: int) -> torch.Tensor:
     return image.double() + noise * torch.randn(image.shape, generator=g, dtype=torch.float64)
 
 
-def item_data(item: dict, noise: float = 0.02, seed: int = 0, mask=None, known_albedo: bool = True, gray=False,
-              normals: str = "normal"):
+def item_data(
+    item: dict,
+    noise: float = 0.02,
+    seed: int = 0,
+    mask=None,
+    known_albedo: bool = True,
+    gray=False,
+    normals: str = "normal",
+):
     """One item's pixels on its true (``normals="normal"``, matte) or pseudo (``normal_pseudo``,
     mask_pseudo) geometry; ``mask`` overrides the mask."""
     n_key, m_key, _ = GEOMETRY[normals]
     mask = item[m_key] if mask is None else mask
-    return prepare(noisy(item["image"], noise, seed), item[n_key], mask,
-                   item["albedo"] if known_albedo else None, gray=gray)
+    return prepare(
+        noisy(item["image"], noise, seed), item[n_key], mask, item["albedo"] if known_albedo else None, gray=gray
+    )
 
 
 def band_width(post, level: float = 0.68) -> dict:
@@ -78,16 +87,19 @@ def widths(ds, n_faces: int = 3, noise: float = 0.02) -> dict:
             res["mask_fraction"].setdefault(frac, []).append(band_width(post))
         for sigma in (0.005, 0.01, 0.02, 0.05):
             res["noise"].setdefault(sigma, []).append(band_width(sample_posterior(item_data(item, sigma, face))))
-    return {axis: {str(k): {b: float(np.mean([r[b] for r in v])) for b in v[0]} for k, v in d.items()}
-            for axis, d in res.items()}
+    return {
+        axis: {str(k): {b: float(np.mean([r[b] for r in v])) for b in v[0]} for k, v in d.items()}
+        for axis, d in res.items()
+    }
 
 
 def plot_widths(w: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.4))
-    for ax, (axis, label) in zip(axes, [("yaw", "yaw (deg)"), ("mask_fraction", "mask fraction"),
-                                        ("noise", "noise std")]):
+    for ax, (axis, label) in zip(
+        axes, [("yaw", "yaw (deg)"), ("mask_fraction", "mask fraction"), ("noise", "noise std")]
+    ):
         xs = [float(k) for k in w[axis]]
         for b in ("band0", "band1", "band2"):
             ax.plot(xs, [w[axis][k][b] for k in w[axis]], "o-", label=f"SH band {b[-1]}")
@@ -106,9 +118,14 @@ def plot_widths(w: dict, path: Path) -> None:
 
 
 # ----------------------------------------------------------------------------- calibration
-def calibration(ds, n_images: int = 12, noise: float = 0.02, severity: float = 0.5,
-                conditions=("lambertian", "specular", "cast_shadow", "specular+cast_shadow"),
-                normals: str = "normal") -> dict:
+def calibration(
+    ds,
+    n_images: int = 12,
+    noise: float = 0.02,
+    severity: float = 0.5,
+    conditions=("lambertian", "specular", "cast_shadow", "specular+cast_shadow"),
+    normals: str = "normal",
+) -> dict:
     """Share of true SH coefficients inside the 68 % / 95 % intervals, per likelihood and effect.
 
     ``z_rms`` is the RMS of (posterior mean - truth) / posterior sd: 1 when calibrated, larger
@@ -133,7 +150,10 @@ def calibration(ds, n_images: int = 12, noise: float = 0.02, severity: float = 0
             out[f"{condition}/{likelihood}"] = {
                 "inside68": float(np.concatenate(inside[0.68]).mean()),
                 "inside95": float(np.concatenate(inside[0.95]).mean()),
-                "z_rms": float(np.sqrt(np.mean(z**2))), "n_coefficients": int(z.size), "converged": float(np.mean(conv))}
+                "z_rms": float(np.sqrt(np.mean(z**2))),
+                "n_coefficients": int(z.size),
+                "converged": float(np.mean(conv)),
+            }
     out["settings"] = {"n_images": n_images, "noise": noise, "severity": severity, "normals": normals}
     return out
 
@@ -151,9 +171,11 @@ def plot_calibration(c: dict, path: Path) -> None:
     ax.set_xticks(x, [k.replace("/", "\n").replace("+", "+\n") for k in keys], fontsize=8)
     ax.set_ylim(0, 1)
     ax.set_ylabel("share of true coefficients")
-    ax.set_title(f"Calibration of the SH-light intervals ({c['settings'].get('normals', 'normal')}, "
-                 f"{c['settings']['n_images']} images, noise "
-                 f"{c['settings']['noise']}, effect severity {c['settings']['severity']})")
+    ax.set_title(
+        f"Calibration of the SH-light intervals ({c['settings'].get('normals', 'normal')}, "
+        f"{c['settings']['n_images']} images, noise "
+        f"{c['settings']['noise']}, effect severity {c['settings']['severity']})"
+    )
     ax.legend(loc="upper right")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
@@ -165,7 +187,7 @@ def light_of_order(sh: torch.Tensor, order: int) -> torch.Tensor:
     """The scene's light cut to SH band ``order``; ambient raised so the front-facing normals
     (n_z >= -0.3, as the generator checks) stay at least 4 % of the peak shading."""
     sh = sh.double().clone()
-    sh[:, N_COEFFS[order]:] = 0
+    sh[:, N_COEFFS[order] :] = 0
     g = torch.Generator().manual_seed(0)
     n = torch.nn.functional.normalize(torch.randn(4096, 3, generator=g, dtype=torch.float64), dim=1)
     B = sh_basis(n[n[:, 2] >= -0.3].T.contiguous(), 0)  # [9, M]
@@ -174,8 +196,9 @@ def light_of_order(sh: torch.Tensor, order: int) -> torch.Tensor:
     return sh.float()
 
 
-def order_data(item: dict, noise: float, seed: int, albedo: str = "constant", normals: str = "normal",
-               n_components: int = 20):
+def order_data(
+    item: dict, noise: float, seed: int, albedo: str = "constant", normals: str = "normal", n_components: int = 20
+):
     """``(LightingData, texture or None)`` of one item for the order choice.
 
     ``albedo``: ``known`` (the true map), ``constant`` (L-hat's assumption) or ``texture``
@@ -192,8 +215,15 @@ def order_data(item: dict, noise: float, seed: int, albedo: str = "constant", no
     return data, texture_for(data, item[GEOMETRY[normals][2]], n_components)
 
 
-def order_confusion(ds, n_per_order: int = 30, noise: float = 0.02, albedo: str = "constant",
-                    normals: str = "normal", n_components: int = 20, geometry_noise: dict | None = None) -> dict:
+def order_confusion(
+    ds,
+    n_per_order: int = 30,
+    noise: float = 0.02,
+    albedo: str = "constant",
+    normals: str = "normal",
+    n_components: int = 20,
+    geometry_noise: dict | None = None,
+) -> dict:
     """Confusion matrices (true order x chosen order) for the evidence and for BIC.
 
     Item ``i`` of ``ds`` is relit with its own light cut to each order (:func:`light_of_order`).
@@ -209,25 +239,53 @@ def order_confusion(ds, n_per_order: int = 30, noise: float = 0.02, albedo: str 
                 r = choose(scores, crit)
                 conf[crit][order, r["order"]] += 1
                 colour[crit][r["choice"]] = colour[crit].get(r["choice"], 0) + 1
-    return {crit: {"confusion": m.tolist(), "accuracy": float(np.trace(m) / m.sum()),
-                   "per_order_recall": (np.diag(m) / m.sum(1)).tolist(), "chosen_models": colour[crit]}
-            for crit, m in conf.items()} | {"settings": {"split": ds.split, "n_per_order": n_per_order, "noise": noise,
-                                                        "albedo": albedo, "normals": normals,
-                                                        "n_components": n_components if albedo == "texture" else 0,
-                                                        "geometry_noise": geometry_noise or {}}}
+    return {
+        crit: {
+            "confusion": m.tolist(),
+            "accuracy": float(np.trace(m) / m.sum()),
+            "per_order_recall": (np.diag(m) / m.sum(1)).tolist(),
+            "chosen_models": colour[crit],
+        }
+        for crit, m in conf.items()
+    } | {
+        "settings": {
+            "split": ds.split,
+            "n_per_order": n_per_order,
+            "noise": noise,
+            "albedo": albedo,
+            "normals": normals,
+            "n_components": n_components if albedo == "texture" else 0,
+            "geometry_noise": geometry_noise or {},
+        }
+    }
 
 
 # The geometry-error noise model (disent.lighting.order) for pseudo geometry.  normal_sigma: the pseudo-GT's
 # measured mean angular error on SynthFaces, 11.5 deg = 0.20 rad, as the per-axis std of an isotropic tangent
 # Gaussian (mean |delta n| = sigma sqrt(pi/2)); set from that measurement, not fitted to the order choice.
 GEOMETRY_NOISE = {"normal_sigma": 0.16}
-ORDER_ROWS = (("known", "normal"), ("constant", "normal"), ("texture", "normal"),
-              ("known", "normal_pseudo"), ("constant", "normal_pseudo"), ("texture", "normal_pseudo"),
-              ("known", "normal_pseudo", GEOMETRY_NOISE), ("texture", "normal_pseudo", GEOMETRY_NOISE))
+ORDER_ROWS = (
+    ("known", "normal"),
+    ("constant", "normal"),
+    ("texture", "normal"),
+    ("known", "normal_pseudo"),
+    ("constant", "normal_pseudo"),
+    ("texture", "normal_pseudo"),
+    ("known", "normal_pseudo", GEOMETRY_NOISE),
+    ("texture", "normal_pseudo", GEOMETRY_NOISE),
+)
 
 
-def order_study(out: Path, splits=("val", "test"), rows=ORDER_ROWS, n_per_order: int = 20, noise: float = 0.02,
-                resolution: int = 64, seed: int = 0, name: str = "order") -> dict:
+def order_study(
+    out: Path,
+    splits=("val", "test"),
+    rows=ORDER_ROWS,
+    n_per_order: int = 20,
+    noise: float = 0.02,
+    resolution: int = 64,
+    seed: int = 0,
+    name: str = "order",
+) -> dict:
     """The order-choice confusion matrices of every ``(albedo, normals[, geometry noise])`` row on each split;
     written to ``out/<name>.json`` (the method and its constants are chosen on
     ``val``; ``test`` only reports)."""
@@ -238,8 +296,9 @@ def order_study(out: Path, splits=("val", "test"), rows=ORDER_ROWS, n_per_order:
         ds = SynthFaces(split, resolution, seed)
         for albedo, normals, *geometry in rows:
             key = f"{split}/{albedo}/{normals}" + ("+geometry_noise" if geometry else "")
-            result[key] = order_confusion(ds, n_per_order, noise, albedo, normals,
-                                          geometry_noise=geometry[0] if geometry else None)
+            result[key] = order_confusion(
+                ds, n_per_order, noise, albedo, normals, geometry_noise=geometry[0] if geometry else None
+            )
             save_json(name, result, out)
     return result
 
@@ -281,7 +340,7 @@ def plot_order_study(study: dict, path: Path, criterion: str = "evidence") -> No
     for ax, key in zip(axes.flat, keys):
         draw_confusion(ax, study[key][criterion]["confusion"])
         ax.set_title(f"{key}\n{criterion} accuracy {study[key][criterion]['accuracy']:.0%}", fontsize=9)
-    for ax in list(axes.flat)[len(keys):]:
+    for ax in list(axes.flat)[len(keys) :]:
         ax.axis("off")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -297,9 +356,13 @@ def figures_for(post, item: dict, data, stem: Path, normal_key: str = "normal") 
     K = N_COEFFS[post.order]
     names = [f"L{k + 1}" for k in range(K)]
     samples = np.column_stack([post.sh[:, :, :K].sum(1), post.log_sigma])
-    fig = corner.corner(samples, labels=[f"$\\Sigma_c {n}$" for n in names] + [r"$\log\sigma$"],
-                        truths=None if "sh" not in item else list(item["sh"].double().sum(0)[:K].numpy()) + [None],
-                        quantiles=[0.16, 0.5, 0.84], show_titles=False)
+    fig = corner.corner(
+        samples,
+        labels=[f"$\\Sigma_c {n}$" for n in names] + [r"$\log\sigma$"],
+        truths=None if "sh" not in item else list(item["sh"].double().sum(0)[:K].numpy()) + [None],
+        quantiles=[0.16, 0.5, 0.84],
+        show_titles=False,
+    )
     corner_path = stem.with_name(stem.name + "_corner.png")
     fig.savefig(corner_path, dpi=50)
     plt.close(fig)
@@ -342,8 +405,13 @@ def speed(ds=None, batch: int = 256, rounds: int = 3) -> dict:
         fit_sh(image, normal, matte)
         cpu.append(time.process_time() - c0)
     data = item_data(item, 0.02, 0)
-    out = {"threads": torch.get_num_threads(), "ls_batch": batch, "ls_ms_per_image": 1000 * ls / batch,
-           "ls_cpu_ms_per_image": 1000 * float(np.median(cpu)) / batch, "n_pixels": data.n_pixels}
+    out = {
+        "threads": torch.get_num_threads(),
+        "ls_batch": batch,
+        "ls_ms_per_image": 1000 * ls / batch,
+        "ls_cpu_ms_per_image": 1000 * float(np.median(cpu)) / batch,
+        "n_pixels": data.n_pixels,
+    }
     for likelihood in ("gaussian", "student_t"):
         diag = [sample_posterior(data, likelihood=likelihood, seed=s).diagnostics for s in range(rounds)]
         out[f"posterior_{likelihood}_s"] = float(np.median([d["seconds"] for d in diag]))
@@ -384,8 +452,9 @@ def _run_all(ds, out: Path, resolution: int, seed: int, quick: bool) -> dict:
     save_json("calibration", summary["calibration"], out)
     plot_calibration(summary["calibration"], out / "calibration.png")
 
-    summary["calibration_pseudo"] = calibration(ds, n_images=8 // n, normals="normal_pseudo",
-                                                conditions=("lambertian", "specular", "cast_shadow"))
+    summary["calibration_pseudo"] = calibration(
+        ds, n_images=8 // n, normals="normal_pseudo", conditions=("lambertian", "specular", "cast_shadow")
+    )
     save_json("calibration_pseudo", summary["calibration_pseudo"], out)
     plot_calibration(summary["calibration_pseudo"], out / "calibration_pseudo.png")
 
@@ -399,5 +468,18 @@ def _run_all(ds, out: Path, resolution: int, seed: int, quick: bool) -> dict:
     return summary
 
 
-__all__ = ["item_data", "widths", "calibration", "order_confusion", "order_data", "order_study", "light_of_order",
-           "figures_for", "speed", "run_all", "central_mask", "band_width", "plot_order_study"]
+__all__ = [
+    "item_data",
+    "widths",
+    "calibration",
+    "order_confusion",
+    "order_data",
+    "order_study",
+    "light_of_order",
+    "figures_for",
+    "speed",
+    "run_all",
+    "central_mask",
+    "band_width",
+    "plot_order_study",
+]

@@ -35,6 +35,7 @@ scenes).  Without a known albedo, pass ``texture`` (:mod:`disent.lighting.textur
 candidate is then fitted with its own albedo from a PCA texture model (coefficients under
 their PCA prior), so the texture is explained by the albedo and not by the light.
 """
+
 from __future__ import annotations
 
 import math
@@ -51,8 +52,13 @@ def candidates(n_channels: int) -> list[tuple[str, int, bool]]:
     """``(name, order, gray)`` from the smallest model to the largest."""
     if n_channels == 1:
         return [("order0", 0, False), ("order1", 1, False), ("order2", 2, False)]
-    models = [("order0", 0, False), ("order1_gray", 1, True), ("order2_gray", 2, True),
-              ("order1_rgb", 1, False), ("order2_rgb", 2, False)]
+    models = [
+        ("order0", 0, False),
+        ("order1_gray", 1, True),
+        ("order2_gray", 2, True),
+        ("order1_rgb", 1, False),
+        ("order2_rgb", 2, False),
+    ]
     return sorted(models, key=lambda m: n_params(m[1], m[2], n_channels))
 
 
@@ -126,8 +132,9 @@ def _light(theta, C, K, gray):
     return np.concatenate([[1.0], theta[K:]])[:, None] * theta[None, :K]
 
 
-def _fit(data: LightingData, order: int, gray: bool, prior_scale: float, iterations: int | None,
-         normal_sigma: float = 0.0):
+def _fit(
+    data: LightingData, order: int, gray: bool, prior_scale: float, iterations: int | None, normal_sigma: float = 0.0
+):
     """MAP of one candidate by (reweighted) Gauss-Newton, sigma at its conditional mode:
     ``(theta, pred, J, v, prior)`` with ``v [C*P]`` each value's noise variance."""
     A, y = data.design(order), data.y
@@ -139,7 +146,7 @@ def _fit(data: LightingData, order: int, gray: bool, prior_scale: float, iterati
     prior_mean = np.zeros(d)
     prior_prec = np.full(d, 1.0 / prior_scale**2)
     if gray:
-        prior_mean[N_COEFFS[order]:], prior_prec[N_COEFFS[order]:] = 1.0, 1.0
+        prior_mean[N_COEFFS[order] :], prior_prec[N_COEFFS[order] :] = 1.0, 1.0
 
     def variance(theta, r):
         if not geometry:
@@ -163,9 +170,16 @@ def _fit(data: LightingData, order: int, gray: bool, prior_scale: float, iterati
     return theta, pred, J, variance(theta, r), (prior_mean, prior_prec)
 
 
-def score(data: LightingData, order: int, gray: bool = False, prior_scale: float = 2.0,
-          iterations: int | None = None, texture: tuple | None = None, texture_iterations: int = 10,
-          normal_sigma: float = 0.0) -> dict:
+def score(
+    data: LightingData,
+    order: int,
+    gray: bool = False,
+    prior_scale: float = 2.0,
+    iterations: int | None = None,
+    texture: tuple | None = None,
+    texture_iterations: int = 10,
+    normal_sigma: float = 0.0,
+) -> dict:
     """Maximised log-likelihood, BIC and Laplace log evidence of one candidate (``normal_sigma``: the
     geometry-error noise model of the module docstring).
 
@@ -182,39 +196,64 @@ def score(data: LightingData, order: int, gray: bool = False, prior_scale: float
         tex, variance = texture
         if tex.shape[1:] != data.y.shape:
             raise ValueError(f"texture pixels {tex.shape[1:]} do not match the data {data.y.shape}")
+
         def albedo_of(beta):  # T_0 + sum_j beta_j T_j, kept positive
             return np.clip(tex[0] + np.einsum("j,jpc->pc", beta, tex[1:]), 1e-3, None)
 
         beta = np.zeros(len(variance))
         for _ in range(texture_iterations):
             albedo = albedo_of(beta)
-            theta, pred, J, v, prior = _fit(replace(data, albedo=albedo), order, gray, prior_scale, iterations,
-                                            normal_sigma)
+            theta, pred, J, v, prior = _fit(
+                replace(data, albedo=albedo), order, gray, prior_scale, iterations, normal_sigma
+            )
             shading = pred / albedo  # [P, C]: the candidate's light through S(n, L_c)
             X = (tex[1:] * shading[None]).reshape(len(variance), -1).T  # [P*C, J], pixel-major
             w = v.reshape(-1, data.n_pixels).T.reshape(-1)  # the noise variances in the same pixel-major order
             H_beta = (X / w[:, None]).T @ X + np.diag(1.0 / variance)
             beta = np.linalg.solve(H_beta, (X / w[:, None]).T @ (data.y - tex[0] * shading).reshape(-1))
         data = replace(data, albedo=albedo_of(beta))
-        extra = (-0.5 * (beta**2 / variance).sum() - 0.5 * np.log(variance).sum()
-                 - 0.5 * np.linalg.slogdet(H_beta)[1])  # log N(beta; 0, var) + J/2 log 2 pi - 1/2 log det H
+        extra = (
+            -0.5 * (beta**2 / variance).sum() - 0.5 * np.log(variance).sum() - 0.5 * np.linalg.slogdet(H_beta)[1]
+        )  # log N(beta; 0, var) + J/2 log 2 pi - 1/2 log det H
     theta, pred, J, v, (prior_mean, prior_prec) = _fit(data, order, gray, prior_scale, iterations, normal_sigma)
     d = theta.size + (0 if beta is None else beta.size)
     r = (data.y - pred).T.reshape(-1)
     loglik = -0.5 * (np.log(2 * math.pi * v) + r**2 / v).sum()  # i.i.d.: -N/2 (log 2 pi s2 + 1)
     H = (J / v[:, None]).T @ J + np.diag(prior_prec)
-    log_prior = (-0.5 * (prior_prec * (theta - prior_mean) ** 2).sum() + 0.5 * np.log(prior_prec / (2 * math.pi)).sum()
-                 - math.log(LOG_SIGMA_RANGE[1] - LOG_SIGMA_RANGE[0]))
+    log_prior = (
+        -0.5 * (prior_prec * (theta - prior_mean) ** 2).sum()
+        + 0.5 * np.log(prior_prec / (2 * math.pi)).sum()
+        - math.log(LOG_SIGMA_RANGE[1] - LOG_SIGMA_RANGE[0])
+    )
     # Laplace: log Z = log p(y, theta*, t*) + (d+1)/2 log 2 pi - 1/2 log det H; H_tt = 2N for t = log sigma
-    log_evidence = (loglik + log_prior + 0.5 * (theta.size + 1) * math.log(2 * math.pi)
-                    - 0.5 * np.linalg.slogdet(H)[1] - 0.5 * math.log(2 * N) + extra)
-    return {"order": order, "gray": gray, "n_params": d, "loglik": float(loglik), "sigma": float(math.sqrt(v.min())),
-            "bic": float(-2 * loglik + (d + 1) * math.log(N)), "log_evidence": float(log_evidence),
-            "texture": None if beta is None else beta.tolist()}
+    log_evidence = (
+        loglik
+        + log_prior
+        + 0.5 * (theta.size + 1) * math.log(2 * math.pi)
+        - 0.5 * np.linalg.slogdet(H)[1]
+        - 0.5 * math.log(2 * N)
+        + extra
+    )
+    return {
+        "order": order,
+        "gray": gray,
+        "n_params": d,
+        "loglik": float(loglik),
+        "sigma": float(math.sqrt(v.min())),
+        "bic": float(-2 * loglik + (d + 1) * math.log(N)),
+        "log_evidence": float(log_evidence),
+        "texture": None if beta is None else beta.tolist(),
+    }
 
 
-def select_order(data: LightingData, criterion: str = "evidence", threshold: float = DEFAULT_THRESHOLD,
-                 prior_scale: float = 2.0, texture: tuple | None = None, normal_sigma: float = 0.0) -> dict:
+def select_order(
+    data: LightingData,
+    criterion: str = "evidence",
+    threshold: float = DEFAULT_THRESHOLD,
+    prior_scale: float = 2.0,
+    texture: tuple | None = None,
+    normal_sigma: float = 0.0,
+) -> dict:
     """Score every candidate; choose the smallest within ``threshold`` of the best.
 
     ``criterion``: ``"evidence"`` (Laplace log evidence) or ``"bic"`` (compared as -BIC/2,
@@ -222,8 +261,10 @@ def select_order(data: LightingData, criterion: str = "evidence", threshold: flo
     candidate); without it the albedo is constant (L-hat) or ``data``'s known albedo.
     Returns ``{"choice", "order", "gray", "scores"}``.
     """
-    scores = {name: score(data, order, gray, prior_scale, texture=texture, normal_sigma=normal_sigma)
-              for name, order, gray in candidates(data.n_channels)}
+    scores = {
+        name: score(data, order, gray, prior_scale, texture=texture, normal_sigma=normal_sigma)
+        for name, order, gray in candidates(data.n_channels)
+    }
     return choose(scores, criterion, threshold)
 
 
@@ -235,9 +276,22 @@ def choose(scores: dict, criterion: str = "evidence", threshold: float = DEFAULT
     value = {k: s["log_evidence"] if criterion == "evidence" else -0.5 * s["bic"] for k, s in scores.items()}
     best = max(value.values())
     pick = next(k for k in scores if value[k] >= best - threshold)  # dicts keep the small-to-large order
-    return {"choice": pick, "order": scores[pick]["order"], "gray": scores[pick]["gray"],
-            "criterion": criterion, "scores": scores}
+    return {
+        "choice": pick,
+        "order": scores[pick]["order"],
+        "gray": scores[pick]["gray"],
+        "criterion": criterion,
+        "scores": scores,
+    }
 
 
-__all__ = ["candidates", "n_params", "score", "select_order", "choose", "geometry_variance", "sh_basis_gradient",
-           "DEFAULT_THRESHOLD"]
+__all__ = [
+    "candidates",
+    "n_params",
+    "score",
+    "select_order",
+    "choose",
+    "geometry_variance",
+    "sh_basis_gradient",
+    "DEFAULT_THRESHOLD",
+]

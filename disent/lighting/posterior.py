@@ -19,6 +19,7 @@ stopping rule is emcee's: the chain is longer
 than ``50 * tau`` (``tau`` the largest over the parameters) and the estimate of ``tau``
 changed by less than 1 % since the last check.
 """
+
 from __future__ import annotations
 
 import math
@@ -64,8 +65,9 @@ class LightingData:
         return self.albedo.T[:, :, None] * basis
 
 
-def prepare(image, normal, mask, albedo=None, *, gray: bool = False, threshold: float = 0.5,
-            min_pixels: int = 16) -> LightingData:
+def prepare(
+    image, normal, mask, albedo=None, *, gray: bool = False, threshold: float = 0.5, min_pixels: int = 16
+) -> LightingData:
     """Masked pixels of one image: ``image [C,H,W]``, ``normal [3,H,W]``, ``mask [1,H,W]`` or ``[H,W]``.
 
     Pixels with ``mask > threshold`` are used (a matte's soft edge mixes in background).  With
@@ -75,8 +77,9 @@ def prepare(image, normal, mask, albedo=None, *, gray: bool = False, threshold: 
     """
     image, normal = torch.as_tensor(image), torch.as_tensor(normal)
     if image.dim() != 3 or normal.dim() != 3 or normal.shape[0] != 3 or image.shape[1:] != normal.shape[1:]:
-        raise ValueError(f"need image [C,H,W] and normal [3,H,W] of one size, got {tuple(image.shape)}, "
-                         f"{tuple(normal.shape)}")
+        raise ValueError(
+            f"need image [C,H,W] and normal [3,H,W] of one size, got {tuple(image.shape)}, {tuple(normal.shape)}"
+        )
     H, W = image.shape[1:]
     mask = torch.as_tensor(mask).reshape(H, W) > threshold
     target = image.double()
@@ -210,14 +213,21 @@ def robust_fit(logpost: LogPosterior, iterations: int = 20, constrained: bool = 
     if constrained and logpost.positivity and (basis @ L.T).min() < 0:
         L = np.stack([_nonnegative_fit(A[c], y[:, c], w[:, c], L[c], basis) for c in range(C)])
     # Gauss-Newton Hessian: A^T W A / s2 (+ prior) per channel; Fisher information of log sigma
-    info = np.einsum("cpk,pc,cpl->ckl", A, w if logpost.likelihood == "gaussian" else
-                     np.full_like(w, (logpost.nu + 1) / (logpost.nu + 3)), A) / s2
+    info = (
+        np.einsum(
+            "cpk,pc,cpl->ckl",
+            A,
+            w if logpost.likelihood == "gaussian" else np.full_like(w, (logpost.nu + 1) / (logpost.nu + 3)),
+            A,
+        )
+        / s2
+    )
     info += np.eye(K) / logpost.prior_scale**2
     cov_L = np.linalg.inv(info)  # [C, K, K]
     D = logpost.ndim
     cov = np.zeros((D, D))
     for c in range(C):
-        cov[c * K:(c + 1) * K, c * K:(c + 1) * K] = cov_L[c]
+        cov[c * K : (c + 1) * K, c * K : (c + 1) * K] = cov_L[c]
     mode = L.reshape(-1)
     if logpost.known_sigma is None:
         fisher = 2.0 if logpost.likelihood == "gaussian" else 2 * logpost.nu / (logpost.nu + 3)
@@ -232,9 +242,14 @@ def _nonnegative_fit(A, y, w, start, basis):
     start = start.copy()
     start[0] += max(0.0, -(basis @ start).min()) / C4 * 1.001  # basis of L1 is the constant c4
     Aw, yw = A * np.sqrt(w)[:, None], y * np.sqrt(w)
-    res = minimize(lambda l: 0.5 * np.sum((Aw @ l - yw) ** 2), start, jac=lambda l: Aw.T @ (Aw @ l - yw),
-                   constraints=[{"type": "ineq", "fun": lambda l: basis @ l, "jac": lambda l: basis}],
-                   method="SLSQP", options={"maxiter": 200, "ftol": 1e-12})
+    res = minimize(
+        lambda l: 0.5 * np.sum((Aw @ l - yw) ** 2),
+        start,
+        jac=lambda l: Aw.T @ (Aw @ l - yw),
+        constraints=[{"type": "ineq", "fun": lambda l: basis @ l, "jac": lambda l: basis}],
+        method="SLSQP",
+        options={"maxiter": 200, "ftol": 1e-12},
+    )
     l = res.x if (basis @ res.x).min() >= 0 else start
     return l
 
@@ -352,8 +367,11 @@ class Posterior:
         m = d.mean(0)
         m = m / max(np.linalg.norm(m), 1e-12)
         angle = np.degrees(np.arccos(np.clip(d @ m, -1, 1)))
-        return {"mean_direction": m.tolist(), f"angle_deg_q{int(level * 100)}": float(np.quantile(angle, level)),
-                "angle_deg_q95": float(np.quantile(angle, 0.95))}
+        return {
+            "mean_direction": m.tolist(),
+            f"angle_deg_q{int(level * 100)}": float(np.quantile(angle, level)),
+            "angle_deg_q95": float(np.quantile(angle, 0.95)),
+        }
 
     def shading_map(self, normal, max_samples: int = 1000, seed: int = 0):
         """Posterior mean and standard deviation of the shading at each pixel, ``[C, H, W]`` each."""
@@ -369,9 +387,12 @@ class Posterior:
         lo68, hi68 = self.interval(0.68)
         lo95, hi95 = self.interval(0.95)
         return {
-            "order": self.order, "likelihood": self.likelihood,
-            "mean": self.mean.tolist(), "std": self.std.tolist(),
-            "ci68": [lo68.tolist(), hi68.tolist()], "ci95": [lo95.tolist(), hi95.tolist()],
+            "order": self.order,
+            "likelihood": self.likelihood,
+            "mean": self.mean.tolist(),
+            "std": self.std.tolist(),
+            "ci68": [lo68.tolist(), hi68.tolist()],
+            "ci95": [lo95.tolist(), hi95.tolist()],
             "least_squares": None if self.start is None else self.start.tolist(),
             "sigma_median": float(np.exp(np.median(self.log_sigma))),
             "direction": self.direction_summary(),
@@ -379,11 +400,24 @@ class Posterior:
         }
 
 
-def sample_posterior(data: LightingData, *, order: int = 2, likelihood: str = "gaussian", nu: float = 4.0,
-                     prior_scale: float = 2.0, positivity: bool = True, known_sigma: float | None = None,
-                     n_walkers: int | None = None, check_every: int = 50, min_tau_factor: float = 50.0,
-                     tau_rtol: float = 0.01, max_steps: int = 3000, min_acceptance: float = 0.2,
-                     adapt_rounds: int = 6, seed: int = 0) -> Posterior:
+def sample_posterior(
+    data: LightingData,
+    *,
+    order: int = 2,
+    likelihood: str = "gaussian",
+    nu: float = 4.0,
+    prior_scale: float = 2.0,
+    positivity: bool = True,
+    known_sigma: float | None = None,
+    n_walkers: int | None = None,
+    check_every: int = 50,
+    min_tau_factor: float = 50.0,
+    tau_rtol: float = 0.01,
+    max_steps: int = 3000,
+    min_acceptance: float = 0.2,
+    adapt_rounds: int = 6,
+    seed: int = 0,
+) -> Posterior:
     """Sample ``p(L, log sigma | data)`` with emcee, stopping by emcee's autocorrelation rule.
 
     Moves: a differential-evolution move (20 %) mixed with an independence proposal (80 %)
@@ -414,7 +448,7 @@ def sample_posterior(data: LightingData, *, order: int = 2, likelihood: str = "g
     if positivity:  # push infeasible walkers back with the ambient term, as robust_fit does
         L, _ = logpost.split(ball)
         deficit = np.clip(-(L @ logpost.data.basis[:, : logpost.K].T).min(2), 0, None)  # [W, C] shading
-        ball[:, : logpost.C * logpost.K: logpost.K] += deficit / C4 * 1.001
+        ball[:, : logpost.C * logpost.K : logpost.K] += deficit / C4 * 1.001
     # walkers start as draws of the proposal (inside the constraint); the ball where that fails
     start = TruncatedT(centre, centre_cov, feasible).draw(n_walkers, rng, fallback=ball)[0]
 
@@ -436,7 +470,9 @@ def sample_posterior(data: LightingData, *, order: int = 2, likelihood: str = "g
     old_tau, converged, tau = np.inf, False, np.full(D, np.nan)
     while True:
         tau = integrated_time(sampler.get_chain())
-        converged = bool(min_tau_factor * tau.max() < sampler.iteration and abs(old_tau - tau.max()) < tau_rtol * tau.max())
+        converged = bool(
+            min_tau_factor * tau.max() < sampler.iteration and abs(old_tau - tau.max()) < tau_rtol * tau.max()
+        )
         if converged or sampler.iteration >= max_steps:
             break
         old_tau = tau.max()
@@ -451,12 +487,22 @@ def sample_posterior(data: LightingData, *, order: int = 2, likelihood: str = "g
     sh[:, :, : logpost.K] = L
     n_kept = sampler.iteration - burn
     diagnostics = {
-        "n_steps": int(sampler.iteration), "n_walkers": n_walkers, "ndim": D, "converged": converged,
+        "n_steps": int(sampler.iteration),
+        "n_walkers": n_walkers,
+        "ndim": D,
+        "converged": converged,
         "adapted": adapted,
-        "tau": tau.tolist(), "tau_max": tau_max, "acceptance_fraction": float(np.mean(sampler.acceptance_fraction)),
-        "ess_min": float(n_walkers * n_kept / tau_max), "ess": np.nan_to_num(n_walkers * n_kept / tau).tolist(),
-        "burn": burn, "thin": thin, "n_samples": len(flat), "n_pixels": data.n_pixels,
-        "seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - c0,
+        "tau": tau.tolist(),
+        "tau_max": tau_max,
+        "acceptance_fraction": float(np.mean(sampler.acceptance_fraction)),
+        "ess_min": float(n_walkers * n_kept / tau_max),
+        "ess": np.nan_to_num(n_walkers * n_kept / tau).tolist(),
+        "burn": burn,
+        "thin": thin,
+        "n_samples": len(flat),
+        "n_pixels": data.n_pixels,
+        "seconds": time.perf_counter() - t0,
+        "cpu_seconds": time.process_time() - c0,
     }
     start_sh = np.zeros((logpost.C, 9))
     start_sh[:, : logpost.K] = mode[: logpost.C * logpost.K].reshape(logpost.C, logpost.K)
@@ -476,5 +522,16 @@ def gaussian_posterior(data: LightingData, sigma: float, *, order: int = 2, prio
     return mu, cov
 
 
-__all__ = ["N_COEFFS", "LightingData", "prepare", "LogPosterior", "robust_fit", "independence_move",
-           "TruncatedT", "integrated_time", "Posterior", "sample_posterior", "gaussian_posterior"]
+__all__ = [
+    "N_COEFFS",
+    "LightingData",
+    "prepare",
+    "LogPosterior",
+    "robust_fit",
+    "independence_move",
+    "TruncatedT",
+    "integrated_time",
+    "Posterior",
+    "sample_posterior",
+    "gaussian_posterior",
+]

@@ -14,6 +14,7 @@ For a given lighting model the fit alternates least squares in L (albedo fixed) 
 least squares in beta (light fixed); :func:`disent.lighting.order.select_order` scores every
 lighting candidate with its own fitted texture.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -78,14 +79,21 @@ def texture_model(resolution: int = 64, n_components: int = 20, n_images: int = 
         from disent.data import SynthFaces
 
         ds = SynthFaces("train", resolution, seed)
-        albedo = torch.cat([ds.get_batch(range(s, min(s + 128, n_images)))["albedo_uv"].double().flatten(1)
-                            for s in range(0, n_images, 128)])
+        albedo = torch.cat(
+            [
+                ds.get_batch(range(s, min(s + 128, n_images)))["albedo_uv"].double().flatten(1)
+                for s in range(0, n_images, 128)
+            ]
+        )
         mean = albedo.mean(0)
         _, sv, v = torch.linalg.svd(albedo - mean, full_matrices=False)
         keep = min(64, len(sv))
         shape = (3, resolution, resolution)
-        full = TextureModel(mean.reshape(shape).numpy(), v[:keep].reshape(keep, *shape).numpy(),
-                            (sv[:keep] ** 2 / (n_images - 1)).numpy())
+        full = TextureModel(
+            mean.reshape(shape).numpy(),
+            v[:keep].reshape(keep, *shape).numpy(),
+            (sv[:keep] ** 2 / (n_images - 1)).numpy(),
+        )
         atomic_write(path, lambda f: np.savez(f, mean=full.mean, components=full.components, variance=full.variance))
     if n_components > full.n_components:
         raise ValueError(f"texture model has {full.n_components} components, asked for {n_components}")

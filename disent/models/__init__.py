@@ -8,6 +8,7 @@ name (``bg, m, L, Ne, Ae`` / ``bg, m, L, UV, Ni, Ai`` / ``z``) and, for the rend
 the encoder's pooling ``switches`` that the background and matte decoders unpool with.
 ``model.decode(codes)`` re-renders edited codes.
 """
+
 from __future__ import annotations
 
 from pathlib import Path

@@ -1,5 +1,6 @@
 """Baseline autoencoder B (Sec. 5.1): the albedo path's encoder and decoder, a 265-d bottleneck
 (128 + 128 + 9), no rendering layers."""
+
 from __future__ import annotations
 
 import torch
@@ -11,9 +12,16 @@ from disent.models.networks import Decoder, Encoder, Layers
 class Baseline(nn.Module):
     CODE_NAMES = ("z",)
 
-    def __init__(self, resolution: int = 64, code_dim: int = 265, matting: bool = False,
-                 norm: str = "none", centre_input: bool = False, z_act: str = "relu",
-                 kernels: bool = True):
+    def __init__(
+        self,
+        resolution: int = 64,
+        code_dim: int = 265,
+        matting: bool = False,
+        norm: str = "none",
+        centre_input: bool = False,
+        z_act: str = "relu",
+        kernels: bool = True,
+    ):
         super().__init__()
         if matting:
             raise ValueError("the baseline autoencoder has no matting layer (model.matting must be false)")

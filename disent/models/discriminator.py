@@ -5,6 +5,7 @@ its reconstruction error.
 as E_recon.  The margin loss that trains D and the generator's term ``E_adv = D(G)`` are in
 :mod:`disent.losses`.
 """
+
 from __future__ import annotations
 
 import torch
@@ -26,4 +27,3 @@ class Discriminator(nn.Module):
     def energy(self, image: torch.Tensor) -> torch.Tensor:
         """Per-image reconstruction error ``[B]``."""
         return (self(image) - image).pow(2).flatten(1).mean(1)
-

@@ -3,6 +3,7 @@
 image -> Z_I -> {Z_bg, Z_m, Z_L, Z_Ne, Z_Ae};  N_e = decode_normal(dec_N(Z_Ne)), A_e = sigmoid(dec_A(Z_Ae)),
 S_e = f_shading(N_e, L) (Eqs. 3-5), I_fg = A_e (.) S_e (Eq. 2), I_o = M (.) I_fg + (1 - M) (.) I_bg (Eq. 6).
 """
+
 from __future__ import annotations
 
 import torch
@@ -29,9 +30,17 @@ def decode_normal(raw: torch.Tensor, param: str) -> torch.Tensor:
 class Explicit(nn.Module):
     CODE_NAMES = ("bg", "m", "L", "Ne", "Ae")
 
-    def __init__(self, resolution: int = 64, code_dim: int = 128, matting: bool = True, normal: str = "unit",
-                 norm: str = "none", centre_input: bool = False, z_act: str = "relu",
-                 kernels: bool = True):
+    def __init__(
+        self,
+        resolution: int = 64,
+        code_dim: int = 128,
+        matting: bool = True,
+        normal: str = "unit",
+        norm: str = "none",
+        centre_input: bool = False,
+        z_act: str = "relu",
+        kernels: bool = True,
+    ):
         super().__init__()
         if normal not in NORMAL_PARAMS:
             raise ValueError(f"model.normal={normal!r}; choose from {', '.join(NORMAL_PARAMS)}")
@@ -48,8 +57,10 @@ class Explicit(nn.Module):
         self.dec_A = Decoder(3, resolution, code_dim, layers=self.layers)
 
     def decode_foreground(self, codes: dict) -> dict:
-        return {"normal": decode_normal(self.dec_N(codes["Ne"]), self.normal_param),
-                "albedo": torch.sigmoid(self.dec_A(codes["Ae"]))}
+        return {
+            "normal": decode_normal(self.dec_N(codes["Ne"]), self.normal_param),
+            "albedo": torch.sigmoid(self.dec_A(codes["Ae"])),
+        }
 
     def encode(self, image: torch.Tensor) -> dict:
         """Latent codes by paper name, plus the encoder's pooling ``switches`` (used by bg/matte)."""

@@ -9,6 +9,7 @@ UV convention (that of the data): ``uv[:,0] = u`` is the horizontal coordinate a
 ``uv[:,1] = v`` the vertical one of the UV maps, both in [0,1] from the first to the last
 texel centre (``align_corners=True``).
 """
+
 from __future__ import annotations
 
 import torch
@@ -37,6 +38,10 @@ class Implicit(Explicit):
         uv = torch.sigmoid(self.dec_UV(codes["UV"]))
         na = self.dec_NA(torch.cat([codes["Ni"], codes["Ai"]]))  # one pass, shared weights
         normal_uv, albedo_uv = decode_normal(na[:B], self.normal_param), torch.sigmoid(na[B:])
-        return {"uv": uv, "normal_uv": normal_uv, "albedo_uv": albedo_uv,
-                "normal": unit(sample_uv(normal_uv, uv)),
-                "albedo": sample_uv(albedo_uv, uv)}
+        return {
+            "uv": uv,
+            "normal_uv": normal_uv,
+            "albedo_uv": albedo_uv,
+            "normal": unit(sample_uv(normal_uv, uv)),
+            "albedo": sample_uv(albedo_uv, uv),
+        }

@@ -9,6 +9,7 @@ layers, and ``tests/test_kernels.py`` checks both paths agree, forward and backw
 - :class:`MaxUnpool`: max-unpooling whose backward gathers a channels-last gradient in memory order.
 - :func:`conv_then_norm`: at inference a BatchNorm is folded into the convolution before it.
 """
+
 from __future__ import annotations
 
 import torch
@@ -21,8 +22,9 @@ NARROW_MAX = 4  # skip-decoder convolutions with at most this many outputs run a
 # Nearest 2x upsampling followed by a 3x3 convolution, done at the low resolution: output pixel
 # (2i+a, 2j+b) sees input rows i-1..i+1 with the kernel rows summed as PHASE_TAPS[a] says
 # (a=0: row i-1 <- w0, row i <- w1+w2; a=1: row i <- w0+w1, row i+1 <- w2), the same for columns.
-PHASE_TAPS = torch.tensor([[[1.0, 0, 0], [0, 1, 1], [0, 0, 0]],
-                           [[0.0, 0, 0], [1, 1, 0], [0, 0, 1]]])  # [phase, low-res offset, kernel tap]
+PHASE_TAPS = torch.tensor(
+    [[[1.0, 0, 0], [0, 1, 1], [0, 0, 0]], [[0.0, 0, 0], [1, 1, 0], [0, 0, 1]]]
+)  # [phase, low-res offset, kernel tap]
 
 
 def upsample_conv(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:
@@ -67,8 +69,8 @@ def narrow_conv(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> to
     for dy in range(3):
         for dx in range(3):
             if (dy, dx) != (1, 1):  # output (y, x) gets tap (dy, dx) of input pixel (y + dy - 1, x + dx - 1)
-                out[:, :, 2 - dy:H + 2 - dy, 2 - dx:W + 2 - dx] += taps[dy, dx]
-    return out[:, :, 1:H + 1, 1:W + 1].permute(1, 0, 2, 3)
+                out[:, :, 2 - dy : H + 2 - dy, 2 - dx : W + 2 - dx] += taps[dy, dx]
+    return out[:, :, 1 : H + 1, 1 : W + 1].permute(1, 0, 2, 3)
 
 
 class NarrowConv(torch.autograd.Function):
@@ -87,11 +89,14 @@ class NarrowConv(torch.autograd.Function):
         (_, C, H, W), O = x.shape, weight.shape[0]
         grad_x = grad_w = grad_b = None
         if ctx.needs_input_grad[0]:
-            grad_x = torch.ops.aten.convolution_backward(grad, x, weight, None, [1, 1], [1, 1], [1, 1], False, [0, 0],
-                                                         1, [True, False, False])[0]
+            grad_x = torch.ops.aten.convolution_backward(
+                grad, x, weight, None, [1, 1], [1, 1], [1, 1], False, [0, 0], 1, [True, False, False]
+            )[0]
         if ctx.needs_input_grad[1]:  # tap (dy, dx) of input pixel p meets the output gradient at p - (dy - 1, dx - 1)
             g = F.pad(grad.permute(1, 0, 2, 3), (1, 1, 1, 1))  # [O, B, H+2, W+2]
-            shifted = torch.stack([g[:, :, 2 - dy:H + 2 - dy, 2 - dx:W + 2 - dx] for dy in range(3) for dx in range(3)])
+            shifted = torch.stack(
+                [g[:, :, 2 - dy : H + 2 - dy, 2 - dx : W + 2 - dx] for dy in range(3) for dx in range(3)]
+            )
             grad_w = shifted.view(9 * O, -1) @ x.permute(0, 2, 3, 1).reshape(-1, C)
             grad_w = grad_w.view(3, 3, O, C).permute(2, 3, 0, 1)
         if ctx.needs_input_grad[2]:
@@ -124,12 +129,13 @@ class MaxUnpool(torch.autograd.Function):
     def backward(ctx, grad):
         (switches,) = ctx.saved_tensors
         B, C, h, w = switches.shape
-        if not (grad.is_contiguous(memory_format=torch.channels_last)
-                and switches.is_contiguous(memory_format=torch.channels_last)):
+        if not (
+            grad.is_contiguous(memory_format=torch.channels_last)
+            and switches.is_contiguous(memory_format=torch.channels_last)
+        ):
             return grad.flatten(2).gather(2, switches.flatten(2)).view(B, C, h, w), None
         g, idx = (t.permute(0, 2, 3, 1).reshape(B, -1, C) for t in (grad, switches))  # views [B, pixels, C]
         return torch.gather(g, 1, idx).view(B, h, w, C).permute(0, 3, 1, 2), None
-
 
 
 def conv_then_norm(conv: nn.Conv2d, norm: nn.Module):
@@ -141,7 +147,11 @@ def conv_then_norm(conv: nn.Conv2d, norm: nn.Module):
         scale = norm.weight * torch.rsqrt(norm.running_var + norm.eps)
         shift = norm.bias - norm.running_mean * scale
         bias = shift if conv.bias is None else shift + conv.bias * scale
-        fmt = torch.channels_last if conv.weight.is_contiguous(memory_format=torch.channels_last) else torch.contiguous_format
+        fmt = (
+            torch.channels_last
+            if conv.weight.is_contiguous(memory_format=torch.channels_last)
+            else torch.contiguous_format
+        )
         return (conv.weight * scale[:, None, None, None]).contiguous(memory_format=fmt), bias, True  # keep the layout
     return conv.weight, conv.bias, False
 

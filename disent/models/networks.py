@@ -8,6 +8,7 @@ with ``skips=True`` (background and matte, Sec. 3.3) upsamples by max-unpooling 
 encoder's pooling switches; without skips (every foreground decoder) it upsamples by nearest
 neighbour, so the face passes through the bottleneck only.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -36,6 +37,7 @@ class Layers:
     "batch" or "group"); ``centre_input``: feed the encoder ``2 * image - 1`` instead of [0, 1];
     ``z_act``: the nonlinearity on Z_I ("relu", "sigmoid" as in the release, or "none").  ``kernels`` is not a
     modelling choice: the same layers computed by the CPU speed kernels of :mod:`disent.models.kernels`."""
+
     norm: str = "none"
     centre_input: bool = False
     z_act: str = "relu"
@@ -87,16 +89,24 @@ class Encoder(nn.Module):
 class Decoder(nn.Module):
     """Code ``[B,code_dim]`` -> map ``[B,out_channels,H,W]`` (no output nonlinearity)."""
 
-    def __init__(self, out_channels: int, resolution: int = 64, code_dim: int = 128, skips: bool = False,
-                 layers: Layers = Layers()):
+    def __init__(
+        self,
+        out_channels: int,
+        resolution: int = 64,
+        code_dim: int = 128,
+        skips: bool = False,
+        layers: Layers = Layers(),
+    ):
         super().__init__()
         self.side = check_resolution(resolution)
         self.skips, self.layers = skips, layers
         chans = (*CHANNELS[::-1], out_channels)  # 64 -> 64 -> 32 -> out, the encoder reversed
         self.fc = nn.Linear(code_dim, CHANNELS[-1] * self.side * self.side)
         last = len(chans) - 2  # the output convolution keeps its bias; the hidden ones feed a normalisation layer
-        self.convs = nn.ModuleList(nn.Conv2d(a, b, 3, padding=1, bias=layers.norm == "none" or i == last)
-                                   for i, (a, b) in enumerate(zip(chans[:-1], chans[1:])))
+        self.convs = nn.ModuleList(
+            nn.Conv2d(a, b, 3, padding=1, bias=layers.norm == "none" or i == last)
+            for i, (a, b) in enumerate(zip(chans[:-1], chans[1:]))
+        )
         self.norms = nn.ModuleList(norm_layer(layers.norm, b) for b in chans[1:-1])  # hidden maps only
 
     def forward(self, code: torch.Tensor, switches=None) -> torch.Tensor:
@@ -106,7 +116,11 @@ class Decoder(nn.Module):
         if self.layers.kernels:
             return kernels.decoder_stages(self, x, switches)
         for i, conv in enumerate(self.convs):
-            x = F.max_unpool2d(x, switches[-1 - i], 2) if self.skips else F.interpolate(x, scale_factor=2, mode="nearest")
+            x = (
+                F.max_unpool2d(x, switches[-1 - i], 2)
+                if self.skips
+                else F.interpolate(x, scale_factor=2, mode="nearest")
+            )
             x = conv(x)
             if i < len(self.convs) - 1:  # hidden maps: normalisation, ReLU; the output map has no nonlinearity
                 x = F.relu(self.norms[i](x))

@@ -9,6 +9,7 @@ revision, test metrics (its ``eval.json``), training steps and seconds, the mach
     python -m disent.models.shipped RUN_DIR NAME     # ship a finished run as NAME
     load_run("explicit")                             # disent.models.load_run takes a shipped name
 """
+
 from __future__ import annotations
 
 import argparse
@@ -37,8 +38,10 @@ def shipped_path(name: str, folder: Path = WEIGHTS) -> Path:
     """The checkpoint file of shipped model ``name``; an error listing the shipped names if there is none."""
     entry = manifest(folder).get(name)
     if entry is None:
-        raise FileNotFoundError(f"{name!r} is neither a run folder, a checkpoint file nor a shipped model; "
-                                f"shipped models: {', '.join(shipped_names(folder)) or 'none'}")
+        raise FileNotFoundError(
+            f"{name!r} is neither a run folder, a checkpoint file nor a shipped model; "
+            f"shipped models: {', '.join(shipped_names(folder)) or 'none'}"
+        )
     return Path(folder) / entry["file"]
 
 
@@ -47,21 +50,34 @@ def load_weights(model: torch.nn.Module, state: dict, source) -> None:
     own = model.state_dict()
     missing = sorted(set(own) - set(state))
     unexpected = sorted(set(state) - set(own))
-    shapes = [f"{k}: checkpoint {tuple(state[k].shape)} vs model {tuple(v.shape)}"
-              for k, v in own.items() if k in state and tuple(state[k].shape) != tuple(v.shape)]
+    shapes = [
+        f"{k}: checkpoint {tuple(state[k].shape)} vs model {tuple(v.shape)}"
+        for k, v in own.items()
+        if k in state and tuple(state[k].shape) != tuple(v.shape)
+    ]
     if missing or unexpected or shapes:
-        parts = ([f"missing in the checkpoint: {', '.join(missing[:6])}{' ...' if len(missing) > 6 else ''}"] if missing else [])
-        parts += ([f"not in the model: {', '.join(unexpected[:6])}{' ...' if len(unexpected) > 6 else ''}"] if unexpected else [])
+        parts = (
+            [f"missing in the checkpoint: {', '.join(missing[:6])}{' ...' if len(missing) > 6 else ''}"]
+            if missing
+            else []
+        )
+        parts += (
+            [f"not in the model: {', '.join(unexpected[:6])}{' ...' if len(unexpected) > 6 else ''}"]
+            if unexpected
+            else []
+        )
         parts += [f"shape mismatch: {'; '.join(shapes[:4])}"] if shapes else []
-        raise ValueError(f"the checkpoint {source} does not match the model its config builds with this code "
-                         f"({'; '.join(parts)}); it was written by another version of disent")
+        raise ValueError(
+            f"the checkpoint {source} does not match the model its config builds with this code "
+            f"({'; '.join(parts)}); it was written by another version of disent"
+        )
     model.load_state_dict(state)
 
 
 def check_metrics(model, cfg, n: int = CHECK_IMAGES) -> dict:
     """The ``CHECK_KEYS`` metrics of ``model`` on the first ``n`` test images of its data set."""
-    from disent.eval.evaluate import evaluate_model
     from disent.data import make_dataset
+    from disent.eval.evaluate import evaluate_model
 
     test = make_dataset(cfg.data, "test", cfg.data.get("test_size"))
     m = evaluate_model(model, test, limit=n)
@@ -89,13 +105,25 @@ def ship(run_dir, name: str, folder: Path = WEIGHTS) -> dict:
     load_weights(model, half, path)
     metrics = json.loads(eval_path.read_text())
     entry = {
-        "file": path.name, "bytes": path.stat().st_size, "sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
-        "run": str(run_dir), "git": (run_dir / "git.txt").read_text() if (run_dir / "git.txt").exists() else None,
-        "steps": ckpt["step"], "train_seconds": ckpt["wall"], "images": ckpt["step"] * cfg.train.batch_size,
-        "machine": {"system": platform.platform(), "processor": platform.processor() or platform.machine(),
-                    "cpus": __import__("os").cpu_count(), "torch": torch.__version__, "device": cfg.device,
-                    "threads": cfg.train.threads},
-        "metrics": metrics, "check": check_metrics(model.eval(), cfg), "check_images": CHECK_IMAGES,
+        "file": path.name,
+        "bytes": path.stat().st_size,
+        "sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
+        "run": str(run_dir),
+        "git": (run_dir / "git.txt").read_text() if (run_dir / "git.txt").exists() else None,
+        "steps": ckpt["step"],
+        "train_seconds": ckpt["wall"],
+        "images": ckpt["step"] * cfg.train.batch_size,
+        "machine": {
+            "system": platform.platform(),
+            "processor": platform.processor() or platform.machine(),
+            "cpus": __import__("os").cpu_count(),
+            "torch": torch.__version__,
+            "device": cfg.device,
+            "threads": cfg.train.threads,
+        },
+        "metrics": metrics,
+        "check": check_metrics(model.eval(), cfg),
+        "check_images": CHECK_IMAGES,
         "cfg": ckpt["cfg"],
     }
     entries = manifest(folder)
@@ -111,7 +139,10 @@ def main(argv=None):
     a = p.parse_args(argv)
     torch.set_num_threads(1)
     e = ship(a.run, a.name)
-    print(f"shipped {a.name}: {e['bytes'] / 1e6:.1f} MB, {e['steps']} steps, check on {CHECK_IMAGES} test images {e['check']}")
+    print(
+        f"shipped {a.name}: {e['bytes'] / 1e6:.1f} MB, {e['steps']} steps, "
+        f"check on {CHECK_IMAGES} test images {e['check']}"
+    )
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@ A CelebA download is recognised by its layout::
 Without a partition file the split of a photo is fixed by a hash of its relative path and
 ``seed`` (80/10/10), so adding photos never moves the others.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -32,8 +33,12 @@ from disent.data.photos.pseudo_gt import IMAGE_SUFFIXES, PseudoGTSettings, forma
 log = logging.getLogger(__name__)
 
 # CelebA column -> (our attribute, sign): beard is "not No_Beard", senior is "not Young".
-CELEBA_COLUMNS = {"smiling": ("Smiling", 1), "beard": ("No_Beard", -1), "eyeglasses": ("Eyeglasses", 1),
-                  "senior": ("Young", -1)}
+CELEBA_COLUMNS = {
+    "smiling": ("Smiling", 1),
+    "beard": ("No_Beard", -1),
+    "eyeglasses": ("Eyeglasses", 1),
+    "senior": ("Young", -1),
+}
 SPLIT_FRACTIONS = {"train": 0.8, "val": 0.1, "test": 0.1}
 SPLIT_BY = ("hash", "all")  # all: train, val and test are each the whole folder (a handful of photos)
 PSEUDO_KEYS = ("normal_pseudo", "mask_pseudo", "uv_pseudo", "normal_uv_pseudo")
@@ -42,8 +47,13 @@ PSEUDO_KEYS = ("normal_pseudo", "mask_pseudo", "uv_pseudo", "normal_uv_pseudo")
 def list_images(root: Path) -> list[Path]:
     """Image files under ``root`` (``img_align_celeba/`` only, when that folder exists), sorted."""
     base = root / "img_align_celeba" if (root / "img_align_celeba").is_dir() else root
-    return sorted(p for p in base.rglob("*") if p.suffix.lower() in IMAGE_SUFFIXES and (p.is_file() or p.is_symlink())
-                  and not any(part.startswith(".") for part in p.relative_to(base).parts))
+    return sorted(
+        p
+        for p in base.rglob("*")
+        if p.suffix.lower() in IMAGE_SUFFIXES
+        and (p.is_file() or p.is_symlink())
+        and not any(part.startswith(".") for part in p.relative_to(base).parts)
+    )
 
 
 def read_celeba_attributes(path: Path) -> dict[str, dict[str, float]]:
@@ -81,9 +91,20 @@ class FolderFaces(Dataset):
     and (for tests) a ``detector`` replacing dlib.
     """
 
-    def __init__(self, root, split: str = "train", resolution: int = 64, seed: int = 0, size: int | None = None,
-                 cache_dir=None, workers: int = 0, progress: bool = True, detector=None, split_by: str = "hash",
-                 **pseudo_gt):
+    def __init__(
+        self,
+        root,
+        split: str = "train",
+        resolution: int = 64,
+        seed: int = 0,
+        size: int | None = None,
+        cache_dir=None,
+        workers: int = 0,
+        progress: bool = True,
+        detector=None,
+        split_by: str = "hash",
+        **pseudo_gt,
+    ):
         self.root = Path(root).expanduser()
         if not self.root.is_dir():
             raise FileNotFoundError(f"FolderFaces: {self.root} is not a folder")
@@ -96,13 +117,15 @@ class FolderFaces(Dataset):
         files = self._split_files(split)
         self.records, self.summary = self._prepare(files, size, cache_dir, workers, progress, detector)
         if split.startswith("pool_"):  # as SynthFaces' pools: even items positive, odd negative
-            attr = split[len("pool_"):]
+            attr = split[len("pool_") :]
             label = lambda r: self.attributes[Path(r.path).name][attr] > 0  # noqa: E731
             pos, neg = [r for r in self.records if label(r)], [r for r in self.records if not label(r)]
             self.records = [r for pair in zip(pos, neg) for r in pair][:size]
         if not self.records:
-            raise ValueError(f"FolderFaces: no usable face among {len(files)} images of split {split!r} "
-                             f"in {self.root}\n{format_summary(self.summary)}")
+            raise ValueError(
+                f"FolderFaces: no usable face among {len(files)} images of split {split!r} "
+                f"in {self.root}\n{format_summary(self.summary)}"
+            )
 
     # -- which files
     def _split_files(self, split: str) -> list[Path]:
@@ -125,21 +148,26 @@ class FolderFaces(Dataset):
         if split in SPLIT_FRACTIONS:
             return files if self.split_by == "all" else [p for p in files if split_of(p) == split]
         if split.startswith("pool_"):
-            attr = split[len("pool_"):]
+            attr = split[len("pool_") :]
             if attr not in ATTRIBUTES:
-                raise ValueError(f"FolderFaces: unknown attribute pool {split!r}; have "
-                                 f"{[f'pool_{a}' for a in ATTRIBUTES]}")
+                raise ValueError(
+                    f"FolderFaces: unknown attribute pool {split!r}; have {[f'pool_{a}' for a in ATTRIBUTES]}"
+                )
             if self.attributes is None:
-                raise ValueError(f"FolderFaces: split {split!r} needs attribute labels "
-                                 f"({self.root / 'list_attr_celeba.txt'} is missing)")
+                raise ValueError(
+                    f"FolderFaces: split {split!r} needs attribute labels "
+                    f"({self.root / 'list_attr_celeba.txt'} is missing)"
+                )
             test = [p for p in files if split_of(p) == "test"]
             pos = [p for p in test if self.attributes[p.name][attr] > 0]
             neg = [p for p in test if self.attributes[p.name][attr] == 0]
             rng = np.random.default_rng(self.seed)
             pos, neg = ([ps[i] for i in rng.permutation(len(ps))] for ps in (pos, neg))
             return [p for pair in zip(pos, neg) for p in pair]  # positive, negative, positive, ...
-        raise ValueError(f"FolderFaces: unknown split {split!r}; use train, val, test or pool_<attr> "
-                         f"(real photos have no light bank)")
+        raise ValueError(
+            f"FolderFaces: unknown split {split!r}; use train, val, test or pool_<attr> "
+            f"(real photos have no light bank)"
+        )
 
     def _prepare(self, files, size, cache_dir, workers, progress, detector):
         """Pseudo-GT for the split's files (only as many as ``size`` needs), keeping the used ones."""
@@ -147,8 +175,9 @@ class FolderFaces(Dataset):
         chunk = len(files) if size is None else max(2 * size, 64)
         all_recs = []
         while start < len(files) and (size is None or len(records) < size):
-            recs, _ = prepare(files[start:start + chunk], self.settings, cache_dir, workers, progress, detector,
-                              log_summary=False)
+            recs, _ = prepare(
+                files[start : start + chunk], self.settings, cache_dir, workers, progress, detector, log_summary=False
+            )
             all_recs += recs
             records += [r for r in recs if r.used]
             start += chunk
@@ -180,6 +209,14 @@ def build(cfg, split: str = "train", size: int | None = None) -> FolderFaces:
     """A :class:`FolderFaces` from a ``conf/data/folder.yaml`` node."""
     keys = {f.name for f in PseudoGTSettings.__dataclass_fields__.values()} - {"resolution"}
     extra = {k: cfg[k] for k in keys if k in cfg and cfg[k] is not None}
-    return FolderFaces(cfg["root"], split=split, resolution=cfg["resolution"], seed=cfg.get("seed", 0), size=size,
-                       cache_dir=cfg.get("cache_dir"), workers=cfg.get("workers", 0),
-                       split_by=cfg.get("split_by", "hash"), **extra)
+    return FolderFaces(
+        cfg["root"],
+        split=split,
+        resolution=cfg["resolution"],
+        seed=cfg.get("seed", 0),
+        size=size,
+        cache_dir=cfg.get("cache_dir"),
+        workers=cfg.get("workers", 0),
+        split_by=cfg.get("split_by", "hash"),
+        **extra,
+    )

@@ -18,6 +18,7 @@ One photo goes through five steps, each a function here:
 and caches each result (or the reason it was skipped) under the file's content hash, so a
 second pass only reads the cache and an interrupted pass keeps what it finished.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -159,9 +160,11 @@ def default_predictor_path() -> str:
     for c in candidates:
         if c.is_file():
             return str(c)
-    raise FileNotFoundError("no 68-point shape predictor found; install the extra with "
-                            "`pip install -e \".[photos]\"` or set data.predictor=PATH "
-                            f"(looked in {[str(c) for c in candidates]})")
+    raise FileNotFoundError(
+        "no 68-point shape predictor found; install the extra with "
+        '`pip install -e ".[photos]"` or set data.predictor=PATH '
+        f"(looked in {[str(c) for c in candidates]})"
+    )
 
 
 def _file_identity(path: str) -> str:
@@ -225,9 +228,17 @@ class LandmarkDetector:
         pts = np.array([(p.x, p.y) for p in shape.parts()], dtype=np.float64)
         sx, sy = np.broadcast_to(scale, 2)
         to_rgb = lambda x, y: ((x + 0.5) / sx - 0.5, (y + 0.5) / sy - 0.5)  # noqa: E731  pixel centres at integers
-        faces = [{"score": round(float(scores[i]), 3), "upsample": upsample,
-                  "box": [round(float(v), 1) for v in (*to_rgb(rects[i].left(), rects[i].top()),
-                                                       *to_rgb(rects[i].right(), rects[i].bottom()))]} for i in order]
+        faces = [
+            {
+                "score": round(float(scores[i]), 3),
+                "upsample": upsample,
+                "box": [
+                    round(float(v), 1)
+                    for v in (*to_rgb(rects[i].left(), rects[i].top()), *to_rgb(rects[i].right(), rects[i].bottom()))
+                ],
+            }
+            for i in order
+        ]
         return (pts + 0.5) / scale - 0.5, faces
 
 
@@ -286,9 +297,9 @@ class FaceModelFitter:
     ``R`` is :func:`disent.data.synth.raster.pose_matrix` of the angles (SynthFaces' ``pose``), and a
     model point ``X`` lands at crop pixel ``(col, row) = (s (R X)_x + tx, -s (R X)_y + ty)``
     (pixel centres at integers, row 0 at the top, as dlib and scikit-image count), so
-    camera-frame normals keep the suite's convention (+x right, +y up, +z towards the camera).  Scaled orthography is the usual
-    camera of landmark fitting: at the distances of portraits, perspective changes landmark
-    positions by less than dlib's own noise.
+    camera-frame normals keep the suite's convention (+x right, +y up, +z towards the camera).
+    Scaled orthography is the usual camera of landmark fitting: at the distances of portraits,
+    perspective changes landmark positions by less than dlib's own noise.
     """
 
     n_pose = 6
@@ -300,11 +311,12 @@ class FaceModelFitter:
         self.model, self.n_identity, self.n_expression = m, n_identity, len(EXPRESSIONS)
         idx = m.landmarks.numpy()
         self.lm_mean = m.mean.double().numpy()[idx]  # [68, 3]
-        self.lm_basis = np.concatenate([m.identity[:n_identity].double().numpy()[:, idx],
-                                        m.expression.double().numpy()[:, idx]])  # [K+2, 68, 3]
+        self.lm_basis = np.concatenate(
+            [m.identity[:n_identity].double().numpy()[:, idx], m.expression.double().numpy()[:, idx]]
+        )  # [K+2, 68, 3]
 
     def landmarks3d(self, p: np.ndarray) -> np.ndarray:
-        return self.lm_mean + np.tensordot(p[self.n_pose:], self.lm_basis, 1)
+        return self.lm_mean + np.tensordot(p[self.n_pose :], self.lm_basis, 1)
 
     @staticmethod
     def rotation(p: np.ndarray) -> np.ndarray:
@@ -326,7 +338,7 @@ class FaceModelFitter:
         lo = np.full(self.n_pose + self.n_identity + self.n_expression, -np.inf)
         hi = -lo
         lo[:3], hi[:3] = -np.pi / 2, np.pi / 2  # a face seen from the front half-space
-        lo[-self.n_expression:], hi[-self.n_expression:] = 0.0, 1.0  # smile, open strengths
+        lo[-self.n_expression :], hi[-self.n_expression :] = 0.0, 1.0  # smile, open strengths
         return lo, hi
 
     @staticmethod
@@ -334,8 +346,11 @@ class FaceModelFitter:
         """Pose (degrees), scale and shift of :func:`disent.data.synth.raster.to_camera` for ``p``:
         crop pixels -> normalised units x = (2 col + 1)/R - 1, y = 1 - (2 row + 1)/R."""
         R = resolution
-        return {"pose": np.degrees(p[:3]), "scale": 2 * np.exp(p[3]) / R,
-                "shift": np.array([(2 * p[4] + 1) / R - 1, 1 - (2 * p[5] + 1) / R])}
+        return {
+            "pose": np.degrees(p[:3]),
+            "scale": 2 * np.exp(p[3]) / R,
+            "shift": np.array([(2 * p[4] + 1) / R - 1, 1 - (2 * p[5] + 1) / R]),
+        }
 
     @staticmethod
     def raster_to_pixels(xy: np.ndarray, resolution: int) -> np.ndarray:
@@ -379,8 +394,13 @@ class FaceModelFitter:
 
         K, cam = self.n_identity, self.to_raster(p, resolution)
         t = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float32))[None]  # noqa: E731
-        scene = {"pseudo_alpha": t(p[6:6 + K]), "pseudo_expression": t(p[6 + K:]), "pseudo_pose": t(cam["pose"]),
-                 "pseudo_scale": t(cam["scale"]), "pseudo_shift": t(cam["shift"])}
+        scene = {
+            "pseudo_alpha": t(p[6 : 6 + K]),
+            "pseudo_expression": t(p[6 + K :]),
+            "pseudo_pose": t(cam["pose"]),
+            "pseudo_scale": t(cam["scale"]),
+            "pseudo_shift": t(cam["shift"]),
+        }
         try:
             out = render_pseudo(t(image), scene, resolution)
         except ValueError as e:  # fit_sh: too few pixels or non-finite values
@@ -421,19 +441,29 @@ def fit_landmarks(landmarks: np.ndarray, resolution: int, settings: PseudoGTSett
     w = np.ones(68)
     w[CONTOUR] = settings.contour_weight
     sw = np.sqrt(w)[:, None] / sigma
-    reg = np.sqrt(np.concatenate([np.full(model.n_identity, settings.lambda_identity),
-                                  np.full(model.n_expression, settings.lambda_expression)]))
+    reg = np.sqrt(
+        np.concatenate(
+            [
+                np.full(model.n_identity, settings.lambda_identity),
+                np.full(model.n_expression, settings.lambda_expression),
+            ]
+        )
+    )
 
     def residuals(p):
-        return np.concatenate([((model.project_landmarks(p, resolution) - lm) * sw).ravel(), reg * p[model.n_pose:]])
+        return np.concatenate([((model.project_landmarks(p, resolution) - lm) * sw).ravel(), reg * p[model.n_pose :]])
 
     p0 = model.initial_params(lm, resolution)
     sol = least_squares(residuals, p0, bounds=model.bounds(), method="trf", x_scale="jac", max_nfev=settings.max_nfev)
     fitted = model.project_landmarks(sol.x, resolution)
     if not np.all(np.isfinite(fitted)):
         raise Skip("fit failed", "non-finite landmark projection")
-    return {"params": sol.x, "landmarks": fitted,
-            "residual_px": float(np.sqrt(((fitted - lm) ** 2).sum(1).mean())), "nfev": sol.nfev}
+    return {
+        "params": sol.x,
+        "landmarks": fitted,
+        "residual_px": float(np.sqrt(((fitted - lm) ** 2).sum(1).mean())),
+        "nfev": sol.nfev,
+    }
 
 
 # ----------------------------------------------------------------------------- 5. rendering
@@ -467,8 +497,10 @@ def face_notes(found, settings: PseudoGTSettings) -> list[str]:
     notes = []
     if len(faces) > 1:
         scores = ", ".join(f"{f['score']:.2f}" for f in faces if "score" in f)
-        notes.append(f"{len(faces)} faces{f' (detection scores {scores}, largest first)' if scores else ''}: "
-                     f"kept {'the largest' if settings.face == 0 else f'face {settings.face} by size'}")
+        notes.append(
+            f"{len(faces)} faces{f' (detection scores {scores}, largest first)' if scores else ''}: "
+            f"kept {'the largest' if settings.face == 0 else f'face {settings.face} by size'}"
+        )
     if faces and faces[0].get("upsample", settings.upsample) != settings.upsample:
         notes.append(f"face found at detector upsampling {faces[0]['upsample']}")
     return notes
@@ -543,7 +575,9 @@ def _init_worker():
     threading.Thread(target=watch, daemon=True).start()
 
 
-def aligned_crop(path, settings: PseudoGTSettings | None = None, align_face: bool = True) -> tuple[np.ndarray, list[str]]:
+def aligned_crop(
+    path, settings: PseudoGTSettings | None = None, align_face: bool = True
+) -> tuple[np.ndarray, list[str]]:
     """Steps 1-3 for one image file: ``(crop uint8 [R,R,3], notes)``, framed as in training (landmark
     alignment), or a centre square crop with ``align_face=False``.  Raises :class:`Skip` for a file that
     cannot be used (unreadable, not an image, no face...), naming the reason."""
@@ -563,7 +597,7 @@ def aligned_crop(path, settings: PseudoGTSettings | None = None, align_face: boo
 
     h, w = rgb.shape[:2]
     s = min(h, w)
-    square = rgb[(h - s) // 2:(h - s) // 2 + s, (w - s) // 2:(w - s) // 2 + s]
+    square = rgb[(h - s) // 2 : (h - s) // 2 + s, (w - s) // 2 : (w - s) // 2 + s]
     return np.asarray(Image.fromarray(square).resize((R, R), Image.LANCZOS)), notes + ["centre crop"]
 
 
@@ -576,7 +610,9 @@ def process_file(path: str, cache_root: str, settings: PseudoGTSettings, detecto
         return Record(path, False, "unreadable", f"{type(e).__name__}: {e.strerror or e}", face=settings.face)
     digest = hashlib.sha256(data).hexdigest()
     out = Path(cache_root) / digest[:2] / f"{digest}.npz"
-    rec = Record(path, False, digest=digest, cache=str(out), size=st.st_size, mtime_ns=st.st_mtime_ns, face=settings.face)
+    rec = Record(
+        path, False, digest=digest, cache=str(out), size=st.st_size, mtime_ns=st.st_mtime_ns, face=settings.face
+    )
     if out.is_file():
         return _record_from_cache(rec)
     try:
@@ -626,12 +662,21 @@ def format_summary(s: dict) -> str:
     lines += [f"  skipped, {k}: {v}" for k, v in s["skip_reasons"].items()]
     lines += [f"  converted, {k}: {v}" for k, v in s["conversions"].items()]
     if s["used"]:
-        lines.append(f"  landmark fit residual (median RMS): {s['fit_residual_px_median']:.2f} px at the crop resolution")
+        lines.append(
+            f"  landmark fit residual (median RMS): {s['fit_residual_px_median']:.2f} px at the crop resolution"
+        )
     return "\n".join(lines)
 
 
-def prepare(paths, settings: PseudoGTSettings | None = None, cache_dir=None, workers: int = 0,
-            progress: bool = True, detector=None, log_summary: bool = True) -> tuple[list[Record], dict]:
+def prepare(
+    paths,
+    settings: PseudoGTSettings | None = None,
+    cache_dir=None,
+    workers: int = 0,
+    progress: bool = True,
+    detector=None,
+    log_summary: bool = True,
+) -> tuple[list[Record], dict]:
     """Pseudo ground truth for every path, cached; returns the records (in input order) and a summary.
 
     The manifest ``<cache>/<settings key>/manifest.jsonl`` maps (path, size, mtime) to the content
@@ -664,9 +709,16 @@ def prepare(paths, settings: PseudoGTSettings | None = None, cache_dir=None, wor
             records[i] = rec
         else:
             todo.append(i)
-    bar = tqdm(total=len(paths), initial=len(paths) - len(todo), desc="pseudo-GT", unit="img",
-               disable=not progress, dynamic_ncols=True)
+    bar = tqdm(
+        total=len(paths),
+        initial=len(paths) - len(todo),
+        desc="pseudo-GT",
+        unit="img",
+        disable=not progress,
+        dynamic_ncols=True,
+    )
     with open(manifest, "a") as mf:
+
         def done(i, rec):
             records[i] = rec
             if rec.digest:  # unreadable files are not cached: they may be readable next time

@@ -8,6 +8,7 @@ images are non-faces and measure false detections).  Writes ``pseudo_gt.json`` (
 success rate, fit residual in pixels) and ``pseudo_gt.png`` (pseudo normals and mask over each
 photo).  Trained models on the same crops: :mod:`disent.eval.photos`.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -34,7 +35,9 @@ def bundled_photos(folder: Path) -> dict[str, list[Path]]:
     if not out["astronaut"][0].exists():
         Image.fromarray(data.astronaut()).save(out["astronaut"][0])
     if not out["grace_hopper"][0].exists():
-        out["grace_hopper"][0].write_bytes(Path(cbook.get_sample_data("grace_hopper.jpg", asfileobj=False)).read_bytes())
+        out["grace_hopper"][0].write_bytes(
+            Path(cbook.get_sample_data("grace_hopper.jpg", asfileobj=False)).read_bytes()
+        )
     lfw = data.lfw_subset()  # [200, 25, 25] float in [0, 1]
     for name, sl in (("lfw_faces", slice(0, N_LFW_FACES)), ("lfw_nonfaces", slice(N_LFW_FACES, None))):
         out[name] = []
@@ -54,7 +57,9 @@ def statistics(records_by_source: dict) -> dict:
         res = np.array([r.residual_px for r in used])
         res_photo = np.array([r.residual_photo_px for r in used])
         out[src] = {
-            "images": len(recs), "used": len(used), "success_rate": len(used) / max(1, len(recs)),
+            "images": len(recs),
+            "used": len(used),
+            "success_rate": len(used) / max(1, len(recs)),
             "skip_reasons": pg.summarize(recs)["skip_reasons"],
             "residual_px_median": float(np.median(res)) if len(res) else None,
             "residual_px_mean": float(res.mean()) if len(res) else None,
@@ -63,8 +68,13 @@ def statistics(records_by_source: dict) -> dict:
     return out
 
 
-GROUPS = {"jaw": slice(0, 17), "brows": slice(17, 27), "nose": slice(27, 36), "eyes": slice(36, 48),
-          "mouth": slice(48, 68)}
+GROUPS = {
+    "jaw": slice(0, 17),
+    "brows": slice(17, 27),
+    "nose": slice(27, 36),
+    "eyes": slice(36, 48),
+    "mouth": slice(48, 68),
+}
 
 
 def fitted_pose(records: list) -> dict:
@@ -72,9 +82,12 @@ def fitted_pose(records: list) -> dict:
     if not records:
         return {}
     pose = np.degrees(np.stack([pg.load_cached(r)["params"][:2] for r in records]))
-    return {"yaw_median": float(np.median(pose[:, 0])), "pitch_median": float(np.median(pose[:, 1])),
-            "yaw_iqr": float(np.subtract(*np.percentile(pose[:, 0], [75, 25]))),
-            "pitch_iqr": float(np.subtract(*np.percentile(pose[:, 1], [75, 25])))}
+    return {
+        "yaw_median": float(np.median(pose[:, 0])),
+        "pitch_median": float(np.median(pose[:, 1])),
+        "yaw_iqr": float(np.subtract(*np.percentile(pose[:, 0], [75, 25]))),
+        "pitch_iqr": float(np.subtract(*np.percentile(pose[:, 1], [75, 25]))),
+    }
 
 
 def synth_landmark_check(settings: pg.PseudoGTSettings, n: int = 64) -> dict:
@@ -105,8 +118,12 @@ def synth_landmark_check(settings: pg.PseudoGTSettings, n: int = 64) -> dict:
         d, dp = np.array(dist), np.array(dpose)
         out["landmark_distance_px"] = {g: float(d[:, sl].mean()) for g, sl in GROUPS.items()}
         out["landmark_distance_px"]["all"] = float(d.mean())
-        out["pose_error_deg"] = {"yaw_mean": float(dp[:, 0].mean()), "pitch_mean": float(dp[:, 1].mean()),
-                                 "yaw_std": float(dp[:, 0].std()), "pitch_std": float(dp[:, 1].std())}
+        out["pose_error_deg"] = {
+            "yaw_mean": float(dp[:, 0].mean()),
+            "pitch_mean": float(dp[:, 1].mean()),
+            "yaw_std": float(dp[:, 0].std()),
+            "pitch_std": float(dp[:, 1].std()),
+        }
     return out
 
 
@@ -131,8 +148,13 @@ def overlay_figure(records: list, path: Path, resolution: int, cols: int = 8):
         img = z["image"].astype(np.float32) / 255
         mask = z["mask_pseudo"][0].astype(np.float32)
         normal = z["normal_pseudo"].astype(np.float32).transpose(1, 2, 0)
-        shade = sh_shading(torch.from_numpy(z["normal_pseudo"].astype(np.float32))[None],
-                           torch.from_numpy(z["sh_pseudo"])[None])[0].numpy().transpose(1, 2, 0)
+        shade = (
+            sh_shading(
+                torch.from_numpy(z["normal_pseudo"].astype(np.float32))[None], torch.from_numpy(z["sh_pseudo"])[None]
+            )[0]
+            .numpy()
+            .transpose(1, 2, 0)
+        )
         r, c = 3 * (k // cols), k % cols
         a = axes[r, c]
         a.imshow(img)
@@ -143,8 +165,11 @@ def overlay_figure(records: list, path: Path, resolution: int, cols: int = 8):
         axes[r + 1, c].imshow(np.clip(blend, 0, 1))
         axes[r + 1, c].contour(mask, [0.5], colors="yellow", linewidths=0.6)
         axes[r + 2, c].imshow(np.clip(shade * mask[..., None] + img * (1 - mask[..., None]), 0, 1))
-    fig.suptitle("pseudo ground truth on bundled photos: landmarks (dlib green, fit red) / "
-                 f"normal_pseudo + mask_pseudo / L-hat shading ({resolution}px crops)", fontsize=8)
+    fig.suptitle(
+        "pseudo ground truth on bundled photos: landmarks (dlib green, fit red) / "
+        f"normal_pseudo + mask_pseudo / L-hat shading ({resolution}px crops)",
+        fontsize=8,
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=150)
     plt.close(fig)
@@ -153,28 +178,39 @@ def overlay_figure(records: list, path: Path, resolution: int, cols: int = 8):
 def markdown(stats: dict) -> str:
     """The report table of :func:`statistics` plus the SynthFaces landmark check."""
     f = lambda x, d=2: "-" if x is None else f"{x:.{d}f}"  # noqa: E731
-    lines = ["| photos | images | landmarks found | fit residual, crop px (median) | photo px (median) | "
-             "fitted yaw / pitch, deg (median) |", "| --- | ---: | ---: | ---: | ---: | ---: |"]
+    lines = [
+        "| photos | images | landmarks found | fit residual, crop px (median) | photo px (median) | "
+        "fitted yaw / pitch, deg (median) |",
+        "| --- | ---: | ---: | ---: | ---: | ---: |",
+    ]
     for src in ("astronaut", "grace_hopper", "lfw_faces", "lfw_nonfaces"):
         s, pose = stats[src], stats[src].get("fitted_pose_deg") or {}
-        lines.append(f"| {src} | {s['images']} | {s['used']} ({100 * s['success_rate']:.0f}%) | "
-                     f"{f(s['residual_px_median'])} | {f(s['residual_photo_px_median'])} | "
-                     f"{f(pose.get('yaw_median'), 1)} / {f(pose.get('pitch_median'), 1)} |")
+        lines.append(
+            f"| {src} | {s['images']} | {s['used']} ({100 * s['success_rate']:.0f}%) | "
+            f"{f(s['residual_px_median'])} | {f(s['residual_photo_px_median'])} | "
+            f"{f(pose.get('yaw_median'), 1)} / {f(pose.get('pitch_median'), 1)} |"
+        )
     c = stats["synthfaces_dlib_check"]
-    lines += ["", f"dlib on {c['images']} SynthFaces test renders ({stats['settings']['resolution']} px): "
-              f"{c['detected']} found ({100 * c['detection_rate']:.0f}%)."]
+    lines += [
+        "",
+        f"dlib on {c['images']} SynthFaces test renders ({stats['settings']['resolution']} px): "
+        f"{c['detected']} found ({100 * c['detection_rate']:.0f}%).",
+    ]
     if c["detected"]:
         d, e = c["landmark_distance_px"], c["pose_error_deg"]
-        lines.append("Distance of dlib's landmarks to the face model's landmark vertices (crop px): "
-                     + ", ".join(f"{k} {v:.1f}" for k, v in d.items())
-                     + f". Fits from dlib's landmarks vs from the exact ones: yaw {e['yaw_mean']:+.1f} ± "
-                     f"{e['yaw_std']:.1f}, pitch {e['pitch_mean']:+.1f} ± {e['pitch_std']:.1f} deg.")
+        lines.append(
+            "Distance of dlib's landmarks to the face model's landmark vertices (crop px): "
+            + ", ".join(f"{k} {v:.1f}" for k, v in d.items())
+            + f". Fits from dlib's landmarks vs from the exact ones: yaw {e['yaw_mean']:+.1f} ± "
+            f"{e['yaw_std']:.1f}, pitch {e['pitch_mean']:+.1f} ± {e['pitch_std']:.1f} deg."
+        )
     return "\n".join(lines) + "\n"
 
 
 def run_study(out, resolution: int = 64, workers: int = 2, cache_dir=None) -> list:
     """Pseudo ground truth of the bundled photos: ``pseudo_gt.json``, ``pseudo_gt.md`` and ``pseudo_gt.png`` in
-    ``out`` (a tool folder: :func:`disent.runs.tool_folder`); returns the records of the photos it could use (for :mod:`disent.eval.photos`)."""
+    ``out`` (a tool folder: :func:`disent.runs.tool_folder`); returns the records of the photos it could use
+    (for :mod:`disent.eval.photos`)."""
     settings = pg.PseudoGTSettings(resolution=resolution)
     cache = Path(cache_dir) if cache_dir else pg.default_cache_dir()
     photos = bundled_photos(cache / "bundled_photos")
@@ -182,7 +218,7 @@ def run_study(out, resolution: int = 64, workers: int = 2, cache_dir=None) -> li
     records, summary = pg.prepare(paths, settings, cache, workers=workers)
     by_src, i = {}, 0
     for src, ps in photos.items():
-        by_src[src] = records[i:i + len(ps)]
+        by_src[src] = records[i : i + len(ps)]
         i += len(ps)
     stats = statistics(by_src)
     for src in photos:
@@ -195,9 +231,11 @@ def run_study(out, resolution: int = 64, workers: int = 2, cache_dir=None) -> li
     overlay_figure(shown, out / "pseudo_gt.png", resolution)
     for src in photos:
         s = stats[src]
-        print(f"{src:14s} {s['used']:3d}/{s['images']:3d} used ({100 * s['success_rate']:.0f}%)  "
-              f"fit residual median {s['residual_px_median'] or float('nan'):.2f} px (crop), "
-              f"{s['residual_photo_px_median'] or float('nan'):.2f} px (photo)  skipped: {s['skip_reasons']}")
+        print(
+            f"{src:14s} {s['used']:3d}/{s['images']:3d} used ({100 * s['success_rate']:.0f}%)  "
+            f"fit residual median {s['residual_px_median'] or float('nan'):.2f} px (crop), "
+            f"{s['residual_photo_px_median'] or float('nan'):.2f} px (photo)  skipped: {s['skip_reasons']}"
+        )
     print("fitted pose on LFW (deg):", json.dumps(stats["lfw_faces"]["fitted_pose_deg"]))
     print("dlib on SynthFaces renders:", json.dumps(stats["synthfaces_dlib_check"]))
     print(markdown(stats))

@@ -19,6 +19,7 @@ An item is a pure function of (seed, split, index); DataLoader batches are rende
 together through ``__getitems__``, and sequential ``__getitem__`` is served from a small
 cache of rendered chunks.
 """
+
 from __future__ import annotations
 
 from collections import OrderedDict
@@ -27,10 +28,10 @@ import torch
 from torch.utils.data import Dataset
 
 from disent.runtime import single_thread
-from .scenes import (ATTR_PRIOR, ATTRIBUTES, EFFECTS, LIGHT_BANK, LIGHT_NAMES, render_scenes, scene_params)
 
-SPLITS = {"train": 20_000, "val": 1_000, "test": 1_000, "lightbank": None,
-          **{f"pool_{a}": 4_000 for a in ATTRIBUTES}}
+from .scenes import ATTR_PRIOR, ATTRIBUTES, EFFECTS, LIGHT_BANK, LIGHT_NAMES, render_scenes, scene_params
+
+SPLITS = {"train": 20_000, "val": 1_000, "test": 1_000, "lightbank": None, **{f"pool_{a}": 4_000 for a in ATTRIBUTES}}
 LIGHTBANK_IDENTITIES = 50
 LIGHTBANK_POSES = ((-30.0, 0.0, 0.0), (0.0, 0.0, 0.0), (30.0, 0.0, 0.0))
 IMAGES_PER_IDENTITY = {"train": 4, "val": 2, "test": 2}
@@ -53,8 +54,15 @@ class SynthFaces(Dataset):
         cache_chunks: rendered chunks of ``CHUNK`` items kept for ``__getitem__``.
     """
 
-    def __init__(self, split: str = "train", resolution: int = 64, seed: int = 0, size: int | None = None,
-                 effects: dict | None = None, cache_chunks: int = 4):
+    def __init__(
+        self,
+        split: str = "train",
+        resolution: int = 64,
+        seed: int = 0,
+        size: int | None = None,
+        effects: dict | None = None,
+        cache_chunks: int = 4,
+    ):
         if split not in SPLITS:
             raise ValueError(f"unknown split {split!r}; choose from {', '.join(SPLITS)}")
         if resolution not in RESOLUTIONS:
@@ -114,6 +122,7 @@ class SynthFaces(Dataset):
     @staticmethod
     def _set_light(p: dict, light_id: torch.Tensor) -> None:
         from .scenes import _BANK_SH
+
         p["sh"] = _BANK_SH[light_id]
         p["light_id"] = light_id.long()
 
@@ -158,8 +167,10 @@ class SynthFaces(Dataset):
         return [_unbatch(batch, k) for k in range(len(indices))]
 
     def __repr__(self) -> str:
-        return (f"SynthFaces(split={self.split!r}, resolution={self.resolution}, seed={self.seed}, "
-                f"size={self.size}, effects={self.effects or None})")
+        return (
+            f"SynthFaces(split={self.split!r}, resolution={self.resolution}, seed={self.seed}, "
+            f"size={self.size}, effects={self.effects or None})"
+        )
 
 
 def _override(p: dict, **overrides) -> dict:
@@ -193,7 +204,9 @@ def _override(p: dict, **overrides) -> dict:
                 p["expression"] = torch.stack([v, torch.where(v >= 0.5, 0.7 * v, torch.zeros_like(v))], 1)
                 p["pseudo_expression"] = (p["expression"] + fit_error).clamp(0, 1)
         else:
-            raise ValueError(f"cannot override {k!r}; choose from sh, light, pose, scale, shift, {', '.join(ATTRIBUTES)}")
+            raise ValueError(
+                f"cannot override {k!r}; choose from sh, light, pose, scale, shift, {', '.join(ATTRIBUTES)}"
+            )
     return p
 
 

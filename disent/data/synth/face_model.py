@@ -31,10 +31,10 @@ components (17 semantic, 23 smooth random fields) give more shape variation than
 64-pixel face can show; the coarse fit behind the pseudo ground truth uses only the
 first few.
 """
+
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -78,6 +78,7 @@ def _unwarp(w: float, a: float) -> float:
 @dataclass(frozen=True)
 class Layout:
     """Where the grid lies on the head: per-vertex angles and UV."""
+
     theta: torch.Tensor  # [V]
     phi: torch.Tensor  # [V]
     uv: torch.Tensor  # [V, 2]
@@ -144,12 +145,23 @@ def _smoothstep(e0: float, e1: float, x: torch.Tensor) -> torch.Tensor:
 
 # Mean-shape parameters; each identity component is the linearised effect of one of them.
 SHAPE_PARAMS = {  # name: (mean, std)
-    "width": (0.78, 0.035), "height": (1.02, 0.035), "depth": (0.90, 0.04),
-    "jaw": (0.20, 0.06), "nose_height": (0.20, 0.04), "nose_width": (1.0, 0.15),
-    "nose_length": (0.0, 0.03), "muzzle": (0.06, 0.02), "chin": (0.05, 0.025),
-    "cheekbone": (0.04, 0.02), "eye_socket": (0.07, 0.02), "brow_ridge": (0.035, 0.015),
-    "lips": (0.035, 0.012), "bridge": (0.03, 0.015), "chin_length": (0.0, 0.03),
-    "forehead": (0.0, 0.03), "eye_sep": (0.0, 0.02),
+    "width": (0.78, 0.035),
+    "height": (1.02, 0.035),
+    "depth": (0.90, 0.04),
+    "jaw": (0.20, 0.06),
+    "nose_height": (0.20, 0.04),
+    "nose_width": (1.0, 0.15),
+    "nose_length": (0.0, 0.03),
+    "muzzle": (0.06, 0.02),
+    "chin": (0.05, 0.025),
+    "cheekbone": (0.04, 0.02),
+    "eye_socket": (0.07, 0.02),
+    "brow_ridge": (0.035, 0.015),
+    "lips": (0.035, 0.012),
+    "bridge": (0.03, 0.015),
+    "chin_length": (0.0, 0.03),
+    "forehead": (0.0, 0.03),
+    "eye_sep": (0.0, 0.02),
 }
 
 
@@ -180,7 +192,9 @@ def _surface(theta, phi, slit, p: dict) -> torch.Tensor:
     h = h - 0.02 * _g(ax - 0.62, 0.08) * _g(Y - 0.28, 0.1)  # temples
     h = h + p["forehead"] * _smoothstep(0.2, 0.7, Y)
     h = h * front
-    hair = _smoothstep(HAIRLINE_Y - 0.1, HAIRLINE_Y + 0.1, Y + 0.35 * _smoothstep(0.5, 0.0, Z)) * _smoothstep(-0.3, 0.0, Y)
+    hair = _smoothstep(HAIRLINE_Y - 0.1, HAIRLINE_Y + 0.1, Y + 0.35 * _smoothstep(0.5, 0.0, Z)) * _smoothstep(
+        -0.3, 0.0, Y
+    )
     h = h + 0.05 * hair
     # Ellipsoid, narrowed towards the jaw and flattened at the front of the face.
     taper = 1 - p["jaw"] * _smoothstep(-0.2, -0.95, Y) * front
@@ -229,13 +243,20 @@ class FaceModel:
         """Vertices ``[B, V, 3]`` from identity ``alpha [B, K']`` (K' <= K) and expression ``beta [B, 2]``."""
         return self.shape_planes(alpha, beta, senior).transpose(1, 2).contiguous()
 
-    def shape_planes(self, alpha: torch.Tensor, beta: torch.Tensor, senior: torch.Tensor | None = None,
-                     vertices: torch.Tensor | None = None) -> torch.Tensor:
+    def shape_planes(
+        self,
+        alpha: torch.Tensor,
+        beta: torch.Tensor,
+        senior: torch.Tensor | None = None,
+        vertices: torch.Tensor | None = None,
+    ) -> torch.Tensor:
         """:meth:`shape` as coordinate planes ``[B, 3, V]`` (x, y, z rows: the layout the renderer
         reads), optionally of the ``vertices`` subset only."""
         K = alpha.shape[1]
         if K > self.identity.shape[0] or beta.shape[1] != len(EXPRESSIONS):
-            raise ValueError(f"alpha [B,<= {self.identity.shape[0]}], beta [B,2]; got {tuple(alpha.shape)}, {tuple(beta.shape)}")
+            raise ValueError(
+                f"alpha [B,<= {self.identity.shape[0]}], beta [B,2]; got {tuple(alpha.shape)}, {tuple(beta.shape)}"
+            )
         mean, basis = self._planar_basis(K, senior is not None, vertices)
         coef = torch.cat([alpha, beta] + ([senior[:, None]] if senior is not None else []), 1).double()
         # In float64, one row at a time in effect: a face's vertices do not depend on which
@@ -250,8 +271,12 @@ class FaceModel:
             basis, mean = torch.cat(comps), self.mean
             if vertices is not None:
                 basis, mean = basis[:, vertices], mean[vertices]
-            self._cache[key] = (mean.t().reshape(-1).double(), basis.transpose(1, 2).reshape(basis.shape[0], -1).double())
+            self._cache[key] = (
+                mean.t().reshape(-1).double(),
+                basis.transpose(1, 2).reshape(basis.shape[0], -1).double(),
+            )
         return self._cache[key]
+
 
 def _expressions(lay: Layout, mean: torch.Tensor) -> torch.Tensor:
     X, Y, Z = _front(lay.theta, lay.phi)
@@ -265,7 +290,7 @@ def _expressions(lay: Layout, mean: torch.Tensor) -> torch.Tensor:
     opn[:, 1] = -0.16 * w
     opn[:, 2] = -0.05 * w
     slit = lay.slit_frac >= 0
-    lower_edge = (rows == lay.slit_row + SLIT_ROWS - 1)
+    lower_edge = rows == lay.slit_row + SLIT_ROWS - 1
     f = lay.slit_frac.clamp_min(0)
     wl = torch.exp(-0.5 * (X / 0.13) ** 2) * _smoothstep(MOUTH_W + 0.02, MOUTH_W - 0.06, X.abs())
     opn[lower_edge] = 0
@@ -291,8 +316,17 @@ def _expressions(lay: Layout, mean: torch.Tensor) -> torch.Tensor:
 # (real faces: jaw ends near +-1.1, chin near 1.7).  0 sits at the eye line on the face's
 # outline, 3-4 at the nose base and mouth corners, 8 the chin; the other half mirrors it.
 # Placed on the mean face by :func:`_jaw_targets`.
-JAW_IBUG = [(-1.11, -0.03), (-1.10, 0.28), (-1.06, 0.58), (-0.99, 0.87), (-0.87, 1.14), (-0.68, 1.37),
-            (-0.45, 1.55), (-0.18, 1.69), (0.0, 1.71)]
+JAW_IBUG = [
+    (-1.11, -0.03),
+    (-1.10, 0.28),
+    (-1.06, 0.58),
+    (-0.99, 0.87),
+    (-0.87, 1.14),
+    (-0.68, 1.37),
+    (-0.45, 1.55),
+    (-0.18, 1.69),
+    (0.0, 1.71),
+]
 
 
 def _jaw_targets() -> list[tuple[float, float]]:
@@ -325,11 +359,31 @@ def _landmark_targets() -> list[tuple[str, float, float]]:
         ring = [(c + dx * EYE_W, EYE_Y + dy * EYE_H) for dx, dy in ring]
         pts += [("front", x, y) for x, y in ring]
     W, M = MOUTH_W, MOUTH_Y
-    outer = [(-W, 0), (-0.65 * W, 0.06), (-0.35 * W, 0.065), (0, 0.06), (0.35 * W, 0.065), (0.65 * W, 0.06),
-             (W, 0), (0.65 * W, -0.06), (0.3 * W, -0.08), (0, -0.085), (-0.3 * W, -0.08), (-0.65 * W, -0.06)]
+    outer = [
+        (-W, 0),
+        (-0.65 * W, 0.06),
+        (-0.35 * W, 0.065),
+        (0, 0.06),
+        (0.35 * W, 0.065),
+        (0.65 * W, 0.06),
+        (W, 0),
+        (0.65 * W, -0.06),
+        (0.3 * W, -0.08),
+        (0, -0.085),
+        (-0.3 * W, -0.08),
+        (-0.65 * W, -0.06),
+    ]
     pts += [("upper" if dy == 0 else "front", x, M + dy) for x, dy in outer]
-    inner = [("upper", -0.7 * W), ("upper", -0.35 * W), ("upper", 0.0), ("upper", 0.35 * W), ("upper", 0.7 * W),
-             ("lower", 0.35 * W), ("lower", 0.0), ("lower", -0.35 * W)]
+    inner = [
+        ("upper", -0.7 * W),
+        ("upper", -0.35 * W),
+        ("upper", 0.0),
+        ("upper", 0.35 * W),
+        ("upper", 0.7 * W),
+        ("lower", 0.35 * W),
+        ("lower", 0.0),
+        ("lower", -0.35 * W),
+    ]
     pts += [(k, x, M) for k, x in inner]
     return pts
 
@@ -360,11 +414,11 @@ def face_model() -> FaceModel:
     P = len(names)
     table = torch.tensor([m for m, _ in SHAPE_PARAMS.values()], dtype=torch.float64).repeat(2 * P + 1, 1)
     std = torch.tensor([s for _, s in SHAPE_PARAMS.values()], dtype=torch.float64)
-    table[1:P + 1] += torch.diag(std)
-    table[P + 1:] -= torch.diag(std)
-    surf = _surface(lay.theta, lay.phi, lay.slit_frac, {k: table[:, i:i + 1] for i, k in enumerate(names)})
+    table[1 : P + 1] += torch.diag(std)
+    table[P + 1 :] -= torch.diag(std)
+    surf = _surface(lay.theta, lay.phi, lay.slit_frac, {k: table[:, i : i + 1] for i, k in enumerate(names)})
     mean = surf[0]
-    comps = list(0.5 * (surf[1:P + 1] - surf[P + 1:]))
+    comps = list(0.5 * (surf[1 : P + 1] - surf[P + 1 :]))
     radial = mean / mean.norm(dim=-1, keepdim=True)
     n_rand = N_IDENTITY - len(comps)
     comps += list(_smooth_fields(lay.theta, lay.phi, n_rand)[..., None] * radial)
@@ -379,8 +433,15 @@ def face_model() -> FaceModel:
     jowl = _g(X.abs() - 0.42, 0.12) * _g(Y + 0.55, 0.12)
     senior[:, 1] = -0.03 * jowl - 0.02 * _g(X, 0.08) * _g(Y - NOSE_TIP_Y, 0.06)
     senior[:, 0] = 0.02 * torch.sign(X) * jowl
-    senior = senior - radial * (0.012 * _g(X, 0.14) * _g(Y - MOUTH_Y, 0.05) + 0.015 * _g(X.abs() - 0.6, 0.08) * _g(Y - 0.28, 0.1)
-                                + 0.012 * _g(X.abs() - 0.33, 0.08) * _g(Y + 0.02, 0.05))[:, None]
+    senior = (
+        senior
+        - radial
+        * (
+            0.012 * _g(X, 0.14) * _g(Y - MOUTH_Y, 0.05)
+            + 0.015 * _g(X.abs() - 0.6, 0.08) * _g(Y - 0.28, 0.1)
+            + 0.012 * _g(X.abs() - 0.33, 0.08) * _g(Y + 0.02, 0.05)
+        )[:, None]
+    )
     senior = senior * _smoothstep(0.0, 0.4, Z)[:, None]
     expr, senior = expr * body, senior * body
     face_region = ((Z > 0.2) & (Y < HAIRLINE_Y - 0.02) & (Y > CHIN_Y - 0.08) & (X.abs() < 0.78)).double()
@@ -388,5 +449,16 @@ def face_model() -> FaceModel:
     return FaceModel(f(mean), f(ident), f(expr), f(senior), faces(), f(lay.uv), _landmarks(lay), f(face_region))
 
 
-__all__ = ["FaceModel", "face_model", "faces", "layout", "uv_to_angles", "is_neck", "GRID_U", "GRID_V", "NECK_ROWS",
-           "N_IDENTITY", "EXPRESSIONS"]
+__all__ = [
+    "FaceModel",
+    "face_model",
+    "faces",
+    "layout",
+    "uv_to_angles",
+    "is_neck",
+    "GRID_U",
+    "GRID_V",
+    "NECK_ROWS",
+    "N_IDENTITY",
+    "EXPRESSIONS",
+]

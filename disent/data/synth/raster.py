@@ -25,6 +25,7 @@ become an image only at the end (:func:`paste`, :func:`interpolate`).  Vertex da
 stored as coordinate planes ``[B, 3, V]`` (seen as ``[B, V, 3]`` through ``transpose(1, 2)``):
 every function here reads either layout.
 """
+
 from __future__ import annotations
 
 import torch
@@ -72,6 +73,7 @@ def to_camera(vertices: torch.Tensor, pose_deg: torch.Tensor, scale: torch.Tenso
     t = torch.nn.functional.pad(shift.to(vertices.dtype), (0, 1))[:, :, None]
     return torch.baddbmm(t, sR, vertices.transpose(1, 2)).transpose(1, 2)
 
+
 def vertex_normals(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
     """Area-weighted unit vertex normals ``[B, V, 3]`` (outward for counter-clockwise faces)."""
     B, V, _ = vertices.shape
@@ -116,8 +118,15 @@ def rasterize(vertices_cam: torch.Tensor, faces: torch.Tensor, resolution: int) 
     face_id = torch.full((B * H * W,), -1, dtype=torch.long, device=dev)
     empty = torch.zeros(0, dtype=torch.long, device=dev)
     if k.numel() == 0:
-        return {"face_id": face_id.view(B, H, W), "size": (B, H, W), "batch": empty, "pixel": empty, "face": empty,
-                "bary": torch.zeros(0, 3, dtype=dt, device=dev), "corners": empty.view(3, 0)}
+        return {
+            "face_id": face_id.view(B, H, W),
+            "size": (B, H, W),
+            "batch": empty,
+            "pixel": empty,
+            "face": empty,
+            "bary": torch.zeros(0, 3, dtype=dt, device=dev),
+            "corners": empty.view(3, 0),
+        }
     big = int(torch.maximum(nx.max(), ny.max()))
     if big > MAX_WINDOW:
         raise ValueError(f"a triangle spans {big} pixels; the rasterizer expects a mesh finer than {MAX_WINDOW} px")
@@ -160,7 +169,9 @@ def rasterize(vertices_cam: torch.Tensor, faces: torch.Tensor, resolution: int) 
     tri_t, tri_b = kk // B, kk % B
     pix = tri_b * (H * W) + (H - 1 - py.long()) * W + px.long()
     # z-buffer: nearest (largest z) wins; the key packs quantised depth above the triangle id.
-    zq = ((depth.double().clamp(-_DEPTH_RANGE, _DEPTH_RANGE) + _DEPTH_RANGE) * (_DEPTH_LEVELS / (2 * _DEPTH_RANGE))).long()
+    zq = (
+        (depth.double().clamp(-_DEPTH_RANGE, _DEPTH_RANGE) + _DEPTH_RANGE) * (_DEPTH_LEVELS / (2 * _DEPTH_RANGE))
+    ).long()
     key = (zq << _ID_BITS) | tri_t
     zbuf = torch.full((B * H * W,), -1, dtype=torch.long, device=dev)
     zbuf.scatter_reduce_(0, pix, key, reduce="amax")
@@ -171,8 +182,15 @@ def rasterize(vertices_cam: torch.Tensor, faces: torch.Tensor, resolution: int) 
     bary = bary / bary.sum(1, keepdim=True)
     batch = win_pix // (H * W)
     corners = torch.stack([faces[:, j].index_select(0, win_t) for j in range(3)]) + batch * V
-    return {"face_id": face_id.view(B, H, W), "size": (B, H, W), "batch": batch, "pixel": win_pix % (H * W), "face": win_t,
-            "bary": bary, "corners": corners}
+    return {
+        "face_id": face_id.view(B, H, W),
+        "size": (B, H, W),
+        "batch": batch,
+        "pixel": win_pix % (H * W),
+        "face": win_t,
+        "bary": bary,
+        "corners": corners,
+    }
 
 
 def interpolate(attr, raster: dict) -> torch.Tensor:
@@ -262,7 +280,7 @@ def sample_texture(texture: torch.Tensor, uv: torch.Tensor, batch: torch.Tensor)
     flat = texture.contiguous().view(-1)
     out = torch.empty(C, uv.shape[1], dtype=texture.dtype, device=texture.device)
     for c in range(C):  # the texel to the right, below, below right: the same index into shifted views
-        t00, t01, t10, t11 = (flat[c * R * R + d:].index_select(0, corner) for d in (0, 1, R, R + 1))
+        t00, t01, t10, t11 = (flat[c * R * R + d :].index_select(0, corner) for d in (0, 1, R, R + 1))
         torch.lerp(t00.lerp_(t01, fx), t10.lerp_(t11, fx), fy, out=out[c])
     return out
 
@@ -308,13 +326,15 @@ def _window(extreme, v: torch.Tensor, gu: int, K: int, out: torch.Tensor | None 
     """``extreme`` (torch.minimum or torch.maximum) of the four corners k, k + 1, k + gu, k + gu + 1 of
     each quad k < K of the flat vertex values ``v``."""
     pairs = extreme(v[:-1], v[1:])
-    return extreme(pairs[:K], pairs[gu:gu + K], out=out)
+    return extreme(pairs[:K], pairs[gu : gu + K], out=out)
 
 
 _LAYOUTS: dict = {}
 
 
-def _grid_layout(B: int, gv: int, gu: int, drawn, img0: int, H: int, W: int, dt, dev) -> tuple[torch.Tensor, torch.Tensor]:
+def _grid_layout(
+    B: int, gv: int, gu: int, drawn, img0: int, H: int, W: int, dt, dev
+) -> tuple[torch.Tensor, torch.Tensor]:
     """For the flat quad ids k < K of :func:`rasterize_grids` on ``B`` images of a ``gv x gu`` grid: 1 where
     k is a quad (its corner a is in neither the last row nor the last column) that is drawn, and the pixel
     index of the top-left corner of its image, ``image * H * W + (H - 1) * W``.  The same for every batch
@@ -359,10 +379,19 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
         if len({B for B, _ in info}) != 1 or info[0][0] < 2:
             raise ValueError("rasterize_grids: too many pixels for one call and the meshes' batches differ")
         h = info[0][0] // 2
-        halves = [rasterize_grids([(m[0][s], *m[1:]) for m in meshes], resolution) for s in (slice(0, h), slice(h, None))]
-        return [{"size": (a["size"][0] + b["size"][0], H, W), "batch": torch.cat([a["batch"], b["batch"] + h]),
-                 "corners": torch.cat([a["corners"], b["corners"] + h * m[0].shape[1]], 1),
-                 "grid": m[1], **{k: torch.cat([a[k], b[k]]) for k in ("pixel", "bary")}} for a, b, m in zip(*halves, meshes)]
+        halves = [
+            rasterize_grids([(m[0][s], *m[1:]) for m in meshes], resolution) for s in (slice(0, h), slice(h, None))
+        ]
+        return [
+            {
+                "size": (a["size"][0] + b["size"][0], H, W),
+                "batch": torch.cat([a["batch"], b["batch"] + h]),
+                "corners": torch.cat([a["corners"], b["corners"] + h * m[0].shape[1]], 1),
+                "grid": m[1],
+                **{k: torch.cat([a[k], b[k]]) for k in ("pixel", "bary")},
+            }
+            for a, b, m in zip(*halves, meshes)
+        ]
     # Quads on the flattened vertex planes of each mesh: quad k has the corners a = k, b = k + 1, c = k + gu,
     # d = k + gu + 1 (flat ids over the batch), so each column below is a few contiguous slices; a k whose
     # corner a lies in the last row or column of its grid is no quad and is never drawn.
@@ -380,13 +409,17 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
         V = gv * gu
         if verts.shape[1] != V:
             raise ValueError(f"a {gv}x{gu} grid has {V} vertices, got {verts.shape[1]}")
-        col, (inv, far_x, far_y, far_z) = table[:, q0:q0 + K], (t[:, q0:q0 + K] for t in tri)
-        x = torch.addcmul(torch.tensor(0.5 * W - 0.5, dtype=dt), verts[..., 0], torch.tensor(0.5 * W, dtype=dt)).reshape(-1)
-        y = torch.addcmul(torch.tensor(0.5 * H - 0.5, dtype=dt), verts[..., 1], torch.tensor(0.5 * H, dtype=dt)).reshape(-1)
+        col, (inv, far_x, far_y, far_z) = table[:, q0 : q0 + K], (t[:, q0 : q0 + K] for t in tri)
+        x = torch.addcmul(
+            torch.tensor(0.5 * W - 0.5, dtype=dt), verts[..., 0], torch.tensor(0.5 * W, dtype=dt)
+        ).reshape(-1)
+        y = torch.addcmul(
+            torch.tensor(0.5 * H - 0.5, dtype=dt), verts[..., 1], torch.tensor(0.5 * H, dtype=dt)
+        ).reshape(-1)
         z = verts[..., 2].reshape(-1)
-        xa, xb, xc, xd = x[:K], x[1:K + 1], x[gu:K + gu], x[gu + 1:]
-        ya, yb, yc, yd = y[:K], y[1:K + 1], y[gu:K + gu], y[gu + 1:]
-        za, zb, zc, zd = z[:K], z[1:K + 1], z[gu:K + gu], z[gu + 1:]
+        xa, xb, xc, xd = x[:K], x[1 : K + 1], x[gu : K + gu], x[gu + 1 :]
+        ya, yb, yc, yd = y[:K], y[1 : K + 1], y[gu : K + gu], y[gu + 1 :]
+        za, zb, zc, zd = z[:K], z[1 : K + 1], z[gu : K + gu], z[gu + 1 :]
         ax, ay, dx, dy = xa - xc, ya - yc, xd - xc, yd - yc  # corners about c
         bx, by = torch.sub(xb, xc, out=col[3]), torch.sub(yb, yc, out=col[4])
         area1 = bx * ay
@@ -401,7 +434,7 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
         drawn_quads, origin = _grid_layout(B, gv, gu, drawn[0] if drawn else None, img0, H, W, dt, dev)
         f1 = torch.gt(area1, 1e-9, out=torch.empty_like(area1))
         f2 = torch.gt(area2, 1e-9, out=torch.empty_like(area2))
-        torch.maximum(f1, f2, out=count[q0:q0 + K]).mul_(nx).mul_(ny).mul_(drawn_quads)
+        torch.maximum(f1, f2, out=count[q0 : q0 + K]).mul_(nx).mul_(ny).mul_(drawn_quads)
         # Which triangle a centre p falls in: (a,c,b) iff s >= bias, with s = cross(b - c, p - c) (a's side of
         # the diagonal); the bias forces the front-facing triangle of a folded quad.
         torch.sub(f2, f1, out=col[5]).mul_(_FOLD)
@@ -476,14 +509,28 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
             pixel = p - batch * (H * W)
         k, sec = quad[lo:hi] - q0, second[lo:hi]  # flat id of corner a; the quad's second triangle
         corners = torch.stack([k + sec, k + gu, k.add(sec, alpha=gu).add_(1)])  # grid_faces order
-        out.append({"size": (B, H, W), "grid": (gv, gu), "batch": batch, "pixel": pixel, "bary": bary[lo:hi],
-                    "corners": corners})
+        out.append(
+            {
+                "size": (B, H, W),
+                "grid": (gv, gu),
+                "batch": batch,
+                "pixel": pixel,
+                "bary": bary[lo:hi],
+                "corners": corners,
+            }
+        )
         q0, p0 = q0 + K, p0 + B * H * W
     return out
 
 
-def render_face(vertices_cam: torch.Tensor, faces: torch.Tensor, uv: torch.Tensor, resolution: int,
-                grid_shape: tuple[int, int], vertex_normal: torch.Tensor | None = None) -> dict:
+def render_face(
+    vertices_cam: torch.Tensor,
+    faces: torch.Tensor,
+    uv: torch.Tensor,
+    resolution: int,
+    grid_shape: tuple[int, int],
+    vertex_normal: torch.Tensor | None = None,
+) -> dict:
     """Render the G-buffer of a face mesh: the layers the paper's decoders predict.
 
     Args:
@@ -503,21 +550,33 @@ def render_face(vertices_cam: torch.Tensor, faces: torch.Tensor, uv: torch.Tenso
         vertex_normal = vertex_normals(vertices_cam, faces)
     r = rasterize(vertices_cam, faces, resolution)
     mask = (r["face_id"] >= 0)[:, None].to(vertices_cam.dtype)
-    attrs = torch.cat([vertex_normal, vertices_cam[..., 2:], uv.to(vertices_cam.dtype).expand(vertices_cam.shape[0], -1, -1)], -1)
+    attrs = torch.cat(
+        [vertex_normal, vertices_cam[..., 2:], uv.to(vertices_cam.dtype).expand(vertices_cam.shape[0], -1, -1)], -1
+    )
     pix = interpolate(attrs, r)
     normal = unit(pix[:, :3], 1) * mask
-    return {"mask": mask, "normal": normal, "depth": pix[:, 3:4], "uv": pix[:, 4:6],
-            "normal_uv": grid_to_uv_map(vertex_normal, resolution, grid_shape), "face_id": r["face_id"]}
+    return {
+        "mask": mask,
+        "normal": normal,
+        "depth": pix[:, 3:4],
+        "uv": pix[:, 4:6],
+        "normal_uv": grid_to_uv_map(vertex_normal, resolution, grid_shape),
+        "face_id": r["face_id"],
+    }
 
 
-def grid_to_uv_map(vertex_attr: torch.Tensor, resolution: int, grid_shape: tuple[int, int],
-                   knots: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
+def grid_to_uv_map(
+    vertex_attr: torch.Tensor,
+    resolution: int,
+    grid_shape: tuple[int, int],
+    knots: tuple[torch.Tensor, torch.Tensor] | None = None,
+) -> torch.Tensor:
     """Lay per-vertex values of a UV-grid mesh out as a ``[B, C, res, res]`` UV-space map
     (3-channel values, normals, are renormalised to unit length).
 
     The mesh's vertices form a regular ``grid_shape = (rows, columns)`` grid in UV space (the face
-    model's is ``GRID_V x GRID_U``), so the map is a bilinear resize of that grid (texel centres at ``linspace(0, 1, res)``, as
-    ``align_corners=True``); a grid with uneven rows and columns gives its ``knots``
+    model's is ``GRID_V x GRID_U``), so the map is a bilinear resize of that grid (texel centres at
+    ``linspace(0, 1, res)``, as ``align_corners=True``); a grid with uneven rows and columns gives its ``knots``
     (v of each row, u of each column) and is interpolated linearly between them.  The
     resize is separable: along v a blend of two gathered rows per texel row, along u a
     batched product with the fixed interpolation matrix.
@@ -534,7 +593,9 @@ def grid_to_uv_map(vertex_attr: torch.Tensor, resolution: int, grid_shape: tuple
     f = f.to(vertex_attr.dtype)[:, None]
     rows = grid.index_select(1, i).mul_(1 - f).addcmul_(grid.index_select(1, i + 1), f)  # [B*C, res, gu]
     Wu = _linear_weights(knots[1], resolution).to(vertex_attr)  # [res, gu]
-    out = torch.bmm(rows.view(B, C * resolution, gu), Wu.t().expand(B, gu, resolution)).view(B, C, resolution, resolution)
+    out = torch.bmm(rows.view(B, C * resolution, gu), Wu.t().expand(B, gu, resolution)).view(
+        B, C, resolution, resolution
+    )
     return unit_planes(out, inplace=True) if C == 3 else out
 
 
@@ -574,5 +635,22 @@ def _linear_weights(knots: torch.Tensor, res: int) -> torch.Tensor:
     return W
 
 
-__all__ = ["pose_matrix", "to_camera", "vertex_normals", "grid_vertex_normals", "grid_faces", "rasterize", "rasterize_grids", "interpolate",
-           "interpolate_covered", "paste", "pick", "face_ids", "sample_texture", "render_face", "grid_to_uv_map", "unit_planes", "MAX_WINDOW"]
+__all__ = [
+    "pose_matrix",
+    "to_camera",
+    "vertex_normals",
+    "grid_vertex_normals",
+    "grid_faces",
+    "rasterize",
+    "rasterize_grids",
+    "interpolate",
+    "interpolate_covered",
+    "paste",
+    "pick",
+    "face_ids",
+    "sample_texture",
+    "render_face",
+    "grid_to_uv_map",
+    "unit_planes",
+    "MAX_WINDOW",
+]

@@ -11,6 +11,7 @@ of ``(seed, split, index, stream)`` (identity-level numbers hash the identity id
 item is the same whichever batch renders it, and any set of indices renders as one
 vectorized batch.
 """
+
 from __future__ import annotations
 
 import math
@@ -19,15 +20,51 @@ from functools import lru_cache
 import torch
 import torch.nn.functional as F
 
-from disent.render import C2, C4, composite, image_formation, sh_basis, sh_from_directions, sh_matrix, solve_normal_equations
-
 from disent.data.attributes import ATTRIBUTES
-
-from .face_model import (BROW_X, BROW_Y, CHIN_Y, EYE_H, EYE_W, EYE_X, EYE_Y, GRID_U, GRID_V, HAIRLINE_Y, MOUTH_W, MOUTH_Y,
-                         NOSE_BASE_Y, SLIT_ROWS, face_model, is_neck, layout, uv_to_angles)
+from disent.render import (
+    C2,
+    C4,
+    composite,
+    image_formation,
+    sh_basis,
+    sh_from_directions,
+    sh_matrix,
+    solve_normal_equations,
+)
 from disent.runtime import single_thread
-from .raster import (grid_faces, grid_to_uv_map, grid_vertex_normals, interpolate_covered, paste, pick, rasterize_grids,
-                     sample_texture, to_camera, unit_planes)
+
+from .face_model import (
+    BROW_X,
+    BROW_Y,
+    CHIN_Y,
+    EYE_H,
+    EYE_W,
+    EYE_X,
+    EYE_Y,
+    GRID_U,
+    GRID_V,
+    HAIRLINE_Y,
+    MOUTH_W,
+    MOUTH_Y,
+    NOSE_BASE_Y,
+    SLIT_ROWS,
+    face_model,
+    is_neck,
+    layout,
+    uv_to_angles,
+)
+from .raster import (
+    grid_faces,
+    grid_to_uv_map,
+    grid_vertex_normals,
+    interpolate_covered,
+    paste,
+    pick,
+    rasterize_grids,
+    sample_texture,
+    to_camera,
+    unit_planes,
+)
 
 EFFECTS = ("specular", "cast_shadow", "noise", "occluder")
 ATTR_PRIOR = {"smiling": 0.5, "beard": 0.25, "eyeglasses": 0.2, "senior": 0.25}  # P(label = 1) in train/val/test
@@ -53,8 +90,10 @@ def _mix(x: torch.Tensor) -> torch.Tensor:
     return x ^ (x >> 16)
 
 
-STREAMS = {name: k for k, name in enumerate(
-    ("shape", "skin", "attrs", "expr", "pose", "light", "bg", "pseudo", "effects", "style"))}
+STREAMS = {
+    name: k
+    for k, name in enumerate(("shape", "skin", "attrs", "expr", "pose", "light", "bg", "pseudo", "effects", "style"))
+}
 
 
 def uniform(key: torch.Tensor, stream: str, n: int, seed: int) -> torch.Tensor:
@@ -89,8 +128,9 @@ def _check_normals() -> torch.Tensor:
     return _CHECK_NORMALS
 
 
-def lights_to_sh(direction: torch.Tensor, intensity: torch.Tensor, ambient: torch.Tensor,
-                 exposure: torch.Tensor, floor: float = 0.04) -> torch.Tensor:
+def lights_to_sh(
+    direction: torch.Tensor, intensity: torch.Tensor, ambient: torch.Tensor, exposure: torch.Tensor, floor: float = 0.04
+) -> torch.Tensor:
     """Distant lights + ambient -> SH ``[N, 3, 9]``, made physically plausible.
 
     The order-2 projection of ``max(0, n.d)`` rings slightly negative; ambient is raised
@@ -145,8 +185,10 @@ def _light_bank() -> tuple[list[str], dict]:
     for az in range(-90, 91, 15):
         specs.append((f"flash_az{az:+d}", [(az, 0, 1.0, 0.0)], 0.12, 0.0))
     specs += [
-        ("top_left", [(-45, 45, 1.0, 0.0)], 0.12, 0.0), ("top", [(0, 60, 1.0, 0.0)], 0.12, 0.0),
-        ("top_right", [(45, 45, 1.0, 0.0)], 0.12, 0.0), ("below", [(0, -35, 1.0, 0.0)], 0.15, 0.0),
+        ("top_left", [(-45, 45, 1.0, 0.0)], 0.12, 0.0),
+        ("top", [(0, 60, 1.0, 0.0)], 0.12, 0.0),
+        ("top_right", [(45, 45, 1.0, 0.0)], 0.12, 0.0),
+        ("below", [(0, -35, 1.0, 0.0)], 0.15, 0.0),
         ("ambient", [(0, 0, 0.0, 0.0)], 1.0, 0.0),
         ("overcast", [(0, 70, 0.5, -0.5)], 0.5, -0.5),
         ("warm_left", [(-50, 20, 1.0, 1.0), (40, 0, 0.3, -0.5)], 0.15, 0.5),
@@ -158,7 +200,10 @@ def _light_bank() -> tuple[list[str], dict]:
     names, sh = [], []
     for name, lights, amb, amb_tint in specs:
         K = len(lights)
-        d = _direction(torch.tensor([l[0] for l in lights], dtype=torch.float32), torch.tensor([l[1] for l in lights], dtype=torch.float32))
+        d = _direction(
+            torch.tensor([l[0] for l in lights], dtype=torch.float32),
+            torch.tensor([l[1] for l in lights], dtype=torch.float32),
+        )
         inten = torch.tensor([l[2] for l in lights])[:, None] * _tint(torch.tensor([l[3] for l in lights]), 0.12)
         ambient = amb * _tint(torch.tensor(float(amb_tint)), 0.12)
         sh.append(lights_to_sh(d[None], inten[None].reshape(1, K, 3), ambient[None], torch.tensor([0.9]))[0])
@@ -171,9 +216,26 @@ LIGHT_BANK = {n: _BANK_SH[k] for k, n in enumerate(LIGHT_NAMES)}
 
 
 # ----------------------------------------------------------------------------- albedo painted in UV space
-LAYERS = ("lips", "blush", "brows", "sclera", "iris", "pupil", "lashes", "nostrils", "teeth", "mouth",
-          "hair_short", "hair_long", "beard_full", "beard_goatee", "glasses_round", "glasses_square",
-          "wrinkles", "eyebags")
+LAYERS = (
+    "lips",
+    "blush",
+    "brows",
+    "sclera",
+    "iris",
+    "pupil",
+    "lashes",
+    "nostrils",
+    "teeth",
+    "mouth",
+    "hair_short",
+    "hair_long",
+    "beard_full",
+    "beard_goatee",
+    "glasses_round",
+    "glasses_square",
+    "wrinkles",
+    "eyebags",
+)
 
 
 def _ellipse(X, Y, cx, cy, rx, ry, soft=0.25):
@@ -201,14 +263,29 @@ def paint_layers(res: int) -> torch.Tensor:
     inside_mouth = in_slit * torch.sigmoid((MOUTH_W - 0.01 - ax) / 0.01)  # elsewhere the slit is closed skin
     out_slit = 1 - inside_mouth  # painting is continuous across the closed part of the slit
     g = torch.Generator().manual_seed(7)
-    hair_noise = F.interpolate(torch.rand(1, 1, res // 2, res // 8, generator=g, dtype=torch.float64), size=(res, res), mode="bilinear", align_corners=False)[0, 0]
+    hair_noise = F.interpolate(
+        torch.rand(1, 1, res // 2, res // 8, generator=g, dtype=torch.float64),
+        size=(res, res),
+        mode="bilinear",
+        align_corners=False,
+    )[0, 0]
     stubble = torch.rand(res, res, generator=g, dtype=torch.float64)
     L = {}
-    L["lips"] = out_slit * front * (_ellipse(X, Y, 0, MOUTH_Y + 0.025, MOUTH_W * 0.95, 0.045, 0.3)
-                                     + _ellipse(X, Y, 0, MOUTH_Y - 0.04, MOUTH_W * 0.85, 0.055, 0.3)).clamp(max=1)
+    L["lips"] = (
+        out_slit
+        * front
+        * (
+            _ellipse(X, Y, 0, MOUTH_Y + 0.025, MOUTH_W * 0.95, 0.045, 0.3)
+            + _ellipse(X, Y, 0, MOUTH_Y - 0.04, MOUTH_W * 0.85, 0.055, 0.3)
+        ).clamp(max=1)
+    )
     L["blush"] = front * (_ellipse(ax, Y, 0.38, -0.12, 0.14, 0.1, 0.6))
     brow_c = BROW_Y + 0.035 - 0.18 * (ax - BROW_X) ** 2
-    L["brows"] = front * torch.sigmoid((0.028 - (Y - brow_c).abs()) / 0.008) * torch.sigmoid((0.11 - (ax - BROW_X - 0.01).abs() * (1 + 0.3 * (ax < BROW_X + 0.01))) / 0.015)
+    L["brows"] = (
+        front
+        * torch.sigmoid((0.028 - (Y - brow_c).abs()) / 0.008)
+        * torch.sigmoid((0.11 - (ax - BROW_X - 0.01).abs() * (1 + 0.3 * (ax < BROW_X + 0.01))) / 0.015)
+    )
     eye = _ellipse(ax, Y, EYE_X, EYE_Y, EYE_W, EYE_H, 0.12) * front
     L["sclera"] = eye
     L["iris"] = eye * _ellipse(ax, Y, EYE_X, EYE_Y, 0.045, 0.045, 0.15)
@@ -222,7 +299,11 @@ def paint_layers(res: int) -> torch.Tensor:
     hair_base = torch.sigmoid((Y - hairline) / 0.02).maximum(side * torch.sigmoid((Y - 0.02) / 0.03))
     hair_base = hair_base * (0.75 + 0.25 * hair_noise)
     L["hair_short"] = hair_base * out_slit
-    L["hair_long"] = torch.sigmoid((Y - hairline + 0.12) / 0.03).maximum(torch.sigmoid((-Z + 0.55) / 0.06)) * (0.8 + 0.2 * hair_noise) * out_slit
+    L["hair_long"] = (
+        torch.sigmoid((Y - hairline + 0.12) / 0.03).maximum(torch.sigmoid((-Z + 0.55) / 0.06))
+        * (0.8 + 0.2 * hair_noise)
+        * out_slit
+    )
     jaw = front * torch.sigmoid((-0.28 - Y) / 0.03) * torch.sigmoid((0.8 - ax) / 0.05)
     not_lips = 1 - L["lips"]
     moustache = front * _ellipse(X, Y, 0, MOUTH_Y + 0.085, MOUTH_W * 1.3, 0.045, 0.3) * (1 - L["nostrils"])
@@ -231,11 +312,25 @@ def paint_layers(res: int) -> torch.Tensor:
     L["beard_goatee"] = ((goatee + moustache).clamp(max=1) * not_lips * out_slit) * (0.55 + 0.45 * stubble)
     bridge = torch.exp(-0.5 * ((Y - EYE_Y - 0.02) / 0.012) ** 2) * (ax < EYE_X - EYE_W - 0.02)
     temple = torch.exp(-0.5 * ((Y - EYE_Y - 0.04) / 0.012) ** 2) * (ax > EYE_X + 0.13)
-    L["glasses_round"] = front * (1 - L["brows"]) * (_ring(ax, Y, EYE_X, EYE_Y, 0.15, 0.12, 0.1) + bridge + temple).clamp(max=1)
-    L["glasses_square"] = front * (1 - L["brows"]) * (_ring(ax, Y, EYE_X, EYE_Y - 0.01, 0.16, 0.1, 0.1, True) + bridge + temple).clamp(max=1)
-    forehead = sum(torch.exp(-0.5 * ((Y - y0 - 0.02 * torch.cos(4 * X)) / 0.006) ** 2) for y0 in (0.36, 0.41, 0.46)) * (ax < 0.35)
-    crow = sum(torch.exp(-0.5 * ((Y - EYE_Y - k * (ax - EYE_X - 0.13)) / 0.006) ** 2) for k in (-0.5, 0.0, 0.5)) * ((ax - EYE_X - 0.14).abs() < 0.05)
-    naso = torch.exp(-0.5 * ((ax - (0.12 + 0.5 * (NOSE_BASE_Y - Y))) / 0.012) ** 2) * (Y < NOSE_BASE_Y + 0.02) * (Y > MOUTH_Y - 0.1)
+    L["glasses_round"] = (
+        front * (1 - L["brows"]) * (_ring(ax, Y, EYE_X, EYE_Y, 0.15, 0.12, 0.1) + bridge + temple).clamp(max=1)
+    )
+    L["glasses_square"] = (
+        front
+        * (1 - L["brows"])
+        * (_ring(ax, Y, EYE_X, EYE_Y - 0.01, 0.16, 0.1, 0.1, True) + bridge + temple).clamp(max=1)
+    )
+    forehead = sum(torch.exp(-0.5 * ((Y - y0 - 0.02 * torch.cos(4 * X)) / 0.006) ** 2) for y0 in (0.36, 0.41, 0.46)) * (
+        ax < 0.35
+    )
+    crow = sum(torch.exp(-0.5 * ((Y - EYE_Y - k * (ax - EYE_X - 0.13)) / 0.006) ** 2) for k in (-0.5, 0.0, 0.5)) * (
+        (ax - EYE_X - 0.14).abs() < 0.05
+    )
+    naso = (
+        torch.exp(-0.5 * ((ax - (0.12 + 0.5 * (NOSE_BASE_Y - Y))) / 0.012) ** 2)
+        * (Y < NOSE_BASE_Y + 0.02)
+        * (Y > MOUTH_Y - 0.1)
+    )
     L["wrinkles"] = front * out_slit * (forehead + crow + naso).clamp(max=1)
     L["eyebags"] = front * _ellipse(ax, Y, EYE_X, EYE_Y - 0.07, 0.09, 0.03, 0.4)
     head = (~is_neck(phi)).double()  # the neck is bare skin
@@ -248,7 +343,9 @@ def noise_bank(res: int, n: int = 16, seed: int = 11) -> torch.Tensor:
     """Fixed fields ``[n, res, res]`` of fine skin texture (std about 1), shared by every scene."""
     g = torch.Generator().manual_seed(seed)
     fine = torch.randn(n, 1, res, res, generator=g)
-    mid = F.interpolate(torch.randn(n, 1, res // 4, res // 4, generator=g), size=(res, res), mode="bilinear", align_corners=False)
+    mid = F.interpolate(
+        torch.randn(n, 1, res // 4, res // 4, generator=g), size=(res, res), mode="bilinear", align_corners=False
+    )
     return (0.5 * fine + mid)[:, 0]
 
 
@@ -259,8 +356,16 @@ def _desaturate(c: torch.Tensor, amount: torch.Tensor) -> torch.Tensor:
 
 SKIN_LIGHT = torch.tensor([0.92, 0.76, 0.66])
 SKIN_DARK = torch.tensor([0.36, 0.23, 0.15])
-HAIR_COLOURS = torch.tensor([[0.05, 0.04, 0.035], [0.18, 0.11, 0.06], [0.35, 0.22, 0.12], [0.62, 0.48, 0.28],
-                             [0.45, 0.18, 0.08], [0.10, 0.07, 0.05]])
+HAIR_COLOURS = torch.tensor(
+    [
+        [0.05, 0.04, 0.035],
+        [0.18, 0.11, 0.06],
+        [0.35, 0.22, 0.12],
+        [0.62, 0.48, 0.28],
+        [0.45, 0.18, 0.08],
+        [0.10, 0.07, 0.05],
+    ]
+)
 IRIS_COLOURS = torch.tensor([[0.25, 0.14, 0.07], [0.12, 0.07, 0.04], [0.25, 0.40, 0.55], [0.30, 0.38, 0.22]])
 FRAME_COLOURS = torch.tensor([[0.03, 0.03, 0.03], [0.25, 0.12, 0.05], [0.55, 0.5, 0.45], [0.1, 0.1, 0.3]])
 
@@ -309,8 +414,24 @@ def paint_albedo(p: dict, res: int) -> torch.Tensor:
 
 
 # ----------------------------------------------------------------------------- backgrounds
-_BG_NAMES = ("brick", "chelsea", "clock", "coffee", "coins", "grass", "gravel", "hubble_deep_field",
-             "immunohistochemistry", "moon", "page", "rocket", "text", "colorwheel", "retina", "cell")
+_BG_NAMES = (
+    "brick",
+    "chelsea",
+    "clock",
+    "coffee",
+    "coins",
+    "grass",
+    "gravel",
+    "hubble_deep_field",
+    "immunohistochemistry",
+    "moon",
+    "page",
+    "rocket",
+    "text",
+    "colorwheel",
+    "retina",
+    "cell",
+)
 
 
 @lru_cache(maxsize=1)
@@ -333,9 +454,13 @@ def background_atlas(tile: int = 192) -> torch.Tensor:
         tiles.append(im[0].clamp(0, 1))
     g = torch.Generator().manual_seed(3)
     while len(tiles) < 20:  # smooth colour noise
-        tiles.append(F.interpolate(torch.rand(1, 3, 6, 6, generator=g), size=(tile, tile), mode="bicubic", align_corners=False)[0].clamp(0, 1))
+        tiles.append(
+            F.interpolate(torch.rand(1, 3, 6, 6, generator=g), size=(tile, tile), mode="bicubic", align_corners=False)[
+                0
+            ].clamp(0, 1)
+        )
     tiles = tiles[:20]
-    rows = [torch.cat(tiles[r * 5:(r + 1) * 5], 2) for r in range(4)]
+    rows = [torch.cat(tiles[r * 5 : (r + 1) * 5], 2) for r in range(4)]
     return torch.cat(rows, 1)[None]
 
 
@@ -360,8 +485,13 @@ def background_bank(res: int) -> tuple[torch.Tensor, torch.Tensor]:
     gx = x0[:, None] + frac[:, None] * tile * (0.5 + flip[:, None] * (t - 0.5))
     gy = y0[:, None] + frac[:, None] * tile * t
     K, (Ha, Wa) = k.numel(), atlas.shape[-2:]
-    grid = torch.stack([(gx[:, None, :].expand(K, res, res) + 0.5) / Wa * 2 - 1,
-                        (gy[:, :, None].expand(K, res, res) + 0.5) / Ha * 2 - 1], -1)
+    grid = torch.stack(
+        [
+            (gx[:, None, :].expand(K, res, res) + 0.5) / Wa * 2 - 1,
+            (gy[:, :, None].expand(K, res, res) + 0.5) / Ha * 2 - 1,
+        ],
+        -1,
+    )
     crops = F.grid_sample(atlas.expand(K, -1, -1, -1), grid, mode="bilinear", align_corners=False)
     crops = crops.reshape(K, 3, res * res).contiguous()
     return crops, crops.mean(2)
@@ -440,8 +570,12 @@ def scene_params(item_key: torch.Tensor, identity: torch.Tensor, seed: int, labe
     # Label = (strength >= 0.5): positives have strengths in [0.5, 1], negatives 0 (beard,
     # eyeglasses) or a little below the threshold (senior: age; smiling: a faint smile).
     u_id, u_img = uniform(pid, "attrs", 6, seed), uniform(item_key, "attrs", 2, seed)
-    draws = {"beard": (u_id[:, 0], u_id[:, 3]), "eyeglasses": (u_id[:, 1], u_id[:, 4]),
-             "senior": (u_id[:, 2], u_id[:, 5]), "smiling": (u_img[:, 0], u_img[:, 1])}
+    draws = {
+        "beard": (u_id[:, 0], u_id[:, 3]),
+        "eyeglasses": (u_id[:, 1], u_id[:, 4]),
+        "senior": (u_id[:, 2], u_id[:, 5]),
+        "smiling": (u_img[:, 0], u_img[:, 1]),
+    }
     for name, (u_on, u_s) in draws.items():
         on = labels[name] if labels is not None and name in labels else u_on < ATTR_PRIOR[name]
         below = torch.zeros_like(u_s) if name in ("beard", "eyeglasses") else 0.3 * u_s
@@ -452,8 +586,14 @@ def scene_params(item_key: torch.Tensor, identity: torch.Tensor, seed: int, labe
     p["expression"] = torch.stack([smile, opening], 1)
     up = uniform(item_key, "pose", 8, seed)
     tri = lambda a, b: a + b - 1  # triangular on [-1, 1]
-    p["pose"] = torch.stack([POSE_RANGE[0] * tri(up[:, 0], up[:, 1]), POSE_RANGE[1] * tri(up[:, 2], up[:, 3]),
-                             POSE_RANGE[2] * tri(up[:, 4], up[:, 5])], 1)
+    p["pose"] = torch.stack(
+        [
+            POSE_RANGE[0] * tri(up[:, 0], up[:, 1]),
+            POSE_RANGE[1] * tri(up[:, 2], up[:, 3]),
+            POSE_RANGE[2] * tri(up[:, 4], up[:, 5]),
+        ],
+        1,
+    )
     p["scale"] = SCALE_RANGE[0] + (SCALE_RANGE[1] - SCALE_RANGE[0]) * up[:, 6]
     p["shift"] = SHIFT_RANGE * (2 * uniform(item_key, "pose", 10, seed)[:, 8:10] - 1) + torch.tensor([0.0, -0.02])
     light = sample_lights(uniform(item_key, "light", 12, seed))
@@ -509,7 +649,9 @@ def render_scenes(p: dict, res: int, effects: dict | None = None, pseudo: bool =
 
     The true face and the coarse fit behind the pseudo ground truth are rasterized together."""
     fm = face_model()
-    cam = to_camera(fm.shape_planes(p["alpha"], p["expression"], p["senior"]).transpose(1, 2), p["pose"], p["scale"], p["shift"])
+    cam = to_camera(
+        fm.shape_planes(p["alpha"], p["expression"], p["senior"]).transpose(1, 2), p["pose"], p["scale"], p["shift"]
+    )
     vn = grid_vertex_normals(cam, (GRID_V, GRID_U))
     meshes = [(cam, (GRID_V, GRID_U))]
     if pseudo:
@@ -528,8 +670,18 @@ def render_scenes(p: dict, res: int, effects: dict | None = None, pseudo: bool =
     background = paint_background(p["bg"], res)
     # Eq. 2 on the face, composited over the background (Eq. 6; the matte is binary).
     image = paste(image_formation(albedo_at, pick(shading, r)), r, background)
-    out = {"image": image, "background": background, "matte": matte, "normal": normal, "albedo": albedo,
-           "shading": shading, "sh": sh, "uv": uv, "normal_uv": grid_to_uv_map(vn, res, (GRID_V, GRID_U)), "albedo_uv": albedo_uv}
+    out = {
+        "image": image,
+        "background": background,
+        "matte": matte,
+        "normal": normal,
+        "albedo": albedo,
+        "shading": shading,
+        "sh": sh,
+        "uv": uv,
+        "normal_uv": grid_to_uv_map(vn, res, (GRID_V, GRID_U)),
+        "albedo_uv": albedo_uv,
+    }
     if effects:
         out["image"] = apply_effects(out, p, effects)
     if pseudo:
@@ -592,12 +744,18 @@ def _pseudo_maps(image: torch.Tensor, fit: dict, r: dict, res: int) -> dict:
     inside = torch.gt(at[3:4], 0.5, out=torch.empty_like(at[3:4]))  # the face region, where a 3DMM fits
     normal = paste(unit_planes(at[None, :3], inplace=True)[0].mul_(inside), r)
     mask = paste(inside, r)
-    return {"normal_pseudo": normal, "mask_pseudo": mask, "uv_pseudo": paste(at[4:6].mul_(inside), r),
-            "normal_uv_pseudo": _uv_map_from_subgrid(fit["vn"], res), "sh_pseudo": fit_sh_packed(image, normal, mask)}
+    return {
+        "normal_pseudo": normal,
+        "mask_pseudo": mask,
+        "uv_pseudo": paste(at[4:6].mul_(inside), r),
+        "normal_uv_pseudo": _uv_map_from_subgrid(fit["vn"], res),
+        "sh_pseudo": fit_sh_packed(image, normal, mask),
+    }
 
 
-def fit_sh_packed(image: torch.Tensor, normal: torch.Tensor, mask: torch.Tensor, min_pixels: int = 16,
-                  chunk: int = 128) -> torch.Tensor:
+def fit_sh_packed(
+    image: torch.Tensor, normal: torch.Tensor, mask: torch.Tensor, min_pixels: int = 16, chunk: int = 128
+) -> torch.Tensor:
     """:func:`disent.render.fit_sh` (constant albedo) on the masked pixels only: the same least
     squares, as its sums over pixels need nothing else.
 
@@ -623,7 +781,9 @@ def fit_sh_packed(image: torch.Tensor, normal: torch.Tensor, mask: torch.Tensor,
     start = (torch.cumsum(counts, 0) - counts).index_select(0, owner)[:, None]
     at = sel.index_select(0, (start + rank).clamp_max_(sel.numel() - 1).view(-1)).view(-1, chunk)  # b * HW + p
     weight = w.index_select(0, at.view(-1)).view(-1, chunk).mul_(valid)
-    at = (at + (owner * (2 * HW))[:, None])[:, None] + torch.arange(3)[:, None] * HW  # [n, 3, chunk]: b * 3HW + c * HW + p
+    at = (at + (owner * (2 * HW))[:, None])[:, None] + torch.arange(3)[
+        :, None
+    ] * HW  # [n, 3, chunk]: b * 3HW + c * HW + p
 
     def packed(x):  # x [B, 3, H, W] at the packed pixels, 0 on the padding -> [n, 3, chunk]
         return x.reshape(-1).index_select(0, at.view(-1)).view(at.shape).mul_(valid[:, None])
@@ -687,7 +847,9 @@ def apply_effects(out: dict, p: dict, effects: dict) -> torch.Tensor:
         s = float(effects["occluder"])
         cx, cy = p["shift"][:, 0] + 0.5 * (u[:, 2] - 0.5), p["shift"][:, 1] + 0.5 * (u[:, 3] - 0.5)
         rx, ry = (0.15 + 0.35 * s) * (0.6 + 0.8 * u[:, 4]), (0.15 + 0.35 * s) * (0.6 + 0.8 * u[:, 5])
-        occ = _ellipse(xs, ys, cx[:, None, None], cy[:, None, None], rx[:, None, None], ry[:, None, None], 0.05)[:, None]
+        occ = _ellipse(xs, ys, cx[:, None, None], cy[:, None, None], rx[:, None, None], ry[:, None, None], 0.05)[
+            :, None
+        ]
         colour = u[:, 6:9, None, None]
         image = image + occ * (colour - image)
     if effects.get("noise", 0) > 0:
@@ -697,5 +859,21 @@ def apply_effects(out: dict, p: dict, effects: dict) -> torch.Tensor:
     return image
 
 
-__all__ = ["ATTRIBUTES", "EFFECTS", "LIGHT_BANK", "LIGHT_NAMES", "lights_to_sh", "sample_lights", "scene_params",
-           "render_scenes", "render_pseudo", "fit_sh_packed", "dominant_light", "apply_effects", "paint_albedo", "paint_background", "uniform", "normal"]
+__all__ = [
+    "ATTRIBUTES",
+    "EFFECTS",
+    "LIGHT_BANK",
+    "LIGHT_NAMES",
+    "lights_to_sh",
+    "sample_lights",
+    "scene_params",
+    "render_scenes",
+    "render_pseudo",
+    "fit_sh_packed",
+    "dominant_light",
+    "apply_effects",
+    "paint_albedo",
+    "paint_background",
+    "uniform",
+    "normal",
+]

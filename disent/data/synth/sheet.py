@@ -3,6 +3,7 @@
 Rows: samples with their ground-truth layers; pseudo ground truth beside the truth; each
 attribute off and on; the light bank on one face; the optional effects.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -10,10 +11,11 @@ from pathlib import Path
 
 import torch
 
-from . import LIGHT_NAMES, SynthFaces
-from .scenes import ATTRIBUTES, EFFECTS
 from disent.images import display, strip
 from disent.runs import tool_folder
+
+from . import LIGHT_NAMES, SynthFaces
+from .scenes import ATTRIBUTES, EFFECTS
 
 
 def contact_sheet(resolution: int = 64, seed: int = 0) -> tuple[torch.Tensor, list[str]]:
@@ -26,8 +28,12 @@ def contact_sheet(resolution: int = 64, seed: int = 0) -> tuple[torch.Tensor, li
         for name in layers:
             v = b[name][k]
             tiles.append(display(v, "normal" if name.startswith("normal") else "rgb"))
-        tiles += [display(b["normal_pseudo"][k], "normal"), display(b["mask_pseudo"][k]), display(b["uv_pseudo"][k]),
-                  display(b["normal_uv_pseudo"][k], "normal")]
+        tiles += [
+            display(b["normal_pseudo"][k], "normal"),
+            display(b["mask_pseudo"][k]),
+            display(b["uv_pseudo"][k]),
+            display(b["normal_uv_pseudo"][k], "normal"),
+        ]
         rows.append(strip(tiles))
     labels.append("GT: image bg matte albedo shading normal uv albedo_uv normal_uv | pseudo: normal mask uv normal_uv")
     tiles = []
@@ -40,7 +46,7 @@ def contact_sheet(resolution: int = 64, seed: int = 0) -> tuple[torch.Tensor, li
     lb = bank.get_batch(range(len(LIGHT_NAMES) * 1, len(LIGHT_NAMES) * 2))  # identity 0, frontal pose
     n = len(LIGHT_NAMES) // 2
     rows.append(strip(list(lb["image"][:n])))
-    rows.append(strip(list(lb["image"][n:2 * n])))
+    rows.append(strip(list(lb["image"][n : 2 * n])))
     labels.append("light bank: " + " ".join(LIGHT_NAMES))
     tiles = [train.sample(5)["image"]] + [train.sample(5, effects={e: 1.0})["image"] for e in EFFECTS]
     tiles += [train.sample(6)["image"]] + [train.sample(6, effects={e: 0.5})["image"] for e in EFFECTS]
@@ -55,8 +61,13 @@ def contact_sheet(resolution: int = 64, seed: int = 0) -> tuple[torch.Tensor, li
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--out", type=Path, default=None, help="PNG to write (default: synthfaces.png in a new tool folder "
-                    "outputs/sheet/<date>/<time>-<pid>/, published to reports/figures/)")
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="PNG to write (default: synthfaces.png in a new tool folder "
+        "outputs/sheet/<date>/<time>-<pid>/, published to reports/figures/)",
+    )
     ap.add_argument("--resolution", type=int, default=64)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--zoom", type=int, default=2)
