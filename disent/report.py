@@ -343,10 +343,9 @@ def sec_ablation(rep: Report, runs: list[Run]) -> None:
     )
 
 
-def sec_stability(rep: Report, eval_dir: Path) -> None:
+def _stability_conditioning(rep: Report, cond: dict | None) -> None:
     from disent.eval import stability as st
 
-    cond = _load_json(eval_dir / "conditioning.json")
     rep.add("### L-hat conditioning against yaw and mask size\n")
     if cond:
         path = rep.fig / "conditioning.png"
@@ -399,10 +398,91 @@ def sec_stability(rep: Report, eval_dir: Path) -> None:
         rep.image(path, "conditioning")
     else:
         rep.note("`reports/eval/conditioning.json`; run `python -m disent.eval.stability conditioning`.")
-    for name, title, plot in (
-        ("ood", "Out of distribution: error against severity", st.plot_ood),
-        ("bws", "Without BWS: shading cast and albedo absorbing shading", st.plot_bws),
-        ("training", "Training stability: NaN and divergence rate", st.plot_training),
+
+
+def _stability_bws(rep: Report, res: dict) -> None:
+    """The BWS table: shading cast and albedo absorbing shading, per variant and batch size."""
+    rep.add(
+        f"Mean ± std over seeds on {res['n']} test images. BWS pulls each channel's shading mean to 0.75; "
+        "*cast* is the spread of the three channel means; the last column is the correlation of the "
+        "estimated albedo with the true shading (0: albedo free of shading). At a fixed number of "
+        "training images a larger batch takes fewer steps (*steps*). With BWS on, E_recon-L's target "
+        "L-hat is itself scaled so that its shading has batch mean c (`loss.lhat_white`), a second "
+        "whitening; `+ablation=no_bws` turns both off (the paper's ablation), and the rows marked "
+        "*raw L-hat target* are those without it.\n",
+        "| variant | batch | steps | seeds | shading mean r, g, b | cast | corr(albedo, true shading) |",
+        "|---|---|---|---|---|---|---|",
+    )
+    groups = {}
+    for r in res["rows"]:
+        variant = r["variant"] + ("" if r.get("lhat_white", True) else " (raw L-hat target)")
+        groups.setdefault((variant, r["batch_size"]), []).append(r)
+    for (variant, bs), rs in sorted(groups.items(), key=lambda kv: (len(kv[0][0]), kv[0][0], kv[0][1] or 0)):
+
+        def ms(vals):
+            m = float(np.mean(vals))
+            return f"{m:.3f} ± {float(np.std(vals, ddof=1)):.3f}" if len(vals) > 1 else f"{m:.3f}"
+
+        rgb = ", ".join(f"{float(np.mean([r['shading_mean_rgb'][c] for r in rs])):.2f}" for c in range(3))
+        steps = "/".join(sorted({str(r.get("steps", "–")) for r in rs}))
+        rep.add(
+            f"| {variant} | {bs} | {steps} | {len(rs)} | {rgb} | {ms([r['shading_cast'] for r in rs])} | "
+            f"{ms([r['albedo_shading_corr'] for r in rs])} |"
+        )
+    rep.add("")
+    if len({r["batch_size"] for r in res["rows"]}) < 2:
+        rep.note(
+            "the BWS batch-size sweep (one batch size only in these runs); run the `multirun/bws` sweeps of "
+            "`ablations/README.md` for the curve against batch size."
+        )
+
+
+def _stability_training(rep: Report, res: dict) -> None:
+    """The training-stability table: outcome rates per model, adversarial term and learning rate."""
+    from disent.eval import stability as st
+
+    if len({r["lr"] for r in res["rows"]}) < 2:
+        rep.note(
+            "the learning-rate sweep (one learning rate only in these runs); run the `multirun/lr` sweeps of "
+            "`ablations/README.md` for NaN / divergence rate against learning rate."
+        )
+    rep.add(
+        f"Outcomes (`disent.eval.stability.outcome`): *NaN*, a loss term became non-finite (training stops, "
+        "`status.json` says so); *diverged*, the last logged total loss above 2x the first; *exploded*, a "
+        f"logged total loss above {res.get('spike', st.SPIKE):g}x the run's smallest "
+        "(a blow-up before the first "
+        "log escapes the previous rule); *collapsed*, the checkpoint's reconstructions vary across "
+        f"{res.get('n', 'the')} test images by less than {st.COLLAPSE:g}x the images' own spread (the output "
+        "ignores the input). Loss ratios, test recon MSE, normal error and input dependence are medians "
+        "over the group's seeds"
+        + (f"; the mean test image scores recon MSE {res['reference_mse']:.4f}" if res.get("reference_mse") else "")
+        + ".\n",
+        "| model | adversarial | lr | runs | NaN | diverged | exploded | collapsed | largest / smallest loss | "
+        "last / first loss | test recon MSE | normal err (deg) | input dependence |",
+        "|" + "---|" * 13,
+    )
+
+    def g(v, fmt=".3g"):
+        return "–" if v is None else format(v, fmt)
+
+    for r in res["rows"]:
+        rep.add(
+            f"| {r['model']} | {r['adversarial']} | {r['lr']} | {r['runs']} | "
+            + " | ".join(f"{r.get(f + '_rate', 0.0):.2f}" for f in st.FAILURES)
+            + f" | {g(r.get('loss_spread'))} | {g(r.get('loss_ratio'))} | {g(r.get('recon_mse'), '.4f')} | "
+            f"{g(r.get('normal_mean'), '.1f')} | {g(r.get('input_dependence'))} |"
+        )
+    rep.add("")
+
+
+def sec_stability(rep: Report, eval_dir: Path) -> None:
+    from disent.eval import stability as st
+
+    _stability_conditioning(rep, _load_json(eval_dir / "conditioning.json"))
+    for name, title, plot, table in (
+        ("ood", "Out of distribution: error against severity", st.plot_ood, None),
+        ("bws", "Without BWS: shading cast and albedo absorbing shading", st.plot_bws, _stability_bws),
+        ("training", "Training stability: NaN and divergence rate", st.plot_training, _stability_training),
     ):
         rep.add(f"### {title}\n")
         res = _load_json(eval_dir / f"{name}.json")
@@ -417,77 +497,8 @@ def sec_stability(rep: Report, eval_dir: Path) -> None:
         rep.image(path, name)
         if "budget" in res:
             rep.add(f"_Budget of these runs (their configs): {st.budget_text(res['budget'])}._\n")
-        if name == "bws":
-            rep.add(
-                f"Mean ± std over seeds on {res['n']} test images. BWS pulls each channel's shading mean to 0.75; "
-                "*cast* is the spread of the three channel means; the last column is the correlation of the "
-                "estimated albedo with the true shading (0: albedo free of shading). At a fixed number of "
-                "training images a larger batch takes fewer steps (*steps*). With BWS on, E_recon-L's target "
-                "L-hat is itself scaled so that its shading has batch mean c (`loss.lhat_white`), a second "
-                "whitening; `+ablation=no_bws` turns both off (the paper's ablation), and the rows marked "
-                "*raw L-hat target* are those without it.\n",
-                "| variant | batch | steps | seeds | shading mean r, g, b | cast | corr(albedo, true shading) |",
-                "|---|---|---|---|---|---|---|",
-            )
-            groups = {}
-            for r in res["rows"]:
-                variant = r["variant"] + ("" if r.get("lhat_white", True) else " (raw L-hat target)")
-                groups.setdefault((variant, r["batch_size"]), []).append(r)
-            for (variant, bs), rs in sorted(groups.items(), key=lambda kv: (len(kv[0][0]), kv[0][0], kv[0][1] or 0)):
-
-                def ms(vals):
-                    m = float(np.mean(vals))
-                    return f"{m:.3f} ± {float(np.std(vals, ddof=1)):.3f}" if len(vals) > 1 else f"{m:.3f}"
-
-                rgb = ", ".join(f"{float(np.mean([r['shading_mean_rgb'][c] for r in rs])):.2f}" for c in range(3))
-                steps = "/".join(sorted({str(r.get("steps", "–")) for r in rs}))
-                rep.add(
-                    f"| {variant} | {bs} | {steps} | {len(rs)} | {rgb} | {ms([r['shading_cast'] for r in rs])} | "
-                    f"{ms([r['albedo_shading_corr'] for r in rs])} |"
-                )
-            rep.add("")
-        if name == "bws" and len({r["batch_size"] for r in res["rows"]}) < 2:
-            rep.note(
-                "the BWS batch-size sweep (one batch size only in these runs); run the `multirun/bws` sweeps of "
-                "`ablations/README.md` for the curve against batch size."
-            )
-        if name == "training" and len({r["lr"] for r in res["rows"]}) < 2:
-            rep.note(
-                "the learning-rate sweep (one learning rate only in these runs); run the `multirun/lr` sweeps of "
-                "`ablations/README.md` for NaN / divergence rate against learning rate."
-            )
-        if name == "training":
-            rep.add(
-                f"Outcomes (`disent.eval.stability.outcome`): *NaN*, a loss term became non-finite (training stops, "
-                "`status.json` says so); *diverged*, the last logged total loss above 2x the first; *exploded*, a "
-                f"logged total loss above {res.get('spike', st.SPIKE):g}x the run's smallest "
-                "(a blow-up before the first "
-                "log escapes the previous rule); *collapsed*, the checkpoint's reconstructions vary across "
-                f"{res.get('n', 'the')} test images by less than {st.COLLAPSE:g}x the images' own spread (the output "
-                "ignores the input). Loss ratios, test recon MSE, normal error and input dependence are medians "
-                "over the group's seeds"
-                + (
-                    f"; the mean test image scores recon MSE {res['reference_mse']:.4f}"
-                    if res.get("reference_mse")
-                    else ""
-                )
-                + ".\n",
-                "| model | adversarial | lr | runs | NaN | diverged | exploded | collapsed | largest / smallest loss | "
-                "last / first loss | test recon MSE | normal err (deg) | input dependence |",
-                "|" + "---|" * 13,
-            )
-
-            def g(v, fmt=".3g"):
-                return "–" if v is None else format(v, fmt)
-
-            for r in res["rows"]:
-                rep.add(
-                    f"| {r['model']} | {r['adversarial']} | {r['lr']} | {r['runs']} | "
-                    + " | ".join(f"{r.get(f + '_rate', 0.0):.2f}" for f in st.FAILURES)
-                    + f" | {g(r.get('loss_spread'))} | {g(r.get('loss_ratio'))} | {g(r.get('recon_mse'), '.4f')} | "
-                    f"{g(r.get('normal_mean'), '.1f')} | {g(r.get('input_dependence'))} |"
-                )
-            rep.add("")
+        if table is not None:
+            table(rep, res)
 
 
 RECIPE_COLUMNS = (
