@@ -30,8 +30,8 @@ from disent.images import over_max, to_array
 from disent.runs import RUN_ROOTS, Run, find_runs, pick_runs, publish, tool_folder
 
 MODELS = ("baseline", "explicit", "implicit")
-TRAIN_SPEED_KEYS = ("train_images_per_s", "images_per_s", "train_ips")
-INFER_SPEED_KEYS = ("infer_images_per_s", "inference_images_per_s")
+TRAIN_SPEED_KEY = "images_per_s"  # logged by every training step (metrics.jsonl)
+INFER_SPEED_KEY = "infer_images_per_s"  # eval.json
 
 
 def _plt():
@@ -50,16 +50,13 @@ def _load_json(path: Path):
         return None
 
 
-def _speed(run: Run, keys) -> float | None:
-    """Median of the values logged under the first key found (training speed is logged per step)."""
-    for k in keys:
-        logged = sorted(r[k] for r in run.metrics if isinstance(r.get(k), (int, float)))
-        if logged:
-            return float(logged[len(logged) // 2])
-        v = run.value(k)
-        if v is not None:
-            return float(v)
-    return None
+def _speed(run: Run, key: str) -> float | None:
+    """Median of the values logged under ``key`` (training speed is logged per step), else eval.json's."""
+    logged = sorted(r[key] for r in run.metrics if isinstance(r.get(key), (int, float)))
+    if logged:
+        return float(logged[len(logged) // 2])
+    v = run.value(key)
+    return None if v is None else float(v)
 
 
 def _rel(path: Path, out: Path) -> str:
@@ -195,8 +192,8 @@ def sec_runs(rep: Report, runs: list[Run]) -> None:
             return "–" if v is None else f"{v:.4g}"
 
         rep.add(
-            f"| `{r.path}` | {r.variant} | {r.seed} | {r.status} | {f(_speed(r, TRAIN_SPEED_KEYS))} | "
-            f"{f(_speed(r, INFER_SPEED_KEYS))} | " + " | ".join(f(r.value(c)) for c in cols) + " |"
+            f"| `{r.path}` | {r.variant} | {r.seed} | {r.status} | {f(_speed(r, TRAIN_SPEED_KEY))} | "
+            f"{f(_speed(r, INFER_SPEED_KEY))} | " + " | ".join(f(r.value(c)) for c in cols) + " |"
         )
     rep.add(
         "",
@@ -663,7 +660,7 @@ def pareto_front(x, y) -> list[int]:
 
 def sec_speed(rep: Report, runs: list[Run]) -> None:
     pts = [
-        (r, _speed(r, TRAIN_SPEED_KEYS), r.value("normal_mean"), r.value("recon_mse")) for r in runs if r.status == "ok"
+        (r, _speed(r, TRAIN_SPEED_KEY), r.value("normal_mean"), r.value("recon_mse")) for r in runs if r.status == "ok"
     ]
     pts = [p for p in pts if p[1] is not None]
     if not pts:

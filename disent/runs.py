@@ -369,9 +369,6 @@ class Run:
             key, _, value = str(o).lstrip("+~").partition("=")
             if key == "ablation":
                 names += [v.strip() for v in value.strip("[]").split(",") if v.strip()]
-        listed = self.cfg.get("ablations") if isinstance(self.cfg, dict) else None
-        if not names and isinstance(listed, (list, tuple)):
-            names = [str(a) for a in listed]
         return sorted(set(names))
 
     @property
@@ -385,12 +382,12 @@ class Run:
 
     @property
     def lr(self):
-        return _get(self.cfg, "train.lr") or _get(self.cfg, "train.optim.lr") or _get(self.cfg, "optim.lr")
+        return _get(self.cfg, "train.lr")
 
     @property
     def adversarial(self) -> bool:
         """Whether the adversarial loss was on (its weight > 0 and no ``no_adv`` ablation)."""
-        w = _get(self.cfg, "loss.adv", _get(self.cfg, "loss.weights.adv", 1.0))
+        w = _get(self.cfg, "loss.weights.adv", 1.0)
         return "no_adv" not in self.ablations and bool(w)
 
     @property
@@ -411,11 +408,10 @@ class Run:
         """``nan`` (a loss became NaN/Inf: ``status.json`` says so, or one was logged), ``failed``
         (any other error), ``diverged`` (final total loss above 2x its first logged value),
         ``ok`` (evaluated) or ``incomplete`` (no eval.json: still running or killed)."""
-        said = (self.ended or {}).get("status") or (self.eval or {}).get("status")
+        said = (self.ended or {}).get("status")
         if said in ("nan", "diverged", "failed"):
             return said
-        key = "total" if any("total" in r for r in self.metrics) else "loss"
-        losses = [r.get(key) for r in self.metrics if key in r]
+        losses = [r.get("total") for r in self.metrics if "total" in r]
         if any(not _finite(x) for x in losses):
             return "nan"
         if len(losses) >= 2 and losses[-1] > 2 * losses[0]:

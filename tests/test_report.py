@@ -30,9 +30,9 @@ def make_run(
     (d / ".hydra" / "hydra.yaml").write_text(
         yaml.safe_dump({"hydra": {"runtime": {"choices": {"model": model, "experiment": "smoke"}}}})
     )
-    rows = [{"step": i, "loss": l, "train_images_per_s": ips} for i, l in enumerate(losses)]
+    rows = [{"step": i, "total": l, "images_per_s": ips} for i, l in enumerate(losses)]  # what training logs
     (d / "metrics.jsonl").write_text(
-        "".join(json.dumps(r) + "\n" for r in rows) + '{"step": 9, "loss"'
+        "".join(json.dumps(r) + "\n" for r in rows) + '{"step": 9, "total"'
     )  # torn last line
     if eval_ is not None:
         (d / "eval.json").write_text(json.dumps(eval_))
@@ -55,7 +55,7 @@ def test_run_labels_and_status(tmp_path):
     assert len(runs) == 7
     assert runs["3"].variant == "explicit+no_bws" and runs["4"].ablations == ["no_adv"] and not runs["4"].adversarial
     assert [runs[k].status for k in "0123456"] == ["ok", "ok", "ok", "ok", "nan", "diverged", "incomplete"]
-    assert runs["1"].value("normal_mean") == 20.0 and runs["1"].value("train_images_per_s") == 500.0
+    assert runs["1"].value("normal_mean") == 20.0 and runs["1"].value("images_per_s") == 500.0
 
 
 def test_ablation_table_mean_std(tmp_path):
