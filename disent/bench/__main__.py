@@ -91,6 +91,11 @@ def main(argv=None) -> None:
     p.add_argument("--no-channels-last", action="store_true", help="NCHW instead of NHWC activations")
     p.add_argument("--models", nargs="*", default=None, help="models to benchmark (default: all)")
     p.add_argument(
+        "--no-kernels",
+        action="store_true",
+        help="the plain PyTorch layers instead of the CPU speed kernels (model.kernels=false: what the kernels buy)",
+    )
+    p.add_argument(
         "--norm",
         choices=("none", "batch", "group"),
         default=None,
@@ -113,6 +118,8 @@ def main(argv=None) -> None:
     bench.DEVICE = args.device
     if args.norm:
         models.LAYER_OVERRIDES["norm"] = args.norm
+    if args.no_kernels:
+        models.LAYER_OVERRIDES["kernels"] = False
     if args.threads:
         torch.set_num_threads(args.threads)
     else:  # the fastest thread count, by the matmul peak (on a shared machine fewer threads can win)

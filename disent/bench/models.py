@@ -42,7 +42,8 @@ CONF = Path(__file__).resolve().parents[2] / "conf"
 MODELS = ("explicit", "implicit", "baseline")
 
 
-LAYER_OVERRIDES: dict = {}  # model settings every benchmarked model takes instead of conf/model's (--norm)
+# model settings every benchmarked model takes instead of conf/model's (--norm, --no-kernels)
+LAYER_OVERRIDES: dict = {}
 
 
 def model_cfg(name: str, resolution: int) -> dict:
@@ -276,6 +277,8 @@ def bench_models(args) -> dict:
         "resolution": args.size,
         "amp": args.amp,
         "channels_last": not args.no_channels_last,
+        "kernels": LAYER_OVERRIDES.get("kernels", True),
+        "norm": LAYER_OVERRIDES.get("norm", "conf/model"),
         "malloc_tuned": getattr(args, "malloc_tuned", False),
         "bf16_avx512_bf16_or_amx": cpu_has_bf16() if not device.startswith("cuda") else None,
     }
