@@ -76,7 +76,9 @@ def tool_folder(tool: str, out=None) -> Path:
     folder = Path(out) if out else Path("outputs") / tool / f"{time.strftime('%Y-%m-%d/%H-%M-%S')}-{os.getpid()}"
     folder.mkdir(parents=True, exist_ok=True)
     (folder / ".tool").write_text(tool + "\n")
-    (folder / "command.txt").write_text(" ".join(["python -m", sys.argv[0].removesuffix(".py"), *sys.argv[1:]]) + "\n")
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)  # python -m NAME: the module's name
+    prog = f"python -m {spec.name.removesuffix('.__main__')}" if spec else f"python {sys.argv[0]}"
+    (folder / "command.txt").write_text(" ".join([prog, *sys.argv[1:]]) + "\n")
     write_git_revision(folder)
     return folder
 
