@@ -498,6 +498,35 @@ def sec_stability(rep: Report, eval_dir: Path) -> None:
             table(rep, res)
 
 
+def sec_methods(rep: Report, eval_dir: Path) -> None:
+    """Every estimator's time per image against its accuracy, from ``reports/eval/methods.json``."""
+    from disent.eval.methods import PANELS, plot
+
+    res = _load_json(eval_dir / "methods.json")
+    if not res:
+        rep.note("`reports/eval/methods.json`; run `python -m disent.eval.methods`, then publish its folder.")
+        return
+    path = rep.fig / "methods.png"
+    plot(res, path)
+    rep.add(
+        f"Regenerate: `python -m disent.eval.methods --n {res['n']}`, then `python -m disent.report --publish "
+        f"FOLDER`. The first {res['n']} SynthFaces test images, every estimator timed in the same run on one "
+        "thread (a network at that batch); metrics on the pixels the networks are scored on. The coarse fit is "
+        "the simulated pseudo ground truth: it starts from the scene's parameters, so its time is a lower bound "
+        "for a real fit; *landmarks + fit* is the real pipeline (dlib and the face model) on the renders, scored "
+        "where dlib found the face.\n",
+        "| estimator | ms / image | images | " + " | ".join(label for _, label, _ in PANELS) + " |",
+        "|---|---|---|" + "---|" * len(PANELS),
+    )
+    for name, r in res["rows"].items():
+        t = "constant" if r.get("constant") else f"{1e3 * r['seconds_per_image']:.3g}"
+        extra = f" ({100 * r['detection_rate']:.0f} % detected)" if "detection_rate" in r else ""
+        cells = " | ".join(f"{r[k]:.3g}" if k in r else "–" for k, _, _ in PANELS)
+        rep.add(f"| {name}{extra} | {t} | {r['images']} | {cells} |")
+    rep.add("")
+    rep.image(path, "methods on one plane")
+
+
 RECIPE_COLUMNS = (
     ("normal_mean", "normals (deg)", ".2f"),
     ("recon_face_psnr", "face PSNR (dB)", ".2f"),
@@ -1046,6 +1075,7 @@ def build(
     rep.section("Training recipe: leave-one-out", sec_recipe, runs)
     rep.section("Learning curves", sec_learning_curves, runs)
     rep.section("Speed against accuracy", sec_speed, runs)
+    rep.section("Methods on one plane: time against accuracy", sec_methods, eval_dir)
     rep.section("Benchmarks (`reports/bench*.json`)", sec_bench, out)
     rep.section("L-hat uncertainty and lighting model order", sec_lighting, out)
     path = out / name

@@ -204,3 +204,28 @@ def test_trivial_baselines_are_dataset_means():
     assert oracle["sh_error"] < 1e-12 < oracle["trivial_sh_error"]
     same = metrics_from_outputs(trivial_outputs(means, 12), batch)  # the constant scored as a model: the same numbers
     assert same["normal_mean"] == pytest.approx(t["trivial_normal_mean"]) and "recon_mse" not in same
+
+
+def test_pareto_front_keeps_the_points_nothing_beats_on_both_axes():
+    from disent.eval.methods import pareto
+
+    points = [(0.0, 17.0), (1e-3, 10.7), (1e-2, 10.7), (2e-2, 10.5), (0.2, 27.0), (1e-3, 12.0)]
+    assert pareto(points, higher_better=False) == [0, 1, 3]  # (1e-2, 10.7) is beaten by (1e-3, 10.7)
+    assert pareto([(1.0, 24.0), (2.0, 27.0), (3.0, 26.0)], higher_better=True) == [0, 1]
+
+
+def test_methods_plane_scores_each_estimator_on_the_same_images(tmp_path):
+    """A tiny run of python -m disent.eval.methods (no networks, no posterior): every row carries its time per
+    image and its metrics, the constants take no time, and the coarse fit beats the mean normal map."""
+    import json
+
+    from disent.eval.methods import main
+
+    main(["--n", "6", "--runs", "--posterior", "0", "--out", str(tmp_path)])
+    res = json.loads((tmp_path / "methods.json").read_text())
+    rows = res["rows"]
+    assert res["n"] == 6 and (tmp_path / "methods.png").exists()
+    mean, coarse = rows["mean map / mean light"], rows["coarse fit (simulated pseudo-GT)"]
+    assert mean["seconds_per_image"] == 0.0 and mean["constant"]
+    assert coarse["seconds_per_image"] > 0 and coarse["normal_mean"] < mean["normal_mean"]
+    assert rows["L-hat on the coarse fit"]["sh_error"] == pytest.approx(coarse["sh_error"])  # the same L-hat
