@@ -288,3 +288,15 @@ def test_lighting_section_is_generated_from_the_published_json(tmp_path):
     rep = report.Report(tmp_path / "empty")
     report.sec_lighting(rep, tmp_path / "empty")
     assert rep.lines[0].startswith(report.MISSING)
+
+
+def test_claim_verdicts_need_seeds_and_a_difference_beyond_the_spread():
+    from disent.report import MIN_SEEDS, verdict
+
+    n = MIN_SEEDS
+    assert verdict((10.0, 0.2, n), (11.5, 0.0, n), "lower") == "**confirmed**"
+    assert verdict((12.0, 0.2, n), (11.5, 0.0, n), "lower") == "**refuted**"
+    assert verdict((11.4, 0.3, n), (11.5, 0.0, n), "lower").startswith("not resolved")
+    assert verdict((27.0, 0.1, n), (24.0, 0.1, n), "higher") == "**confirmed**"
+    assert verdict((10.0, 0.0, 1), (11.5, 0.0, n), "lower").startswith("not testable (1 seed")
+    assert verdict(None, (11.5, 0.0, n), "lower").startswith("not testable")
