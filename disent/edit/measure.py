@@ -432,14 +432,17 @@ def _measure_net(a, out, data_cls, resolution):
 
 
 def run_measurements(a) -> None:
-    """``python -m disent.edit measure``: everything under ``a.out`` (tables, JSON, figures)."""
+    """``python -m disent.edit measure``: tables, JSON and figures under ``<a.out>/<model name>/`` (published to
+    ``reports/edit/<model name>/``)."""
     from disent.data import LIGHT_BANK, SynthFaces
     from disent.models import load_run
     from disent.runs import tool_folder
 
-    out = tool_folder("edit", a.out)
+    folder = tool_folder("edit", a.out)
     torch.manual_seed(a.seed)
     model, cfg = load_run(a.run)
+    out = folder / cfg.model.name
+    out.mkdir(exist_ok=True)
     R = int(getattr(model, "resolution", 64))
     net, net_info = _measure_net(a, out, SynthFaces, R)
     print("measuring net (held-out):", json.dumps(net_info.get("val", {})), flush=True)
@@ -535,6 +538,7 @@ def run_measurements(a) -> None:
     ]
     (out / "edit.md").write_text("\n".join(text) + "\n")
     print("\n".join(text))
+    print(f"wrote {out}; publish it with: python -m disent.report --publish {folder}")
 
 
 def truth_override(attribute: str) -> dict:
