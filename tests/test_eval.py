@@ -229,3 +229,13 @@ def test_methods_plane_scores_each_estimator_on_the_same_images(tmp_path):
     assert mean["seconds_per_image"] == 0.0 and mean["constant"]
     assert coarse["seconds_per_image"] > 0 and coarse["normal_mean"] < mean["normal_mean"]
     assert rows["L-hat on the coarse fit"]["sh_error"] == pytest.approx(coarse["sh_error"])  # the same L-hat
+
+
+def test_yaw_effect_turns_every_face_to_the_severity_s_yaw():
+    from disent.data import SynthFaces
+    from disent.eval import stability as st
+
+    batch = st.ood_batch(SynthFaces, "yaw", 0.5, n=3, resolution=64)
+    assert torch.allclose(batch["pose"][:, 0].float(), torch.full((3,), 0.5 * st.MAX_YAW))
+    assert torch.allclose(batch["pose"][:, 1:].float(), torch.zeros(3, 2))
+    assert "yaw" in st.EFFECTS

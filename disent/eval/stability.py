@@ -39,7 +39,8 @@ BLOWUP = 10.0  # a condition number this many times the well-posed one marks the
 YAWS = (0, 10, 20, 30, 40, 45, 50, 60, 70, 80, 90)
 MASK_FRACTIONS = (1.0, 0.7, 0.5, 0.3, 0.2, 0.1, 0.05, 0.02)
 SEVERITIES = (0.0, 0.25, 0.5, 0.75, 1.0)
-EFFECTS = ("specular", "cast_shadow", "noise", "occluder", "light")
+EFFECTS = ("specular", "cast_shadow", "noise", "occluder", "light", "yaw")
+MAX_YAW = 90.0  # the yaw effect at severity 1 (the training prior spans +-45 degrees)
 MIN_PIXELS = 9  # 9 unknowns per channel
 ORACLE_NOISE = 0.02  # sensor noise of the oracle fit (images in [0, 1])
 LS_ESTIMATORS = ("ls_pseudo", "ls_true", "ls_oracle_noisy")
@@ -161,9 +162,12 @@ def tilt_light(sh: torch.Tensor, severity: float) -> torch.Tensor:
 
 
 def ood_batch(dataset_cls, effect: str, severity: float, n: int, resolution: int = 64) -> dict:
-    """``n`` test items with one effect at ``severity`` (``light``: the tilted light)."""
-    if effect == "light":
+    """``n`` test items with one effect at ``severity`` (``light``: the tilted light; ``yaw``: every face turned
+    to ``severity x MAX_YAW`` degrees, pitch = roll = 0)."""
+    if effect in ("light", "yaw"):
         ds = dataset_cls(split="test", resolution=resolution, seed=0)
+        if effect == "yaw":
+            return get_batch(ds, range(n), pose=torch.tensor([severity * MAX_YAW, 0.0, 0.0]))
         return get_batch(ds, range(n), sh=tilt_light(get_batch(ds, range(n))["sh"], severity))
     ds = dataset_cls(split="test", resolution=resolution, seed=0, effects={effect: severity} if severity > 0 else None)
     return get_batch(ds, range(n))
