@@ -300,3 +300,16 @@ def test_claim_verdicts_need_seeds_and_a_difference_beyond_the_spread():
     assert verdict((27.0, 0.1, n), (24.0, 0.1, n), "higher") == "**confirmed**"
     assert verdict((10.0, 0.0, 1), (11.5, 0.0, n), "lower").startswith("not testable (1 seed")
     assert verdict(None, (11.5, 0.0, n), "lower").startswith("not testable")
+
+
+def test_budget_check_names_each_missed_target(tmp_path):
+    from disent.report import budget_check
+
+    good = {"normal_mean": 12.0, "recon_face_psnr": 26.5, "albedo_si_mse": 0.005, "trivial_albedo_si_mse": 0.0127}
+    run = find_runs([make_run(tmp_path, "a", eval_=good).parent])[0]
+    assert "meets every target" in budget_check([run])
+    bad = {**good, "normal_mean": 13.0, "albedo_si_mse": 0.01}
+    run = find_runs([make_run(tmp_path, "b", eval_=bad).parent])
+    text = budget_check([r for r in run if r.path.name == "b"])
+    assert "normals 13.00 deg" in text and "albedo 0.79" in text and "face PSNR" not in text and "not testable" in text
+    assert "no finished full explicit run" in budget_check([])
