@@ -1,7 +1,7 @@
 """The ablation table: every variant (model + ablations) as mean +- std over seeds.
 
-``python -m disent.eval.ablation [ROOT ...] [--out ablations/results.md]`` reads run folders
-(default ``multirun/`` and ``outputs/``) and writes a Markdown table plus a JSON beside it.
+``python -m disent.eval.ablation [ROOT ...] [--out FOLDER]`` reads run folders (default ``multirun/`` and
+``outputs/``) and writes ``ablation.md`` and ``ablation.json`` into a tool folder.
 The caption states the training budget read from the runs' own configs.
 """
 
@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-from pathlib import Path
 
 from disent.runs import RUN_ROOTS, Run, find_runs
 
@@ -142,15 +141,17 @@ def to_markdown(table: dict) -> str:
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("roots", nargs="*", default=list(RUN_ROOTS))
-    p.add_argument("--out", default="ablations/results.md")
+    p.add_argument("--out", default=None, help="output folder (default: outputs/eval/<date>/<time>-<pid>/)")
     a = p.parse_args(argv)
+    from disent.runs import tool_folder
+
     table = ablation_table(find_runs(a.roots))
     md = to_markdown(table)
-    out = Path(a.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text("# Ablation results\n\n" + md)
-    out.with_suffix(".json").write_text(json.dumps(table, indent=1))
+    out = tool_folder("eval", a.out)
+    (out / "ablation.md").write_text("# Ablation results\n\n" + md)
+    (out / "ablation.json").write_text(json.dumps(table, indent=1))
     print(md)
+    print(f"wrote {out}/ablation.md (the report's Ablations section tables every budget: python -m disent.report)")
 
 
 if __name__ == "__main__":
