@@ -437,7 +437,7 @@ def plot_ood(res: dict, path) -> None:
                 if k in c:
                     ax.plot(res["severities"], c[k], "o-", ms=3, color=colour[name], label=name)
             if i == 0:
-                ax.set_title(e, fontsize=9)
+                ax.set_title(f"yaw (severity x {MAX_YAW:g} deg)" if e == "yaw" else e, fontsize=9)
             if j == 0:
                 ax.set_ylabel(k, fontsize=8)
             if i == len(keys) - 1:
