@@ -596,6 +596,36 @@ def _stability_conditioning(rep: Report, cond: dict | None) -> None:
         rep.note("`reports/eval/conditioning.json`; run `python -m disent.eval.stability conditioning`.")
 
 
+BREAK_FACTOR = 1.5  # an estimator breaks at the first severity whose error is this many times its clean error
+
+
+def _stability_ood(rep: Report, res: dict) -> None:
+    """Where each estimator breaks: per effect, the first severity whose error passes ``BREAK_FACTOR`` x its
+    error on clean images, for the normals and the light."""
+    sev = res["severities"]
+    rep.add(
+        f"Where each estimator breaks: the first severity at which its error passes {BREAK_FACTOR:g}x its error on "
+        f"clean images ({res['n']} test images a point; `–`: not within the range). `light` turns the light "
+        "out of the training prior (severity x 180 deg about the camera's x axis); `yaw` turns every face to "
+        "severity x 90 deg (the prior spans +-45 deg).\n",
+        "| effect | estimator | normal error: clean -> worst | breaks at | SH error: clean -> worst | breaks at |",
+        "|---|---|---|---|---|---|",
+    )
+
+    def breaks(values):
+        if not values or not values[0] > 0:
+            return "–", "–"
+        at = next((s for s, v in zip(sev, values) if v > BREAK_FACTOR * values[0]), None)
+        return f"{values[0]:.3g} -> {max(values):.3g}", "–" if at is None else f"{at:g}"
+
+    for effect, curves in res["effects"].items():
+        for est, c in curves.items():
+            n_range, n_at = breaks(c.get("normal_mean"))
+            sh_range, sh_at = breaks(c.get("sh_error"))
+            rep.add(f"| {effect} | {est} | {n_range} | {n_at} | {sh_range} | {sh_at} |")
+    rep.add("")
+
+
 def _stability_bws(rep: Report, res: dict) -> None:
     """The BWS table: shading cast and albedo absorbing shading, per variant and batch size."""
     rep.add(
@@ -676,7 +706,7 @@ def sec_stability(rep: Report, eval_dir: Path) -> None:
 
     _stability_conditioning(rep, _load_json(eval_dir / "conditioning.json"))
     for name, title, plot, table in (
-        ("ood", "Out of distribution: error against severity", st.plot_ood, None),
+        ("ood", "Out of distribution: error against severity", st.plot_ood, _stability_ood),
         ("bws", "Without BWS: shading cast and albedo absorbing shading", st.plot_bws, _stability_bws),
         ("training", "Training stability: NaN and divergence rate", st.plot_training, _stability_training),
     ):
