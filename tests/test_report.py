@@ -313,3 +313,23 @@ def test_budget_check_names_each_missed_target(tmp_path):
     text = budget_check([r for r in run if r.path.name == "b"])
     assert "normals 13.00 deg" in text and "albedo 0.79" in text and "face PSNR" not in text and "not testable" in text
     assert "no finished full explicit run" in budget_check([])
+
+
+def test_ood_table_reports_where_each_estimator_breaks(tmp_path):
+    from disent import report
+
+    res = {
+        "severities": [0.0, 0.5, 1.0],
+        "n": 4,
+        "effects": {
+            "yaw": {
+                "explicit": {"normal_mean": [10.0, 14.0, 16.0], "sh_error": [0.6, 0.62, 0.7]},
+                "ls_true": {"sh_error": [0.4, 0.7, 0.8]},
+            }
+        },
+    }
+    rep = report.Report(tmp_path)
+    report._stability_ood(rep, res)
+    text = "\n".join(rep.lines)
+    assert "| yaw | explicit | 10 -> 16 | 1 | 0.6 -> 0.7 | – |" in text  # 16 > 1.5 x 10 only at severity 1
+    assert "| yaw | ls_true | – | – | 0.4 -> 0.8 | 0.5 |" in text
