@@ -239,3 +239,15 @@ def test_yaw_effect_turns_every_face_to_the_severity_s_yaw():
     assert torch.allclose(batch["pose"][:, 0].float(), torch.full((3,), 0.5 * st.MAX_YAW))
     assert torch.allclose(batch["pose"][:, 1:].float(), torch.zeros(3, 2))
     assert "yaw" in st.EFFECTS
+
+
+def test_stability_studies_without_runs_write_nothing(tmp_path):
+    """A study whose sweeps are absent writes no JSON, so publishing its folder cannot replace a published
+    study with an empty one."""
+    from disent.eval import stability as st
+
+    none = str(tmp_path / "no_runs")
+    st.main(
+        ["bws", "training", "--bws-roots", none, "--training-roots", none, "--n", "2", "--out", str(tmp_path / "o")]
+    )
+    assert not (tmp_path / "o" / "bws.json").exists() and not (tmp_path / "o" / "training.json").exists()

@@ -596,9 +596,11 @@ def main(argv=None):
         plot_ood(res, out / "ood.png")
     if "bws" in a.studies:
         res = bws_study(find_runs(a.bws_roots), SynthFaces(split="test", resolution=a.resolution, seed=0), n=2 * a.n)
-        write("bws", res)
-        if res["rows"]:
+        if res["rows"]:  # no runs: nothing written, so publishing never replaces a study with an empty one
+            write("bws", res)
             plot_bws(res, out / "bws.png")
+        else:
+            print(f"bws: no runs under {' '.join(a.bws_roots)}; nothing written")
     if "training" in a.studies:
         from disent.data import SynthFaces
 
@@ -607,9 +609,11 @@ def main(argv=None):
         test = SynthFaces(split="test", resolution=a.resolution, seed=0)
         ref = mean_image_mse(test, n_eval[0]) if len(n_eval) == 1 else None
         res = {**training_stability(truns, next(iter(batches(test, a.n, a.n)))["image"], ref), "n": a.n}
-        write("training", res)
         if res["rows"]:
+            write("training", res)
             plot_training(res, out / "training.png")
+        else:
+            print(f"training: no runs under {' '.join(a.training_roots)}; nothing written")
 
 
 if __name__ == "__main__":
