@@ -5,7 +5,7 @@
 
 Every image file under each PATH goes through the pseudo-ground-truth pipeline
 (:mod:`disent.data.photos.pseudo_gt`: EXIF rotation, landmarks, the training crop, the morphable-model fit) and
-then through a trained model.  Into a run folder (``--out``, default ``outputs/photos/<date>/<time>-<pid>``)
+then through a trained model.  Into a run folder (``--out``, default ``outputs/decompose/<date>/<time>-<pid>``)
 it writes, per photo ``NNN_<name>/``: ``crop.png``, ``normal_pseudo.png``, ``mask_pseudo.png``,
 ``landmarks.json`` (the 68 points in the original photo's pixels and in the crop), the decomposition
 ``recon.png albedo.png normal.png shading.png matte.png`` and ``relit_<light>.png`` (lighting transfer with
@@ -17,8 +17,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import time
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +24,7 @@ import torch
 
 from disent.data.photos import pseudo_gt as pg
 from disent.images import over_max, save_image
+from disent.runs import tool_folder
 
 RELIGHT = ("flash_az-60", "top", "flash_az+60")  # named lights of the bank (python -m disent.edit lights)
 SHOWN = 16  # rows of decomposition.png
@@ -121,7 +120,7 @@ def main(argv=None) -> None:
     ap.add_argument(
         "--run", default="explicit", help="shipped model name, run folder or checkpoint (default: explicit)"
     )
-    ap.add_argument("--out", default=None, help="output folder (default: outputs/photos/<date>/<time>-<pid>)")
+    ap.add_argument("--out", default=None, help="output folder (default: outputs/decompose/<date>/<time>-<pid>)")
     ap.add_argument(
         "--faces",
         default="largest",
@@ -139,10 +138,9 @@ def main(argv=None) -> None:
     from disent.edit.__main__ import load_model
     from disent.edit.relight import named_light, relight
 
+    files = collect(a.paths)  # a wrong path stops here, before the model is loaded
     model, R = load_model(a.run)
-    files = collect(a.paths)
-    out_dir = Path(a.out or f"outputs/photos/{time.strftime('%Y-%m-%d/%H-%M-%S')}-{os.getpid()}")
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = tool_folder("decompose", a.out)
     records = run_pipeline(files, a.faces, R, a.upsample, a.cache_dir, a.workers)
     summary = pg.summarize(records)
     used = [r for r in records if r.used]

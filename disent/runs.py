@@ -61,7 +61,7 @@ PUBLISH_TO = {
     "eval": "eval",
     "bench": ".",
     "sheet": "figures",
-}
+}  # a tool not named here (python -m disent.photos writes "decompose" folders) is never published
 NOT_PUBLISHED = ("git.txt", "command.txt", ".tool")
 
 
@@ -71,8 +71,8 @@ def tool_folder(tool: str, out=None) -> Path:
     import sys
     import time
 
-    if tool not in PUBLISH_TO:
-        raise ValueError(f"unknown tool {tool!r}; one of {', '.join(PUBLISH_TO)}")
+    if not tool.isidentifier():
+        raise ValueError(f"tool name {tool!r}: letters, digits and underscores only")
     folder = Path(out) if out else Path("outputs") / tool / f"{time.strftime('%Y-%m-%d/%H-%M-%S')}-{os.getpid()}"
     folder.mkdir(parents=True, exist_ok=True)
     (folder / ".tool").write_text(tool + "\n")
@@ -96,7 +96,7 @@ def publish(folder, reports="reports") -> list[Path]:
         )
     tool = marker.read_text().strip()
     if tool not in PUBLISH_TO:
-        raise ValueError(f"{marker}: unknown tool {tool!r}")
+        raise ValueError(f"{marker}: the results of {tool!r} are not published; publishable: {', '.join(PUBLISH_TO)}")
     files = [p for p in sorted(folder.rglob("*")) if p.is_file() and p.name not in NOT_PUBLISHED and p.suffix != ".pt"]
     if not files:
         raise FileNotFoundError(f"{folder} holds no results to publish")

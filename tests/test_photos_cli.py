@@ -137,8 +137,11 @@ def test_photos_command_errors_are_one_line(tmp_path, capsys):
     (tmp_path / "empty").mkdir()
     with pytest.raises(SystemExit, match="no image files"):
         main([str(tmp_path / "empty")])
-    with pytest.raises(SystemExit, match="shipped models: baseline, explicit, implicit"):
+    with pytest.raises(SystemExit, match="no image files"):  # the inputs are checked before the model loads
         main([str(tmp_path / "empty"), "--run", "explicitt"])
+    photo_folder(tmp_path / "in")
+    with pytest.raises(SystemExit, match="shipped models: baseline, explicit, implicit"):
+        main([str(tmp_path / "in"), "--run", "explicitt"])
 
 
 def test_edit_loader_honours_exif_reads_ppm_and_skips_bad_entries(tmp_path, capsys):

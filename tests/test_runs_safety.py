@@ -184,5 +184,5 @@ def test_tool_folders_publish_their_results_and_nothing_else(tmp_path, monkeypat
     empty = tool_folder("photos", tmp_path / "empty")
     with pytest.raises(FileNotFoundError, match="holds no results"):
         publish(empty, reports)
-    with pytest.raises(ValueError, match="unknown tool"):
-        tool_folder("nonsense")
+    with pytest.raises(ValueError, match="are not published"):
+        publish(tool_folder("decompose", tmp_path / "d"), reports)
