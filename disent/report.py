@@ -905,67 +905,6 @@ def sec_learning_curves(rep: Report, runs: list[Run]) -> None:
     )
 
 
-def pareto_front(x, y) -> list[int]:
-    """Indices of points not dominated when ``x`` is to be maximised and ``y`` minimised, by increasing x."""
-    order = sorted(range(len(x)), key=lambda i: (-x[i], y[i]))
-    front, best = [], math.inf
-    for i in order:
-        if y[i] < best:
-            front.append(i)
-            best = y[i]
-    return sorted(front, key=lambda i: x[i])
-
-
-def sec_speed(rep: Report, runs: list[Run]) -> None:
-    pts = [
-        (r, _speed(r, TRAIN_SPEED_KEY), r.value("normal_mean"), r.value("recon_mse")) for r in runs if r.status == "ok"
-    ]
-    pts = [p for p in pts if p[1] is not None]
-    if not pts:
-        rep.note("no finished run logged its training images/s.")
-        return
-    plt = _plt()
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
-    colour = {v: f"C{k % 10}" for k, v in enumerate(sorted({p[0].variant for p in pts}))}
-    for ax, j, label in ((axes[0], 2, "normal error (deg)"), (axes[1], 3, "reconstruction MSE")):
-        sel = [p for p in pts if p[j] is not None]
-        for v in sorted({p[0].variant for p in sel}):
-            vs = [p for p in sel if p[0].variant == v]
-            ax.scatter(
-                [p[1] for p in vs],
-                [p[j] for p in vs],
-                s=18,
-                color=colour[v],
-                label=v,
-                marker="o" if "+" not in v else "x",
-            )
-        if sel:
-            front = pareto_front([p[1] for p in sel], [p[j] for p in sel])
-            ax.plot(
-                [sel[i][1] for i in front],
-                [sel[i][j] for i in front],
-                "k--",
-                lw=0.8,
-                marker="s",
-                ms=9,
-                mfc="none",
-                label="Pareto front",
-            )
-        ax.set_xlabel("training images/s")
-        ax.set_ylabel(label)
-        ax.legend(fontsize=5, ncol=2)
-    fig.suptitle(
-        "Speed against accuracy, one point per run (up-left is worse; the front: fastest for its error)", fontsize=8
-    )
-    rep.figure(fig, "speed_accuracy.png", "speed versus accuracy")
-    rep.add(
-        "_Training images/s is the median of the per-step rates each run logged, on whatever machine and load "
-        "it ran (see the runs table); the Pareto front joins the runs no other run beats on both axes._\n"
-    )
-    if not any(p[2] is not None for p in pts):
-        rep.note("no run has a normal error (baseline-only runs).")
-
-
 FRACTION_TARGETS = {
     "train": 0.55,
     "infer": 0.60,
@@ -1304,7 +1243,6 @@ def build(
     rep.section("Stability where methods fail", sec_stability, eval_dir)
     rep.section("Training recipe: leave-one-out", sec_recipe, runs)
     rep.section("Learning curves", sec_learning_curves, runs)
-    rep.section("Speed against accuracy", sec_speed, runs)
     rep.section("Methods on one plane: time against accuracy", sec_methods, eval_dir)
     rep.section("Benchmarks (`reports/bench*.json`)", sec_bench, out)
     rep.section("L-hat uncertainty and lighting model order", sec_lighting, out)
