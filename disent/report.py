@@ -220,7 +220,8 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
         return
     rep.add(
         f"Each verdict needs {MIN_SEEDS} seeds per arm and a difference larger than the arms' seed spread "
-        "(std); runs are grouped by their overrides apart from the seed (the *setting*).\n"
+        "(std). Runs of the budget ladder only (the defaults, `+experiment=long`; no other override), grouped by "
+        "their overrides apart from the seed and the time guard (the *setting*).\n"
     )
     rep.add(
         "### 1. The network's normals go beyond the morphable-model fit that supervised them\n",
