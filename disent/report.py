@@ -169,42 +169,43 @@ MIN_SEEDS = 3  # a verdict needs at least this many seeds per arm
 EDIT_WORKS = 0.5  # an edit works where at least this share of the edited faces reads as having the attribute
 
 
+def _overrides(run: Run, drop=SEED_FREE) -> list[str]:
+    return sorted(str(o) for o in run.overrides if not str(o).lstrip("+~").startswith(drop))
+
+
 def setting(run: Run, drop_model: bool = False) -> str:
     """What a run is, apart from its seed (and its model, for comparisons across models): its overrides."""
-    drop = SEED_FREE + (("model=",) if drop_model else ())
-    kept = sorted(str(o) for o in run.overrides if not str(o).lstrip("+~").startswith(drop))
-    return " ".join(kept) or "(defaults)"
+    return " ".join(_overrides(run, SEED_FREE + (("model=",) if drop_model else ()))) or "(defaults)"
 
 
-def _spread(runs: list[Run], key: str):
-    v = [x for r in runs if isinstance(x := r.value(key), (int, float)) and math.isfinite(x)]
-    if not v:
-        return None
-    m = sum(v) / len(v)
-    return m, (math.sqrt(sum((x - m) ** 2 for x in v) / (len(v) - 1)) if len(v) > 1 else 0.0), len(v)
+def _spread(runs: list[Run], key: str) -> dict | None:
+    """Mean, std and count over ``runs`` of one metric (:func:`disent.eval.ablation.mean_std`)."""
+    return _ablation.mean_std([r.value(key) for r in runs])
 
 
 def _ms(st, fmt=".2f") -> str:
     if st is None:
         return "–"
-    return f"{st[0]:{fmt}} (n=1)" if st[2] == 1 else f"{st[0]:{fmt}} ± {st[1]:{fmt}} (n={st[2]})"
+    if st["n"] == 1:
+        return f"{st['mean']:{fmt}} (n=1)"
+    return f"{st['mean']:{fmt}} ± {st['std']:{fmt}} (n={st['n']})"
 
 
 def on_the_ladder(run: Run) -> bool:
     """A plain run of a budget rung (``smoke``, the defaults, ``long``): no override beyond model and experiment."""
-    return all(o.startswith(RUNG) for o in setting(run).split() if o != "(defaults)")
+    return all(o.startswith(RUNG) for o in _overrides(run))
 
 
 def verdict(a, b, better: str) -> str:
-    """Whether arm ``a`` beats arm ``b`` (``better``: "lower" or "higher"), from mean ± std over seeds: confirmed
+    """Whether arm ``a`` beats arm ``b`` (``better``: "lower" or "higher"; each a :func:`_spread`): confirmed
     or refuted where the difference exceeds both arms' seed spread, else not resolved; not testable with fewer
     than ``MIN_SEEDS`` seeds in an arm."""
     if a is None or b is None:
         return "not testable (no runs)"
-    if min(a[2], b[2]) < MIN_SEEDS:
-        return f"not testable ({min(a[2], b[2])} seed(s); {MIN_SEEDS} needed)"
-    diff = (b[0] - a[0]) if better == "lower" else (a[0] - b[0])
-    if abs(diff) <= max(a[1], b[1]):
+    if min(a["n"], b["n"]) < MIN_SEEDS:
+        return f"not testable ({min(a['n'], b['n'])} seed(s); {MIN_SEEDS} needed)"
+    diff = (b["mean"] - a["mean"]) if better == "lower" else (a["mean"] - b["mean"])
+    if abs(diff) <= max(a["std"], b["std"]):
         return "not resolved (difference within the seed spread)"
     return "**confirmed**" if diff > 0 else "**refuted**"
 
@@ -253,7 +254,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
                 )
         if trivial:
             rep.add(
-                f"- The constant mean light scores SH error {trivial[0]:.3f} on the test split: lower variance "
+                f"- The constant mean light scores SH error {trivial['mean']:.3f} on the test split: lower variance "
                 "than L-hat is not by itself evidence of a learned light (section *Lighting stability*)."
             )
         rep.add("")
@@ -507,12 +508,12 @@ def budget_check(explicit: list[Run]) -> str:
     albedo, trivial = _spread(explicit, "albedo_si_mse"), _spread(explicit, "trivial_albedo_si_mse")
     if not (normal and psnr and albedo and trivial):
         return "_Budget check: no finished full explicit run at this budget; verdicts not testable._\n"
-    share = albedo[0] / trivial[0]
+    share = albedo["mean"] / trivial["mean"]
     misses = []
-    if normal[0] > TARGETS["normal_mean"]:
-        misses.append(f"normals {normal[0]:.2f} deg (target <= {TARGETS['normal_mean']})")
-    if psnr[0] < TARGETS["recon_face_psnr"]:
-        misses.append(f"face PSNR {psnr[0]:.2f} dB (>= {TARGETS['recon_face_psnr']})")
+    if normal["mean"] > TARGETS["normal_mean"]:
+        misses.append(f"normals {normal['mean']:.2f} deg (target <= {TARGETS['normal_mean']})")
+    if psnr["mean"] < TARGETS["recon_face_psnr"]:
+        misses.append(f"face PSNR {psnr['mean']:.2f} dB (>= {TARGETS['recon_face_psnr']})")
     if share > TARGETS["albedo_share_of_trivial"]:
         misses.append(f"albedo {share:.2f} of the mean map's (<= {TARGETS['albedo_share_of_trivial']})")
     if misses:

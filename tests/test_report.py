@@ -286,12 +286,13 @@ def test_claim_verdicts_need_seeds_and_a_difference_beyond_the_spread():
     from disent.report import MIN_SEEDS, verdict
 
     n = MIN_SEEDS
-    assert verdict((10.0, 0.2, n), (11.5, 0.0, n), "lower") == "**confirmed**"
-    assert verdict((12.0, 0.2, n), (11.5, 0.0, n), "lower") == "**refuted**"
-    assert verdict((11.4, 0.3, n), (11.5, 0.0, n), "lower").startswith("not resolved")
-    assert verdict((27.0, 0.1, n), (24.0, 0.1, n), "higher") == "**confirmed**"
-    assert verdict((10.0, 0.0, 1), (11.5, 0.0, n), "lower").startswith("not testable (1 seed")
-    assert verdict(None, (11.5, 0.0, n), "lower").startswith("not testable")
+    arm = lambda mean, std, k=n: {"mean": mean, "std": std, "n": k}  # noqa: E731  (what report._spread returns)
+    assert verdict(arm(10.0, 0.2), arm(11.5, 0.0), "lower") == "**confirmed**"
+    assert verdict(arm(12.0, 0.2), arm(11.5, 0.0), "lower") == "**refuted**"
+    assert verdict(arm(11.4, 0.3), arm(11.5, 0.0), "lower").startswith("not resolved")
+    assert verdict(arm(27.0, 0.1), arm(24.0, 0.1), "higher") == "**confirmed**"
+    assert verdict(arm(10.0, 0.0, 1), arm(11.5, 0.0), "lower").startswith("not testable (1 seed")
+    assert verdict(None, arm(11.5, 0.0), "lower").startswith("not testable")
 
 
 def test_budget_check_names_each_missed_target(tmp_path):

@@ -35,7 +35,8 @@ BUDGET_KEYS = (
 )
 
 
-def _stats(values):
+def mean_std(values) -> dict | None:
+    """``{mean, std (ddof 1; 0 for one value), n}`` of the finite numbers in ``values``; None if there are none."""
     v = [x for x in values if isinstance(x, (int, float)) and math.isfinite(x)]
     if not v:
         return None
@@ -90,8 +91,8 @@ def ablation_table(runs: list[Run]) -> dict:
             },
         }
         for key, _, _ in COLUMNS:
-            row[key] = _stats([r.value(key) for r in ok])
-        row["train_images_per_s"] = _stats([r.value("images_per_s") for r in ok])
+            row[key] = mean_std([r.value(key) for r in ok])
+        row["train_images_per_s"] = mean_std([r.value("images_per_s") for r in ok])
         rows.append(row)
     return {"rows": rows, "budget": budget(runs)}
 
