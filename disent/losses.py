@@ -45,8 +45,10 @@ def spatial_gradients(x: torch.Tensor, mask: torch.Tensor):
     return (dx, mask[..., :, 1:] * mask[..., :, :-1]), (dy, mask[..., 1:, :] * mask[..., :-1, :])
 
 
-def recon(out, batch):
-    return F.mse_loss(out["recon"], batch["image"])
+def recon(out, batch, p: int = 2):
+    """E_recon: the paper's L2 (``p=2``) or the release's L1 (``p=1``) over every value of I_o."""
+    err = out["recon"] - batch["image"]
+    return err.pow(2).mean() if p == 2 else err.abs().mean()
 
 
 def recon_fg(out, batch):
@@ -155,11 +157,13 @@ def generator_losses(
     bws_c: float = 0.75,
     lhat_white: bool = True,
     recon_L_space: str = "shading",
+    recon_p: int = 2,
 ) -> dict:
     """Unweighted value of every active term, plus ``total`` = sum of weight x term (E_o and the priors).
 
     ``energy_fake`` is D's energy of ``out['recon']`` (``[B]``), needed when ``adv`` is active;
-    ``lhat_white`` and ``recon_L_space`` choose E_recon-L's target and metric (see :func:`recon_L`).
+    ``lhat_white`` and ``recon_L_space`` choose E_recon-L's target and metric (see :func:`recon_L`);
+    ``recon_p`` E_recon's norm (2: the paper, 1: the release).
     """
     losses = {}
     for t in active_terms(weights, out):
@@ -171,6 +175,8 @@ def generator_losses(
             fn = TERM_FUNCTIONS[t]
             if t == "BWS":
                 losses[t] = fn(out, batch, bws_c)
+            elif t == "recon":
+                losses[t] = fn(out, batch, recon_p)
             elif t == "recon_L":
                 losses[t] = fn(out, batch, bws_c if lhat_white else None, recon_L_space)
             else:

@@ -112,6 +112,7 @@ def train_step(model, disc, opt_g, opt_d, batch, cfg_loss) -> dict:
         cfg_loss.bws_c,
         cfg_loss.get("lhat_white", True),
         cfg_loss.get("recon_L_space", "shading"),
+        cfg_loss.get("recon_p", 2),
     )
     if disc is not None:
         energy_real = disc.energy(batch["image"])
@@ -217,6 +218,8 @@ def check_config(cfg) -> None:
     ):
         if value not in allowed:
             raise ConfigError(f"{key}={value!r}; choose from {', '.join(allowed)}")
+    if cfg.loss.get("recon_p", 2) not in (1, 2):
+        raise ConfigError(f"loss.recon_p={cfg.loss.recon_p!r}; choose from 1 (L1, the release), 2 (L2, the paper)")
     device = str(cfg.device)
     kind, _, index = device.partition(":")
     if kind not in ("cpu", "cuda") or (index and not index.isdigit()) or (kind == "cpu" and index):

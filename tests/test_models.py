@@ -148,6 +148,10 @@ def test_loss_terms_closed_forms():
     out = {"normal": b["normal_pseudo"] + 0.1 * mask, "matte": mask, "recon": b["image"], "sh": b["sh_pseudo"] + 0.5}
     assert L.recon_N(out, b).item() == pytest.approx(0.01, rel=1e-5)  # only masked pixels count
     assert L.M(out, b).item() == 0 and L.recon(out, b).item() == 0
+    off = {"recon": b["image"] + 0.1 - 0.2 * mask}  # |error| 0.1 everywhere: L2 gives 0.01, L1 0.1
+    assert L.recon(off, b).item() == pytest.approx(0.01, rel=1e-5)
+    assert L.recon(off, b, p=1).item() == pytest.approx(0.1, rel=1e-5)
+    assert L.generator_losses(off, b, {"recon": 1}, recon_p=1)["recon"].item() == pytest.approx(0.1, rel=1e-5)
     assert L.recon_L(out, b, c=None, space="coefficients").item() == pytest.approx(0.25)
     # in shading space: 0.5 more on L1 alone shades every face pixel C4 * 0.5 brighter
     lift = {"sh": b["sh_pseudo"] + 0.5 * F.one_hot(torch.tensor(0), 9)}

@@ -270,6 +270,7 @@ def test_learning_rate_schedules():
         ("train.lr=0", "train.lr=0: must be a positive number"),
         ("train.optimizer=sgd", "train.optimizer='sgd'; choose from rmsprop, adam"),
         ("data.train_size=0", "data.train_size=0"),
+        ("loss.recon_p=3", r"loss.recon_p=3; choose from 1 \(L1, the release\), 2"),
         ("device=tpu", "device='tpu'; choose from cpu, cuda, cuda:N"),
         ("device=cpu:1", "device='cpu:1'; choose from"),
     ],
