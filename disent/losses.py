@@ -18,7 +18,14 @@ name           term                                      needs
 ``Ni``         E_Ni = ||N_i - N_i-hat||^2 (UV space)     implicit
 ``BWS``        batch-wise white shading, mean S = c      explicit, implicit
 ``M``          E_M = ||M - M-hat||^2                     explicit, implicit (with matting)
+``A_true``     ||A - A_true||^2 (not a paper term)       the supervised ceiling
+``N_true``     ||N - N_true||^2 (not a paper term)       the supervised ceiling
+``L_true``     ||Z_L - L_true||^2 (not a paper term)     the supervised ceiling
 =============  =======================================  ==========================
+
+The last three train on SynthFaces' ground truth (``conf/loss/ceiling.yaml``): the same network with the
+supervision the paper's models lack, to measure what the architecture can reach at a budget.  Albedo and
+normals count on the pixels where the layers are scored (the true face inside M-hat).
 
 A term whose weight is 0 is not computed at all: it is absent from the loss dict and adds
 nothing to the gradient (that is how ablations switch terms off).
@@ -29,9 +36,12 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+from disent.eval.evaluate import decomposed_region
 from disent.render import sh_shading
 
 TERMS = ("recon", "recon_fg", "adv", "recon_N", "recon_L", "smooth_A", "smooth_S", "UV", "Ni", "BWS", "M")
+TRUTH = ("A_true", "N_true", "L_true")  # terms on the true layers
+TRUTH_KEYS = ("albedo", "normal", "sh", "matte")  # the batch keys they read
 
 
 def masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -114,6 +124,18 @@ def M(out, batch):
     return F.mse_loss(out["matte"], batch["mask_pseudo"])
 
 
+def A_true(out, batch):
+    return masked_mean((out["albedo"] - batch["albedo"]).pow(2), decomposed_region(batch))
+
+
+def N_true(out, batch):
+    return masked_mean((out["normal"] - batch["normal"]).pow(2), decomposed_region(batch))
+
+
+def L_true(out, batch):
+    return F.mse_loss(out["sh"], batch["sh"])
+
+
 TERM_FUNCTIONS = {
     "recon": recon,
     "recon_fg": recon_fg,
@@ -125,6 +147,9 @@ TERM_FUNCTIONS = {
     "Ni": Ni,
     "BWS": BWS,
     "M": M,
+    "A_true": A_true,
+    "N_true": N_true,
+    "L_true": L_true,
 }  # adv comes from D
 NEEDS = {
     "recon": "recon",
@@ -138,15 +163,18 @@ NEEDS = {
     "Ni": "normal_uv",
     "BWS": "shading",
     "M": "matte",
+    "A_true": "albedo",
+    "N_true": "normal",
+    "L_true": "sh",
 }
 
 
 def active_terms(weights: dict, out: dict) -> list[str]:
     """Terms with a nonzero weight whose model output exists."""
-    unknown = set(weights) - set(TERMS)
+    unknown = set(weights) - set(TERMS + TRUTH)
     if unknown:
-        raise KeyError(f"unknown loss terms {sorted(unknown)}; terms are {', '.join(TERMS)}")
-    return [t for t in TERMS if weights.get(t, 0) and NEEDS[t] in out]
+        raise KeyError(f"unknown loss terms {sorted(unknown)}; terms are {', '.join(TERMS + TRUTH)}")
+    return [t for t in TERMS + TRUTH if weights.get(t, 0) and NEEDS[t] in out]
 
 
 def generator_losses(

@@ -37,6 +37,12 @@ from disent.runtime import Prefetcher, tune_malloc
 TRAIN_KEYS = ("image", "normal_pseudo", "mask_pseudo", "sh_pseudo", "uv_pseudo", "normal_uv_pseudo")
 
 
+def train_keys(cfg_loss) -> tuple:
+    """The batch keys a training step reads: the pseudo-GT, and the true layers where a ceiling term is on."""
+    truth = any(cfg_loss.weights.get(t, 0) for t in L.TRUTH)
+    return TRAIN_KEYS + (L.TRUTH_KEYS if truth else ())
+
+
 class NonFiniteLoss(FloatingPointError):
     """A loss term or, after an update, a weight became NaN or Inf; the run stops and keeps its last good
     checkpoint (only finite weights are ever saved)."""
@@ -218,6 +224,8 @@ def check_config(cfg) -> None:
     ):
         if value not in allowed:
             raise ConfigError(f"{key}={value!r}; choose from {', '.join(allowed)}")
+    if any(cfg.loss.weights.get(k, 0) for k in L.TRUTH) and d.name != "synth":
+        raise ConfigError(f"loss weights {', '.join(L.TRUTH)} train on the true layers: they need data=synth")
     if cfg.loss.get("recon_p", 2) not in (1, 2):
         raise ConfigError(f"loss.recon_p={cfg.loss.recon_p!r}; choose from 1 (L1, the release), 2 (L2, the paper)")
     device = str(cfg.device)
@@ -372,9 +380,11 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
             },
         )
 
+    keys = train_keys(cfg.loss)
+
     def make_batch(s):  # on the CPU; the prefetch thread runs it
         idx = step_indices(cfg.seed, s, steps_per_epoch, t.batch_size, len(data))
-        return to_device(get_batch(data, idx, TRAIN_KEYS), "cpu", t.channels_last)
+        return to_device(get_batch(data, idx, keys), "cpu", t.channels_last)
 
     prefetch = Prefetcher(make_batch, range(step, total_steps), t.get("prefetch", 0))
     bar = tqdm(total=total_steps, initial=step, disable=not t.progress, unit="step", dynamic_ncols=True)
@@ -446,7 +456,7 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
 
     model.eval()
     if batch is None:  # no step ran in this process (a resumed run that was already done)
-        batch = to_device(get_batch(data, range(min(8, len(data))), TRAIN_KEYS), device, t.channels_last)
+        batch = to_device(get_batch(data, range(min(8, len(data))), keys), device, t.channels_last)
     with torch.no_grad():
         save_samples(run_dir / "samples" / "final.png", batch, model(batch["image"]))
     metrics = {

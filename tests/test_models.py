@@ -231,6 +231,31 @@ def test_ablation_removes_its_terms(ablation):
         assert torch.equal(out["matte"], torch.ones_like(out["matte"])) and torch.equal(out["recon"], out["foreground"])
 
 
+@pytest.mark.parametrize("name", ["explicit", "implicit"])
+def test_the_supervised_ceiling_trains_on_the_true_layers_only(name):
+    """loss=ceiling: the truth terms are the whole objective (closed forms: 0 at the truth, the mean square off
+    it), the step reads the true layers, and Adam steps on one batch more than halve it."""
+    from disent.train import TRAIN_KEYS, train_keys
+
+    cfg = compose_cfg(f"model={name}", "loss=ceiling")
+    assert train_keys(cfg.loss) == TRAIN_KEYS + L.TRUTH_KEYS and train_keys(compose_cfg().loss) == TRAIN_KEYS
+    b = fake_batch(8)
+    b.update(
+        albedo=torch.full_like(b["image"], 0.5), normal=b["normal_pseudo"], sh=b["sh_pseudo"], matte=b["mask_pseudo"]
+    )
+    exact = {"albedo": b["albedo"], "normal": b["normal"], "sh": b["sh"]}
+    assert L.generator_losses(exact, b, dict(cfg.loss.weights))["total"].item() == 0
+    off = {"albedo": b["albedo"] + 0.1, "normal": b["normal"] + 0.2, "sh": b["sh"] + 0.3}
+    losses = L.generator_losses(off, b, dict(cfg.loss.weights))
+    assert set(losses) == {"A_true", "N_true", "L_true", "total"}
+    assert [losses[k].item() for k in L.TRUTH] == pytest.approx([0.01, 0.04, 0.09], rel=1e-5)
+    torch.manual_seed(0)
+    model = build_model(model_cfg(name))
+    opt = torch.optim.Adam(model.parameters(), lr=1e-3)
+    totals = [train_step(model, None, opt, None, b, cfg.loss)["total"].item() for _ in range(30)]
+    assert totals[-1] < 0.5 * totals[0], totals
+
+
 @pytest.mark.parametrize("name", ["baseline", "explicit", "implicit"])
 def test_a_few_steps_on_one_batch_lower_the_loss(name):
     """RMSprop steps on one fixed batch lower every model's objective (adversarial term off: D moves its target)."""
