@@ -385,60 +385,57 @@ CEILING_COLUMNS = (
 )
 
 
-def sec_ceiling(rep: Report, runs: list[Run], eval_dir: Path) -> None:
+def _is_ceiling(run: Run) -> bool:
+    return "loss=ceiling" in _overrides(run)
+
+
+def sec_ceiling(rep: Report, runs: list[Run]) -> None:
     """Each layer between its floor (the dataset mean) and its ceiling (the same network trained on the truth)."""
-    path = eval_dir / "ceiling.json"
-    if not path.is_file():
+    ceiling = [r for r in runs if r.status == "ok" and r.eval and _is_ceiling(r)]
+    if not ceiling:
         rep.note(
-            "no supervised ceiling published; run `python -m disent.eval.ceiling` (and `--steps 16000`), then "
-            "`python -m disent.report --publish FOLDER`."
+            "no finished ceiling run; train one with `python -m disent loss=ceiling` (and `+experiment=long "
+            "loss=ceiling`) and point the report at its folder."
         )
         return
-    ceiling = json.loads(path.read_text())
-    done = [r for r in runs if r.status == "ok" and r.eval and not r.ablations and on_the_ladder(r)]
+    trained = [r for r in runs if r.status == "ok" and r.eval and not r.ablations and on_the_ladder(r)]
     rep.add(
         "Where a trained model's layer lies between its **floor**, the dataset-mean map or light "
-        "(`disent.eval.trivial`), and its **ceiling**, the same network (layers, optimiser, schedule, batch, data "
-        "order) trained for the same number of steps on SynthFaces' true albedo, normals and light in place of "
-        "the paper's objective (`disent.eval.ceiling`). The trained models see no albedo and only the "
-        "pseudo-GT's normals and L-hat, so the gap to the ceiling is what the missing supervision costs at that "
-        "budget; the ceiling is what the architecture can reach there at all. Test split, 256 images; "
-        "trained rows: mean ± std over seeds.\n",
-        "| model | row | steps | " + " | ".join(label for _, label, _ in CEILING_COLUMNS) + " |",
-        "|---|---|---|" + "---|" * len(CEILING_COLUMNS),
+        "(`disent.eval.trivial`), and its **ceiling**: the same network, optimiser, schedule, batch and data "
+        "order trained on SynthFaces' true albedo, normals and light in place of the paper's objective "
+        "(`python -m disent loss=ceiling`, `conf/loss/ceiling.yaml`). The paper's models see no albedo and only "
+        "the pseudo-GT's normals and L-hat, so the gap to the ceiling is what the missing supervision costs at "
+        "that budget, and the ceiling is what the architecture reaches there at all. Test split, 256 images; "
+        "mean ± std over seeds.\n",
+        "| model | row | setting | steps | " + " | ".join(label for _, label, _ in CEILING_COLUMNS) + " |",
+        "|---|---|---|---|" + "---|" * len(CEILING_COLUMNS),
     )
     for model in ("explicit", "implicit"):
-        entries = sorted((v for k, v in ceiling.items() if k.split("/")[0] == model), key=lambda v: v["steps"])
-        if not entries:
+        rows = [("ceiling", r) for r in ceiling if r.model == model] + [
+            ("trained", r) for r in trained if r.model == model
+        ]
+        if not any(kind == "ceiling" for kind, _ in rows):
             continue
-        floor = entries[0]
+        floor = ceiling[0]
         rep.add(
-            f"| {model} | floor (dataset mean) | – | "
-            + " | ".join(f"{floor['trivial_' + k]:{fmt}}" for k, _, fmt in CEILING_COLUMNS)
+            f"| {model} | floor (dataset mean) | – | – | "
+            + " | ".join(f"{floor.value('trivial_' + k):{fmt}}" for k, _, fmt in CEILING_COLUMNS)
             + " |"
         )
         groups: dict = {}
-        for r in done:
-            if r.model == model:
-                groups.setdefault(setting(r), []).append(r)
-        for where, rs in sorted(groups.items(), key=lambda g: _spread(g[1], "steps")["mean"]):
-            steps = _spread(rs, "steps")
+        for kind, r in rows:
+            groups.setdefault((kind, setting(r, drop_model=True)), []).append(r)
+        order = sorted(groups.items(), key=lambda g: (_spread(g[1], "steps")["mean"], g[0][0] == "ceiling"))
+        for (kind, where), rs in order:
             rep.add(
-                f"| {model} | trained, `{where}` | {steps['mean']:,.0f} | "
+                f"| {model} | {kind} | `{where}` | {_spread(rs, 'steps')['mean']:,.0f} | "
                 + " | ".join(_ms(_spread(rs, k), fmt) for k, _, fmt in CEILING_COLUMNS)
-                + " |"
-            )
-        for e in entries:
-            rep.add(
-                f"| {model} | ceiling (true layers, seed {e['seed']}) | {e['steps']:,} | "
-                + " | ".join(f"{e[k]:{fmt}}" for k, _, fmt in CEILING_COLUMNS)
                 + " |"
             )
     rep.add(
         "",
-        "_Regenerate: `python -m disent.eval.ceiling --steps 1200` and `--steps 16000` (the default and long "
-        "budgets; the long rung's CPU time guard stops its runs earlier, at the step count shown), then "
-        "`python -m disent.report --publish FOLDER`._\n",
+        "_Regenerate: `python -m disent model=MODEL loss=ceiling` and `python -m disent model=MODEL "
+        "+experiment=long loss=ceiling`, then `python -m disent.report --roots ...` with their folders._\n",
     )
 
 
@@ -1303,7 +1300,7 @@ def build(
         f"`python -m disent.report --compute --roots {' '.join(map(str, roots))}`.\n",
     )
     rep.section("Runs", sec_runs, runs)
-    rep.section("Floor and ceiling: what each layer can reach", sec_ceiling, runs, eval_dir)
+    rep.section("Floor and ceiling: what each layer can reach", sec_ceiling, runs)
     rep.section("The paper's claims, measured", sec_claims, runs, eval_dir)
     rep.section("Teaser: input, recon, albedo, normal, shading, matte", sec_teaser, runs, n_vis)
     rep.section("Lighting stability: SH variance (supplement protocol)", sec_sh_variance, eval_dir)

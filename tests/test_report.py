@@ -326,3 +326,35 @@ def test_ood_table_reports_where_each_estimator_breaks(tmp_path):
     text = "\n".join(rep.lines)
     assert "| yaw | explicit | 10 -> 16 | 1 | 0.6 -> 0.7 | – |" in text  # 16 > 1.5 x 10 only at severity 1
     assert "| yaw | ls_true | – | – | 0.4 -> 0.8 | 0.5 |" in text
+
+
+def test_ceiling_section_puts_the_trained_runs_between_floor_and_ceiling(tmp_path):
+    def ev(normal, albedo):
+        return {
+            "normal_mean": normal,
+            "albedo_si_mse": albedo,
+            "light_shading_si_mse": 0.005,
+            "sh_error": 0.5,
+            "steps": 1200,
+            "trivial_normal_mean": 17.0,
+            "trivial_albedo_si_mse": 0.0127,
+            "trivial_light_shading_si_mse": 0.016,
+            "trivial_sh_error": 0.37,
+        }
+
+    rep = report.Report(tmp_path, "")
+    report.sec_ceiling(rep, [])
+    assert "no finished ceiling run" in "\n".join(rep.lines)
+    for seed in (0, 1):
+        make_run(tmp_path, f"t{seed}", seed=seed, eval_=ev(12.5 + seed, 0.010))
+    ceiling = make_run(tmp_path, "c", eval_=ev(9.9, 0.0063))
+    (ceiling / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump(["model=explicit", "seed=0", "loss=ceiling"]))
+    rep = report.Report(tmp_path, "")
+    report.sec_ceiling(rep, find_runs([tmp_path]))
+    lines = [line for line in rep.lines if line.startswith("| explicit")]
+    assert lines[0].startswith("| explicit | floor (dataset mean) | – | – | 17.00 | 0.0127 | 0.0160 | 0.370 |")
+    assert lines[1].startswith(
+        "| explicit | trained | `(defaults)` | 1,200 | 13.00 ± 0.71 (n=2) | 0.0100 ± 0.0000 (n=2)"
+    )
+    assert lines[2].startswith("| explicit | ceiling | `loss=ceiling` | 1,200 | 9.90 (n=1) | 0.0063 (n=1)")
+    assert len(lines) == 3
