@@ -676,10 +676,12 @@ def _stability_ood(rep: Report, res: dict) -> None:
         "|---|---|---|---|---|---|",
     )
 
+    from disent.eval.stability import first_past
+
     def breaks(values):
         if not values or not values[0] > 0:
             return "–", "–"
-        at = next((s for s, v in zip(sev, values) if v > BREAK_FACTOR * values[0]), None)
+        at = first_past(sev, values, values[0], BREAK_FACTOR)
         return f"{values[0]:.3g} -> {max(values):.3g}", "–" if at is None else f"{at:g}"
 
     for effect, curves in res["effects"].items():

@@ -251,3 +251,9 @@ def test_stability_studies_without_runs_write_nothing(tmp_path):
         ["bws", "training", "--bws-roots", none, "--training-roots", none, "--n", "2", "--out", str(tmp_path / "o")]
     )
     assert not (tmp_path / "o" / "bws.json").exists() and not (tmp_path / "o" / "training.json").exists()
+
+
+def test_first_past_finds_the_first_value_beyond_the_factor_or_not_finite():
+    assert st.first_past([0, 1, 2], [1.0, 1.4, 2.0], 1.0, factor=1.5) == 2
+    assert st.first_past([0, 1, 2], [1.0, float("nan"), 2.0], 1.0, factor=1.5) == 1
+    assert st.first_past([0, 1, 2], [1.0, 5.0, 9.0], 1.0) is None  # the default factor is BLOWUP (10)

@@ -82,10 +82,10 @@ def _summarize(per_image: dict) -> dict:
     return {k: {"median": _median(v), "p90": v.double().quantile(0.9).item()} for k, v in per_image.items()}
 
 
-def _blowup(xs, values, reference: float):
-    """First x whose value exceeds ``BLOWUP x reference`` (None if never)."""
+def first_past(xs, values, reference: float, factor: float = BLOWUP):
+    """First x whose value exceeds ``factor x reference`` or is not finite (None if never)."""
     for x, v in zip(xs, values):
-        if not math.isfinite(v) or v > BLOWUP * reference:
+        if not math.isfinite(v) or v > factor * reference:
             return x
     return None
 
@@ -117,7 +117,7 @@ def _with_blowups(rows: list, axis: str, n: int) -> dict:
     res = {"rows": rows, "n": n, "blowup_factor": BLOWUP}
     for est in LS_ESTIMATORS:
         for q in ("cond", "sh_error") if ok else ():
-            res[f"{est}_blowup_{axis}" + ("" if q == "cond" else "_error")] = _blowup(
+            res[f"{est}_blowup_{axis}" + ("" if q == "cond" else "_error")] = first_past(
                 [r[axis] for r in ok], [r[f"{est}_{q}"]["median"] for r in ok], ok[0][f"{est}_{q}"]["median"]
             )
     return res
