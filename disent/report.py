@@ -196,6 +196,11 @@ def on_the_ladder(run: Run) -> bool:
     return all(o.startswith(RUNG) for o in _overrides(run))
 
 
+def ladder_runs(runs: list[Run]) -> list[Run]:
+    """The finished plain runs of the budget ladder (no ablation, no override beyond model and experiment)."""
+    return [r for r in runs if r.status == "ok" and r.eval and not r.ablations and on_the_ladder(r)]
+
+
 def verdict(a, b, better: str) -> str:
     """Whether arm ``a`` beats arm ``b`` (``better``: "lower" or "higher"; each a :func:`_spread`): confirmed
     or refuted where the difference exceeds both arms' seed spread, else not resolved; not testable with fewer
@@ -212,7 +217,7 @@ def verdict(a, b, better: str) -> str:
 
 def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
     """The paper's claims, each with its numbers (mean ± std over seeds, grouped by setting) and a verdict."""
-    done = [r for r in runs if r.status == "ok" and r.eval and not r.ablations and on_the_ladder(r)]
+    done = ladder_runs(runs)
     if not done:
         rep.note(
             "no finished runs of the plain models; train them (`python -m disent -m model=baseline,explicit,"
@@ -398,7 +403,7 @@ def sec_ceiling(rep: Report, runs: list[Run]) -> None:
             "loss=ceiling`) and point the report at its folder."
         )
         return
-    trained = [r for r in runs if r.status == "ok" and r.eval and not r.ablations and on_the_ladder(r)]
+    trained = ladder_runs(runs)
     rep.add(
         "Where a trained model's layer lies between its **floor**, the dataset-mean map or light "
         "(`disent.eval.trivial`), and its **ceiling**: the same network, optimiser, schedule, batch and data "
