@@ -546,11 +546,7 @@ def sec_sh_variance(rep: Report, eval_dir: Path) -> None:
             f"{v['sh_error']:.4g} | {v['n_conditions']} | {v['n_images']} |"
         )
     rep.add("")
-    from disent.eval.protocols import plot_sh_variance
-
-    path = rep.fig / "sh_variance.png"
-    plot_sh_variance(res, path)
-    rep.image(path, "SH variance per coefficient")
+    published_figure(rep, eval_dir / "sh_variance.png", "SH variance per coefficient")
     if not any(k not in ("ls_pseudo", "ls_true", "ls_oracle", "true") for k in res["estimators"]):
         rep.note(
             "no trained model's Z_L in the SH-variance table (no finished explicit/implicit run when it was computed)."
@@ -608,13 +604,19 @@ def sec_ablation(rep: Report, runs: list[Run]) -> None:
     )
 
 
-def _stability_conditioning(rep: Report, cond: dict | None) -> None:
+def published_figure(rep: Report, path: Path, alt: str) -> None:
+    """Show the figure a tool published beside its JSON (the report does not draw a second copy)."""
+    if path.is_file():
+        rep.image(path, alt)
+    else:
+        rep.note(f"`{_rel(path, rep.out)}` is missing; publish the tool folder that wrote the JSON beside it.")
+
+
+def _stability_conditioning(rep: Report, cond: dict | None, eval_dir: Path) -> None:
     from disent.eval import stability as st
 
     rep.add("### L-hat conditioning against yaw and mask size\n")
     if cond:
-        path = rep.fig / "conditioning.png"
-        st.plot_conditioning(cond["yaw"], cond["mask"], path)
         rep.add(
             f"Median over {cond['yaw']['n']} test faces turned to each yaw (pitch = roll = 0), and over "
             f"{cond['mask']['n']} test faces whose mask is shrunk towards its centre. `ls_oracle_noisy` fits with "
@@ -660,7 +662,7 @@ def _stability_conditioning(rep: Report, cond: dict | None) -> None:
         if bad:
             rep.add(f"- yaws the generator refused: {', '.join(str(r['yaw']) for r in bad)}")
         rep.add("")
-        rep.image(path, "conditioning")
+        published_figure(rep, eval_dir / "conditioning.png", "conditioning")
     else:
         rep.note("`reports/eval/conditioning.json`; run `python -m disent.eval.stability conditioning`.")
 
@@ -775,11 +777,11 @@ def _stability_training(rep: Report, res: dict) -> None:
 def sec_stability(rep: Report, eval_dir: Path) -> None:
     from disent.eval import stability as st
 
-    _stability_conditioning(rep, _load_json(eval_dir / "conditioning.json"))
-    for name, title, plot, table in (
-        ("ood", "Out of distribution: error against severity", st.plot_ood, _stability_ood),
-        ("bws", "Without BWS: shading cast and albedo absorbing shading", st.plot_bws, _stability_bws),
-        ("training", "Training stability: NaN and divergence rate", st.plot_training, _stability_training),
+    _stability_conditioning(rep, _load_json(eval_dir / "conditioning.json"), eval_dir)
+    for name, title, table in (
+        ("ood", "Out of distribution: error against severity", _stability_ood),
+        ("bws", "Without BWS: shading cast and albedo absorbing shading", _stability_bws),
+        ("training", "Training stability: NaN and divergence rate", _stability_training),
     ):
         rep.add(f"### {title}\n")
         res = _load_json(eval_dir / f"{name}.json")
@@ -789,9 +791,7 @@ def sec_stability(rep: Report, eval_dir: Path) -> None:
                 "(see `ablations/README.md`)."
             )
             continue
-        path = rep.fig / f"{name}.png"
-        plot(res, path)
-        rep.image(path, name)
+        published_figure(rep, eval_dir / f"{name}.png", name)
         if "budget" in res:
             rep.add(f"_Budget of these runs (their configs): {st.budget_text(res['budget'])}._\n")
         if table is not None:
@@ -800,14 +800,12 @@ def sec_stability(rep: Report, eval_dir: Path) -> None:
 
 def sec_methods(rep: Report, eval_dir: Path) -> None:
     """Every estimator's time per image against its accuracy, from ``reports/eval/methods.json``."""
-    from disent.eval.methods import PANELS, plot
+    from disent.eval.methods import PANELS
 
     res = _load_json(eval_dir / "methods.json")
     if not res:
         rep.note("`reports/eval/methods.json`; run `python -m disent.eval.methods`, then publish its folder.")
         return
-    path = rep.fig / "methods.png"
-    plot(res, path)
     rep.add(
         f"Regenerate: `python -m disent.eval.methods --n {res['n']}`, then `python -m disent.report --publish "
         f"FOLDER`. The first {res['n']} SynthFaces test images, every estimator timed in the same run on one "
@@ -824,7 +822,7 @@ def sec_methods(rep: Report, eval_dir: Path) -> None:
         cells = " | ".join(f"{r[k]:.3g}" if k in r else "–" for k, _, _ in PANELS)
         rep.add(f"| {name}{extra} | {t} | {r['images']} | {cells} |")
     rep.add("")
-    rep.image(path, "methods on one plane")
+    published_figure(rep, eval_dir / "methods.png", "methods on one plane")
 
 
 RECIPE_COLUMNS = (

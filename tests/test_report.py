@@ -86,9 +86,11 @@ def test_report_on_fake_runs(tmp_path):
     (out / "eval").mkdir(parents=True)
     (out / "eval" / "training.json").write_text(json.dumps(training_stability(find_runs([tmp_path / "runs"]))))
     path = report.build(out, roots=[tmp_path / "runs"], n_vis=2)
-    md = path.read_text()
+    assert "`eval/training.png` is missing" in path.read_text()  # the tool writes it beside its JSON
+    (out / "eval" / "training.png").write_bytes(b"png")
+    md = report.build(out, roots=[tmp_path / "runs"], n_vis=2).read_text()
     assert "explicit+no_bws" in md and "failed" not in md.lower()
-    assert (out / "figures" / "training.png").is_file()
+    assert "](eval/training.png)" in md and not (out / "figures" / "training.png").exists()  # shown, not redrawn
     assert "no finished run with a checkpoint" in md  # no checkpoints in the fakes: a note, not a crash
     assert "sh_variance.json" in md
 
