@@ -1,21 +1,6 @@
-"""Evaluation: metrics (:mod:`disent.eval.metrics`), protocols and stability studies."""
+"""Evaluation: metrics (:mod:`disent.eval.metrics`, re-exported here), protocols and stability studies."""
 
-from disent.eval.metrics import (
-    ANGLE_THRESHOLDS,
-    angular_error_deg,
-    normal_angular_error,
-    optimal_scale,
-    reconstruction_metrics,
-    scale_invariant_mse,
-    sh_error,
-)
+from disent.eval import metrics as _metrics
+from disent.eval.metrics import *  # noqa: F403  (exactly metrics.__all__)
 
-__all__ = [
-    "angular_error_deg",
-    "normal_angular_error",
-    "reconstruction_metrics",
-    "scale_invariant_mse",
-    "sh_error",
-    "optimal_scale",
-    "ANGLE_THRESHOLDS",
-]
+__all__ = list(_metrics.__all__)
