@@ -390,13 +390,9 @@ CEILING_COLUMNS = (
 )
 
 
-def _is_ceiling(run: Run) -> bool:
-    return "loss=ceiling" in _overrides(run)
-
-
 def sec_ceiling(rep: Report, runs: list[Run]) -> None:
     """Each layer between its floor (the dataset mean) and its ceiling (the same network trained on the truth)."""
-    ceiling = [r for r in runs if r.status == "ok" and r.eval and _is_ceiling(r)]
+    ceiling = [r for r in runs if r.status == "ok" and r.eval and r.ceiling]
     if not ceiling:
         rep.note(
             "no finished ceiling run; train one with `python -m disent loss=ceiling` (and `+experiment=long "
@@ -590,7 +586,7 @@ def budget_check(explicit: list[Run]) -> str:
 def sec_ablation(rep: Report, runs: list[Run]) -> None:
     """One table per budget (the runs' ``+experiment=``), so runs of different budgets never share a mean."""
     groups = {}
-    for r in (r for r in runs if not is_recipe_run(r)):
+    for r in (r for r in runs if not is_recipe_run(r) and not r.ceiling):  # the ceiling has its own section
         groups.setdefault(str(r.choices.get("experiment") or "none (conf defaults)"), []).append(r)
     tables = {}
     for exp, rs in sorted(groups.items()) or [("none", [])]:

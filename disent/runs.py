@@ -374,9 +374,14 @@ class Run:
         return sorted(set(names))
 
     @property
+    def ceiling(self) -> bool:
+        """A supervised-ceiling run (``loss=ceiling``): trained on the true layers, not on the paper's objective."""
+        return any(_get(self.cfg, f"loss.weights.{t}", 0) for t in ("A_true", "N_true", "L_true"))
+
+    @property
     def variant(self) -> str:
-        """``model`` or ``model+ablation1+ablation2``: the row of the ablation table."""
-        return "+".join([self.model, *self.ablations])
+        """``model`` or ``model+ablation1+ablation2`` (``+ceiling`` for a ceiling run): a row of the ablation table."""
+        return "+".join([self.model, *self.ablations, *(["ceiling"] if self.ceiling else [])])
 
     @property
     def seed(self):
@@ -484,7 +489,7 @@ def find_runs(roots=RUN_ROOTS) -> list[Run]:
 def pick_runs(runs, variants=None) -> dict[str, Run]:
     """One finished run with a checkpoint per variant: the longest trained, then the lowest seed.
 
-    ``variants`` defaults to the plain models (runs without ablations)."""
+    ``variants`` defaults to the plain models (runs without ablations, no ceiling run)."""
     runs = [r if isinstance(r, Run) else Run.load(r) for r in runs]
     chosen = {}
 
@@ -499,7 +504,7 @@ def pick_runs(runs, variants=None) -> dict[str, Run]:
     for r in sorted(runs, key=order):
         if r.checkpoint is None or r.status != "ok":
             continue
-        if (variants is None and not r.ablations) or (variants is not None and r.variant in variants):
+        if (variants is None and not r.ablations and not r.ceiling) or (variants is not None and r.variant in variants):
             chosen.setdefault(r.variant, r)
     return chosen
 

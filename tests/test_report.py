@@ -9,7 +9,7 @@ import yaml
 from disent import report
 from disent.eval.ablation import ablation_table, to_markdown
 from disent.eval.stability import training_stability
-from disent.runs import find_runs
+from disent.runs import find_runs, pick_runs
 
 
 def make_run(
@@ -351,8 +351,16 @@ def test_ceiling_section_puts_the_trained_runs_between_floor_and_ceiling(tmp_pat
         make_run(tmp_path, f"t{seed}", seed=seed, eval_=ev(12.5 + seed, 0.010))
     ceiling = make_run(tmp_path, "c", eval_=ev(9.9, 0.0063))
     (ceiling / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump(["model=explicit", "seed=0", "loss=ceiling"]))
+    cfg = yaml.safe_load((ceiling / ".hydra" / "config.yaml").read_text())
+    cfg["loss"]["weights"].update(A_true=1.0, N_true=1.0, L_true=1.0)
+    (ceiling / ".hydra" / "config.yaml").write_text(yaml.safe_dump(cfg))
+    (ceiling / "checkpoints").mkdir()
+    (ceiling / "checkpoints" / "last.pt").write_bytes(b"")
+    runs = find_runs([tmp_path])
+    assert [r.variant for r in runs] == ["explicit+ceiling", "explicit", "explicit"]
+    assert pick_runs(runs) == {}  # a ceiling run is never picked as the paper's model (the others lack weights)
     rep = report.Report(tmp_path, "")
-    report.sec_ceiling(rep, find_runs([tmp_path]))
+    report.sec_ceiling(rep, runs)
     lines = [line for line in rep.lines if line.startswith("| explicit")]
     assert lines[0].startswith("| explicit | floor (dataset mean) | – | – | 17.00 | 0.0127 | 0.0160 | 0.370 |")
     assert lines[1].startswith(
