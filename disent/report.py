@@ -411,6 +411,7 @@ def sec_ceiling(rep: Report, runs: list[Run]) -> None:
         "| model | row | setting | steps | " + " | ".join(label for _, label, _ in CEILING_COLUMNS) + " |",
         "|---|---|---|---|" + "---|" * len(CEILING_COLUMNS),
     )
+    gaps = []
     for model in ("explicit", "implicit"):
         rows = [("ceiling", r) for r in ceiling if r.model == model] + [
             ("trained", r) for r in trained if r.model == model
@@ -433,6 +434,22 @@ def sec_ceiling(rep: Report, runs: list[Run]) -> None:
                 + " | ".join(_ms(_spread(rs, k), fmt) for k, _, fmt in CEILING_COLUMNS)
                 + " |"
             )
+        tops = {  # each ceiling by the setting of the trained runs at its budget: its overrides but loss=ceiling
+            " ".join(o for o in where.split() if o != "loss=ceiling") or "(defaults)": rs
+            for (kind, where), rs in groups.items()
+            if kind == "ceiling"
+        }
+        for (kind, where), rs in order:
+            top = tops.get(where)
+            if kind != "trained" or not top:
+                continue
+            closed = []
+            for k, label, _ in CEILING_COLUMNS:
+                lo, got, hi = floor.value("trivial_" + k), _spread(rs, k)["mean"], _spread(top, k)["mean"]
+                closed.append(f"{label} {100 * (lo - got) / (lo - hi):.0f} %" if lo != hi else f"{label} –")
+            gaps.append(f"- {model}, `{where}`: {', '.join(closed)}")
+    if gaps:
+        rep.add("", "Share of the floor-to-ceiling gap the trained models close at the ceiling's budget:\n", *gaps)
     rep.add(
         "",
         "_Regenerate: `python -m disent model=MODEL loss=ceiling` and `python -m disent model=MODEL "
