@@ -432,16 +432,19 @@ def _measure_net(a, out, data_cls, resolution):
 
 
 def run_measurements(a) -> None:
-    """``python -m disent.edit measure``: tables, JSON and figures under ``<a.out>/<model name>/`` (published to
-    ``reports/edit/<model name>/``)."""
+    """``python -m disent.edit measure``: tables, JSON and figures under ``<a.out>/<name>/`` (published to
+    ``reports/edit/<name>/``): ``<name>`` is the model's name for a shipped model, else
+    ``<model>_seed<seed>_<steps>steps``, so that the seeds of one budget sit side by side."""
     from disent.data import LIGHT_BANK, SynthFaces
-    from disent.models import load_run
-    from disent.runs import tool_folder
+    from disent.models import checkpoint_path, load_run
+    from disent.runs import load_checkpoint, tool_folder
 
     folder = tool_folder("edit", a.out)
     torch.manual_seed(a.seed)
     model, cfg = load_run(a.run)
-    out = folder / cfg.model.name
+    steps = int(load_checkpoint(checkpoint_path(a.run))["step"])
+    shipped = not Path(a.run).exists()
+    out = folder / (cfg.model.name if shipped else f"{cfg.model.name}_seed{cfg.seed}_{steps}steps")
     out.mkdir(exist_ok=True)
     R = int(getattr(model, "resolution", 64))
     net, net_info = _measure_net(a, out, SynthFaces, R)
@@ -518,7 +521,16 @@ def run_measurements(a) -> None:
     rel_keys = ["method", "psnr", "ssim", "psnr_face", "ssim_face", "lights", "faces"]
     (out / "edit.json").write_text(
         json.dumps(
-            {"run": str(a.run), "measure_net": net_info, "traversal": rows, "claims": claims, "relight": rel_rows},
+            {
+                "run": str(a.run),
+                "model": cfg.model.name,
+                "seed": cfg.seed,
+                "steps": steps,
+                "measure_net": net_info,
+                "traversal": rows,
+                "claims": claims,
+                "relight": rel_rows,
+            },
             indent=1,
         )
     )

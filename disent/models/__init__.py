@@ -32,6 +32,19 @@ def build_model(cfg_model) -> torch.nn.Module:
     return MODELS[name](**kwargs)
 
 
+def checkpoint_path(path) -> Path:
+    """The checkpoint of a run folder (its ``checkpoints/last.pt``), a checkpoint file, or a shipped name."""
+    from disent.models.shipped import shipped_path
+
+    path = Path(path)
+    if not path.exists():
+        return shipped_path(str(path))
+    ckpt_path = path / "checkpoints" / "last.pt" if path.is_dir() else path
+    if not ckpt_path.exists():
+        raise FileNotFoundError(f"no checkpoint at {ckpt_path}")
+    return ckpt_path
+
+
 def load_run(path):
     """``(model, cfg)`` from a run folder (its ``checkpoints/last.pt``), a checkpoint file, or the name of a
     shipped model (``explicit``, ``implicit``, ``baseline``: :mod:`disent.models.shipped`).
@@ -42,16 +55,10 @@ def load_run(path):
     """
     from omegaconf import OmegaConf
 
-    from disent.models.shipped import load_weights, shipped_path
+    from disent.models.shipped import load_weights
     from disent.runs import load_checkpoint
 
-    path = Path(path)
-    if path.exists():
-        ckpt_path = path / "checkpoints" / "last.pt" if path.is_dir() else path
-        if not ckpt_path.exists():
-            raise FileNotFoundError(f"no checkpoint at {ckpt_path}")
-    else:
-        ckpt_path = shipped_path(str(path))
+    ckpt_path = checkpoint_path(path)
     ckpt = load_checkpoint(ckpt_path)
     cfg = OmegaConf.create(ckpt["cfg"])
     model = build_model(cfg.model)
@@ -59,4 +66,4 @@ def load_run(path):
     return model.eval(), cfg
 
 
-__all__ = ["build_model", "load_run", "MODELS", "Baseline", "Explicit", "Implicit", "Discriminator"]
+__all__ = ["build_model", "load_run", "checkpoint_path", "MODELS", "Baseline", "Explicit", "Implicit", "Discriminator"]
