@@ -27,7 +27,8 @@ import torch
 
 from disent.eval import ablation as _ablation
 from disent.images import over_max, to_array
-from disent.runs import RUN_ROOTS, Run, find_runs, pick_runs, publish, tool_folder
+from disent.runs import RUN_ROOTS, Run, find_runs, pick_runs, publish, setting, tool_folder
+from disent.runs import defining_overrides as _overrides
 
 MODELS = ("baseline", "explicit", "implicit")
 TRAIN_SPEED_KEY = "images_per_s"  # logged by every training step (metrics.jsonl)
@@ -162,20 +163,9 @@ def _models(chosen: dict[str, Run]) -> dict:
 
 
 # ----------------------------------------------------------------------------- sections
-# overrides that do not change what a run is (its seed, bookkeeping, the CPU time guard of a budget rung)
-SEED_FREE = ("seed=", "train.progress=", "train.time_limit_min=", "resume", "hydra.")
 RUNG = ("model=", "+experiment=", "experiment=")  # a run of the budget ladder sets only these
 MIN_SEEDS = 3  # a verdict needs at least this many seeds per arm
 EDIT_WORKS = 0.5  # an edit works where at least this share of the edited faces reads as having the attribute
-
-
-def _overrides(run: Run, drop=SEED_FREE) -> list[str]:
-    return sorted(str(o) for o in run.overrides if not str(o).lstrip("+~").startswith(drop))
-
-
-def setting(run: Run, drop_model: bool = False) -> str:
-    """What a run is, apart from its seed (and its model, for comparisons across models): its overrides."""
-    return " ".join(_overrides(run, SEED_FREE + (("model=",) if drop_model else ()))) or "(defaults)"
 
 
 def _spread(runs: list[Run], key: str) -> dict | None:

@@ -486,6 +486,20 @@ def find_runs(roots=RUN_ROOTS) -> list[Run]:
     return [Run.load(p) for p in sorted(found)]
 
 
+# overrides that do not change what a run is (its seed, bookkeeping, the CPU time guard of a budget rung)
+SEED_FREE = ("seed=", "train.progress=", "train.time_limit_min=", "resume", "hydra.")
+
+
+def defining_overrides(run: Run, drop=SEED_FREE) -> list[str]:
+    """The run's command-line overrides, sorted, without those starting with ``drop``."""
+    return sorted(str(o) for o in run.overrides if not str(o).lstrip("+~").startswith(drop))
+
+
+def setting(run: Run, drop_model: bool = False) -> str:
+    """What a run is, apart from its seed (and its model, for comparisons across models): its overrides."""
+    return " ".join(defining_overrides(run, SEED_FREE + (("model=",) if drop_model else ()))) or "(defaults)"
+
+
 def pick_runs(runs, variants=None) -> dict[str, Run]:
     """One finished run with a checkpoint per variant: the longest trained, then the lowest seed.
 

@@ -434,10 +434,11 @@ def _measure_net(a, out, data_cls, resolution):
 def run_measurements(a) -> None:
     """``python -m disent.edit measure``: tables, JSON and figures under ``<a.out>/<name>/`` (published to
     ``reports/edit/<name>/``): ``<name>`` is the model's name for a shipped model, else
-    ``<model>_seed<seed>_<steps>steps``, so that the seeds of one budget sit side by side."""
+    ``<model>_seed<seed>_<steps>steps``; edit.json records model, seed, steps and the run's setting (its overrides
+    apart from seed and time guard), by which the report sets the seeds of one budget side by side."""
     from disent.data import LIGHT_BANK, SynthFaces
     from disent.models import checkpoint_path, load_run
-    from disent.runs import load_checkpoint, tool_folder
+    from disent.runs import Run, load_checkpoint, setting, tool_folder
 
     folder = tool_folder("edit", a.out)
     torch.manual_seed(a.seed)
@@ -526,6 +527,7 @@ def run_measurements(a) -> None:
                 "model": cfg.model.name,
                 "seed": cfg.seed,
                 "steps": steps,
+                "setting": "shipped" if shipped else setting(Run.load(Path(a.run)), drop_model=True),
                 "measure_net": net_info,
                 "traversal": rows,
                 "claims": claims,
