@@ -445,6 +445,7 @@ def run_measurements(a) -> None:
     model, cfg = load_run(a.run)
     steps = int(load_checkpoint(checkpoint_path(a.run))["step"])
     shipped = not Path(a.run).exists()
+    run_folder = Path(a.run) if Path(a.run).is_dir() else Path(a.run).parent.parent  # .../checkpoints/x.pt
     out = folder / (cfg.model.name if shipped else f"{cfg.model.name}_seed{cfg.seed}_{steps}steps")
     out.mkdir(exist_ok=True)
     R = int(getattr(model, "resolution", 64))
@@ -527,7 +528,7 @@ def run_measurements(a) -> None:
                 "model": cfg.model.name,
                 "seed": cfg.seed,
                 "steps": steps,
-                "setting": "shipped" if shipped else setting(Run.load(Path(a.run)), drop_model=True),
+                "setting": "shipped" if shipped else setting(Run.load(run_folder), drop_model=True),
                 "measure_net": net_info,
                 "traversal": rows,
                 "claims": claims,
