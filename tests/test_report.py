@@ -372,3 +372,40 @@ def test_ceiling_section_puts_the_trained_runs_between_floor_and_ceiling(tmp_pat
     # albedo's, and all of the light's (trained and ceiling agree there)
     gap = "- explicit, `(defaults)`: normals (deg) 56 %, albedo si-MSE 42 %, light on the face 100 %, SH error 100 %"
     assert gap in rep.lines
+
+
+def test_edit_claims_are_read_over_the_seeds_of_a_setting(tmp_path):
+    """Claim 5 sets the edit results of one setting's models side by side: a verdict needs three of them and a
+    gain beyond the spread; one shipped model alone is not testable, nor is an attribute no manifold set edits."""
+
+    def claims(paper, rival, success):
+        rows = []
+        for attribute, s in (("beard", success), ("smiling", 0.2)):
+            rows.append({"attribute": attribute, "method": "dmt", "manifolds": "paper:Ae", "gain_per_leak": paper})
+            rows.append({"attribute": attribute, "method": "dmt", "manifolds": "Ne", "gain_per_leak": rival})
+            for r in rows[-2:]:
+                r["best_success"] = s
+        return rows
+
+    out = tmp_path / "reports"
+    for i, (paper, rival) in enumerate(((2.0, 1.0), (2.1, 1.1), (1.9, 0.9))):
+        d = out / "edit" / f"explicit_seed{i}_1200steps"
+        d.mkdir(parents=True)
+        res = {"model": "explicit", "setting": "(defaults)", "claims": claims(paper, rival, 0.6), "relight": []}
+        (d / "edit.json").write_text(json.dumps(res))
+    (out / "edit" / "explicit").mkdir()
+    shipped = {"model": "explicit", "setting": "shipped", "claims": claims(2.0, 1.0, 0.6), "relight": []}
+    (out / "edit" / "explicit" / "edit.json").write_text(json.dumps(shipped))
+    make_run(tmp_path / "runs", "a", eval_={"normal_mean": 12.0, "pseudo_normal_mean": 11.5})
+    rep = report.Report(out, "")
+    report.sec_claims(rep, find_runs([tmp_path / "runs"]), out / "eval")
+    rows = [line for line in rep.lines if line.startswith("| explicit |")]
+    assert (
+        "| explicit | `(defaults)` | dmt | beard | Ae: 2 ± 0.1 (n=3) | Ne: 1 ± 0.1 (n=3) | 0.60 | **confirmed** |"
+        in rows
+    )
+    assert (
+        "| explicit | `(defaults)` | dmt | smiling | Ae: 2 ± 0.1 (n=3) | Ne: 1 ± 0.1 (n=3) | 0.20 | "
+        "not testable (no edit works) |" in rows
+    )
+    assert any(r.startswith("| explicit | `shipped` | dmt | beard |") and "not testable (1 seed(s)" in r for r in rows)
