@@ -946,25 +946,32 @@ def val_curves(run: Run) -> list[dict]:
 
 def plot_learning_curves(runs: list[Run], path: Path, title: str = "") -> bool:
     """Each accuracy of the ``val`` records against training images (top) and wall minutes (bottom), one
-    line per run, with the trivial (dataset-mean) baseline dashed and the pseudo-GT dotted."""
+    line per run (a colour per model, dash-dotted for a ceiling run), with the trivial (dataset-mean) baseline
+    dashed and the pseudo-GT dotted."""
     curves = [(r, val_curves(r)) for r in runs]
     curves = [(r, c) for r, c in curves if c]
     if not curves:
         return False
     plt = _plt()
     fig, axes = plt.subplots(2, len(CURVE_PANELS), figsize=(4 * len(CURVE_PANELS), 6.4), squeeze=False)
+    kinds = sorted({r.variant.removesuffix("+ceiling") for r, _ in curves})  # one colour per model (and ablation)
     for col, (key, trivial, pseudo, label) in enumerate(CURVE_PANELS):
         for row, x in enumerate(("images", "minutes")):
             ax = axes[row][col]
-            for k, (r, c) in enumerate(curves):
+            seen = set()
+            for r, c in curves:
                 pts = [(v[x], v[key]) for v in c if v.get(key) is not None]
-                if pts:
-                    ax.plot(
-                        *zip(*pts),
-                        color=f"C{k % 10}",
-                        lw=1.2,
-                        label=f"{r.variant} ({r.path.parent.name}/{r.path.name})",
-                    )
+                if not pts or (r.ceiling and key == "recon_face_psnr"):  # a ceiling does not train the reconstruction
+                    continue
+                name = f"{r.variant}: {setting(r, drop_model=True)}"  # the seeds of a setting share a label
+                ax.plot(
+                    *zip(*pts),
+                    color=f"C{kinds.index(r.variant.removesuffix('+ceiling')) % 10}",
+                    ls="-." if r.ceiling else "-",
+                    lw=1.0,
+                    label=None if name in seen else name,
+                )
+                seen.add(name)
             for ref, style, name in ((trivial, "--", "dataset mean"), (pseudo, ":", "pseudo-GT")):
                 vals = [
                     c[-1][ref] for _, c in curves if ref and c[-1].get(ref) is not None and c[-1].get(key) is not None
