@@ -376,7 +376,9 @@ class Run:
     @property
     def ceiling(self) -> bool:
         """A supervised-ceiling run (``loss=ceiling``): trained on the true layers, not on the paper's objective."""
-        return any(_get(self.cfg, f"loss.weights.{t}", 0) for t in ("A_true", "N_true", "L_true"))
+        from disent.losses import TRUTH
+
+        return any(_get(self.cfg, f"loss.weights.{t}", 0) for t in TRUTH)
 
     @property
     def variant(self) -> str:
