@@ -435,7 +435,7 @@ def sec_ceiling(rep: Report, runs: list[Run]) -> None:
         ]
         if not any(kind == "ceiling" for kind, _ in rows):
             continue
-        floor = ceiling[0]
+        floor = next(r for kind, r in rows if kind == "ceiling")  # any run scores the same dataset means
         rep.add(
             f"| {model} | floor (dataset mean) | – | – | "
             + " | ".join(f"{floor.value('trivial_' + k):{fmt}}" for k, _, fmt in CEILING_COLUMNS)
@@ -444,10 +444,11 @@ def sec_ceiling(rep: Report, runs: list[Run]) -> None:
         groups: dict = {}
         for kind, r in rows:
             groups.setdefault((kind, setting(r, drop_model=True)), []).append(r)
-        order = sorted(groups.items(), key=lambda g: (_spread(g[1], "steps")["mean"], g[0][0] == "ceiling"))
+        steps = {g: (_spread(rs, "steps") or {"mean": math.nan})["mean"] for g, rs in groups.items()}
+        order = sorted(groups.items(), key=lambda g: (steps[g[0]], g[0][0] == "ceiling"))
         for (kind, where), rs in order:
             rep.add(
-                f"| {model} | {kind} | `{where}` | {_spread(rs, 'steps')['mean']:,.0f} | "
+                f"| {model} | {kind} | `{where}` | {steps[kind, where]:,.0f} | "
                 + " | ".join(_ms(_spread(rs, k), fmt) for k, _, fmt in CEILING_COLUMNS)
                 + " |"
             )
