@@ -584,3 +584,37 @@ def test_transfer_on_synthfaces_truth_reproduces_the_generators_relit_render():
         assert (out.clamp(0, 1) - truth).abs().max() < 1e-5
         naive = ratio_relight(b["image"], b["normal"], b["sh"], sh[None].expand(4, -1, -1))
         assert reconstruction_metrics(naive.clamp(0, 1), truth)["psnr"] < 60  # relights the background too
+
+
+def test_measure_command_names_a_run_folders_results_by_seed_and_steps(tmp_path, monkeypatch):
+    """``python -m disent.edit measure RUN_FOLDER --no-figures`` (toy generator, tiny model and measuring net):
+    the results go to <model>_seed<seed>_<steps>steps/ with the run's setting in edit.json, and no figures."""
+    import json
+
+    import disent.data
+    from disent.edit.__main__ import main
+    from disent.edit.classifier import MeasureNet, save_measure_net
+
+    monkeypatch.setattr(disent.data, "SynthFaces", FakeSynth)
+    monkeypatch.setattr(
+        disent.data,
+        "LIGHT_BANK",
+        {"left": sh_from_directions(torch.tensor([[-1.0, 0, 1]]), torch.full((1, 3), 0.6), 0.2)},
+    )
+    run = tiny_checkpoint(tmp_path, "explicit")
+    ckpt = torch.load(run / "checkpoints" / "last.pt")
+    ckpt["cfg"]["seed"], ckpt["step"] = 2, 7
+    torch.save(ckpt, run / "checkpoints" / "last.pt")
+    (run / ".hydra").mkdir()
+    (run / ".hydra" / "overrides.yaml").write_text("- model=explicit\n- seed=2\n- train.lr=0.002\n")
+    save_measure_net(MeasureNet(16, width=4, identity_dim=3), tmp_path / "m.pt")
+    out = tmp_path / "out"
+    main(
+        ["measure", str(run), "--out", str(out), "--measure-net", str(tmp_path / "m.pt"), "--pool-size", "12"]
+        + ["--sources", "2", "--lambdas", "0.1", "--alphas", "1.0", "--attributes", "smiling", "--relight-faces", "2"]
+        + ["--no-figures"]
+    )
+    folder = out / "explicit_seed2_7steps"
+    res = json.loads((folder / "edit.json").read_text())
+    assert (res["model"], res["seed"], res["steps"], res["setting"]) == ("explicit", 2, 7, "train.lr=0.002")
+    assert res["claims"] and res["relight"] and not list(folder.glob("*.png"))

@@ -269,6 +269,9 @@ def main(argv=None) -> None:
     m.add_argument("--train-steps", type=int, default=3000)
     m.add_argument("--relight-faces", type=int, default=8)
     m.add_argument("--seed", type=int, default=0)
+    m.add_argument(
+        "--no-figures", action="store_true", help="tables and JSON only (e.g. for the seeds of a setting: ~7 MB less)"
+    )
     m.set_defaults(fn=cmd_measure)
 
     lp = sub.add_parser("lights", help="list the light bank")

@@ -441,6 +441,7 @@ def run_measurements(a) -> None:
     from disent.runs import Run, load_checkpoint, setting, tool_folder
 
     folder = tool_folder("edit", a.out)
+    figures = not getattr(a, "no_figures", False)  # --no-figures: tables and JSON only
     torch.manual_seed(a.seed)
     model, cfg = load_run(a.run)
     steps = int(load_checkpoint(checkpoint_path(a.run))["step"])
@@ -478,6 +479,9 @@ def run_measurements(a) -> None:
             read_identity=read_identity,
         )
         rows += r
+        print(f"{attribute}: {len(r)} rows in {time.time() - t0:.0f} s", flush=True)
+        if not figures:
+            continue
         paper = next(k for k in dict.fromkeys(k[0] for k in shown if isinstance(k, tuple)) if k.startswith("paper"))
         image_grid(
             [shown["input"], shown["recon"]]
@@ -493,7 +497,6 @@ def run_measurements(a) -> None:
             ["input", "recon"] + [f"{lb} λ={lam:g}" for lb in labels],
             out / f"fig_{attribute}_manifolds.png",
         )
-        print(f"{attribute}: {len(r)} rows in {time.time() - t0:.0f} s", flush=True)
     keys = [
         "attribute",
         "manifolds",
@@ -507,10 +510,12 @@ def run_measurements(a) -> None:
         "gain_per_leak",
     ]
     claims = claim_summary(rows)
-    plot_success_vs_leakage(rows, out / "fig_success_vs_leakage.png")
+    if figures:
+        plot_success_vs_leakage(rows, out / "fig_success_vs_leakage.png")
     rel_rows = []
     if "L" in getattr(model, "CODE_NAMES", ()):  # a rendering model (the baseline has no light to replace)
         rel_rows, example = relight_table(model, SynthFaces, LIGHT_BANK, a.relight_faces, seed=a.seed, resolution=R)
+    if rel_rows and figures:
         shade = lambda s: s / s.flatten(1).amax(1).clamp_min(1e-6)[:, None, None, None]  # noqa: E731
         image_grid(
             [
