@@ -173,6 +173,10 @@ def _spread(runs: list[Run], key: str) -> dict | None:
     return _ablation.mean_std([r.value(key) for r in runs])
 
 
+def _fmt(value, fmt: str) -> str:
+    return "–" if value is None else f"{value:{fmt}}"
+
+
 def _ms(st, fmt=".2f") -> str:
     if st is None:
         return "–"
@@ -401,6 +405,7 @@ def sec_runs(rep: Report, runs: list[Run]) -> None:
 
 CEILING_COLUMNS = (
     ("normal_mean", "normals (deg)", ".2f"),
+    ("shading_si_mse", "shading si-MSE", ".4f"),
     ("albedo_si_mse", "albedo si-MSE", ".4f"),
     ("light_shading_si_mse", "light on the face", ".4f"),
     ("sh_error", "SH error", ".3f"),
@@ -423,7 +428,9 @@ def sec_ceiling(rep: Report, runs: list[Run]) -> None:
         "order trained on SynthFaces' true albedo, normals and light in place of the paper's objective "
         "(`python -m disent loss=ceiling`, `conf/loss/ceiling.yaml`). The paper's models see no albedo and only "
         "the pseudo-GT's normals and L-hat, so the gap to the ceiling is what the missing supervision costs at "
-        "that budget, and the ceiling is what the architecture reaches there at all. Test split, 256 images; "
+        "that budget, and the ceiling is what the architecture reaches there at all. The rendered face A (.) S "
+        "matches the image closely, so the albedo's error follows the shading's (compare the two columns): "
+        "an albedo can only be as right as the normals and light that shade it. Test split, 256 images; "
         "mean ± std over seeds.\n",
         "| model | row | setting | steps | " + " | ".join(label for _, label, _ in CEILING_COLUMNS) + " |",
         "|---|---|---|---|" + "---|" * len(CEILING_COLUMNS),
@@ -438,7 +445,7 @@ def sec_ceiling(rep: Report, runs: list[Run]) -> None:
         floor = next(r for kind, r in rows if kind == "ceiling")  # any run scores the same dataset means
         rep.add(
             f"| {model} | floor (dataset mean) | – | – | "
-            + " | ".join(f"{floor.value('trivial_' + k):{fmt}}" for k, _, fmt in CEILING_COLUMNS)
+            + " | ".join(_fmt(floor.value("trivial_" + k), fmt) for k, _, fmt in CEILING_COLUMNS)
             + " |"
         )
         groups: dict = {}
@@ -463,8 +470,11 @@ def sec_ceiling(rep: Report, runs: list[Run]) -> None:
                 continue
             closed = []
             for k, label, _ in CEILING_COLUMNS:
-                lo, got, hi = floor.value("trivial_" + k), _spread(rs, k)["mean"], _spread(top, k)["mean"]
-                closed.append(f"{label} {100 * (lo - got) / (lo - hi):.0f} %" if lo != hi else f"{label} –")
+                lo, got, hi = floor.value("trivial_" + k), _spread(rs, k), _spread(top, k)
+                if None in (lo, got, hi) or lo == hi["mean"]:
+                    closed.append(f"{label} –")
+                else:
+                    closed.append(f"{label} {100 * (lo - got['mean']) / (lo - hi['mean']):.0f} %")
             gaps.append(f"- {model}, `{where}`: {', '.join(closed)}")
     if gaps:
         rep.add("", "Share of the floor-to-ceiling gap the trained models close at the ceiling's budget:\n", *gaps)

@@ -334,6 +334,7 @@ def test_ceiling_section_puts_the_trained_runs_between_floor_and_ceiling(tmp_pat
     def ev(normal, albedo):
         return {
             "normal_mean": normal,
+            "shading_si_mse": albedo + 0.001,
             "albedo_si_mse": albedo,
             "light_shading_si_mse": 0.005,
             "sh_error": 0.5,
@@ -362,15 +363,21 @@ def test_ceiling_section_puts_the_trained_runs_between_floor_and_ceiling(tmp_pat
     rep = report.Report(tmp_path, "")
     report.sec_ceiling(rep, runs)
     lines = [line for line in rep.lines if line.startswith("| explicit")]
-    assert lines[0].startswith("| explicit | floor (dataset mean) | – | – | 17.00 | 0.0127 | 0.0160 | 0.370 |")
+    assert lines[0].startswith("| explicit | floor (dataset mean) | – | – | 17.00 | – | 0.0127 | 0.0160 | 0.370 |")
     assert lines[1].startswith(
-        "| explicit | trained | `(defaults)` | 1,200 | 13.00 ± 0.71 (n=2) | 0.0100 ± 0.0000 (n=2)"
+        "| explicit | trained | `(defaults)` | 1,200 | 13.00 ± 0.71 (n=2) | 0.0110 ± 0.0000 (n=2) | "
+        "0.0100 ± 0.0000 (n=2)"
     )
-    assert lines[2].startswith("| explicit | ceiling | `loss=ceiling` | 1,200 | 9.90 (n=1) | 0.0063 (n=1)")
+    assert lines[2].startswith(
+        "| explicit | ceiling | `loss=ceiling` | 1,200 | 9.90 (n=1) | 0.0073 (n=1) | 0.0063 (n=1)"
+    )
     assert len(lines) == 3
     # the trained runs close (17 - 13) / (17 - 9.9) of the normal gap, (0.0127 - 0.010) / (0.0127 - 0.0063) of the
     # albedo's, and all of the light's (trained and ceiling agree there)
-    gap = "- explicit, `(defaults)`: normals (deg) 56 %, albedo si-MSE 42 %, light on the face 100 %, SH error 100 %"
+    gap = (
+        "- explicit, `(defaults)`: normals (deg) 56 %, shading si-MSE –, albedo si-MSE 42 %, light on the face 100 %, "
+        "SH error 100 %"
+    )
     assert gap in rep.lines
 
 

@@ -100,7 +100,7 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
         m["albedo_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], region)
         m["albedo_global_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], region, per_image=False)
         m["albedo_face_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], face)
-    if "shading" in out:
+    if "shading" in out and "shading" in gt:  # (the validation batch carries no true shading)
         shading = out["shading"].expand_as(gt["shading"])
         m["shading_si_mse"] = scale_invariant_mse(shading, gt["shading"], region)
     if "sh" in out:

@@ -6,6 +6,7 @@ A layer counts as learned only where the network beats its trivial baseline:
   face pixels of the training images; the frontal normal where no face ever covers the pixel);
 * albedo: the dataset-mean albedo map (per pixel mean over face pixels), scored by the same
   scale-invariant MSEs as the network's albedo;
+* shading: the mean light through the mean normal map (scale-invariant, like the network's shading);
 * light: the mean true SH light, scored by the same scale-aligned SH error; beside it, for context,
   ``trivial_lhat_sh_error``: the mean L-hat, the constant a network could learn from its supervision alone
   (L-hat's constant albedo carries skin tone and the face's dark features into the light, so its mean is
@@ -21,6 +22,7 @@ from __future__ import annotations
 import torch
 
 from disent.eval.evaluate import face_mask, metrics_from_outputs
+from disent.render import sh_shading
 
 N_IMAGES = 1024  # training images the means are taken over (fewer if the split is smaller)
 KEYS = (
@@ -29,6 +31,7 @@ KEYS = (
     "albedo_si_mse",
     "albedo_global_si_mse",
     "albedo_face_si_mse",
+    "shading_si_mse",
     "sh_error",
     "light_shading_si_mse",
 )
@@ -65,14 +68,15 @@ def dataset_means(dataset, n: int = N_IMAGES, batch_size: int = 256) -> dict:
 
 
 def trivial_outputs(means: dict, batch: int) -> dict:
-    """The constant estimates as a model's outputs for ``batch`` images."""
-    return {k: means[k].expand(batch, *means[k].shape) for k in ("normal", "albedo", "sh")}
+    """The constant estimates as a model's outputs for ``batch`` images, and the shading they make (Eq. 4)."""
+    out = {k: means[k].expand(batch, *means[k].shape) for k in ("normal", "albedo", "sh")}
+    return {**out, "shading": sh_shading(out["normal"], out["sh"])}
 
 
 def trivial_metrics(means: dict, gt: dict) -> dict:
     """``trivial_<key>`` for each key of ``KEYS``: the constant estimates scored against ``gt``."""
     m = metrics_from_outputs(trivial_outputs(means, len(gt["image"])), gt)
-    out = {f"trivial_{k}": m[k] for k in (*KEYS, "sh_error_coefficients")}
+    out = {f"trivial_{k}": m[k] for k in (*KEYS, "sh_error_coefficients") if k in m}  # what gt has truth for
     if "sh_pseudo" in means:
         from disent.eval.metrics import sh_error
 
