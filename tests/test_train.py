@@ -336,11 +336,11 @@ def test_rescore_rewrites_eval_json_and_keeps_the_bookkeeping(tmp_path, capsys):
     folder = tmp_path / "run"
     first = run(cfg_of(*TINY), folder)
     stale = {k: v for k, v in first.items() if k not in ("albedo_si_mse", "trivial_sh_error")}
-    stale["train_seconds"] = 123.0  # bookkeeping is kept as written
+    stale["train_seconds"], stale["infer_images_per_s"] = 123.0, 45.6  # bookkeeping and speed kept as written
     (folder / "eval.json").write_text(json.dumps(stale))
     rescore_main([str(folder)])
     again = json.loads((folder / "eval.json").read_text())
-    assert again["train_seconds"] == 123.0 and again["steps"] == first["steps"]
+    assert again["train_seconds"] == 123.0 and again["steps"] == first["steps"] and again["infer_images_per_s"] == 45.6
     for k in ("albedo_si_mse", "trivial_sh_error", "normal_mean", "recon_mse"):
         assert again[k] == pytest.approx(first[k], rel=1e-6, abs=1e-9)  # the same weights, the same numbers
     assert "test metrics" in capsys.readouterr().out

@@ -139,7 +139,8 @@ __all__ = [
 
 def rescore(run_dir) -> dict:
     """Score a finished run's final checkpoint again with this version's metrics: ``eval.json`` is rewritten
-    (atomically), keeping its training bookkeeping (``steps``, ``stopped_by``, ``train_seconds``)."""
+    (atomically), keeping its training bookkeeping (``steps``, ``stopped_by``, ``train_seconds``) and its measured
+    inference speed (a rescore may run on a busier machine)."""
     import json
     from pathlib import Path
 
@@ -154,7 +155,7 @@ def rescore(run_dir) -> dict:
     trivial = trivial_baselines(make_dataset(cfg.data, "train", cfg.data.get("train_size")))
     metrics = {
         **evaluate(model.eval(), cfg, cfg.train.eval_size, trivial),
-        **{k: old[k] for k in ("steps", "stopped_by", "train_seconds") if k in old},
+        **{k: old[k] for k in ("steps", "stopped_by", "train_seconds", "infer_images_per_s") if k in old},
     }
     atomic_write(run_dir / "eval.json", lambda f: f.write(json.dumps(metrics, indent=2).encode()))
     return metrics
