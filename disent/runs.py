@@ -382,7 +382,7 @@ class Run:
 
     @property
     def variant(self) -> str:
-        """``model`` or ``model+ablation1+ablation2`` (``+ceiling`` for a ceiling run): a row of the ablation table."""
+        """``model`` or ``model+ablation1+ablation2`` (the ablation table's rows); ``model+ceiling``: a ceiling run."""
         return "+".join([self.model, *self.ablations, *(["ceiling"] if self.ceiling else [])])
 
     @property
