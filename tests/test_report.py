@@ -416,3 +416,28 @@ def test_edit_claims_are_read_over_the_seeds_of_a_setting(tmp_path):
         "not testable (no edit works) |" in rows
     )
     assert any(r.startswith("| explicit | `shipped` | dmt | beard |") and "not testable (1 seed(s)" in r for r in rows)
+
+
+def test_light_claim_is_read_over_the_seeds_the_protocol_scored(tmp_path):
+    """Claim 2 groups the protocol's network rows by model and setting; three seeds lower than L-hat on both
+    numbers beyond their spread confirm it, one seed is not testable."""
+    out = tmp_path / "reports"
+    (out / "eval").mkdir(parents=True)
+    est = {"ls_pseudo": {"relative": 0.8, "sh_error": 0.9}}
+    runs = {}
+    for seed, rel in enumerate((0.18, 0.20, 0.16)):
+        est[f"e{seed}"], runs[f"e{seed}"] = (
+            {"relative": rel, "sh_error": 0.6},
+            {"model": "explicit", "setting": "(defaults)"},
+        )
+    est["long"], runs["long"] = {"relative": 0.5, "sh_error": 0.7}, {"model": "explicit", "setting": "+experiment=long"}
+    (out / "eval" / "sh_variance.json").write_text(json.dumps({"estimators": est, "runs": runs}))
+    make_run(tmp_path / "runs", "a", eval_={"normal_mean": 12.0, "pseudo_normal_mean": 11.5})
+    rep = report.Report(out, "")
+    report.sec_claims(rep, find_runs([tmp_path / "runs"]), out / "eval")
+    rows = [line for line in rep.lines if line.startswith("| explicit |") and "0.800" in line]
+    assert (
+        rows[0]
+        == "| explicit | `(defaults)` | 0.180 ± 0.020 (n=3) | 0.800 | 0.600 ± 0.000 (n=3) | 0.900 | **confirmed** |"
+    )
+    assert rows[1].endswith("| not testable (1 seed(s); 3 needed) |")
