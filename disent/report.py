@@ -173,6 +173,11 @@ def _spread(runs: list[Run], key: str) -> dict | None:
     return _ablation.mean_std([r.value(key) for r in runs])
 
 
+def table_head(*columns: str) -> tuple[str, str]:
+    """A Markdown table's header line and its separator, one column each."""
+    return "| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)
+
+
 def _fmt(value, fmt: str) -> str:
     return "–" if value is None else f"{value:{fmt}}"
 
@@ -394,8 +399,7 @@ def sec_runs(rep: Report, runs: list[Run]) -> None:
         "trivial_light_shading_si_mse",
     )
     rep.add(
-        "| run | variant | seed | status | train img/s | infer img/s | " + " | ".join(cols) + " |",
-        "|" + "---|" * (6 + len(cols)),
+        *table_head("run", "variant", "seed", "status", "train img/s", "infer img/s", *cols),
     )
     for r in runs:
 
@@ -445,8 +449,7 @@ def sec_ceiling(rep: Report, runs: list[Run]) -> None:
         "matches the image closely, so the albedo's error follows the shading's (compare the two columns): "
         "an albedo can only be as right as the normals and light that shade it. Test split, 256 images; "
         "mean ± std over seeds.\n",
-        "| model | row | setting | steps | " + " | ".join(label for _, label, _ in CEILING_COLUMNS) + " |",
-        "|---|---|---|---|" + "---|" * len(CEILING_COLUMNS),
+        *table_head("model", "row", "setting", "steps", *(label for _, label, _ in CEILING_COLUMNS)),
     )
     gaps = []
     for model in ("explicit", "implicit"):
@@ -694,8 +697,7 @@ def _stability_conditioning(rep: Report, cond: dict | None, eval_dir: Path) -> N
         for res, key, unit in ((cond["yaw"], "yaw", "°"), (cond["mask"], "fraction", "")):
             rep.add(
                 "",
-                f"| {key} | face pixels | " + " | ".join(f"cond {e} | SH err {e}" for e in st.LS_ESTIMATORS) + " |",
-                "|" + "---|" * (2 + 2 * len(st.LS_ESTIMATORS)),
+                *table_head(key, "face pixels", *(c for e in st.LS_ESTIMATORS for c in (f"cond {e}", f"SH err {e}"))),
             )
             for r in res["rows"]:
                 if "error" in r:
@@ -810,9 +812,21 @@ def _stability_training(rep: Report, res: dict) -> None:
         "over the group's seeds"
         + (f"; the mean test image scores recon MSE {res['reference_mse']:.4f}" if res.get("reference_mse") else "")
         + ".\n",
-        "| model | adversarial | lr | runs | NaN | diverged | exploded | collapsed | largest / smallest loss | "
-        "last / first loss | test recon MSE | normal err (deg) | input dependence |",
-        "|" + "---|" * 13,
+        *table_head(
+            "model",
+            "adversarial",
+            "lr",
+            "runs",
+            "NaN",
+            "diverged",
+            "exploded",
+            "collapsed",
+            "largest / smallest loss",
+            "last / first loss",
+            "test recon MSE",
+            "normal err (deg)",
+            "input dependence",
+        ),
     )
 
     def g(v, fmt=".3g"):
@@ -867,8 +881,7 @@ def sec_methods(rep: Report, eval_dir: Path) -> None:
         "the simulated pseudo ground truth: it starts from the scene's parameters, so its time is a lower bound "
         "for a real fit; *landmarks + fit* is the real pipeline (dlib and the face model) on the renders, scored "
         "where dlib found the face.\n",
-        "| estimator | ms / image | images | " + " | ".join(label for _, label, _ in PANELS) + " |",
-        "|---|---|---|" + "---|" * len(PANELS),
+        *table_head("estimator", "ms / image", "images", *(label for _, label, _ in PANELS)),
     )
     for name, r in res["rows"].items():
         t = "constant" if r.get("constant") else f"{1e3 * r['seconds_per_image']:.3g}"
@@ -903,8 +916,7 @@ def sec_recipe(rep: Report, runs: list[Run]) -> None:
         "morphable-model fit on the same images.\n"
     )
     rep.add(
-        "| variant | override | steps | " + " | ".join(c[1] for c in RECIPE_COLUMNS) + " | train min |",
-        "|---|---|---|" + "---|" * (len(RECIPE_COLUMNS) + 1),
+        *table_head("variant", "override", "steps", *(c[1] for c in RECIPE_COLUMNS), "train min"),
     )
 
     def cell(r, key, fmt):
@@ -1137,8 +1149,7 @@ def models_table(models: dict) -> list[str]:
     """Markdown rows, one per model: forward GFLOP per image, then images/s (fraction of peak) per rate."""
     models, rates = _bench_models(models)
     lines = [
-        "| model | GFLOP / image (forward) | " + " | ".join(label for _, label in rates) + " |",
-        "|---|" + "---|" * (len(rates) + 1),
+        *table_head("model", "GFLOP / image (forward)", *(label for _, label in rates)),
     ]
     for name, m in models.items():
         cells = [
