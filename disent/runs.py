@@ -381,6 +381,11 @@ class Run:
         return any(_get(self.cfg, f"loss.weights.{t}", 0) for t in TRUTH)
 
     @property
+    def plain(self) -> bool:
+        """The paper's model as configured: no ablation, not a ceiling run."""
+        return not self.ablations and not self.ceiling
+
+    @property
     def variant(self) -> str:
         """``model`` or ``model+ablation1+ablation2`` (the ablation table's rows); ``model+ceiling``: a ceiling run."""
         return "+".join([self.model, *self.ablations, *(["ceiling"] if self.ceiling else [])])
@@ -520,7 +525,7 @@ def pick_runs(runs, variants=None) -> dict[str, Run]:
     for r in sorted(runs, key=order):
         if r.checkpoint is None or r.status != "ok":
             continue
-        if (variants is None and not r.ablations and not r.ceiling) or (variants is not None and r.variant in variants):
+        if (variants is None and r.plain) or (variants is not None and r.variant in variants):
             chosen.setdefault(r.variant, r)
     return chosen
 

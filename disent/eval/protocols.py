@@ -169,19 +169,18 @@ def main(argv=None):
         from disent.models import load_run
         from disent.runs import setting
 
-        found = find_runs(a.roots or RUN_ROOTS)
-        found = [r for r in found if r.status == "ok" and r.checkpoint and not r.ablations and not r.ceiling]
-        runs = {f"{r.model} {setting(r, drop_model=True)} seed {r.seed}": r for r in found if r.model != "baseline"}
-        models = {name: load_run(r.path)[0] for name, r in runs.items()}
+        for r in find_runs(a.roots or RUN_ROOTS):
+            if r.status == "ok" and r.checkpoint and r.plain and r.model != "baseline":  # the baseline has no light
+                info = {"model": r.model, "setting": setting(r, drop_model=True), "seed": r.seed}
+                runs[f"{info['model']} {info['setting']} seed {info['seed']}"] = (r, info)
+        models = {name: load_run(r.path)[0] for name, (r, _) in runs.items()}
     else:
         models = load_models(a.runs if a.runs is not None else find_runs(a.roots or RUN_ROOTS))
     ds = SynthFaces(split="lightbank", resolution=a.resolution, seed=0)
     res = sh_variance_protocol(ds, models, a.limit)
     res["split"], res["resolution"] = "lightbank", a.resolution
     if runs:  # which trained model each network row is, for the report's verdict over seeds
-        res["runs"] = {
-            n: {"model": r.model, "setting": setting(r, drop_model=True), "seed": r.seed} for n, r in runs.items()
-        }
+        res["runs"] = {name: info for name, (_, info) in runs.items()}
     out = tool_folder("eval", a.out)
     (out / "sh_variance.json").write_text(json.dumps(res, indent=1))
     plot_sh_variance(res, out / "sh_variance.png")
