@@ -130,6 +130,8 @@ def test_bws_stats_closed_forms():
     assert s["albedo_shading_corr"] == pytest.approx(1.0)  # albedo that is the shading
     out["albedo"] = 1.0 - gt["shading"]
     assert st.bws_stats(out, gt)["albedo_shading_corr"] == pytest.approx(-1.0)
+    m = metrics_from_outputs(out, gt)  # eval.json carries them for every rendering model (the ablation of BWS)
+    assert m["albedo_shading_corr"] == pytest.approx(-1.0) and m["shading_cast"] == pytest.approx(0, abs=1e-6)
 
 
 def test_metrics_from_outputs_baseline_has_only_recon():

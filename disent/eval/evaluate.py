@@ -77,6 +77,31 @@ def normal_metrics(normal: torch.Tensor, gt: dict) -> dict:
     return m
 
 
+def bws_stats(out: dict, gt: dict) -> dict:
+    """Shading mean per channel over the true face, and corr(estimated albedo, true shading).
+
+    The correlation is Pearson's over face pixels of each image (luminance, i.e. the channel
+    mean), averaged over images: near 0 when albedo is free of shading, towards 1 when it
+    absorbs it.  BWS pushes the shading mean to c = 0.75 per channel.
+    """
+    face = face_mask(gt["matte"])
+    w = face.flatten(1)
+    n = w.sum(1).clamp_min(1)
+    shading = out["shading"].expand(-1, 3, -1, -1)
+    mean_c = ((shading * face).flatten(2).sum(2) / n[:, None]).mean(0)  # [3]
+    a = out["albedo"].mean(1).flatten(1)
+    s = gt["shading"].mean(1).flatten(1)
+    am = (a * w).sum(1) / n
+    sm = (s * w).sum(1) / n
+    cov = ((a - am[:, None]) * (s - sm[:, None]) * w).sum(1)
+    den = (((a - am[:, None]) ** 2 * w).sum(1) * ((s - sm[:, None]) ** 2 * w).sum(1)).sqrt().clamp_min(1e-12)
+    return {
+        "shading_mean_rgb": mean_c.tolist(),
+        "shading_cast": (mean_c.max() - mean_c.min()).item(),
+        "albedo_shading_corr": (cov / den).mean().item(),
+    }
+
+
 def metrics_from_outputs(out: dict, gt: dict) -> dict:
     """Flat metric dict from model outputs and ground truth (same keys as SynthFaces items).
 
@@ -112,6 +137,8 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
         true_shading = sh_shading(gt["normal"].double(), gt["sh"].double())
         for name, sh in (("light_shading_si_mse", out["sh"]), ("pseudo_light_shading_si_mse", gt["sh_pseudo"])):
             m[name] = scale_invariant_mse(sh_shading(gt["normal"].double(), sh.double()), true_shading, region)
+    if {"albedo", "shading"} <= set(out) and "shading" in gt:
+        m.update(bws_stats(out, gt))
     return m
 
 
@@ -133,6 +160,7 @@ __all__ = [
     "predict",
     "model_outputs",
     "metrics_from_outputs",
+    "bws_stats",
     "evaluate_model",
 ]
 

@@ -31,7 +31,7 @@ from pathlib import Path
 import torch
 
 from disent.data import get_batch
-from disent.eval.evaluate import batches, face_mask, metrics_from_outputs, predict
+from disent.eval.evaluate import batches, bws_stats, face_mask, metrics_from_outputs, predict
 from disent.eval.metrics import sh_error
 from disent.render import design_condition, fit_sh, rotate_sh
 
@@ -199,31 +199,6 @@ def ood_curves(
 
 
 # ----------------------------------------------------------------------------- 1. BWS
-def bws_stats(out: dict, gt: dict) -> dict:
-    """Shading mean per channel over the true face, and corr(estimated albedo, true shading).
-
-    The correlation is Pearson's over face pixels of each image (luminance, i.e. the channel
-    mean), averaged over images: near 0 when albedo is free of shading, towards 1 when it
-    absorbs it.  BWS pushes the shading mean to c = 0.75 per channel.
-    """
-    face = face_mask(gt["matte"])
-    w = face.flatten(1)
-    n = w.sum(1).clamp_min(1)
-    shading = out["shading"].expand(-1, 3, -1, -1)
-    mean_c = ((shading * face).flatten(2).sum(2) / n[:, None]).mean(0)  # [3]
-    a = out["albedo"].mean(1).flatten(1)
-    s = gt["shading"].mean(1).flatten(1)
-    am = (a * w).sum(1) / n
-    sm = (s * w).sum(1) / n
-    cov = ((a - am[:, None]) * (s - sm[:, None]) * w).sum(1)
-    den = (((a - am[:, None]) ** 2 * w).sum(1) * ((s - sm[:, None]) ** 2 * w).sum(1)).sqrt().clamp_min(1e-12)
-    return {
-        "shading_mean_rgb": mean_c.tolist(),
-        "shading_cast": (mean_c.max() - mean_c.min()).item(),
-        "albedo_shading_corr": (cov / den).mean().item(),
-    }
-
-
 def bws_study(runs, dataset, n: int = 64) -> dict:
     """:func:`bws_stats` for every finished run of the explicit/implicit models, with its BWS setting and batch size."""
     from disent.eval.ablation import budget
