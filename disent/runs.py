@@ -494,7 +494,7 @@ def find_runs(roots=RUN_ROOTS) -> list[Run]:
 
 
 # overrides that do not change what a run is (its seed, bookkeeping, the CPU time guard of a budget rung)
-SEED_FREE = ("seed=", "train.progress=", "train.time_limit_min=", "resume", "hydra.")
+SEED_FREE = ("seed=", "train.progress=", "train.time_limit_min=", "train.stop_step=", "resume", "hydra.")
 
 
 def defining_overrides(run: Run, drop=SEED_FREE) -> list[str]:
@@ -502,9 +502,10 @@ def defining_overrides(run: Run, drop=SEED_FREE) -> list[str]:
     return sorted(str(o) for o in run.overrides if not str(o).lstrip("+~").startswith(drop))
 
 
-def setting(run: Run, drop_model: bool = False) -> str:
-    """What a run is, apart from its seed (and its model, for comparisons across models): its overrides."""
-    return " ".join(defining_overrides(run, SEED_FREE + (("model=",) if drop_model else ()))) or "(defaults)"
+def setting(run: Run, drop_model: bool = False, drop: tuple = ()) -> str:
+    """What a run is, apart from its seed (and its model, for comparisons across models): its overrides.
+    ``drop``: more override prefixes to leave out (``("ablation=",)``: the setting of the full model it ablates)."""
+    return " ".join(defining_overrides(run, SEED_FREE + (("model=",) if drop_model else ()) + drop)) or "(defaults)"
 
 
 def pick_runs(runs, variants=None) -> dict[str, Run]:

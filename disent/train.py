@@ -213,6 +213,7 @@ def check_config(cfg) -> None:
     whole("train.batch_size", t.batch_size)
     whole("train.epochs", t.epochs)
     whole("train.max_steps", t.max_steps, optional=True)
+    whole("train.stop_step", t.get("stop_step"), optional=True)
     whole("train.threads", t.threads, minimum=0)
     whole("data.train_size", d.get("train_size"), optional=True)
     whole("data.test_size", d.get("test_size"), optional=True)
@@ -393,6 +394,10 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
         while step < total_steps:
             if t.time_limit_min and wall > 60 * t.time_limit_min:  # budget spent: keep what we have, evaluate
                 stopped = "time_limit"
+                checkpoint()
+                break
+            if t.get("stop_step") and step >= t.stop_step:  # a replayed time-guard stop: the schedule is unchanged
+                stopped = "stop_step"
                 checkpoint()
                 break
             epoch = step // steps_per_epoch

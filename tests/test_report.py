@@ -310,6 +310,33 @@ def test_budget_check_names_each_missed_target(tmp_path):
     assert "no finished full explicit run" in budget_check([])
 
 
+def test_ablation_claims_pair_each_ablation_with_the_full_model_and_gate_on_the_budget(tmp_path):
+    """Claim 4: an ablation's runs meet the full model's runs of the same setting on the paper's metric; the
+    difference is read by the claims' rule, and becomes a verdict only where the full model meets the targets."""
+    good = {"normal_mean": 12.0, "recon_face_psnr": 26.5, "albedo_si_mse": 0.005, "trivial_albedo_si_mse": 0.0127}
+    for seed in range(3):
+        make_run(tmp_path, f"full{seed}", seed=seed, eval_={**good, "normal_mean": 12.0 + 0.1 * seed})
+        make_run(
+            tmp_path, f"nopn{seed}", ablations=["no_pseudo_normal"], seed=seed, eval_={**good, "normal_mean": 15.0}
+        )
+    runs = find_runs([tmp_path])
+    rep = report.Report(tmp_path, "")
+    report.claim_ablations(rep, runs)
+    row = next(line for line in rep.lines if "| no_pseudo_normal |" in line)
+    assert "| 12.1 ± 0.1 (n=3) | 15 ± 0 (n=3) | **confirmed** | **confirmed** |" in row, row
+    assert sum("| no_pseudo_normal |" in line for line in rep.lines) == 1  # one claim on this ablation's metric
+    for r in runs:  # the same runs where the full model misses the normal target: measured, but no verdict
+        if r.path.name.startswith("full"):
+            r.eval["normal_mean"] += 1.0
+    rep = report.Report(tmp_path, "")
+    report.claim_ablations(rep, runs)
+    row = next(line for line in rep.lines if "| no_pseudo_normal |" in line)
+    assert row.endswith("| **confirmed** | not testable (targets missed: 1 of 3) |"), row
+    rep = report.Report(tmp_path, "")
+    report.claim_ablations(rep, [r for r in runs if r.path.name.startswith("full")])
+    assert "no finished ablation runs" in "\n".join(rep.lines)
+
+
 def test_ood_table_reports_where_each_estimator_breaks(tmp_path):
     from disent import report
 

@@ -59,6 +59,22 @@ def test_ablations_compose():
     assert w.recon > 0 and w.recon_N > 0 and w.smooth_A > 0
 
 
+def test_stop_step_replays_a_cut_run_on_the_full_schedule(tmp_path):
+    """train.stop_step stops where a time-guarded run stopped, on the schedule of the full run: its log is the
+    full run's first steps (lr included), unlike a run of max_steps=2, whose cosine decays faster."""
+    common = [*TINY, "train.epochs=2", "train.max_steps=null", "train.log_every=1", "train.warmup_steps=0"]
+    run(cfg_of(*common), tmp_path / "full")
+    run(cfg_of(*common, "train.stop_step=2"), tmp_path / "stopped")
+    run(cfg_of(*common, "train.max_steps=2"), tmp_path / "short")
+    keep = lambda rs: [{k: v for k, v in r.items() if k in ("step", "lr", "total")} for r in rs if "lr" in r]
+    full, stopped, short = (keep(records(tmp_path / d)) for d in ("full", "stopped", "short"))
+    assert len(full) == 4 and stopped == full[:2] and short[1]["lr"] < full[1]["lr"]
+    ev = json.loads((tmp_path / "stopped" / "eval.json").read_text())
+    assert ev["stopped_by"] == "stop_step" and ev["steps"] == 2
+    with pytest.raises(T.ConfigError, match="stop_step"):
+        T.check_config(cfg_of(*common, "train.stop_step=0"))
+
+
 def test_resume_equals_an_uninterrupted_run(tmp_path, monkeypatch):
     """2 epochs of 2 steps; one run is killed during step 4 (its last checkpoint: the end of epoch 0) and
     started again in its folder: weights, optimisers and logs agree bitwise with the uninterrupted run."""
