@@ -259,3 +259,14 @@ def test_first_past_finds_the_first_value_beyond_the_factor_or_not_finite():
     assert st.first_past([0, 1, 2], [1.0, 1.4, 2.0], 1.0, factor=1.5) == 2
     assert st.first_past([0, 1, 2], [1.0, float("nan"), 2.0], 1.0, factor=1.5) == 1
     assert st.first_past([0, 1, 2], [1.0, 5.0, 9.0], 1.0) is None  # the default factor is BLOWUP (10)
+
+
+def test_sh_variance_groups_put_the_seeds_of_a_setting_in_one_bar():
+    from disent.eval.protocols import CHECKS, sh_variance_groups
+
+    row = {"per_coeff": [1.0] * 9, "mean": 1.0, "relative": 0.5}
+    est = {"ls_pseudo": row, "explicit a seed 0": row, "explicit a seed 1": row, **{c: row for c in CHECKS}}
+    runs = {f"explicit a seed {s}": {"model": "explicit", "setting": "a", "seed": s} for s in (0, 1)}
+    groups = sh_variance_groups({"estimators": est, "runs": runs})
+    assert {k: len(v) for k, v in groups.items()} == {"ls_pseudo": 1, "explicit a": 2}
+    assert set(sh_variance_groups({"estimators": est})) == {"ls_pseudo", "explicit a seed 0", "explicit a seed 1"}

@@ -116,30 +116,56 @@ def sh_variance_protocol(dataset, models: dict | None = None, limit: int | None 
 CHECKS = ("true", "ls_oracle")  # sanity rows of the table (zero variance by construction), not plotted
 
 
+def sh_variance_groups(result: dict) -> dict:
+    """``{label: [estimator rows]}``: the protocol's estimators with the seeds of one trained setting together
+    (``result["runs"]``, from ``--every-run``), each other estimator alone; the checks left out."""
+    runs = result.get("runs") or {}
+    groups: dict = {}
+    for name, v in result["estimators"].items():
+        if name in CHECKS:
+            continue
+        info = runs.get(name)
+        groups.setdefault(f"{info['model']} {info['setting']}" if info else name, []).append(v)
+    return groups
+
+
 def plot_sh_variance(result: dict, path) -> None:
-    """Grouped bars of per-coefficient variance, one colour per estimator (the supplement's figure);
-    left the raw variance, right divided by each estimator's mean squared coefficient."""
+    """Grouped bars of per-coefficient variance, one colour per estimator (the supplement's figure); a trained
+    setting's bar is the mean over its seeds, its whisker their range.  Left the raw variance, right divided by
+    each estimator's mean squared coefficient."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import numpy as np
 
-    est = {k: v for k, v in result["estimators"].items() if k not in CHECKS}
+    groups = sh_variance_groups(result)
     x = np.arange(9)
-    width = 0.8 / max(len(est), 1)
-    fig, axes = plt.subplots(1, 2, figsize=(11, 3.4))
+    width = 0.8 / max(len(groups), 1)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     for ax, key in zip(axes, ("mean", "relative")):
-        for i, (name, v) in enumerate(est.items()):
-            bars = np.array(v["per_coeff"]) * (v[key] / v["mean"] if v["mean"] > 0 else 1.0)
-            ax.bar(x + (i - (len(est) - 1) / 2) * width, bars, width, label=f"{name} ({v[key]:.3g})")
+        for i, (name, rows) in enumerate(groups.items()):
+            bars = np.array([np.array(v["per_coeff"]) * (v[key] / v["mean"] if v["mean"] > 0 else 1.0) for v in rows])
+            mid = bars.mean(0)
+            whisker = [mid - bars.min(0), bars.max(0) - mid] if len(rows) > 1 else None
+            seeds = f", {len(rows)} seeds" if len(rows) > 1 else ""
+            value = float(np.mean([v[key] for v in rows]))
+            ax.bar(
+                x + (i - (len(groups) - 1) / 2) * width,
+                mid,
+                width,
+                yerr=whisker,
+                error_kw={"lw": 0.6},
+                label=f"{name}{seeds} ({value:.3g})",
+            )
         ax.set_xticks(x, result.get("coefficients", SH_NAMES))
         ax.set_yscale("log")
         ax.set_ylabel("variance" if key == "mean" else "variance / mean squared coefficient")
-        ax.legend(fontsize=7)
     axes[0].set_title("SH variance within a light condition (mean over conditions and RGB)", fontsize=9)
     axes[1].set_title("the same, scale-free", fontsize=9)
-    fig.tight_layout()
+    handles, labels = axes[1].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=min(3, len(labels)), fontsize=7, frameon=False)
+    fig.tight_layout(rect=(0, 0.06 * ((len(labels) + 2) // 3), 1, 1))
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
     plt.close(fig)
