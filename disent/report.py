@@ -990,6 +990,37 @@ def sec_methods(rep: Report, eval_dir: Path) -> None:
     published_figure(rep, eval_dir / "methods.png", "methods on one plane")
 
 
+def sec_photos(rep: Report, out: Path) -> None:
+    """The shipped models on real photos: the domain gap against the pseudo ground truth, beside the training set's
+    constants, and the decompositions (``reports/photos/``, published from ``python -m disent.eval.photos``)."""
+    from disent.eval.photos import GAP_TEXT, gap_table
+
+    folder = out / "photos"
+    gaps = []
+    for path in sorted(folder.glob("domain_gap_*.json")):
+        g = _load_json(path)
+        if g:
+            gaps.append({"tag": path.stem.removeprefix("domain_gap_"), **g})
+    if not gaps:
+        rep.note(
+            "`reports/photos/domain_gap_*.json`; run `python -m disent.eval.photos --run explicit implicit` and "
+            "publish its folder."
+        )
+        return
+    rep.add(
+        "Regenerate: `python -m disent.eval.photos --run explicit implicit --workers 1`, then `python -m "
+        f"disent.report --publish FOLDER`. The bundled photos through the pseudo-GT pipeline (dlib landmarks and the "
+        f"face model; its accuracy on renders: `photos/pseudo_gt.md`). {GAP_TEXT}\n",
+        *gap_table(gaps),
+        "",
+    )
+    for g in gaps:
+        for kind, alt in (("decomposition", "decomposition"), ("relight", "relighting")):
+            path = folder / f"{kind}_{g['tag']}.png"
+            if path.is_file():
+                rep.image(path, f"{alt} of photos, {g['tag']}")
+
+
 RECIPE_COLUMNS = (
     ("normal_mean", "normals (deg)", ".2f"),
     ("recon_face_psnr", "face PSNR (dB)", ".2f"),
@@ -1498,6 +1529,7 @@ def build(
     rep.section("Stability where methods fail", sec_stability, eval_dir)
     rep.section("Training recipe: leave-one-out", sec_recipe, runs)
     rep.section("Learning curves", sec_learning_curves, runs)
+    rep.section("Real photos: the domain gap", sec_photos, out)
     rep.section("Methods on one plane: time against accuracy", sec_methods, eval_dir)
     rep.section("Benchmarks (`reports/bench*.json`)", sec_bench, out)
     rep.section("L-hat uncertainty and lighting model order", sec_lighting, out)

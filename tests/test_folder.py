@@ -548,6 +548,12 @@ def test_domain_gap_numbers_on_photo_records(tmp_path):
     gap = gap_metrics(model, batch)
     assert gap["n"] == 3 and all(np.isfinite(v) for v in gap.values())
     assert 0 <= gap["matte_iou_mask_pseudo"] <= gap["matte_covers_mask_pseudo"] <= 1
+    # the constants beside it: a mean map that is the first photo's pseudo normals scores 0 on that photo
+    one = {k: v[:1] for k, v in batch.items()}
+    trivial = {"normal": batch["normal_pseudo"][0], "sh_pseudo": batch["sh_pseudo"][0]}
+    gap = gap_metrics(model, one, trivial)
+    assert gap["trivial_normal_vs_pseudo_deg"] == pytest.approx(0, abs=0.1)
+    assert gap["trivial_sh_vs_pseudo_mse"] == pytest.approx(0, abs=1e-6)
 
 
 @pytest.mark.slow

@@ -466,3 +466,27 @@ def test_light_claim_is_read_over_the_seeds_the_protocol_scored(tmp_path):
         == "| explicit | `(defaults)` | 0.180 ± 0.020 (n=3) | 0.800 | 0.600 ± 0.000 (n=3) | 0.900 | **confirmed** |"
     )
     assert rows[1].endswith("| not testable (1 seed(s); 3 needed) |")
+
+
+def test_photo_section_marks_a_network_no_better_than_the_training_means(tmp_path):
+    """The domain gap beside the training set's constants: normals worse than the mean map are marked, a light
+    better than the mean L-hat is not; a missing input says which command makes it."""
+    rep = report.Report(tmp_path, "")
+    report.sec_photos(rep, tmp_path)
+    assert "python -m disent.eval.photos" in "\n".join(rep.lines)
+    dom = {
+        "n": 4,
+        "recon_psnr": 21.8,
+        "normal_vs_pseudo_deg": 17.5,
+        "trivial_normal_vs_pseudo_deg": 16.7,
+        "sh_vs_pseudo_mse": 0.30,
+        "trivial_sh_vs_pseudo_mse": 0.38,
+        "matte_iou_mask_pseudo": 0.7,
+    }
+    gap = {"model": "explicit", "training": {"epochs": 20, "train_size": 20000}, "photos": dom, "synthfaces_test": dom}
+    (tmp_path / "photos").mkdir()
+    (tmp_path / "photos" / "domain_gap_explicit_shipped.json").write_text(json.dumps(gap))
+    rep = report.Report(tmp_path, "")
+    report.sec_photos(rep, tmp_path)
+    row = next(line for line in rep.lines if line.startswith("| explicit (explicit_shipped) |") and "photos" in line)
+    assert "| 17.50 (not better) | 16.70 | 0.300 | 0.380 | 0.700 |" in row, row
