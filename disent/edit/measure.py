@@ -437,14 +437,14 @@ def run_measurements(a) -> None:
     ``<model>_seed<seed>_<steps>steps``; edit.json records model, seed, steps and the run's setting (its overrides
     apart from seed and time guard), by which the report sets the seeds of one budget side by side."""
     from disent.data import LIGHT_BANK, SynthFaces
-    from disent.models import checkpoint_path, load_run
-    from disent.runs import Run, load_checkpoint, setting, tool_folder
+    from disent.models import load_run
+    from disent.runs import Run, setting, tool_folder
 
     folder = tool_folder("edit", a.out)
     figures = not getattr(a, "no_figures", False)  # --no-figures: tables and JSON only
     torch.manual_seed(a.seed)
     model, cfg = load_run(a.run)
-    steps = int(load_checkpoint(checkpoint_path(a.run))["step"])
+    steps = model.trained_steps
     shipped = not Path(a.run).exists()
     run_folder = Path(a.run) if Path(a.run).is_dir() else Path(a.run).parent.parent  # .../checkpoints/x.pt
     out = folder / (cfg.model.name if shipped else f"{cfg.model.name}_seed{cfg.seed}_{steps}steps")

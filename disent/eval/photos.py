@@ -126,10 +126,7 @@ def apply_run(run_dir, records: list, out: Path, n_show: int = 8) -> dict:
         raise ValueError(f"run {run_dir} is at {res} px; rerun the photos at --resolution {res}")
     photos = photo_batch(records)
     synth = SynthFaces("test", res, size=len(records)).get_batch(range(len(records)))
-    budget = {
-        k: cfg.data.get("train_size") if k == "train_size" else cfg.train.get(k)
-        for k in ("train_size", "epochs", "max_steps")
-    }
+    budget = {"train_size": cfg.data.get("train_size"), "steps": model.trained_steps}
     trivial = dataset_means(SynthFaces("train", res)) if cfg.data.name == "synth" else None
     gap = {
         "run": str(run_dir),
@@ -149,11 +146,18 @@ def apply_run(run_dir, records: list, out: Path, n_show: int = 8) -> dict:
         [Path(r.path).stem for r in show],
         out,
         tag,
-        f": {budget['train_size']} images, {budget['epochs']} epochs",
+        f": {budget['train_size']} images, {steps_text(budget)}",
     )
     for dom in ("photos", "synthfaces_test"):
         print(f"{tag} {dom:16s} " + "  ".join(f"{k} {v:.4g}" for k, v in gap[dom].items()))
     return {**gap, "tag": tag}
+
+
+def steps_text(budget: dict) -> str:
+    """How long a model trained: its checkpoint's steps (results written before they were recorded: the config)."""
+    if budget.get("steps") is not None:
+        return f"{budget['steps']:,} steps"
+    return f"{budget.get('max_steps') or str(budget.get('epochs')) + ' epochs of'} steps"
 
 
 def gap_table(gaps: list[dict]) -> list[str]:
@@ -189,8 +193,8 @@ def gap_table(gaps: list[dict]) -> list[str]:
                 cells += [net, "–" if const is None else f"{const:.{d}f}"]
             iou = f"{m['matte_iou_mask_pseudo']:.3f}" if "matte_iou_mask_pseudo" in m else "–"
             lines.append(
-                f"| {g['model']} ({g['tag']}) | {t.get('max_steps') or str(t.get('epochs')) + ' epochs of'} steps, "
-                f"{t.get('train_size')} images | {label} | {m['n']} | {m['recon_psnr']:.2f} | "
+                f"| {g['model']} ({g['tag']}) | {steps_text(t)}, {t.get('train_size')} training images | {label} | "
+                f"{m['n']} | {m['recon_psnr']:.2f} | "
                 f"{' | '.join(cells)} | {iou} |"
             )
     return lines

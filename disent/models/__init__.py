@@ -49,13 +49,15 @@ def load_run(path):
     """``(model, cfg)`` from a run folder (its ``checkpoints/last.pt``), a checkpoint file, or the name of a
     shipped model (``explicit``, ``implicit``, ``baseline``: :mod:`disent.models.shipped`).
 
-    The model is in eval mode; ``cfg`` is the run's resolved OmegaConf config.  An unknown name lists the
+    The model is in eval mode, with ``trained_steps`` the step its weights were saved at (None where the
+    checkpoint does not say); ``cfg`` is the run's
+    resolved OmegaConf config.  An unknown name lists the
     shipped ones; a checkpoint that does not fit this code's architecture names the mismatch, and one that
     cannot be read names the file (:func:`disent.runs.load_checkpoint`).
     """
     from omegaconf import OmegaConf
 
-    from disent.models.shipped import load_weights
+    from disent.models.shipped import load_weights, manifest
     from disent.runs import load_checkpoint
 
     ckpt_path = checkpoint_path(path)
@@ -63,6 +65,8 @@ def load_run(path):
     cfg = OmegaConf.create(ckpt["cfg"])
     model = build_model(cfg.model)
     load_weights(model, ckpt["model"], ckpt_path)
+    shipped = not Path(path).exists()  # a shipped model's steps are in the manifest
+    model.trained_steps = ckpt.get("step", manifest()[str(path)]["steps"] if shipped else None)
     return model.eval(), cfg
 
 
