@@ -1137,12 +1137,16 @@ def plot_learning_curves(runs: list[Run], path: Path, title: str = "") -> bool:
                     label=None if name in seen else name,
                 )
                 seen.add(name)
+            lines = []
             for ref, style, name in ((trivial, "--", "dataset mean"), (pseudo, ":", "pseudo-GT")):
                 vals = [
                     c[-1][ref] for _, c in curves if ref and c[-1].get(ref) is not None and c[-1].get(key) is not None
                 ]
                 if vals:
-                    ax.axhline(float(np.mean(vals)), color="k", ls=style, lw=1, label=name)
+                    lines.append(float(np.mean(vals)))
+                    ax.axhline(lines[-1], color="k", ls=style, lw=1, label=name)
+            if lines and key != "recon_face_psnr":  # errors far above the reference lines (first steps, an untrained
+                ax.set_ylim(top=1.5 * max(lines))  # layer) would squash the curves that matter
             ax.set_xlabel("training images" if x == "images" else "training wall minutes")
             ax.set_ylabel(label)
             ax.grid(alpha=0.3)
