@@ -493,9 +493,17 @@ def sec_ceiling(rep: Report, runs: list[Run]) -> None:
                     closed.append(f"{label} –")
                 else:
                     closed.append(f"{label} {100 * (lo - got['mean']) / (lo - hi['mean']):.0f} %")
-            gaps.append(f"- {model}, `{where}`: {', '.join(closed)}")
+            top_steps = (_spread(top, "steps") or {"mean": math.nan})["mean"]
+            unequal = f" (trained {steps[kind, where]:,.0f} steps, ceiling {top_steps:,.0f})"
+            gaps.append(
+                f"- {model}, `{where}`: {', '.join(closed)}" + (unequal if steps[kind, where] != top_steps else "")
+            )
     if gaps:
-        rep.add("", "Share of the floor-to-ceiling gap the trained models close at the ceiling's budget:\n", *gaps)
+        rep.add(
+            "",
+            "Share of the floor-to-ceiling gap the trained models close, against the ceiling of their setting:\n",
+            *gaps,
+        )
     rep.add(
         "",
         "_Regenerate: `python -m disent model=MODEL loss=ceiling` and `python -m disent model=MODEL "
