@@ -27,7 +27,7 @@ import torch
 
 from disent.eval import ablation as _ablation
 from disent.images import over_max, to_array
-from disent.runs import RUN_ROOTS, Run, find_runs, pick_runs, publish, setting, tool_folder
+from disent.runs import RUN_ROOTS, Run, find_runs, machine_text, pick_runs, publish, setting, tool_folder
 from disent.runs import defining_overrides as _overrides
 
 MODELS = ("baseline", "explicit", "implicit")
@@ -200,6 +200,14 @@ def ladder_runs(runs: list[Run]) -> list[Run]:
     return [r for r in runs if r.status == "ok" and r.eval and not r.ablations and on_the_ladder(r)]
 
 
+def machines(runs: list[Run]) -> str:
+    """The machines ``runs`` trained on (their ``machine.json``), for a caption."""
+    seen = sorted({machine_text(r.machine) for r in runs if r.machine})
+    older = sum(1 for r in runs if not r.machine)
+    text = "; ".join(seen) if seen else "not recorded"
+    return text + (f" ({older} run(s) from before machines were recorded)" if seen and older else "")
+
+
 def verdict(a, b, better: str) -> str:
     """Whether arm ``a`` beats arm ``b`` (``better``: "lower" or "higher"; each a :func:`_spread`): confirmed
     or refuted where the difference exceeds both arms' seed spread, else not resolved; not testable with fewer
@@ -226,7 +234,8 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
     rep.add(
         f"Each verdict needs {MIN_SEEDS} seeds per arm and a difference larger than the arms' seed spread "
         "(std). Runs of the budget ladder only (the defaults, `+experiment=long`; no other override), grouped by "
-        "their overrides apart from the seed and the time guard (the *setting*).\n"
+        "their overrides apart from the seed and the time guard (the *setting*). Trained on: "
+        f"{machines(done)}.\n"
     )
     rep.add(
         "### 1. The network's normals go beyond the morphable-model fit that supervised them\n",
@@ -762,6 +771,7 @@ def sec_ablation(rep: Report, runs: list[Run]) -> None:
             rep.add(f"### experiment: {exp}\n")
         rep.add(_ablation.to_markdown(tables[exp]))
         rep.add(budget_check([r for r in rs if r.variant == "explicit" and r.status == "ok"]))
+        rep.add(f"_Trained on: {machines(rs)}._\n")
     (rep.out / "ablation.json").write_text(
         json.dumps(tables if len(tables) > 1 else next(iter(tables.values()), {}), indent=1)
     )

@@ -51,6 +51,33 @@ def write_git_revision(run_dir: Path) -> None:
     (run_dir / "git.txt").write_text(text)
 
 
+def machine_info(device="cpu", threads=None) -> dict:
+    """What a number was measured on: system, processor, CPU count, torch build, device (with the GPU's name)."""
+    import platform
+
+    import torch
+
+    info = {
+        "system": platform.platform(),
+        "processor": platform.processor() or platform.machine(),
+        "cpus": os.cpu_count(),
+        "torch": torch.__version__,
+        "device": str(device),
+        "threads": threads,
+    }
+    if str(device).startswith("cuda") and torch.cuda.is_available():
+        info["gpu"] = torch.cuda.get_device_name(torch.device(str(device)))
+    return info
+
+
+def machine_text(info: dict | None) -> str:
+    """One line of :func:`machine_info` for a caption."""
+    if not info:
+        return "not recorded"
+    where = info.get("gpu") or f"{info.get('processor')}, {info.get('cpus')} CPUs"
+    return f"{where}, torch {info.get('torch')}, device {info.get('device')}, {info.get('threads')} thread(s)"
+
+
 # ----------------------------------------------------------------------------- tool folders and publishing
 # Each tool writes into its own run folder; `python -m disent.report --publish FOLDER` copies what the report
 # cites into reports/<PUBLISH_TO[tool]>/.  Weights (*.pt) and bookkeeping files are never published.
@@ -343,6 +370,7 @@ class Run:
     eval: dict | None = None
     metrics: list = field(default_factory=list)
     ended: dict | None = None
+    machine: dict | None = None  # machine.json: what it trained on (runs of older versions lack it)
 
     @classmethod
     def load(cls, path) -> "Run":
@@ -356,6 +384,7 @@ class Run:
             eval=_load_json(p / "eval.json"),
             metrics=read_jsonl(p / "metrics.jsonl"),
             ended=_load_json(p / "status.json"),
+            machine=_load_json(p / "machine.json"),
         )
 
     # --------------------------------------------------------------- labels

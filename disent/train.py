@@ -26,6 +26,7 @@ from disent.runs import (
     MetricsLog,
     RunLock,
     load_checkpoint,
+    machine_info,
     rng_state,
     save_checkpoint,
     save_samples,
@@ -298,6 +299,7 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
     fmt = torch.channels_last if t.channels_last else torch.contiguous_format
     ckpt_path = run_dir / "checkpoints" / "last.pt"
     write_git_revision(run_dir)
+    (run_dir / "machine.json").write_text(json.dumps(machine_info(device, t.threads), indent=1))
     log = MetricsLog(run_dir / "metrics.jsonl")
 
     data = make_dataset(cfg.data, "train", cfg.data.get("train_size"))

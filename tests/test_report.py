@@ -490,3 +490,14 @@ def test_photo_section_marks_a_network_no_better_than_the_training_means(tmp_pat
     report.sec_photos(rep, tmp_path)
     row = next(line for line in rep.lines if line.startswith("| explicit (explicit_shipped) |") and "photos" in line)
     assert "| 17.50 (not better) | 16.70 | 0.300 | 0.380 | 0.700 |" in row, row
+
+
+def test_captions_name_the_machines_the_runs_trained_on(tmp_path):
+    a, b = make_run(tmp_path, "a", eval_={}), make_run(tmp_path, "b", eval_={})
+    info = {"processor": "x86_64", "cpus": 2, "torch": "2.13.0+cpu", "device": "cpu", "threads": 1}
+    (a / "machine.json").write_text(json.dumps(info))
+    runs = find_runs([tmp_path])
+    assert report.machines(runs) == (
+        "x86_64, 2 CPUs, torch 2.13.0+cpu, device cpu, 1 thread(s) (1 run(s) from before machines were recorded)"
+    )
+    assert report.machines([r for r in runs if r.path == b]) == "not recorded"

@@ -71,6 +71,8 @@ def test_stop_step_replays_a_cut_run_on_the_full_schedule(tmp_path):
     assert len(full) == 4 and stopped == full[:2] and short[1]["lr"] < full[1]["lr"]
     ev = json.loads((tmp_path / "stopped" / "eval.json").read_text())
     assert ev["stopped_by"] == "stop_step" and ev["steps"] == 2
+    machine = json.loads((tmp_path / "full" / "machine.json").read_text())  # what the run trained on
+    assert machine["device"] == "cpu" and machine["cpus"] >= 1 and machine["torch"] == torch.__version__
     with pytest.raises(T.ConfigError, match="stop_step"):
         T.check_config(cfg_of(*common, "train.stop_step=0"))
 

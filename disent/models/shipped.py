@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
-import platform
 from pathlib import Path
 
 import torch
@@ -89,7 +88,7 @@ def ship(run_dir, name: str, folder: Path = WEIGHTS) -> dict:
     from omegaconf import OmegaConf
 
     from disent.models import build_model
-    from disent.runs import load_checkpoint
+    from disent.runs import Run, load_checkpoint, machine_info
 
     run_dir, folder = Path(run_dir), Path(folder)
     ckpt = load_checkpoint(run_dir / "checkpoints" / "last.pt")
@@ -113,14 +112,7 @@ def ship(run_dir, name: str, folder: Path = WEIGHTS) -> dict:
         "steps": ckpt["step"],
         "train_seconds": ckpt["wall"],
         "images": ckpt["step"] * cfg.train.batch_size,
-        "machine": {
-            "system": platform.platform(),
-            "processor": platform.processor() or platform.machine(),
-            "cpus": __import__("os").cpu_count(),
-            "torch": torch.__version__,
-            "device": cfg.device,
-            "threads": cfg.train.threads,
-        },
+        "machine": Run.load(run_dir).machine or machine_info(cfg.device, cfg.train.threads),  # where it trained
         "metrics": metrics,
         "check": check_metrics(model.eval(), cfg),
         "check_images": CHECK_IMAGES,
