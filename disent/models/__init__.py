@@ -50,10 +50,9 @@ def load_run(path):
     shipped model (``explicit``, ``implicit``, ``baseline``: :mod:`disent.models.shipped`).
 
     The model is in eval mode, with ``trained_steps`` the step its weights were saved at (None where the
-    checkpoint does not say); ``cfg`` is the run's
-    resolved OmegaConf config.  An unknown name lists the
-    shipped ones; a checkpoint that does not fit this code's architecture names the mismatch, and one that
-    cannot be read names the file (:func:`disent.runs.load_checkpoint`).
+    checkpoint does not say); ``cfg`` is the run's resolved OmegaConf config.  An unknown name lists the shipped
+    ones; a checkpoint that does not fit this code's architecture names the mismatch, and one that cannot be read
+    names the file (:func:`disent.runs.load_checkpoint`).
     """
     from omegaconf import OmegaConf
 
