@@ -1141,11 +1141,12 @@ def plot_learning_curves(runs: list[Run], path: Path, title: str = "") -> bool:
     for col, (key, trivial, pseudo, label) in enumerate(CURVE_PANELS):
         for row, x in enumerate(("images", "minutes")):
             ax = axes[row][col]
-            seen = set()
+            seen, finals = set(), []
             for r, c in curves:
                 pts = [(v[x], v[key]) for v in c if v.get(key) is not None]
                 if not pts or (r.ceiling and key == "recon_face_psnr"):  # a ceiling does not train the reconstruction
                     continue
+                finals.append(pts[-1][1])
                 name = f"{r.variant}: {setting(r, drop_model=True)}"  # the seeds of a setting share a label
                 ax.plot(
                     *zip(*pts),
@@ -1163,16 +1164,22 @@ def plot_learning_curves(runs: list[Run], path: Path, title: str = "") -> bool:
                 if vals:
                     lines.append(float(np.mean(vals)))
                     ax.axhline(lines[-1], color="k", ls=style, lw=1, label=name)
-            if lines and key != "recon_face_psnr":  # errors far above the reference lines (first steps, an untrained
-                ax.set_ylim(top=1.5 * max(lines))  # layer) would squash the curves that matter
+            if lines and key != "recon_face_psnr":  # the first steps' errors would squash the curves that matter;
+                top = max(lines)  # a run that ends far above the reference lines (it broke) stays in view, up to 3x
+                ax.set_ylim(top=max(1.5 * top, min(1.1 * max(finals, default=0), 3 * top)))
             ax.set_xlabel("training images" if x == "images" else "training wall minutes")
             ax.set_ylabel(label)
             ax.grid(alpha=0.3)
-    axes[0][0].legend(fontsize=6)
-    axes[0][-1].legend(fontsize=6)  # the baseline has a curve in the PSNR panels only
+    legend = {}  # one legend under the panels: every line's label (the baseline has a curve in the PSNR panels only)
+    for ax in axes[0]:
+        for handle, label in zip(*ax.get_legend_handles_labels()):
+            legend.setdefault(label, handle)
+    rows = (len(legend) + 3) // 4
+    fig.set_figheight(6.4 + 0.2 * rows)  # the panels keep their height; the legend adds its rows
+    fig.legend(legend.values(), legend.keys(), loc="lower center", ncol=4, fontsize=7, frameon=False)
     if title:
         fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, (0.2 * rows + 0.1) / (6.4 + 0.2 * rows), 1, 1))
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
     plt.close(fig)
