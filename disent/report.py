@@ -239,8 +239,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
     )
     rep.add(
         "### 1. The network's normals go beyond the morphable-model fit that supervised them\n",
-        "| setting | model | network normals (deg) | pseudo-GT (deg) | mean map (deg) | verdict |",
-        "|---|---|---|---|---|---|",
+        *table_head("setting", "model", "network normals (deg)", "pseudo-GT (deg)", "mean map (deg)", "verdict"),
     )
     groups: dict = {}
     for r in done:
@@ -266,8 +265,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
                 "Relative variance and SH error on the light bank (`python -m disent.eval.protocols --every-run`), "
                 "mean ± std over the trained models of a setting, against L-hat's (a deterministic fit: no "
                 "spread). Confirmed where the network is lower on both beyond its seed spread.\n",
-                "| model | setting | relative variance | L-hat | SH error | L-hat | verdict |",
-                "|---|---|---|---|---|---|---|",
+                *table_head("model", "setting", "relative variance", "L-hat", "SH error", "L-hat", "verdict"),
             )
         for (model, where), rows in sorted(groups.items()) if ls else ():
             rel, err = (_ablation.mean_std([r[k] for r in rows]) for k in ("relative", "sh_error"))
@@ -288,9 +286,15 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
         rep.note("`reports/eval/sh_variance.json`; run `python -m disent.eval.protocols` and publish it.")
     rep.add(
         "### 3. The rendering models reconstruct better than the 265-d baseline; the implicit one more sharply\n",
-        "| setting | baseline face PSNR | explicit | implicit | explicit > baseline | implicit > baseline | "
-        "implicit > explicit (face SSIM: baseline / explicit / implicit) |",
-        "|---|---|---|---|---|---|---|",
+        *table_head(
+            "setting",
+            "baseline face PSNR",
+            "explicit",
+            "implicit",
+            "explicit > baseline",
+            "implicit > baseline",
+            "implicit > explicit (face SSIM: baseline / explicit / implicit)",
+        ),
     )
     across: dict = {}
     for r in done:
@@ -328,9 +332,16 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
         f"{MIN_SEEDS} models and a difference beyond the spread, and is read only where some manifold set makes the "
         f"edit (best success, the share of edited faces read as having the attribute, >= {EDIT_WORKS} on average). "
         "`shipped`: the shipped long-budget weights.\n",
-        "| model | setting | method | attribute | paper's manifolds: gain per leakage | best other | best success "
-        "| verdict |",
-        "|---|---|---|---|---|---|---|---|",
+        *table_head(
+            "model",
+            "setting",
+            "method",
+            "attribute",
+            "paper's manifolds: gain per leakage",
+            "best other",
+            "best success",
+            "verdict",
+        ),
     )
     idle: dict = {}  # (model, setting) -> the edits no manifold set makes
     for (model, where), results in sorted(groups.items()):
@@ -370,8 +381,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
         "8 faces x 6 lights per model, mean ± std over the models of a setting: *transfer* (detailed albedo), the "
         "naive *ratio* image, *decode* (the network re-rendered with the new light), and the unrelit *input* as "
         "the floor.\n",
-        "| model | setting | transfer | ratio | decode | input | transfer - input | transfer - ratio |",
-        "|---|---|---|---|---|---|---|---|",
+        *table_head("model", "setting", "transfer", "ratio", "decode", "input", "transfer - input", "transfer - ratio"),
     )
     for (model, where), results in sorted(groups.items()):
         faces = [{r["method"]: r["psnr_face"] for r in res.get("relight") or []} for res in results]

@@ -135,8 +135,9 @@ def apply_run(run_dir, records: list, out: Path, n_show: int = 8) -> dict:
         "training": budget,
         "photos": gap_metrics(model, photos, trivial),
         "synthfaces_test": gap_metrics(model, synth, trivial),
+        "tag": tag,
     }
-    (out / f"domain_gap_{tag}.json").write_text(json.dumps({**gap, "tag": tag}, indent=2) + "\n")
+    (out / f"domain_gap_{tag}.json").write_text(json.dumps(gap, indent=2) + "\n")
     show = [r for r in records if not Path(r.path).stem.startswith("lfw")][:2] + [
         r for r in records if Path(r.path).stem.startswith("lfw")
     ][: n_show - 2]
@@ -150,7 +151,7 @@ def apply_run(run_dir, records: list, out: Path, n_show: int = 8) -> dict:
     )
     for dom in ("photos", "synthfaces_test"):
         print(f"{tag} {dom:16s} " + "  ".join(f"{k} {v:.4g}" for k, v in gap[dom].items()))
-    return {**gap, "tag": tag}
+    return gap
 
 
 def steps_text(budget: dict) -> str:
