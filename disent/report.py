@@ -1362,6 +1362,21 @@ def target_checks(bench: dict) -> list[str]:
     return checks
 
 
+def norm_cost_lines(cost: dict) -> list[str]:
+    """What the normalisation layers cost (``python -m disent.bench norm_cost``): the explicit model's
+    images/s with each ``model.norm`` over none, timed in alternating rounds."""
+    labels = dict(BENCH_RATES)
+    order = [f"{k}_img_s" for k, _ in BENCH_RATES]
+    rates = sorted(next(iter(cost.values())), key=lambda r: order.index(r) if r in order else len(order))
+    return [
+        "What the normalisation layers cost (`python -m disent.bench norm_cost`): the explicit model's images/s "
+        "with each `model.norm` over the same model with none, in alternating rounds. At inference BatchNorm "
+        "is folded into the convolutions (`disent/models/kernels.py`).\n",
+        *table_head("model.norm", *(labels.get(r.removesuffix("_img_s"), r) for r in rates)),
+        *(f"| {norm} | " + " | ".join(f"{ratios[r]:.2f}" for r in rates) + " |" for norm, ratios in cost.items()),
+    ]
+
+
 def sec_bench(rep: Report, out: Path) -> None:
     """Every ``bench*.json`` (``bench.json`` from the CPU, ``bench-cuda.json`` from a GPU), each
     under its device: the models at a glance, the CPU targets, charts, then every figure."""
@@ -1399,6 +1414,8 @@ def sec_bench(rep: Report, out: Path) -> None:
             if device == "cpu" and (checks := target_checks(bench)):
                 rep.add("Targets on the CPU:\n", *checks, "")
             plot_fractions(rep, models, device, bench.get("threads"), f"{path.stem}_fractions.png")
+        if isinstance(cost := bench.get("norm_cost"), dict) and cost:
+            rep.add(*norm_cost_lines(cost), "")
         if isinstance(bench.get("profile"), dict):
             plot_profile(rep, bench["profile"], f"{path.stem}_profile.png")
         rep.add(f"<details><summary>Every figure in {path.name}</summary>\n")

@@ -25,6 +25,7 @@ def tiny_run(tmp_path_factory):
                 "peak",
                 "models",
                 "profile",
+                "norm_cost",
                 "--models",
                 "explicit",
                 "implicit",
@@ -46,6 +47,7 @@ def tiny_run(tmp_path_factory):
         )
     finally:
         torch.set_num_threads(threads)
+    assert (out.parent / ".tool").read_text() == "bench\n"  # --out FILE: its folder is a tool folder to publish
     return json.loads(out.read_text())
 
 
@@ -87,6 +89,28 @@ def test_profile_section(tiny_run):
             named = [v for k, v in sorted(ops.items()) if k != "other"]  # keys "01 name", "02 name", ...
             assert len(named) == 12 and named == sorted(named, reverse=True)
     assert any("convolution_backward" in k for k in tiny_run["profile"]["explicit_train_step_ms"])
+
+
+def test_norm_cost_section(tiny_run):
+    """Each normalisation's images/s over none, for the three rates."""
+    cost = tiny_run["norm_cost"]
+    assert set(cost) == {"batch", "group"}
+    for ratios in cost.values():
+        assert set(ratios) == set(RATES) and all(r > 0 for r in ratios.values())
+
+
+def test_layer_overrides_build_the_asked_normalisation():
+    """A model built inside ``layer_overrides`` has the asked layers; the overrides are restored after."""
+    from disent.bench.models import LAYER_OVERRIDES, Trainer, layer_overrides, synth_batch
+
+    batch, before = synth_batch(2, 64, "cpu", True), dict(LAYER_OVERRIDES)
+    kinds = {}
+    for norm, layer in (("none", None), ("batch", torch.nn.BatchNorm2d), ("group", torch.nn.GroupNorm)):
+        with layer_overrides(norm=norm):
+            model = Trainer("explicit", batch, False, "cpu").model
+        kinds[norm] = {type(m) for m in model.modules() if isinstance(m, (torch.nn.BatchNorm2d, torch.nn.GroupNorm))}
+        assert kinds[norm] == ({layer} if layer else set()), norm
+    assert LAYER_OVERRIDES == before
 
 
 def test_timed_rounds_alternates_and_times_each_call(monkeypatch):

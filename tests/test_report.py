@@ -196,8 +196,12 @@ def test_bench_section_charts_the_fractions_of_peak(tmp_path):
             "convolution_share": 0.6,
         }
     }
+    norm_cost = {
+        "batch": {"infer_img_s": 0.99, "train_img_s": 0.78},
+        "group": {"infer_img_s": 0.89, "train_img_s": 0.86},
+    }
     (tmp_path / "bench.json").write_text(
-        json.dumps({"device": "cpu", "threads": 2, "models": models, "profile": profile})
+        json.dumps({"device": "cpu", "threads": 2, "models": models, "profile": profile, "norm_cost": norm_cost})
     )
     rep = report.Report(tmp_path)
     report.sec_bench(rep, tmp_path)
@@ -207,6 +211,8 @@ def test_bench_section_charts_the_fractions_of_peak(tmp_path):
         (tmp_path / "figures" / fig).unlink()
     assert "| explicit.train_fraction_of_peak | 0.58 |" in text
     assert "| explicit | nan | 52.0 (0.58) | - |" in text  # no forward FLOPs nor inference rate given
+    assert "| model.norm | train with D | infer batch 64 |" in text  # the rates in the models table's order
+    assert "| batch | 0.78 | 0.99 |" in text and "| group | 0.86 | 0.89 |" in text
     (tmp_path / "bench.json").write_text(json.dumps({"device": "cpu", "data": {"images_per_s_64": 1000.0}}))
     rep = report.Report(tmp_path)
     report.sec_bench(rep, tmp_path)

@@ -55,6 +55,7 @@ SUBCOMMANDS: dict[str, Callable] = {
     "render": bench_render,
     "data": data.bench_data,
     "models": models.bench_models,
+    "norm_cost": models.bench_norm_cost,
     "profile": models.bench_profile,
     "time_to_accuracy": models.bench_time_to_accuracy,
     "lighting": lighting.bench_lighting,
@@ -113,7 +114,9 @@ def main(argv=None) -> None:
         p.error(
             f"--threads {args.threads}: must be a whole number >= 1 (default: the count with the highest matmul peak)"
         )
-    args.out = args.out or tool_folder("bench") / bench_json(args.device)
+    args.out = tool_folder("bench", args.out and args.out.parent) / (
+        args.out.name if args.out else bench_json(args.device)
+    )
     args.malloc_tuned = False if args.no_malloc_tuning else tune_malloc()
     bench.DEVICE = args.device
     if args.norm:

@@ -28,6 +28,7 @@ dataset-mean normal map and the pseudo ground truth (mean angular error on the s
 
 from __future__ import annotations
 
+import contextlib
 import json
 import statistics
 from pathlib import Path
@@ -232,18 +233,44 @@ def bench_bf16(name: str, args, device: str, sync, batch: dict) -> dict:
     return out
 
 
-def interleaved_ratios(args, device: str, sync, a: str = "implicit", b: str = "explicit") -> dict:
-    """Images/s of model ``a`` over model ``b``, the two timed in alternating rounds on the same batch
-    (training with and without D, inference at the training batch): on a shared machine a ratio of
-    rates measured minutes apart carries the load of both moments, alternating rounds share it."""
+@contextlib.contextmanager
+def layer_overrides(**over):
+    """``LAYER_OVERRIDES`` updated by ``over`` inside the block (models built there take them)."""
+    saved = dict(LAYER_OVERRIDES)
+    LAYER_OVERRIDES.update(over)
+    try:
+        yield
+    finally:
+        LAYER_OVERRIDES.clear()
+        LAYER_OVERRIDES.update(saved)
+
+
+def interleaved_ratios(
+    args,
+    device: str,
+    sync,
+    a: str = "implicit",
+    b: str = "explicit",
+    layers_a: dict | None = None,
+    layers_b: dict | None = None,
+) -> dict:
+    """Images/s of model ``a`` over model ``b`` (each built with its layer overrides), the two timed in
+    alternating rounds on the same batch (training with and without D, inference at the training batch):
+    on a shared machine a ratio of rates measured minutes apart carries the load of both moments,
+    alternating rounds share it."""
     channels_last, n = not args.no_channels_last, args.train_batch
     batch = synth_batch(n, args.size, device, channels_last)
+
+    def build(name, layers, adv, amp):
+        with layer_overrides(**(layers or {})):
+            return Trainer(name, batch, adv, device, channels_last, amp)
+
     out = {}
     for adv in (True, False):
-        steps = [Trainer(name, batch, adv, device, channels_last, args.amp).step for name in (a, b)]
+        steps = [build(name, lay, adv, args.amp).step for name, lay in ((a, layers_a), (b, layers_b))]
         t_a, t_b = timed_rounds([lambda s=s: (s(), sync()) for s in steps], args.rounds)
         out["train_img_s" if adv else "train_no_d_img_s"] = statistics.median(t_b) / statistics.median(t_a)
-    models = [Trainer(name, batch, False, device, channels_last).model.eval() for name in (a, b)]
+    models = [build(name, lay, False, False).model.eval() for name, lay in ((a, layers_a), (b, layers_b))]
     t_a, t_b = timed_rounds(
         [inference(m, batch["image"], device, args.amp, sync) for m in models], args.rounds, warmup=2
     )
@@ -295,6 +322,22 @@ def bench_models(args) -> dict:
         print_table(f"{name}: {setup['threads']} threads, peak {peak:.1f} GFLOP/s, train batch {args.train_batch}", fig)
     print_table("setup", setup)
     return {**figures, "top": {"peak_gflops": peak, "models_setup": setup}}
+
+
+def bench_norm_cost(args) -> dict:
+    """What the normalisation layers cost: images/s of the explicit model (the default run's) with
+    each ``model.norm`` over the same model without normalisation, timed in alternating rounds
+    (training with and without D, inference at batch ``--train-batch``; BatchNorm is folded into the
+    convolutions at inference, see :func:`disent.models.kernels.conv_then_norm`)."""
+    device = args.device
+    sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
+    out = {
+        norm: interleaved_ratios(args, device, sync, "explicit", "explicit", {"norm": norm}, {"norm": "none"})
+        for norm in ("batch", "group")
+    }
+    rows = {f"{norm} {rate}": ratio for norm, ratios in out.items() for rate, ratio in ratios.items()}
+    print_table("explicit images/s with each normalisation over none (alternating rounds)", rows)
+    return out
 
 
 # ----------------------------------------------------------------------------- profile
