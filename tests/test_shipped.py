@@ -24,7 +24,7 @@ def test_shipped_checkpoint_reproduces_its_recorded_metrics(name):
     path = WEIGHTS / entry["file"]
     assert path.stat().st_size <= 10e6, "shipped weights must stay within 10 MB"
     model, cfg = load_run(name)
-    assert cfg.model.name == entry["cfg"]["model"]["name"] and model.trained_steps == entry["steps"]
+    assert cfg.model.name == entry["cfg"]["model"]["name"] and model.trained_steps == entry["steps"] and model.shipped
     got = check_metrics(model, cfg, entry["check_images"])
     assert entry["check_images"] == CHECK_IMAGES and set(got) == set(entry["check"])
     for k, v in entry["check"].items():

@@ -218,7 +218,7 @@ def test_nonfinite_loss_stops_naming_the_term_and_keeps_the_last_good_checkpoint
     ck = load_checkpoint(tmp_path / "checkpoints" / "last.pt")
     assert ck["step"] == 2 and all(torch.isfinite(v).all() for v in ck["model"].values())
     model, cfg = load_run(tmp_path)
-    assert cfg.model.name == "explicit" and not model.training
+    assert cfg.model.name == "explicit" and not model.training and not model.shipped and model.trained_steps == 2
 
 
 def test_multirun_of_the_three_models(tmp_path):

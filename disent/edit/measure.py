@@ -445,7 +445,7 @@ def run_measurements(a) -> None:
     torch.manual_seed(a.seed)
     model, cfg = load_run(a.run)
     steps = model.trained_steps
-    shipped = not Path(a.run).exists()
+    shipped = model.shipped
     run_folder = Path(a.run) if Path(a.run).is_dir() else Path(a.run).parent.parent  # .../checkpoints/x.pt
     out = folder / (cfg.model.name if shipped else f"{cfg.model.name}_seed{cfg.seed}_{steps}steps")
     out.mkdir(exist_ok=True)

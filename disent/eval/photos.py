@@ -119,8 +119,7 @@ def apply_run(run_dir, records: list, out: Path, n_show: int = 8) -> dict:
     from disent.models import load_run
 
     model, cfg = load_run(run_dir)
-    shipped = not Path(run_dir).exists()  # a shipped model's name (disent/weights/)
-    tag = f"{cfg.model.name}_" + ("shipped" if shipped else "-".join(Path(run_dir).resolve().parts[-2:]))
+    tag = f"{cfg.model.name}_" + ("shipped" if model.shipped else "-".join(Path(run_dir).resolve().parts[-2:]))
     res = int(cfg.data.resolution)
     if pg.load_cached(records[0])["image"].shape[0] != res:
         raise ValueError(f"run {run_dir} is at {res} px; rerun the photos at --resolution {res}")

@@ -222,11 +222,13 @@ def order_confusion(
     albedo: str = "constant",
     normals: str = "normal",
     n_components: int = 20,
-    geometry_noise: dict | None = None,
+    noise_model: dict | None = None,
 ) -> dict:
     """Confusion matrices (true order x chosen order) for the evidence and for BIC.
 
-    Item ``i`` of ``ds`` is relit with its own light cut to each order (:func:`light_of_order`).
+    Item ``i`` of ``ds`` is relit with its own light cut to each order (:func:`light_of_order`);
+    ``noise_model``: keyword arguments of :func:`~disent.lighting.order.select_order` (``normal_sigma``,
+    ``residual``); default i.i.d. noise.
     """
     conf = {"evidence": np.zeros((3, 3), int), "bic": np.zeros((3, 3), int)}
     colour = {"evidence": {}, "bic": {}}
@@ -234,7 +236,7 @@ def order_confusion(
         for i in range(n_per_order):
             item = ds.sample(i, sh=light_of_order(ds[i]["sh"], order))
             data, texture = order_data(item, noise, 1000 * order + i, albedo, normals, n_components)
-            scores = select_order(data, texture=texture, **(geometry_noise or {}))["scores"]
+            scores = select_order(data, texture=texture, **(noise_model or {}))["scores"]
             for crit in conf:
                 r = choose(scores, crit)
                 conf[crit][order, r["order"]] += 1
@@ -255,7 +257,7 @@ def order_confusion(
             "albedo": albedo,
             "normals": normals,
             "n_components": n_components if albedo == "texture" else 0,
-            "geometry_noise": geometry_noise or {},
+            "noise_model": noise_model or {},
         }
     }
 
@@ -264,6 +266,7 @@ def order_confusion(
 # measured mean angular error on SynthFaces, 11.5 deg = 0.20 rad, as the per-axis std of an isotropic tangent
 # Gaussian (mean |delta n| = sigma sqrt(pi/2)); set from that measurement, not fitted to the order choice.
 GEOMETRY_NOISE = {"normal_sigma": 0.16}
+# (albedo, normals[, noise model]); "residual_process": rho, ell by fit_residual_process on train scenes
 ORDER_ROWS = (
     ("known", "normal"),
     ("constant", "normal"),
@@ -271,9 +274,56 @@ ORDER_ROWS = (
     ("known", "normal_pseudo"),
     ("constant", "normal_pseudo"),
     ("texture", "normal_pseudo"),
-    ("known", "normal_pseudo", GEOMETRY_NOISE),
-    ("texture", "normal_pseudo", GEOMETRY_NOISE),
+    ("known", "normal_pseudo", "geometry_noise"),
+    ("texture", "normal_pseudo", "geometry_noise"),
+    ("texture", "normal_pseudo", "residual_process"),
 )
+RESIDUAL_GRID = {"rho": (1.0, 3.0, 10.0, 30.0, 100.0, 300.0, 1000.0), "ell": (0.5, 1.0, 2.0, 4.0)}
+
+
+def true_light_residuals(ds, n_scenes: int, noise: float = 0.02) -> list:
+    """``(data, residual [P, C])`` of scenes ``0..n-1`` of ``ds`` (lights cut to order ``i % 3``) on pseudo
+    geometry: the image less the texture model's albedo (ridge fit under its PCA prior, and a gain per
+    channel) times the scene's true light through the pseudo normals, the misfit the right lighting model
+    leaves."""
+    from disent.lighting.texture import texture_for
+
+    out = []
+    for i in range(n_scenes):
+        sh = light_of_order(ds[i]["sh"], i % 3)
+        item = ds.sample(i, sh=sh)
+        data = item_data(item, noise, 7000 + i, known_albedo=False, normals="normal_pseudo")
+        tex, variance = texture_for(data, item["uv_pseudo"])
+        shading = data.basis @ sh.double().numpy().T  # [P, C]
+        X = (tex[1:] * shading[None]).reshape(len(variance), -1).T  # [P*C, J], pixel-major
+        beta = np.linalg.solve(
+            X.T @ X / noise**2 + np.diag(1 / variance), X.T @ (data.y - tex[0] * shading).reshape(-1) / noise**2
+        )
+        pred = np.clip(tex[0] + np.einsum("j,jpc->pc", beta, tex[1:]), 1e-3, None) * shading
+        gain = (pred * data.y).sum(0) / (pred * pred).sum(0)
+        out.append((data, data.y - gain * pred))
+    return out
+
+
+def fit_residual_process(ds, n_scenes: int = 18, grid: dict = RESIDUAL_GRID) -> dict:
+    """``rho, ell`` of the order choice's residual process (:func:`disent.lighting.order.residual_whitener`)
+    by maximum likelihood (sigma profiled) over :func:`true_light_residuals` of ``ds`` (the train split), on
+    a grid; returns ``{"rho", "ell", "log_likelihood": {"rho,ell": value}}``."""
+    from disent.lighting.order import residual_whitener
+
+    residuals = true_light_residuals(ds, n_scenes)
+    table = {}
+    for rho in grid["rho"]:
+        for ell in grid["ell"]:
+            total = 0.0
+            for data, r in residuals:
+                whiten, log_det = residual_whitener(data, rho, ell)
+                white = whiten(r)
+                total += -0.5 * r.size * (np.log(2 * np.pi * (white**2).mean()) + 1) - 0.5 * r.shape[1] * log_det
+            table[f"{rho:g},{ell:g}"] = total
+    best = max(table, key=table.get)
+    rho, ell = map(float, best.split(","))
+    return {"rho": rho, "ell": ell, "n_scenes": n_scenes, "split": ds.split, "log_likelihood": table}
 
 
 def order_study(
@@ -285,19 +335,25 @@ def order_study(
     resolution: int = 64,
     seed: int = 0,
     name: str = "order",
+    n_train_scenes: int = 18,
 ) -> dict:
-    """The order-choice confusion matrices of every ``(albedo, normals[, geometry noise])`` row on each split;
+    """The order-choice confusion matrices of every ``(albedo, normals[, noise model])`` row on each split
+    (the residual process fitted first on ``n_train_scenes`` train scenes, ``out/residual_process.json``);
     written to ``out/<name>.json`` (the method and its constants are chosen on
     ``val``; ``test`` only reports)."""
     from disent.data import SynthFaces
 
-    result = {}
+    result, models = {}, {"geometry_noise": GEOMETRY_NOISE}
+    if any(row[2:] == ("residual_process",) for row in rows):
+        fit = fit_residual_process(SynthFaces("train", resolution, seed), n_train_scenes)
+        save_json("residual_process", fit, out)
+        models["residual_process"] = {"residual": (fit["rho"], fit["ell"])}
     for split in splits:
         ds = SynthFaces(split, resolution, seed)
-        for albedo, normals, *geometry in rows:
-            key = f"{split}/{albedo}/{normals}" + ("+geometry_noise" if geometry else "")
+        for albedo, normals, *model in rows:
+            key = f"{split}/{albedo}/{normals}" + (f"+{model[0]}" if model else "")
             result[key] = order_confusion(
-                ds, n_per_order, noise, albedo, normals, geometry_noise=geometry[0] if geometry else None
+                ds, n_per_order, noise, albedo, normals, noise_model=models[model[0]] if model else None
             )
             save_json(name, result, out)
     return result
@@ -458,8 +514,11 @@ def _run_all(ds, out: Path, resolution: int, seed: int, quick: bool) -> dict:
     save_json("calibration_pseudo", summary["calibration_pseudo"], out)
     plot_calibration(summary["calibration_pseudo"], out / "calibration_pseudo.png")
 
-    summary["order"] = order_study(out, ("val", split), n_per_order=20 // n, resolution=resolution, seed=seed)
-    plot_order_study(summary["order"], out / "order_confusion.png")
+    summary["order"] = order_study(
+        out, ("val", split), n_per_order=20 // n, resolution=resolution, seed=seed, n_train_scenes=18 // n
+    )
+    for prefix, name in ((f"{split}/", "order_confusion"), ("val/", "order_confusion_val")):
+        plot_order_study({k: v for k, v in summary["order"].items() if k.startswith(prefix)}, out / f"{name}.png")
 
     summary["speed"] = speed(ds)
     save_json("speed", summary["speed"], out)
@@ -475,6 +534,7 @@ __all__ = [
     "order_confusion",
     "order_data",
     "order_study",
+    "fit_residual_process",
     "light_of_order",
     "figures_for",
     "speed",

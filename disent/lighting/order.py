@@ -26,6 +26,14 @@ in the tangent plane, radians) each pixel's variance becomes ``sigma^2 + normal_
 evaluated at the candidate's own light (iteratively reweighted Gauss-Newton), so misfit that the geometry
 error explains is not taken as evidence for more SH terms.  Default 0: the i.i.d. model.
 
+The misfit that a texture model and pseudo geometry leave is also spatially correlated (a wrong brow or
+nose moves neighbouring pixels together), so i.i.d. noise over ~2,000 pixels overstates the evidence that
+a smooth extra SH term buys.  ``residual = (rho, ell)`` models it as a residual process: per channel the
+noise covariance is ``sigma^2 (I + rho K)``, ``K(p, q) = exp(-|p - q| / ell)`` over pixel distance, and the
+likelihood is computed after whitening with its Cholesky factor (:func:`residual_whitener`).  ``rho, ell``
+come from maximum likelihood on training scenes' residuals at their true light
+(:func:`disent.lighting.experiments.fit_residual_process`).
+
 The choice is the smallest model whose score is within ``threshold`` (log units, default
 log 20, "strong" evidence on Kass & Raftery's scale) of the best one.
 
@@ -118,6 +126,22 @@ def geometry_variance(data: LightingData, light: np.ndarray, normal_sigma: float
     return (normal_sigma**2 * (tangent**2).sum(-1)).T.reshape(-1)
 
 
+def residual_whitener(data: LightingData, rho: float, ell: float):
+    """``whiten(x)`` for ``x [P, ...]`` (pixels first): ``Lc^-1 x`` with ``Lc Lc^T = I + rho K``, the residual
+    process's correlation over ``data``'s pixels (``K(p, q) = exp(-|p - q| / ell)``, distance in pixels), and
+    ``log det(I + rho K)`` (per channel)."""
+    from scipy.linalg import solve_triangular
+
+    r, c = np.divmod(data.index, data.shape[1])
+    dist = np.hypot(r[:, None] - r[None], c[:, None] - c[None])
+    Lc = np.linalg.cholesky(np.eye(len(dist)) + rho * np.exp(-dist / ell))
+
+    def whiten(x):
+        return solve_triangular(Lc, x.reshape(len(x), -1), lower=True).reshape(x.shape)
+
+    return whiten, 2 * np.log(np.diag(Lc)).sum()
+
+
 def _initial(A, y, gray):
     """Least squares per channel; for gray light, channel 0's light and the channels' gains."""
     L = np.stack([np.linalg.lstsq(A[c], y[:, c], rcond=None)[0] for c in range(A.shape[0])])  # [C, K]
@@ -133,11 +157,21 @@ def _light(theta, C, K, gray):
 
 
 def _fit(
-    data: LightingData, order: int, gray: bool, prior_scale: float, iterations: int | None, normal_sigma: float = 0.0
+    data: LightingData,
+    order: int,
+    gray: bool,
+    prior_scale: float,
+    iterations: int | None,
+    normal_sigma: float = 0.0,
+    whiten=None,
 ):
     """MAP of one candidate by (reweighted) Gauss-Newton, sigma at its conditional mode:
-    ``(theta, pred, J, v, prior)`` with ``v [C*P]`` each value's noise variance."""
+    ``(theta, pred, J, v, prior)`` with ``v [C*P]`` each value's noise variance.  With ``whiten``
+    (:func:`residual_whitener`) the pixels and the design are whitened first, and ``pred``, ``J`` and ``v``
+    are in whitened units."""
     A, y = data.design(order), data.y
+    if whiten is not None:
+        A, y = np.stack([whiten(a) for a in A]), whiten(y)
     N = y.size
     theta = _initial(A, y, gray)
     geometry = normal_sigma > 0
@@ -179,18 +213,23 @@ def score(
     texture: tuple | None = None,
     texture_iterations: int = 10,
     normal_sigma: float = 0.0,
+    residual: tuple | None = None,
 ) -> dict:
     """Maximised log-likelihood, BIC and Laplace log evidence of one candidate (``normal_sigma``: the
-    geometry-error noise model of the module docstring).
+    geometry-error noise model of the module docstring; ``residual = (rho, ell)``: the residual process).
 
     ``texture = (pixels [1+J, P, C], variance [J])`` (:meth:`TextureModel.at_pixels` and
     its PCA variances): the albedo is ``T_0 + sum_j beta_j T_j`` with ``beta_j ~ N(0,
     variance_j)``, fitted by alternating least squares (``texture_iterations`` rounds); the
     evidence then adds beta's prior and its Laplace volume (block-diagonal Hessian).
     """
-    C = data.n_channels
+    C, K = data.n_channels, N_COEFFS[order]
     gray = gray and order > 0 and C > 1
     N = data.y.size
+    if residual is not None and normal_sigma > 0:
+        raise ValueError("choose one noise model: the residual process or the geometry noise (normal_sigma)")
+    whiten, log_det = residual_whitener(data, *residual) if residual is not None else (None, 0.0)
+    y = data.y if whiten is None else whiten(data.y)
     beta, extra = None, 0.0
     if texture is not None:
         tex, variance = texture
@@ -204,21 +243,25 @@ def score(
         for _ in range(texture_iterations):
             albedo = albedo_of(beta)
             theta, pred, J, v, prior = _fit(
-                replace(data, albedo=albedo), order, gray, prior_scale, iterations, normal_sigma
+                replace(data, albedo=albedo), order, gray, prior_scale, iterations, normal_sigma, whiten
             )
-            shading = pred / albedo  # [P, C]: the candidate's light through S(n, L_c)
-            X = (tex[1:] * shading[None]).reshape(len(variance), -1).T  # [P*C, J], pixel-major
+            shading = data.basis[:, :K] @ _light(theta, C, K, gray).T  # [P, C]: the light through S(n, L_c)
+            X, target = tex[1:] * shading[None], data.y - tex[0] * shading
+            if whiten is not None:
+                X, target = whiten(X.transpose(1, 0, 2)).transpose(1, 0, 2), whiten(target)
+            X = X.reshape(len(variance), -1).T  # [P*C, J], pixel-major
             w = v.reshape(-1, data.n_pixels).T.reshape(-1)  # the noise variances in the same pixel-major order
             H_beta = (X / w[:, None]).T @ X + np.diag(1.0 / variance)
-            beta = np.linalg.solve(H_beta, (X / w[:, None]).T @ (data.y - tex[0] * shading).reshape(-1))
+            beta = np.linalg.solve(H_beta, (X / w[:, None]).T @ target.reshape(-1))
         data = replace(data, albedo=albedo_of(beta))
         extra = (
             -0.5 * (beta**2 / variance).sum() - 0.5 * np.log(variance).sum() - 0.5 * np.linalg.slogdet(H_beta)[1]
         )  # log N(beta; 0, var) + J/2 log 2 pi - 1/2 log det H
-    theta, pred, J, v, (prior_mean, prior_prec) = _fit(data, order, gray, prior_scale, iterations, normal_sigma)
+    theta, pred, J, v, (prior_mean, prior_prec) = _fit(data, order, gray, prior_scale, iterations, normal_sigma, whiten)
     d = theta.size + (0 if beta is None else beta.size)
-    r = (data.y - pred).T.reshape(-1)
-    loglik = -0.5 * (np.log(2 * math.pi * v) + r**2 / v).sum()  # i.i.d.: -N/2 (log 2 pi s2 + 1)
+    r = (y - pred).T.reshape(-1)
+    # i.i.d.: -N/2 (log 2 pi s2 + 1); whitened: the same less C/2 log det(I + rho K)
+    loglik = -0.5 * (np.log(2 * math.pi * v) + r**2 / v).sum() - 0.5 * C * log_det
     H = (J / v[:, None]).T @ J + np.diag(prior_prec)
     log_prior = (
         -0.5 * (prior_prec * (theta - prior_mean) ** 2).sum()
@@ -253,6 +296,7 @@ def select_order(
     prior_scale: float = 2.0,
     texture: tuple | None = None,
     normal_sigma: float = 0.0,
+    residual: tuple | None = None,
 ) -> dict:
     """Score every candidate; choose the smallest within ``threshold`` of the best.
 
@@ -262,7 +306,7 @@ def select_order(
     Returns ``{"choice", "order", "gray", "scores"}``.
     """
     scores = {
-        name: score(data, order, gray, prior_scale, texture=texture, normal_sigma=normal_sigma)
+        name: score(data, order, gray, prior_scale, texture=texture, normal_sigma=normal_sigma, residual=residual)
         for name, order, gray in candidates(data.n_channels)
     }
     return choose(scores, criterion, threshold)
@@ -292,6 +336,7 @@ __all__ = [
     "select_order",
     "choose",
     "geometry_variance",
+    "residual_whitener",
     "sh_basis_gradient",
     "DEFAULT_THRESHOLD",
 ]

@@ -50,9 +50,10 @@ def load_run(path):
     shipped model (``explicit``, ``implicit``, ``baseline``: :mod:`disent.models.shipped`).
 
     The model is in eval mode, with ``trained_steps`` the step its weights were saved at (None where the
-    checkpoint does not say); ``cfg`` is the run's resolved OmegaConf config.  An unknown name lists the shipped
-    ones; a checkpoint that does not fit this code's architecture names the mismatch, and one that cannot be read
-    names the file (:func:`disent.runs.load_checkpoint`).
+    checkpoint does not say) and ``shipped`` whether ``path`` named a shipped model; ``cfg`` is the run's
+    resolved OmegaConf config.  An unknown name lists the shipped ones; a checkpoint that does not fit this
+    code's architecture names the mismatch, and one that cannot be read names the file
+    (:func:`disent.runs.load_checkpoint`).
     """
     from omegaconf import OmegaConf
 
@@ -64,8 +65,8 @@ def load_run(path):
     cfg = OmegaConf.create(ckpt["cfg"])
     model = build_model(cfg.model)
     load_weights(model, ckpt["model"], ckpt_path)
-    shipped = not Path(path).exists()  # a shipped model's steps are in the manifest
-    model.trained_steps = ckpt.get("step", manifest()[str(path)]["steps"] if shipped else None)
+    model.shipped = not Path(path).exists()  # a shipped model's name (disent/weights/), its steps in the manifest
+    model.trained_steps = ckpt.get("step", manifest()[str(path)]["steps"] if model.shipped else None)
     return model.eval(), cfg
 
 
