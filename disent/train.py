@@ -396,10 +396,9 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
         while step < total_steps:
             if t.time_limit_min and wall > 60 * t.time_limit_min:  # budget spent: keep what we have, evaluate
                 stopped = "time_limit"
-                checkpoint()
-                break
-            if t.get("stop_step") and step >= t.stop_step:  # a replayed time-guard stop: the schedule is unchanged
+            elif t.get("stop_step") and step >= t.stop_step:  # a replayed time-guard stop: the schedule is unchanged
                 stopped = "stop_step"
+            if stopped != "steps":
                 checkpoint()
                 break
             epoch = step // steps_per_epoch
