@@ -290,6 +290,7 @@ def test_cli_writes_intervals_and_diagnostics(tmp_path):
 
     out = tmp_path / "run"
     cmd = [sys.executable, "-m", "disent.lighting", "index=3", "max_steps=300", "figures=false", f"out={out}"]
+    cmd.append("order_residual=[1000,1]")  # the order choice with the residual process
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr[-2000:]
     result = json.loads((out / "posterior.json").read_text())
@@ -300,6 +301,7 @@ def test_cli_writes_intervals_and_diagnostics(tmp_path):
     d = result["diagnostics"]
     assert d["n_steps"] <= 300 and 0 < d["acceptance_fraction"] <= 1 and d["tau_max"] > 0 and d["ess_min"] > 0
     assert result["order_choice"]["choice"] in result["order_choice"]["scores"]
+    assert result["order_choice"]["residual"] == [1000, 1]
     assert 0 <= result["true_inside95"] <= 1  # the truth is known on SynthFaces
 
 

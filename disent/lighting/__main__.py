@@ -59,7 +59,9 @@ def posterior_of(cfg: DictConfig, name: str, item: dict) -> dict:
         data, order=cfg.order, likelihood=cfg.likelihood, nu=cfg.nu, seed=cfg.seed, max_steps=cfg.max_steps
     )
     result = {"name": name, "normals": normals, "known_albedo": albedo is not None} | post.summary()
-    result["order_choice"] = {k: v for k, v in select_order(data, texture=texture).items() if k != "criterion"}
+    residual = tuple(cfg.order_residual) if cfg.order_residual else None
+    choice = select_order(data, texture=texture, residual=residual)
+    result["order_choice"] = {k: v for k, v in choice.items() if k != "criterion"} | {"residual": residual}
     result["order_choice"]["texture_components"] = 0 if texture is None else len(texture[1])
     if "sh" in item:
         truth = item["sh"].double().numpy()
