@@ -773,16 +773,17 @@ def claim_ablations(rep: Report, runs: list[Run]) -> None:
 
 
 def sec_ablation(rep: Report, runs: list[Run]) -> None:
-    """One table per budget (the runs' ``+experiment=``), so runs of different budgets never share a mean."""
+    """One table per setting apart from the model and the ablation (the budget, ``+experiment=``, and any other
+    override), so runs of different settings never share a mean."""
     groups = {}
     for r in (r for r in runs if not is_recipe_run(r) and not r.ceiling):  # the ceiling has its own section
-        groups.setdefault(str(r.choices.get("experiment") or "none (conf defaults)"), []).append(r)
+        groups.setdefault(setting(r, drop_model=True, drop=("ablation=",)), []).append(r)
     tables = {}
-    for exp, rs in sorted(groups.items()) or [("none", [])]:
-        tables[exp] = _ablation.ablation_table(rs)
+    for name, rs in sorted(groups.items()) or [("(defaults)", [])]:
+        tables[name] = _ablation.ablation_table(rs)
         if len(groups) > 1:
-            rep.add(f"### experiment: {exp}\n")
-        rep.add(_ablation.to_markdown(tables[exp]))
+            rep.add(f"### {name if name == '(defaults)' else f'`{name}`'}\n")
+        rep.add(_ablation.to_markdown(tables[name]))
         rep.add(budget_check([r for r in rs if r.variant == "explicit" and r.status == "ok"]))
         rep.add(f"_Trained on: {machines(rs)}._\n")
     (rep.out / "ablation.json").write_text(

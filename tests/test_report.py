@@ -13,7 +13,7 @@ from disent.runs import find_runs, pick_runs
 
 
 def make_run(
-    root, name, model="explicit", ablations=(), seed=0, lr=1e-3, losses=(3.0, 2.0, 1.0), eval_=None, ips=500.0
+    root, name, model="explicit", ablations=(), seed=0, lr=1e-3, losses=(3.0, 2.0, 1.0), eval_=None, ips=500.0, extra=()
 ):
     d = root / name
     (d / ".hydra").mkdir(parents=True)
@@ -25,7 +25,7 @@ def make_run(
         "loss": {"weights": {"adv": 1.0}},
     }
     (d / ".hydra" / "config.yaml").write_text(yaml.safe_dump(cfg))
-    ov = [f"model={model}", f"seed={seed}"] + ([f"+ablation=[{','.join(ablations)}]"] if ablations else [])
+    ov = [f"model={model}", f"seed={seed}", *extra] + ([f"+ablation=[{','.join(ablations)}]"] if ablations else [])
     (d / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump(ov))
     (d / ".hydra" / "hydra.yaml").write_text(
         yaml.safe_dump({"hydra": {"runtime": {"choices": {"model": model, "experiment": "smoke"}}}})
@@ -307,6 +307,22 @@ def test_claim_verdicts_need_seeds_and_a_difference_beyond_the_spread():
     assert verdict(arm(27.0, 0.1), arm(24.0, 0.1), "higher") == "**confirmed**"
     assert verdict(arm(10.0, 0.0, 1), arm(11.5, 0.0), "lower").startswith("not testable (1 seed")
     assert verdict(None, arm(11.5, 0.0), "lower").startswith("not testable")
+
+
+def test_ablation_section_keeps_runs_of_other_settings_apart(tmp_path):
+    """Runs with another override (here the normalisation) get their own table: never pooled with the defaults."""
+    for seed in range(2):
+        make_run(tmp_path, f"d{seed}", seed=seed, eval_={"recon_mse": 0.01, "normal_mean": 12.0})
+        make_run(
+            tmp_path, f"n{seed}", seed=seed, eval_={"recon_mse": 0.03, "normal_mean": 13.0}, extra=["model.norm=none"]
+        )
+    rep = report.Report(tmp_path, "")
+    report.sec_ablation(rep, find_runs([tmp_path]))
+    text = "\n".join(rep.lines)
+    assert "### (defaults)" in text and "### `model.norm=none`" in text
+    defaults, norm_none = text.split("### `model.norm=none`")
+    assert "| explicit | 2/2 | **0.01 ± 0** |" in defaults.split("### (defaults)")[1] and "0.03" not in defaults
+    assert "| explicit | 2/2 | **0.03 ± 0** |" in norm_none
 
 
 def test_budget_check_names_each_missed_target(tmp_path):
