@@ -218,3 +218,11 @@ def test_unit_equals_normalize(fmt):
     x = torch.randn(2, 3, 5, 5, dtype=torch.float64).contiguous(memory_format=fmt)
     x[0, :, 0, 0] = 0  # F.normalize's eps: a zero vector stays zero
     torch.testing.assert_close(unit(x), F.normalize(x, dim=1))
+
+
+def test_out_in_the_working_folder_is_refused(tmp_path, monkeypatch):
+    """``--out FILE`` makes FILE's folder a tool folder: a bare name would make the working folder one."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit):
+        bench_main(["peak", "--out", "bench.json", "--threads", "1"])
+    assert not (tmp_path / ".tool").exists() and not (tmp_path / "bench.json").exists()

@@ -75,8 +75,8 @@ def main(argv=None) -> None:
         "--out",
         type=Path,
         default=None,
-        help="the JSON to merge into (default: bench.json, bench-cuda.json "
-        "on a GPU, in a new tool folder outputs/bench/<date>/<time>-<pid>/)",
+        help="the JSON to merge into, in a folder that becomes the tool folder (default: bench.json, "
+        "bench-cuda.json on a GPU, in a new tool folder outputs/bench/<date>/<time>-<pid>/)",
     )
     p.add_argument("--device", default="cpu", help="cpu | cuda | cuda:N")
     p.add_argument("--amp", action="store_true", help="bfloat16 mixed precision (the shading layer stays float32)")
@@ -114,6 +114,8 @@ def main(argv=None) -> None:
         p.error(
             f"--threads {args.threads}: must be a whole number >= 1 (default: the count with the highest matmul peak)"
         )
+    if args.out and args.out.resolve().parent == Path.cwd().resolve():
+        p.error(f"--out {args.out}: give a file inside a folder of its own (the folder becomes the tool folder)")
     args.out = tool_folder("bench", args.out and args.out.parent) / (
         args.out.name if args.out else bench_json(args.device)
     )
