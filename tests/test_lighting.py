@@ -479,3 +479,23 @@ def test_residual_process_keeps_the_order_under_correlated_albedo_misfit():
                 right[residual][band] += select_order(data, residual=residual)["order"] == band
     iid, correlated = right[None], right[(30.0, 3.0)]
     assert sum(iid[:2]) < sum(correlated[:2]) and all(n > 3 for n in correlated), right
+
+
+def test_residual_process_maximum_likelihood_finds_the_generating_constants():
+    """Residuals drawn from the process with rho 3, ell 2 (and i.i.d. ones) on an ellipse's pixels: the grid's
+    maximum likelihood is the generating point (rho 0 for the i.i.d. draws).  (A large rho leaves little white
+    noise to tell 30 from 300 apart: the likelihood flattens there, as in the fit on SynthFaces.)"""
+    from disent.lighting.experiments import max_likelihood_residual
+
+    normal, mask = ellipsoid(20, 20)
+    data = prepare(render(normal, directional_light([0.2, 0.3, 1.0]), 0.01), normal, mask)
+    r, c = np.divmod(data.index, 20)
+    dist = np.sqrt((r[:, None] - r[None]) ** 2 + (c[:, None] - c[None]) ** 2)
+    root = np.linalg.cholesky(np.eye(len(dist)) + 3.0 * np.exp(-dist / 2.0))
+    rng = np.random.default_rng(0)
+    grid = {"rho": (0.0, 3.0, 30.0, 300.0), "ell": (0.5, 2.0, 8.0)}
+    correlated = [(data, 0.01 * root @ rng.normal(size=(data.n_pixels, 3))) for _ in range(4)]
+    fit = max_likelihood_residual(correlated, grid)
+    assert (fit["rho"], fit["ell"]) == (3.0, 2.0) and len(fit["log_likelihood"]) == 12
+    iid = [(data, 0.01 * rng.normal(size=(data.n_pixels, 3))) for _ in range(4)]
+    assert max_likelihood_residual(iid, grid)["rho"] == 0.0

@@ -309,9 +309,15 @@ def fit_residual_process(ds, n_scenes: int = 18, grid: dict = RESIDUAL_GRID) -> 
     """``rho, ell`` of the order choice's residual process (:func:`disent.lighting.order.residual_whitener`)
     by maximum likelihood (sigma profiled) over :func:`true_light_residuals` of ``ds`` (the train split), on
     a grid; returns ``{"rho", "ell", "log_likelihood": {"rho,ell": value}}``."""
+    fit = max_likelihood_residual(true_light_residuals(ds, n_scenes), grid)
+    return fit | {"n_scenes": n_scenes, "split": ds.split}
+
+
+def max_likelihood_residual(residuals: list, grid: dict = RESIDUAL_GRID) -> dict:
+    """``{"rho", "ell", "log_likelihood"}``: the grid point of the largest summed log-likelihood of the
+    ``(data, residual [P, C])`` pairs under the residual process, sigma at its maximum per pair."""
     from disent.lighting.order import residual_whitener
 
-    residuals = true_light_residuals(ds, n_scenes)
     table = {}
     for rho in grid["rho"]:
         for ell in grid["ell"]:
@@ -321,9 +327,8 @@ def fit_residual_process(ds, n_scenes: int = 18, grid: dict = RESIDUAL_GRID) -> 
                 white = whiten(r)
                 total += -0.5 * r.size * (np.log(2 * np.pi * (white**2).mean()) + 1) - 0.5 * r.shape[1] * log_det
             table[f"{rho:g},{ell:g}"] = total
-    best = max(table, key=table.get)
-    rho, ell = map(float, best.split(","))
-    return {"rho": rho, "ell": ell, "n_scenes": n_scenes, "split": ds.split, "log_likelihood": table}
+    rho, ell = map(float, max(table, key=table.get).split(","))
+    return {"rho": rho, "ell": ell, "log_likelihood": table}
 
 
 def order_study(
