@@ -53,11 +53,16 @@ def median_time(fn: Callable[[], object], rounds: int = 5, warmup: int = 1) -> f
     return statistics.median(timed_rounds([fn], rounds, warmup)[0])
 
 
+def device_sync(device: str) -> Callable[[], None]:
+    """Waits for the device's queued work (a GPU's kernels run asynchronously); nothing on the CPU."""
+    return torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
+
+
 def matmul(n: int = 2048, device: str = "cpu") -> Callable[[], None]:
     """One fp32 ``n x n`` matmul (``2 n^3`` FLOPs), synchronised: the peak's yardstick."""
     a = torch.randn(n, n, device=device)
     b = torch.randn(n, n, device=device)
-    sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
+    sync = device_sync(device)
 
     def mm():
         a @ b

@@ -37,7 +37,7 @@ import torch
 from omegaconf import OmegaConf
 from torch.utils.flop_counter import FlopCounterMode
 
-from disent.bench import matmul, print_table, timed_rounds
+from disent.bench import device_sync, matmul, print_table, timed_rounds
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 MODELS = ("explicit", "implicit", "baseline")
@@ -290,7 +290,7 @@ def add_fractions(fig: dict, peak_gflops: float) -> None:
 
 def bench_models(args) -> dict:
     device = args.device
-    sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
+    sync = device_sync(device)
     figures = {name: bench_one(name, args, device, sync) for name in args.models or MODELS}
     peaks = [v for fig in figures.values() for k, v in fig.items() if k.endswith("_peak_gflops")]
     peak = statistics.median(peaks)
@@ -330,7 +330,7 @@ def bench_norm_cost(args) -> dict:
     (training with and without D, inference at batch ``--train-batch``; BatchNorm is folded into the
     convolutions at inference, see :func:`disent.models.kernels.conv_then_norm`)."""
     device = args.device
-    sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
+    sync = device_sync(device)
     out = {
         norm: interleaved_ratios(args, device, sync, "explicit", "explicit", {"norm": norm}, {"norm": "none"})
         for norm in ("batch", "group")
