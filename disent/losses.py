@@ -55,16 +55,21 @@ def spatial_gradients(x: torch.Tensor, mask: torch.Tensor):
     return (dx, mask[..., :, 1:] * mask[..., :, :-1]), (dy, mask[..., 1:, :] * mask[..., :-1, :])
 
 
+def norm_p(err: torch.Tensor, p: int) -> torch.Tensor:
+    """``err^2`` (``p=2``) or ``|err|`` (``p=1``), elementwise."""
+    return err.pow(2) if p == 2 else err.abs()
+
+
 def recon(out, batch, p: int = 2):
     """E_recon: the paper's L2 (``p=2``) or the release's L1 (``p=1``) over every value of I_o."""
-    err = out["recon"] - batch["image"]
-    return err.pow(2).mean() if p == 2 else err.abs().mean()
+    return norm_p(out["recon"] - batch["image"], p).mean()
 
 
-def recon_fg(out, batch):
+def recon_fg(out, batch, p: int = 2):
     """The release's masked reconstruction: the rendered face A (.) S itself must match the image under
-    M-hat.  Without it the skip-connected background decoder can paint the face and the albedo dies."""
-    return masked_mean((out["foreground"] - batch["image"]).pow(2), batch["mask_pseudo"])
+    M-hat (L2 as in the release, or L1).  Without it the skip-connected background decoder can paint the
+    face and the albedo dies."""
+    return masked_mean(norm_p(out["foreground"] - batch["image"], p), batch["mask_pseudo"])
 
 
 def recon_N(out, batch):
@@ -186,12 +191,14 @@ def generator_losses(
     lhat_white: bool = True,
     recon_L_space: str = "shading",
     recon_p: int = 2,
+    recon_fg_p: int = 2,
 ) -> dict:
     """Unweighted value of every active term, plus ``total`` = sum of weight x term (E_o and the priors).
 
     ``energy_fake`` is D's energy of ``out['recon']`` (``[B]``), needed when ``adv`` is active;
     ``lhat_white`` and ``recon_L_space`` choose E_recon-L's target and metric (see :func:`recon_L`);
-    ``recon_p`` E_recon's norm (2: the paper, 1: the release).
+    ``recon_p`` E_recon's norm (2: the paper, 1: the release); ``recon_fg_p`` the masked reconstruction's
+    (2: the release, 1).
     """
     losses = {}
     for t in active_terms(weights, out):
@@ -203,8 +210,8 @@ def generator_losses(
             fn = TERM_FUNCTIONS[t]
             if t == "BWS":
                 losses[t] = fn(out, batch, bws_c)
-            elif t == "recon":
-                losses[t] = fn(out, batch, recon_p)
+            elif t in ("recon", "recon_fg"):
+                losses[t] = fn(out, batch, recon_p if t == "recon" else recon_fg_p)
             elif t == "recon_L":
                 losses[t] = fn(out, batch, bws_c if lhat_white else None, recon_L_space)
             else:

@@ -120,6 +120,7 @@ def train_step(model, disc, opt_g, opt_d, batch, cfg_loss) -> dict:
         cfg_loss.get("lhat_white", True),
         cfg_loss.get("recon_L_space", "shading"),
         cfg_loss.get("recon_p", 2),
+        cfg_loss.get("recon_fg_p", 2),
     )
     if disc is not None:
         energy_real = disc.energy(batch["image"])
@@ -228,8 +229,10 @@ def check_config(cfg) -> None:
             raise ConfigError(f"{key}={value!r}; choose from {', '.join(allowed)}")
     if any(cfg.loss.weights.get(k, 0) for k in L.TRUTH) and d.name != "synth":
         raise ConfigError(f"loss weights {', '.join(L.TRUTH)} train on the true layers: they need data=synth")
-    if cfg.loss.get("recon_p", 2) not in (1, 2):
-        raise ConfigError(f"loss.recon_p={cfg.loss.recon_p!r}; choose from 1 (L1, the release), 2 (L2, the paper)")
+    norms = (("recon_p", "1 (L1, the release), 2 (L2, the paper)"), ("recon_fg_p", "1 (L1), 2 (L2, the release)"))
+    for key, what in norms:
+        if cfg.loss.get(key, 2) not in (1, 2):
+            raise ConfigError(f"loss.{key}={cfg.loss[key]!r}; choose from {what}")
     device = str(cfg.device)
     kind, _, index = device.partition(":")
     if kind not in ("cpu", "cuda") or (index and not index.isdigit()) or (kind == "cpu" and index):
@@ -259,6 +262,7 @@ RUN_DEFINING = (
     "train.amp",
 )
 NOT_DEFINING = ("data.test_size", "model.kernels")  # evaluation only; the same function computed another way
+ADDED_LATER = {"loss.recon_fg_p": 2}  # settings added after runs existed: the value that trains as those runs did
 
 
 def config_differences(old: dict | None, new: dict, keys=RUN_DEFINING) -> list[str]:
@@ -269,7 +273,7 @@ def config_differences(old: dict | None, new: dict, keys=RUN_DEFINING) -> list[s
             return {k: v for key, sub in d.items() for k, v in leaves(sub, f"{prefix}{key}.").items()}
         return {prefix[:-1]: d}
 
-    a, b = leaves(old or {}), leaves(new)
+    a, b = {**ADDED_LATER, **leaves(old or {})}, leaves(new)
     under = lambda k: any(k == key or k.startswith(key + ".") for key in keys)  # noqa: E731
     return [
         f"{k}: {a.get(k)!r} -> {b.get(k)!r}"

@@ -152,6 +152,10 @@ def test_loss_terms_closed_forms():
     assert L.recon(off, b).item() == pytest.approx(0.01, rel=1e-5)
     assert L.recon(off, b, p=1).item() == pytest.approx(0.1, rel=1e-5)
     assert L.generator_losses(off, b, {"recon": 1}, recon_p=1)["recon"].item() == pytest.approx(0.1, rel=1e-5)
+    # the masked reconstruction: only the pseudo mask counts; p=2 squares the error, p=1 takes |error|
+    fg = {"foreground": b["image"] + 0.1 * mask + 3 * (1 - mask)}
+    assert L.recon_fg(fg, b).item() == pytest.approx(0.01, rel=1e-5)
+    assert L.generator_losses(fg, b, {"recon_fg": 1}, recon_fg_p=1)["recon_fg"].item() == pytest.approx(0.1, rel=1e-5)
     assert L.recon_L(out, b, c=None, space="coefficients").item() == pytest.approx(0.25)
     # in shading space: 0.5 more on L1 alone shades every face pixel C4 * 0.5 brighter
     lift = {"sh": b["sh_pseudo"] + 0.5 * F.one_hot(torch.tensor(0), 9)}

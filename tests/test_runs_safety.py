@@ -105,6 +105,15 @@ def test_resuming_under_other_settings_is_refused_unless_forced(tmp_path):
     assert load_checkpoint(folder / "checkpoints" / "last.pt")["step"] == 3
 
 
+def test_a_setting_added_later_resumes_runs_from_before_it_only_at_its_old_behaviour():
+    from disent.train import ADDED_LATER, config_differences
+
+    new = {"seed": 0, "loss": {"recon_p": 2, "recon_fg_p": 2}}
+    before = {"seed": 0, "loss": {"recon_p": 2}}  # a checkpoint written before loss.recon_fg_p existed
+    assert ADDED_LATER["loss.recon_fg_p"] == 2 and config_differences(before, new) == []
+    assert config_differences(before, {**new, "loss": {"recon_p": 2, "recon_fg_p": 1}}) == ["loss.recon_fg_p: 2 -> 1"]
+
+
 def test_a_damaged_checkpoint_falls_back_to_the_previous_one(tmp_path, capsys):
     folder = tmp_path / "run"
     run(cfg_of(*TINY, "train.max_steps=2", "train.checkpoint_every=1"), folder)
