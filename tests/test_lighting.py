@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from disent.lighting.order import select_order
+from disent.lighting.order import candidates, select_order
 from disent.lighting.posterior import (
     LogPosterior,
     TruncatedT,
@@ -452,6 +452,11 @@ def test_residual_process_of_zero_strength_is_the_iid_model():
         assert zero["log_evidence"] == pytest.approx(iid["log_evidence"]) and zero["bic"] == pytest.approx(iid["bic"])
     with pytest.raises(ValueError, match="one noise model"):
         score(data, 1, residual=(1.0, 1.0), normal_sigma=0.1)
+    # select_order factors the residual process once for all candidates: the same scores as one by one
+    chosen = select_order(data, residual=(5.0, 2.0))["scores"]
+    for name, order, gray in candidates(data.n_channels):
+        alone = score(data, order, gray, residual=(5.0, 2.0))
+        assert chosen[name]["log_evidence"] == pytest.approx(alone["log_evidence"], rel=1e-9)
 
 
 def test_residual_process_keeps_the_order_under_correlated_albedo_misfit():

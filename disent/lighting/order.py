@@ -214,9 +214,11 @@ def score(
     texture_iterations: int = 10,
     normal_sigma: float = 0.0,
     residual: tuple | None = None,
+    whitener: tuple | None = None,
 ) -> dict:
     """Maximised log-likelihood, BIC and Laplace log evidence of one candidate (``normal_sigma``: the
-    geometry-error noise model of the module docstring; ``residual = (rho, ell)``: the residual process).
+    geometry-error noise model of the module docstring; ``residual = (rho, ell)``: the residual process,
+    whose ``residual_whitener(data, rho, ell)`` may be passed as ``whitener`` when already computed).
 
     ``texture = (pixels [1+J, P, C], variance [J])`` (:meth:`TextureModel.at_pixels` and
     its PCA variances): the albedo is ``T_0 + sum_j beta_j T_j`` with ``beta_j ~ N(0,
@@ -228,7 +230,9 @@ def score(
     N = data.y.size
     if residual is not None and normal_sigma > 0:
         raise ValueError("choose one noise model: the residual process or the geometry noise (normal_sigma)")
-    whiten, log_det = residual_whitener(data, *residual) if residual is not None else (None, 0.0)
+    if residual is not None and whitener is None:
+        whitener = residual_whitener(data, *residual)
+    whiten, log_det = whitener if residual is not None else (None, 0.0)
     y = data.y if whiten is None else whiten(data.y)
     beta, extra = None, 0.0
     if texture is not None:
@@ -305,8 +309,11 @@ def select_order(
     candidate); without it the albedo is constant (L-hat) or ``data``'s known albedo.
     Returns ``{"choice", "order", "gray", "scores"}``.
     """
+    noise = {"normal_sigma": normal_sigma, "residual": residual}
+    if residual is not None and normal_sigma == 0:  # one Cholesky factor for every candidate
+        noise["whitener"] = residual_whitener(data, *residual)
     scores = {
-        name: score(data, order, gray, prior_scale, texture=texture, normal_sigma=normal_sigma, residual=residual)
+        name: score(data, order, gray, prior_scale, texture=texture, **noise)
         for name, order, gray in candidates(data.n_channels)
     }
     return choose(scores, criterion, threshold)
