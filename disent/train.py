@@ -262,7 +262,8 @@ RUN_DEFINING = (
     "train.amp",
 )
 NOT_DEFINING = ("data.test_size", "model.kernels")  # evaluation only; the same function computed another way
-ADDED_LATER = {"loss.recon_fg_p": 2}  # settings added after runs existed: the value that trains as those runs did
+# settings added after runs existed, each with the value that trains as those runs did
+ADDED_LATER = {"loss.recon_p": 2, "loss.recon_fg_p": 2, **{f"loss.weights.{t}": 0.0 for t in L.TRUTH}}
 
 
 def config_differences(old: dict | None, new: dict, keys=RUN_DEFINING) -> list[str]:
@@ -273,7 +274,7 @@ def config_differences(old: dict | None, new: dict, keys=RUN_DEFINING) -> list[s
             return {k: v for key, sub in d.items() for k, v in leaves(sub, f"{prefix}{key}.").items()}
         return {prefix[:-1]: d}
 
-    a, b = {**ADDED_LATER, **leaves(old or {})}, leaves(new)
+    a, b = ({**ADDED_LATER, **leaves(d or {})} for d in (old, new))  # absent: the value before it existed
     under = lambda k: any(k == key or k.startswith(key + ".") for key in keys)  # noqa: E731
     return [
         f"{k}: {a.get(k)!r} -> {b.get(k)!r}"
