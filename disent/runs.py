@@ -13,6 +13,7 @@ crashed or running job); readers return ``None`` or empty lists then, never rais
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -371,6 +372,7 @@ class Run:
     metrics: list = field(default_factory=list)
     ended: dict | None = None
     machine: dict | None = None  # machine.json: what it trained on (runs of older versions lack it)
+    retyped: list | None = None  # retyped_overrides, once computed
 
     @classmethod
     def load(cls, path) -> "Run":
@@ -524,16 +526,72 @@ def find_runs(roots=RUN_ROOTS) -> list[Run]:
 
 # overrides that do not change what a run is (its seed, bookkeeping, the CPU time guard of a budget rung)
 SEED_FREE = ("seed=", "train.progress=", "train.time_limit_min=", "train.stop_step=", "resume", "hydra.")
+CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
+
+
+def config_group(override) -> bool:
+    """An override that picks a config group (``model=implicit``, ``+ablation=no_bws``), not a value."""
+    key = str(override).lstrip("+~").partition("=")[0]
+    return "." not in key and (CONF_DIR / key).is_dir()
+
+
+DEFAULT_GROUPS = {  # conf/config.yaml's default choices as overrides ("model=explicit"): typed or not, the same run
+    f"{k}={v}"
+    for d in (yaml.safe_load((CONF_DIR / "config.yaml").read_text())["defaults"])
+    if isinstance(d, dict)
+    for k, v in d.items()
+}
+
+
+@functools.lru_cache(maxsize=64)
+def composed_config(groups: tuple) -> dict:
+    """The resolved config that ``python -m disent GROUPS...`` trains with, from today's ``conf/``."""
+    from hydra import compose, initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        return OmegaConf.to_container(compose(config_name="config", overrides=list(groups)), resolve=True)
+
+
+def _typed(value) -> str:
+    """A config value as an override writes it."""
+    return "null" if value is None else str(value).lower() if isinstance(value, bool) else str(value)
+
+
+def retyped_overrides(run: Run) -> list[str]:
+    """What one types today to train ``run`` again (seed and bookkeeping aside), sorted: its config-group choices
+    (always ``model=``; ``+experiment=``, ``+ablation=``, ``loss=`` where not the default) and ``key=value`` for
+    each setting that defines a run (``SETTING_KEYS``) whose value differs from what those choices give with
+    today's ``conf/``: an override it was given, or a default changed since it trained; an override that repeats
+    today's default is none.  Where today's ``conf/`` cannot compose its choices or its config cannot be
+    resolved: its overrides as typed."""
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    from disent.train import ABSENT, SETTING_KEYS, config_changes
+
+    groups = sorted(
+        {*(str(o) for o in run.overrides if config_group(o) and o not in DEFAULT_GROUPS), f"model={run.model}"}
+    )
+    try:
+        today = composed_config(tuple(groups))
+        trained = OmegaConf.to_container(OmegaConf.create(run.cfg), resolve=True)
+    except (HydraException, OmegaConfBaseException):
+        return sorted(str(o) for o in run.overrides)
+    changes = config_changes(trained, today, SETTING_KEYS).items()
+    return sorted(groups + [f"{k}={_typed(old)}" for k, (old, _) in changes if old is not ABSENT])
 
 
 def defining_overrides(run: Run, drop=SEED_FREE) -> list[str]:
-    """The run's command-line overrides, sorted, without those starting with ``drop``."""
-    return sorted(str(o) for o in run.overrides if not str(o).lstrip("+~").startswith(drop))
+    """:func:`retyped_overrides` without those starting with ``drop``."""
+    if run.retyped is None:
+        run.retyped = retyped_overrides(run)
+    return [o for o in run.retyped if not o.lstrip("+~").startswith(drop)]
 
 
 def setting(run: Run, drop_model: bool = False, drop: tuple = ()) -> str:
-    """What a run is, apart from its seed (and its model, for comparisons across models): its overrides.
-    ``drop``: more override prefixes to leave out (``("ablation=",)``: the setting of the full model it ablates)."""
+    """What a run is, apart from its seed (and its model, for comparisons across models): what one types today
+    to train it again (:func:`defining_overrides`).  ``drop``: more override prefixes to leave out
+    (``("ablation=",)``: the setting of the full model it ablates)."""
     return " ".join(defining_overrides(run, SEED_FREE + (("model=",) if drop_model else ()) + drop)) or "(defaults)"
 
 

@@ -261,13 +261,24 @@ RUN_DEFINING = (
     "train.warmup_steps",
     "train.amp",
 )
+# what a run is, apart from its seed, for the report's settings (disent.runs.setting): with its budget
+SETTING_KEYS = tuple(k for k in RUN_DEFINING if k != "seed") + ("train.max_steps", "train.epochs")
 NOT_DEFINING = ("data.test_size", "model.kernels")  # evaluation only; the same function computed another way
 # settings added after runs existed, each with the value that trains as those runs did
 ADDED_LATER = {"loss.recon_p": 2, "loss.recon_fg_p": 2, **{f"loss.weights.{t}": 0.0 for t in L.TRUTH}}
 
 
-def config_differences(old: dict | None, new: dict, keys=RUN_DEFINING) -> list[str]:
-    """``key: old -> new`` for each leaf under ``keys`` whose value differs between two resolved configs."""
+class _Absent:
+    def __repr__(self):
+        return "absent"
+
+
+ABSENT = _Absent()  # a key that one config lacks (and ADDED_LATER does not know)
+
+
+def config_changes(old: dict | None, new: dict, keys=RUN_DEFINING) -> dict:
+    """``{key: (old, new)}`` for each leaf under ``keys`` whose value differs between two resolved configs; a key
+    one of them lacks reads as its ``ADDED_LATER`` value, else as ``ABSENT``."""
 
     def leaves(d, prefix=""):
         if isinstance(d, dict):
@@ -276,11 +287,16 @@ def config_differences(old: dict | None, new: dict, keys=RUN_DEFINING) -> list[s
 
     a, b = ({**ADDED_LATER, **leaves(d or {})} for d in (old, new))  # absent: the value before it existed
     under = lambda k: any(k == key or k.startswith(key + ".") for key in keys)  # noqa: E731
-    return [
-        f"{k}: {a.get(k)!r} -> {b.get(k)!r}"
+    return {
+        k: (a.get(k, ABSENT), b.get(k, ABSENT))
         for k in sorted(set(a) | set(b))
-        if under(k) and k not in NOT_DEFINING and a.get(k) != b.get(k)
-    ]
+        if under(k) and k not in NOT_DEFINING and a.get(k, ABSENT) != b.get(k, ABSENT)
+    }
+
+
+def config_differences(old: dict | None, new: dict, keys=RUN_DEFINING) -> list[str]:
+    """``key: old -> new`` for each leaf under ``keys`` whose value differs between two resolved configs."""
+    return [f"{k}: {a!r} -> {b!r}" for k, (a, b) in config_changes(old, new, keys).items()]
 
 
 def run(cfg, run_dir) -> dict:

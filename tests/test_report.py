@@ -9,23 +9,17 @@ import yaml
 from disent import report
 from disent.eval.ablation import ablation_table, to_markdown
 from disent.eval.stability import training_stability
-from disent.runs import find_runs, pick_runs
+from disent.runs import composed_config, find_runs, pick_runs
 
 
 def make_run(
-    root, name, model="explicit", ablations=(), seed=0, lr=1e-3, losses=(3.0, 2.0, 1.0), eval_=None, ips=500.0, extra=()
+    root, name, model="explicit", ablations=(), seed=0, losses=(3.0, 2.0, 1.0), eval_=None, ips=500.0, extra=()
 ):
     d = root / name
     (d / ".hydra").mkdir(parents=True)
-    cfg = {
-        "model": {"name": model},
-        "seed": seed,
-        "train": {"lr": lr, "batch_size": 8, "max_steps": 3},
-        "data": {"train_size": 32, "resolution": 64},
-        "loss": {"weights": {"adv": 1.0}},
-    }
-    (d / ".hydra" / "config.yaml").write_text(yaml.safe_dump(cfg))
     ov = [f"model={model}", f"seed={seed}", *extra] + ([f"+ablation=[{','.join(ablations)}]"] if ablations else [])
+    cfg = composed_config(tuple(ov))  # what training resolves with these overrides
+    (d / ".hydra" / "config.yaml").write_text(yaml.safe_dump(cfg))
     (d / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump(ov))
     (d / ".hydra" / "hydra.yaml").write_text(
         yaml.safe_dump({"hydra": {"runtime": {"choices": {"model": model, "experiment": "smoke"}}}})
@@ -40,13 +34,16 @@ def make_run(
 
 
 def fake_suite(root):
-    make_run(root, "0", "baseline", eval_={"recon_mse": 0.01}, ips=900)
-    make_run(root, "1", "explicit", seed=0, eval_={"recon_mse": 0.02, "normal_mean": 20.0, "pseudo_normal_mean": 15.0})
-    make_run(root, "2", "explicit", seed=1, eval_={"recon_mse": 0.04, "normal_mean": 22.0, "pseudo_normal_mean": 15.0})
-    make_run(root, "3", "explicit", ["no_bws"], eval_={"recon_mse": 0.03, "normal_mean": 30.0}, ips=700)
-    make_run(root, "4", "explicit", ["no_adv"], losses=(1.0, None))  # NaN logged as null
-    make_run(root, "5", "implicit", losses=(1.0, 5.0))  # diverged, never evaluated
-    make_run(root, "6", "implicit")  # still running: incomplete
+    smoke = ("+experiment=smoke",)
+    make_run(root, "0", "baseline", eval_={"recon_mse": 0.01}, ips=900, extra=smoke)
+    ev = {"recon_mse": 0.02, "normal_mean": 20.0, "pseudo_normal_mean": 15.0}
+    make_run(root, "1", "explicit", seed=0, eval_=ev, extra=smoke)
+    ev = {"recon_mse": 0.04, "normal_mean": 22.0, "pseudo_normal_mean": 15.0}
+    make_run(root, "2", "explicit", seed=1, eval_=ev, extra=smoke)
+    make_run(root, "3", "explicit", ["no_bws"], eval_={"recon_mse": 0.03, "normal_mean": 30.0}, ips=700, extra=smoke)
+    make_run(root, "4", "explicit", ["no_adv"], losses=(1.0, None), extra=smoke)  # NaN logged as null
+    make_run(root, "5", "implicit", losses=(1.0, 5.0), extra=smoke)  # diverged, never evaluated
+    make_run(root, "6", "implicit", extra=smoke)  # still running: incomplete
 
 
 def test_run_labels_and_status(tmp_path):
@@ -68,7 +65,8 @@ def test_ablation_table_mean_std(tmp_path):
     assert e["seeds"] == [0, 1]
     assert rows["implicit"]["failed"] == {"diverged": 1, "incomplete": 1}
     md = to_markdown(t)
-    assert "0.03 ± 0.014" in md and "train.max_steps=3" in md and "experiment=smoke" in md
+    steps = composed_config(("+experiment=smoke",))["train"]["max_steps"]
+    assert "0.03 ± 0.014" in md and f"train.max_steps={steps}" in md and "experiment=smoke" in md
 
 
 def test_training_stability_rates(tmp_path):
@@ -405,11 +403,7 @@ def test_ceiling_section_puts_the_trained_runs_between_floor_and_ceiling(tmp_pat
     assert "no finished ceiling run" in "\n".join(rep.lines)
     for seed in (0, 1):
         make_run(tmp_path, f"t{seed}", seed=seed, eval_=ev(12.5 + seed, 0.010))
-    ceiling = make_run(tmp_path, "c", eval_=ev(9.9, 0.0063))
-    (ceiling / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump(["model=explicit", "seed=0", "loss=ceiling"]))
-    cfg = yaml.safe_load((ceiling / ".hydra" / "config.yaml").read_text())
-    cfg["loss"]["weights"].update(A_true=1.0, N_true=1.0, L_true=1.0)
-    (ceiling / ".hydra" / "config.yaml").write_text(yaml.safe_dump(cfg))
+    ceiling = make_run(tmp_path, "c", eval_=ev(9.9, 0.0063), extra=["loss=ceiling"])
     (ceiling / "checkpoints").mkdir()
     (ceiling / "checkpoints" / "last.pt").write_bytes(b"")
     runs = find_runs([tmp_path])
@@ -529,3 +523,30 @@ def test_captions_name_the_machines_the_runs_trained_on(tmp_path):
         "x86_64, 2 CPUs, torch 2.13.0+cpu, device cpu, 1 thread(s) (1 run(s) from before machines were recorded)"
     )
     assert report.machines([r for r in runs if r.path == b]) == "not recorded"
+
+
+def test_setting_is_what_one_types_today_to_train_the_run_again(tmp_path):
+    """A run's setting: its config-group choices and each defining value that differs from today's conf/, so that
+    a run trained before a default changed is told apart from one trained after, however it was typed."""
+    from disent.runs import setting
+    from disent.train import ADDED_LATER
+
+    today = composed_config(("model=explicit",))
+    lr = today["train"]["lr"]
+    make_run(tmp_path, "a", extra=[f"train.lr={lr}"])  # an override that repeats today's default is none
+    b = make_run(tmp_path, "b")  # trained under other defaults: another lr, before loss.recon_fg_p existed
+    cfg = yaml.safe_load((b / ".hydra" / "config.yaml").read_text())
+    cfg["train"].update(lr=10 * lr, threads=7)  # threads do not define a run
+    del cfg["loss"]["recon_fg_p"]
+    (b / ".hydra" / "config.yaml").write_text(yaml.safe_dump(cfg))
+    make_run(tmp_path, "c", "implicit", ["no_bws"], extra=["+experiment=smoke"])
+    runs = {r.path.name: r for r in find_runs([tmp_path])}
+    assert setting(runs["a"]) == "model=explicit" and setting(runs["a"], drop_model=True) == "(defaults)"
+    before = ADDED_LATER["loss.recon_fg_p"]
+    expected = ([f"loss.recon_fg_p={before}"] if before != today["loss"]["recon_fg_p"] else []) + [
+        "model=explicit",
+        f"train.lr={10 * lr}",
+    ]
+    assert setting(runs["b"]) == " ".join(expected)
+    assert setting(runs["c"]) == "+ablation=[no_bws] +experiment=smoke model=implicit"
+    assert setting(runs["c"], drop_model=True, drop=("ablation=",)) == "+experiment=smoke"
