@@ -190,6 +190,15 @@ def _ms(st, fmt=".2f") -> str:
     return f"{st['mean']:{fmt}} ± {st['std']:{fmt}} (n={st['n']})"
 
 
+def measured_setting(info: dict) -> str:
+    """The setting of a run that a tool measured (its ``run`` folder and ``setting``): read again from the folder
+    where it is still there, since a setting is read against today's ``conf/``; else as the tool wrote it."""
+    folder = Path(str(info.get("run", "")))
+    if info.get("setting") not in (None, "shipped") and (folder / ".hydra" / "config.yaml").is_file():
+        return setting(Run.load(folder), drop_model=True)
+    return info.get("setting", "shipped")
+
+
 def on_the_ladder(run: Run) -> bool:
     """A plain run of a budget rung (``smoke``, the defaults, ``long``): no override beyond model and experiment."""
     return all(o.startswith(RUNG) for o in _overrides(run))
@@ -258,7 +267,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
         groups: dict = {}  # (model, setting) -> the protocol's rows of its trained models (seeds)
         for name, info in runs_of.items():
             if name in est:
-                groups.setdefault((info["model"], info["setting"]), []).append(est[name])
+                groups.setdefault((info["model"], measured_setting(info)), []).append(est[name])
         ls = est.get("ls_pseudo")
         if groups and ls:
             rep.add(
@@ -318,7 +327,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
     for p in sorted((eval_dir.parent / "edit").glob("*/edit.json")):
         res = _load_json(p)
         if res and res.get("claims"):
-            groups.setdefault((res.get("model", p.parent.name), res.get("setting", "shipped")), []).append(res)
+            groups.setdefault((res.get("model", p.parent.name), measured_setting(res)), []).append(res)
     if not groups:
         rep.note(
             "`reports/edit/*/edit.json`; run `python -m disent.edit measure explicit` (and `implicit`, or run "
@@ -460,7 +469,12 @@ def sec_ceiling(rep: Report, runs: list[Run]) -> None:
             "loss=ceiling`) and point the report at its folder."
         )
         return
-    trained = ladder_runs(runs)
+    tops = {setting(r, drop_model=True, drop=("loss=",)) for r in ceiling}  # the trained settings with a ceiling
+    trained = [
+        r
+        for r in runs
+        if r.status == "ok" and r.eval and r.plain and (on_the_ladder(r) or setting(r, drop_model=True) in tops)
+    ]
     rep.add(
         "Where a trained model's layer lies between its **floor**, the dataset-mean map or light "
         "(`disent.eval.trivial`), and its **ceiling**: the same network, optimiser, schedule, batch and data "

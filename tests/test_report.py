@@ -550,3 +550,8 @@ def test_setting_is_what_one_types_today_to_train_the_run_again(tmp_path):
     assert setting(runs["b"]) == " ".join(expected)
     assert setting(runs["c"]) == "+ablation=[no_bws] +experiment=smoke model=implicit"
     assert setting(runs["c"], drop_model=True, drop=("ablation=",)) == "+experiment=smoke"
+    # a tool's record of a run (edit.json, sh_variance.json) is read with the setting of today's conf/
+    stale = {"run": str(b), "setting": "(defaults)"}
+    assert report.measured_setting(stale) == setting(runs["b"], drop_model=True) != "(defaults)"
+    assert report.measured_setting({"run": str(tmp_path / "gone"), "setting": "(defaults)"}) == "(defaults)"
+    assert report.measured_setting({"run": "explicit", "setting": "shipped"}) == "shipped"

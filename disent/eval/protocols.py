@@ -197,7 +197,7 @@ def main(argv=None):
 
         for r in find_runs(a.roots or RUN_ROOTS):
             if r.status == "ok" and r.checkpoint and r.plain and r.model != "baseline":  # the baseline has no light
-                info = {"model": r.model, "setting": setting(r, drop_model=True), "seed": r.seed}
+                info = {"model": r.model, "setting": setting(r, drop_model=True), "seed": r.seed, "run": str(r.path)}
                 runs[f"{info['model']} {info['setting']} seed {info['seed']}"] = (r, info)
         models = {name: load_run(r.path)[0] for name, (r, _) in runs.items()}
     else:
