@@ -530,9 +530,10 @@ CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
 
 
 def config_group(override) -> bool:
-    """An override that picks a config group (``model=implicit``, ``+ablation=no_bws``), not a value."""
+    """An override that picks a config group of the run (``model=implicit``, ``+ablation=no_bws``), not a value
+    and not Hydra's own (``hydra/launcher=``)."""
     key = str(override).lstrip("+~").partition("=")[0]
-    return "." not in key and (CONF_DIR / key).is_dir()
+    return "." not in key and not key.startswith("hydra") and (CONF_DIR / key).is_dir()
 
 
 DEFAULT_GROUPS = {  # conf/config.yaml's default choices as overrides ("model=explicit"): typed or not, the same run
