@@ -455,6 +455,8 @@ CEILING_COLUMNS = (
     ("normal_mean", "normals (deg)", ".2f"),
     ("shading_si_mse", "shading si-MSE", ".4f"),
     ("albedo_si_mse", "albedo si-MSE", ".4f"),
+    ("albedo_coarse_si_mse", "albedo: coarse", ".4f"),
+    ("albedo_fine_si_mse", "albedo: detail", ".4f"),
     ("light_shading_si_mse", "light on the face", ".4f"),
     ("sh_error", "SH error", ".3f"),
 )
@@ -483,7 +485,10 @@ def sec_ceiling(rep: Report, runs: list[Run]) -> None:
         "the pseudo-GT's normals and L-hat, so the gap to the ceiling is what the missing supervision costs at "
         "that budget, and the ceiling is what the architecture reaches there at all. The rendered face A (.) S "
         "matches the image closely, so the albedo's error follows the shading's (compare the two columns): "
-        "an albedo can only be as right as the normals and light that shade it. Test split, 256 images; "
+        "an albedo can only be as right as the normals and light that shade it. The albedo's error is split by "
+        "scale: *coarse*, its Gaussian blur (2 px, inside the scored region), and *detail*, what the blur leaves "
+        "(eyes, brows, lips, pores; the two add up to the total but for twice their inner product; "
+        "`disent.eval.metrics.scale_invariant_mse_bands`). Test split, 256 images; "
         "mean ± std over seeds.\n",
         *table_head("model", "row", "setting", "steps", *(label for _, label, _ in CEILING_COLUMNS)),
     )

@@ -141,3 +141,44 @@ def test_scale_invariant_mse_global_scale_does_not_forgive_per_image_colour():
     assert scale_invariant_mse(common, target, mask, per_image=False) < 1e-12  # float32 inputs: rounding only
     assert scale_invariant_mse(per_image, target, mask) < 1e-12
     assert scale_invariant_mse(per_image, target, mask, per_image=False) > 1e-3
+
+
+def test_masked_blur_keeps_constants_and_removes_the_finest_pattern():
+    """Inside any mask a constant is its own blur (the blur is normalised by the blurred mask), and a one-pixel
+    checkerboard is all detail: a Gaussian of sigma 2 px passes ~exp(-pi^2 sigma^2 / 2) of it per axis (its
+    3-sigma truncation lets ~1e-3 per axis through)."""
+    from disent.eval.metrics import masked_blur
+
+    mask = torch.zeros(1, 1, 16, 16, dtype=torch.float64)
+    mask[..., 3:12, 5:14] = 1
+    const = torch.full((1, 2, 16, 16), 0.7, dtype=torch.float64)
+    inside = mask.bool().expand_as(const)
+    assert torch.allclose(masked_blur(const, mask, 2.0)[inside], const[inside])
+    y, x = torch.meshgrid(torch.arange(32), torch.arange(32), indexing="ij")
+    checker = ((-1.0) ** (x + y)).double()[None, None]
+    full = torch.ones(1, 1, 32, 32, dtype=torch.float64)
+    centre = masked_blur(checker, full, 2.0)[..., 8:24, 8:24]  # away from the border, where the blur is whole
+    assert centre.abs().max() < 1e-5
+
+
+def test_scale_invariant_mse_bands_add_up_to_the_total():
+    """coarse + fine + 2 <coarse, fine> is scale_invariant_mse; a smooth error lies in the coarse band, a
+    checkerboard error in the fine band."""
+    from disent.eval.metrics import masked_blur, scale_invariant_mse_bands
+
+    g = torch.Generator().manual_seed(0)
+    target = torch.rand(3, 3, 24, 24, generator=g, dtype=torch.float64) + 0.5
+    mask = torch.zeros(3, 1, 24, 24)
+    mask[..., 4:20, 2:22] = 1
+    pred = target + 0.3 * torch.rand(3, 3, 24, 24, generator=g, dtype=torch.float64)
+    bands = scale_invariant_mse_bands(pred, target, mask)
+    w = mask.double()
+    e = pred * (w * pred * target).sum((2, 3), keepdim=True) / (w * pred * pred).sum((2, 3), keepdim=True) - target
+    c = masked_blur(e, w, 2.0)
+    cross = ((w * c * (e - c)).sum((1, 2, 3)) / (w.sum((1, 2, 3)) * 3)).mean().item()
+    assert bands["coarse"] + bands["fine"] + 2 * cross == pytest.approx(scale_invariant_mse(pred, target, mask))
+    y, x = torch.meshgrid(torch.arange(24), torch.arange(24), indexing="ij")
+    ramp = (1 + 0.02 * x + 0.01 * y).double()[None, None].expand(3, 3, -1, -1)  # smooth, not a rescaling
+    checker = (1 + 0.1 * (-1.0) ** (x + y)).double()[None, None].expand(3, 3, -1, -1)
+    smooth, fine = (scale_invariant_mse_bands(target * f, target, mask) for f in (ramp, checker))
+    assert smooth["coarse"] > 5 * smooth["fine"] and fine["fine"] > 5 * fine["coarse"]

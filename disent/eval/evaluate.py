@@ -11,7 +11,13 @@ import time
 import torch
 from torch.utils.data import DataLoader, Subset
 
-from disent.eval.metrics import normal_angular_error, reconstruction_metrics, scale_invariant_mse, sh_error
+from disent.eval.metrics import (
+    normal_angular_error,
+    reconstruction_metrics,
+    scale_invariant_mse,
+    scale_invariant_mse_bands,
+    sh_error,
+)
 from disent.render import sh_shading
 
 FACE_THRESHOLD = 0.99  # matte above this is face without background mixing
@@ -108,7 +114,8 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     ``recon_*`` on the whole image, ``recon_face_*`` under the true face mask.  On the pixels of
     :func:`decomposed_region`: ``normal_*`` the model's angular error against the true normals and
     ``pseudo_normal_*`` the pseudo-GT's; ``albedo_si_mse`` (a scale per image and channel),
-    ``albedo_global_si_mse`` (a scale per channel for all images), ``shading_si_mse``.  For reference
+    ``albedo_global_si_mse`` (a scale per channel for all images), ``albedo_coarse_si_mse`` and
+    ``albedo_fine_si_mse`` (``albedo_si_mse``'s error above and below a 2-px blur), ``shading_si_mse``.  For reference
     ``albedo_face_si_mse``: the albedo over the whole true face mask, hair and neck included.
     ``sh_error`` after the per-image scale alignment, and ``sh_error_coefficients`` its share per coefficient;
     ``light_shading_si_mse``: the light's shading through the true normals against the true shading.
@@ -125,6 +132,8 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
         m["albedo_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], region)
         m["albedo_global_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], region, per_image=False)
         m["albedo_face_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], face)
+        bands = scale_invariant_mse_bands(out["albedo"], gt["albedo"], region)
+        m["albedo_coarse_si_mse"], m["albedo_fine_si_mse"] = bands["coarse"], bands["fine"]
     if "shading" in out and "shading" in gt:  # (the validation batch carries no true shading)
         shading = out["shading"].expand_as(gt["shading"])
         m["shading_si_mse"] = scale_invariant_mse(shading, gt["shading"], region)

@@ -18,6 +18,7 @@ import math
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
 ANGLE_THRESHOLDS = (20.0, 25.0, 30.0)
@@ -111,6 +112,23 @@ def optimal_scale(pred: torch.Tensor, target: torch.Tensor, weight: torch.Tensor
     return torch.where(den > 0, num / den.clamp_min(1e-300), torch.zeros_like(num))
 
 
+def _aligned_error(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, per_image: bool = True):
+    """``(s * pred - target, weight)`` in float64, ``s`` the least-squares scale per image and channel (``per_image``)
+    or per channel over the batch; ``weight [B,1,H,W]`` the mask as 0/1."""
+    _check_pair(pred, target)
+    w = _mask(mask, pred).double()
+    if not (w.flatten(1).sum(1) > 0).all():
+        raise ValueError("scale_invariant_mse: the mask selects no pixel in some image")
+    p, t = pred.detach().double(), target.detach().double()
+    s = optimal_scale(p, t, w, (2, 3) if per_image else (0, 2, 3))  # [B,C,1,1] or [1,C,1,1]
+    return s * p - t, w
+
+
+def _masked_mean_square(e: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+    """Per image: the mean of ``e^2`` over the masked pixels and the channels, ``[B]``."""
+    return (w * e**2).sum((1, 2, 3)) / (w.sum((1, 2, 3)) * e.shape[1])
+
+
 def scale_invariant_mse(
     pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, reduction: str = "mean", per_image: bool = True
 ):
@@ -121,14 +139,40 @@ def scale_invariant_mse(
     for the whole batch, so an albedo that leaves each face's colour to the light is not forgiven).
     ``reduction="none"`` returns ``[B]``, ``"mean"`` their mean as a float.
     """
-    _check_pair(pred, target)
-    w = _mask(mask, pred).double()
-    if not (w.flatten(1).sum(1) > 0).all():
-        raise ValueError("scale_invariant_mse: the mask selects no pixel in some image")
-    p, t = pred.detach().double(), target.detach().double()
-    s = optimal_scale(p, t, w, (2, 3) if per_image else (0, 2, 3))  # [B,C,1,1] or [1,C,1,1]
-    per_image = (w * (s * p - t) ** 2).sum((1, 2, 3)) / (w.sum((1, 2, 3)) * p.shape[1])
-    return _reduce(per_image, reduction)
+    return _reduce(_masked_mean_square(*_aligned_error(pred, target, mask, per_image)), reduction)
+
+
+BAND_SIGMA = 2.0  # px at 64x64: the coarse band keeps what varies over more than a few pixels (shading-like)
+
+
+def masked_blur(x: torch.Tensor, weight: torch.Tensor, sigma: float) -> torch.Tensor:
+    """Normalised Gaussian blur of ``x [B,C,H,W]`` inside ``weight [B,1,H,W]``: ``G*(w x) / G*w`` (separable,
+    zero outside the image), so pixels outside the mask do not leak in and a constant stays that constant."""
+    r = max(1, math.ceil(3 * sigma))
+    t = torch.arange(-r, r + 1, dtype=x.dtype, device=x.device)
+    g = torch.exp(-(t**2) / (2 * sigma**2))
+    g = g / g.sum()
+
+    def conv(z):
+        C = z.shape[1]
+        z = F.conv2d(F.pad(z, (r, r, 0, 0)), g.view(1, 1, 1, -1).expand(C, 1, 1, -1), groups=C)
+        return F.conv2d(F.pad(z, (0, 0, r, r)), g.view(1, 1, -1, 1).expand(C, 1, -1, 1), groups=C)
+
+    return conv(x * weight) / conv(weight).clamp_min(1e-12)
+
+
+def scale_invariant_mse_bands(
+    pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, sigma: float = BAND_SIGMA
+) -> dict:
+    """:func:`scale_invariant_mse`'s error split by scale: ``coarse`` the mean square of its masked Gaussian blur
+    (``sigma`` px, :func:`masked_blur`), ``fine`` of what the blur leaves (the detail), each normalised as the
+    total is, mean over images.  The total is coarse + fine + twice their inner product."""
+    e, w = _aligned_error(pred, target, mask)
+    coarse = masked_blur(e, w, sigma)
+    return {
+        "coarse": _masked_mean_square(coarse, w).mean().item(),
+        "fine": _masked_mean_square(e - coarse, w).mean().item(),
+    }
 
 
 def sh_error(pred_sh: torch.Tensor, true_sh: torch.Tensor, per_channel: bool = False, reduction: str = "mean"):

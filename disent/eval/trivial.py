@@ -31,6 +31,8 @@ KEYS = (
     "albedo_si_mse",
     "albedo_global_si_mse",
     "albedo_face_si_mse",
+    "albedo_coarse_si_mse",
+    "albedo_fine_si_mse",
     "shading_si_mse",
     "sh_error",
     "light_shading_si_mse",
