@@ -129,6 +129,8 @@ def publish(folder, reports="reports") -> list[Path]:
     if not files:
         raise FileNotFoundError(f"{folder} holds no results to publish")
     dest = Path(reports) / PUBLISH_TO[tool]
+    if tool == "edit":
+        drop_remeasured(folder, dest)
     written = []
     for p in files:
         target = dest / p.relative_to(folder)
@@ -140,6 +142,25 @@ def publish(folder, reports="reports") -> list[Path]:
             shutil.copyfile(p, target)
         written.append(target)
     return written
+
+
+def drop_remeasured(folder: Path, dest: Path) -> None:
+    """Remove the published edit results (``dest/<name>/edit.json``) of each run that ``folder`` measured again
+    under another name: a run's newer measurement replaces its older one, so no run counts twice."""
+
+    def measured(root):
+        found = {}
+        for p in root.glob("*/edit.json"):
+            run = (_load_json(p) or {}).get("run")
+            if run and Path(str(run)).is_absolute():  # a run folder, not a shipped model's name
+                found.setdefault(str(Path(str(run)).resolve()), []).append(p.parent)
+        return found
+
+    again = measured(folder)
+    for run, published in measured(dest).items():
+        for old in published:
+            if run in again and old.name not in {new.name for new in again[run]}:
+                shutil.rmtree(old)
 
 
 class MetricsLog:
@@ -570,6 +591,8 @@ def retyped_overrides(run: Run) -> list[str]:
 
     from disent.train import ABSENT, SETTING_KEYS, config_changes
 
+    if not run.cfg:  # no resolved config recorded: nothing to compare
+        return sorted(str(o) for o in run.overrides)
     groups = sorted(
         {*(str(o) for o in run.overrides if config_group(o) and o not in DEFAULT_GROUPS), f"model={run.model}"}
     )

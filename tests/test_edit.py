@@ -614,7 +614,8 @@ def test_measure_command_names_a_run_folders_results_by_seed_and_steps(tmp_path,
         + ["--sources", "2", "--lambdas", "0.1", "--alphas", "1.0", "--attributes", "smiling", "--relight-faces", "2"]
         + ["--no-figures"]
     )
-    folder = out / "explicit_seed2_7steps"
+    (folder,) = out.glob("explicit_seed2_7steps_*")  # a tag of the run folder's path: two runs never share a folder
     res = json.loads((folder / "edit.json").read_text())
     assert (res["model"], res["seed"], res["steps"], res["setting"]) == ("explicit", 2, 7, "train.lr=0.002")
+    assert res["run"] == str(run.resolve())
     assert res["claims"] and res["relight"] and not list(folder.glob("*.png"))

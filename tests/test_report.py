@@ -389,11 +389,15 @@ def test_ceiling_section_puts_the_trained_runs_between_floor_and_ceiling(tmp_pat
             "normal_mean": normal,
             "shading_si_mse": albedo + 0.001,
             "albedo_si_mse": albedo,
+            "albedo_coarse_si_mse": albedo / 2,
+            "albedo_fine_si_mse": albedo / 4,
             "light_shading_si_mse": 0.005,
             "sh_error": 0.5,
             "steps": 1200,
             "trivial_normal_mean": 17.0,
             "trivial_albedo_si_mse": 0.0127,
+            "trivial_albedo_coarse_si_mse": 0.0066,
+            "trivial_albedo_fine_si_mse": 0.0038,
             "trivial_light_shading_si_mse": 0.016,
             "trivial_sh_error": 0.37,
         }
@@ -412,7 +416,8 @@ def test_ceiling_section_puts_the_trained_runs_between_floor_and_ceiling(tmp_pat
     rep = report.Report(tmp_path, "")
     report.sec_ceiling(rep, runs)
     lines = [line for line in rep.lines if line.startswith("| explicit")]
-    assert lines[0].startswith("| explicit | floor (dataset mean) | – | – | 17.00 | – | 0.0127 | 0.0160 | 0.370 |")
+    floor = "| explicit | floor (dataset mean) | – | – | 17.00 | – | 0.0127 | 0.0066 | 0.0038 | 0.0160 | 0.370 |"
+    assert lines[0] == floor
     assert lines[1].startswith(
         "| explicit | trained | `(defaults)` | 1,200 | 13.00 ± 0.71 (n=2) | 0.0110 ± 0.0000 (n=2) | "
         "0.0100 ± 0.0000 (n=2)"
@@ -422,10 +427,11 @@ def test_ceiling_section_puts_the_trained_runs_between_floor_and_ceiling(tmp_pat
     )
     assert len(lines) == 3
     # the trained runs close (17 - 13) / (17 - 9.9) of the normal gap, (0.0127 - 0.010) / (0.0127 - 0.0063) of the
-    # albedo's, and all of the light's (trained and ceiling agree there)
+    # albedo's ((0.0066 - 0.005) / (0.0066 - 0.00315) of its coarse part, (0.0038 - 0.0025) / (0.0038 - 0.001575)
+    # of its detail), and all of the light's (trained and ceiling agree there)
     gap = (
-        "- explicit, `(defaults)`: normals (deg) 56 %, shading si-MSE –, albedo si-MSE 42 %, light on the face 100 %, "
-        "SH error 100 %"
+        "- explicit, `(defaults)`: normals (deg) 56 %, shading si-MSE –, albedo si-MSE 42 %, albedo: coarse 46 %, "
+        "albedo: detail 58 %, light on the face 100 %, SH error 100 %"
     )
     assert gap in rep.lines
 

@@ -188,6 +188,22 @@ def test_tool_folders_publish_their_results_and_nothing_else(tmp_path, monkeypat
     publish(bench, reports)
     assert json.loads((reports / "bench.json").read_text()) == {"models": {"new": 3}, "data": {"kept": 2}}
 
+    # a run measured again (under another name) replaces its earlier published measurement; other runs stay
+    def measured(tool, name, run):
+        (tool / name).mkdir()
+        (tool / name / "edit.json").write_text(json.dumps({"run": run}))
+
+    first = tool_folder("edit", tmp_path / "e1")
+    measured(first, "explicit_seed0_5steps_aaaaaa", str(tmp_path / "runs" / "a"))
+    measured(first, "explicit_seed1_5steps_cccccc", str(tmp_path / "runs" / "c"))
+    measured(first, "implicit", "implicit")  # a shipped model, by name
+    publish(first, reports)
+    again = tool_folder("edit", tmp_path / "e2")
+    measured(again, "explicit_seed0_5steps_bbbbbb", str(tmp_path / "runs" / "x" / ".." / "a"))
+    publish(again, reports)
+    names = sorted(p.name for p in (reports / "edit").iterdir())
+    assert names == ["explicit", "explicit_seed0_5steps_bbbbbb", "explicit_seed1_5steps_cccccc", "implicit"]
+
     with pytest.raises(FileNotFoundError, match="not a tool folder"):
         publish(tmp_path / "outputs", reports)
     empty = tool_folder("photos", tmp_path / "empty")

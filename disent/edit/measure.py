@@ -28,6 +28,7 @@ detailed albedo, naive ratio, decoding with the swapped ``Z_L``, and the unrelit
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import time
@@ -434,8 +435,9 @@ def _measure_net(a, out, data_cls, resolution):
 def run_measurements(a) -> None:
     """``python -m disent.edit measure``: tables, JSON and figures under ``<a.out>/<name>/`` (published to
     ``reports/edit/<name>/``): ``<name>`` is the model's name for a shipped model, else
-    ``<model>_seed<seed>_<steps>steps``; edit.json records model, seed, steps and the run's setting (its overrides
-    apart from seed and time guard), by which the report sets the seeds of one budget side by side."""
+    ``<model>_seed<seed>_<steps>steps_<6 hex digits of the run folder's path>`` (two runs never share a folder);
+    edit.json records the run folder, model, seed, steps and the run's setting, by which the report sets the seeds
+    of one setting side by side."""
     from disent.data import LIGHT_BANK, SynthFaces
     from disent.models import load_run
     from disent.runs import Run, setting, tool_folder
@@ -447,7 +449,8 @@ def run_measurements(a) -> None:
     steps = model.trained_steps
     shipped = model.shipped
     run_folder = Path(a.run) if Path(a.run).is_dir() else Path(a.run).parent.parent  # .../checkpoints/x.pt
-    out = folder / (cfg.model.name if shipped else f"{cfg.model.name}_seed{cfg.seed}_{steps}steps")
+    tag = hashlib.sha1(str(run_folder.resolve()).encode()).hexdigest()[:6]
+    out = folder / (cfg.model.name if shipped else f"{cfg.model.name}_seed{cfg.seed}_{steps}steps_{tag}")
     out.mkdir(exist_ok=True)
     R = int(getattr(model, "resolution", 64))
     net, net_info = _measure_net(a, out, SynthFaces, R)
@@ -529,7 +532,7 @@ def run_measurements(a) -> None:
     (out / "edit.json").write_text(
         json.dumps(
             {
-                "run": str(a.run),
+                "run": a.run if shipped else str(run_folder.resolve()),
                 "model": cfg.model.name,
                 "seed": cfg.seed,
                 "steps": steps,
