@@ -471,11 +471,11 @@ def sec_ceiling(rep: Report, runs: list[Run]) -> None:
             "loss=ceiling`) and point the report at its folder."
         )
         return
-    tops = {setting(r, drop_model=True, drop=("loss=",)) for r in ceiling}  # the trained settings with a ceiling
+    with_ceiling = {setting(r, drop_model=True, drop=("loss=",)) for r in ceiling}  # trained settings with a ceiling
     trained = [
         r
         for r in runs
-        if r.status == "ok" and r.eval and r.plain and (on_the_ladder(r) or setting(r, drop_model=True) in tops)
+        if r.status == "ok" and r.eval and r.plain and (on_the_ladder(r) or setting(r, drop_model=True) in with_ceiling)
     ]
     rep.add(
         "Where a trained model's layer lies between its **floor**, the dataset-mean map or light "
