@@ -1160,17 +1160,24 @@ def val_curves(run: Run) -> list[dict]:
     return out
 
 
-def plot_learning_curves(runs: list[Run], path: Path, title: str = "") -> bool:
+def plot_learning_curves(runs: list[Run], path: Path, title: str = "", colour_by_setting: bool = False) -> bool:
     """Each accuracy of the ``val`` records against training images (top) and wall minutes (bottom), one
-    line per run (a colour per model, dash-dotted for a ceiling run), with the trivial (dataset-mean) baseline
-    dashed and the pseudo-GT dotted."""
+    line per run (a colour per model, or per model and setting; dash-dotted for a ceiling run), with the trivial
+    (dataset-mean) baseline dashed and the pseudo-GT dotted."""
     curves = [(r, val_curves(r)) for r in runs]
     curves = [(r, c) for r, c in curves if c]
     if not curves:
         return False
     plt = _plt()
     fig, axes = plt.subplots(2, len(CURVE_PANELS), figsize=(4 * len(CURVE_PANELS), 6.4), squeeze=False)
-    kinds = sorted({r.variant.removesuffix("+ceiling") for r, _ in curves})  # one colour per model (and ablation)
+
+    def line_label(r):  # the seeds of a setting share a label
+        return f"{r.variant}: {setting(r, drop_model=True)}"
+
+    def kind(r):  # what shares a colour: the model (and ablation), or each labelled line
+        return line_label(r) if colour_by_setting else r.variant.removesuffix("+ceiling")
+
+    kinds = sorted({kind(r) for r, _ in curves})
     for col, (key, trivial, pseudo, label) in enumerate(CURVE_PANELS):
         for row, x in enumerate(("images", "minutes")):
             ax = axes[row][col]
@@ -1180,10 +1187,10 @@ def plot_learning_curves(runs: list[Run], path: Path, title: str = "") -> bool:
                 if not pts or (r.ceiling and key == "recon_face_psnr"):  # a ceiling does not train the reconstruction
                     continue
                 finals.append(pts[-1][1])
-                name = f"{r.variant}: {setting(r, drop_model=True)}"  # the seeds of a setting share a label
+                name = line_label(r)
                 ax.plot(
                     *zip(*pts),
-                    color=f"C{kinds.index(r.variant.removesuffix('+ceiling')) % 10}",
+                    color=f"C{kinds.index(kind(r)) % 10}",
                     ls="-." if r.ceiling else "-",
                     lw=1.0,
                     label=None if name in seen else name,
@@ -1222,11 +1229,18 @@ def plot_learning_curves(runs: list[Run], path: Path, title: str = "") -> bool:
 def sec_learning_curves(rep: Report, runs: list[Run]) -> None:
     drawn = False
     ablated = {setting(r, drop=("ablation=",)) for r in runs if r.ablations and not is_recipe_run(r)}
-    for name, subset, title in (
+    ladder = [r for r in runs if r.plain and on_the_ladder(r)]
+    ceilings = {setting(r, drop_model=True) for r in ladder}
+    ladder += [r for r in runs if r.ceiling and setting(r, drop_model=True, drop=("loss=",)) in ceilings]
+    others = [r for r in runs if r.plain and not on_the_ladder(r) and not is_recipe_run(r)]
+    defaults = [r for r in ladder if r.plain and r.model == "explicit" and setting(r, drop_model=True) == "(defaults)"]
+    for name, subset, title, by_setting in (
+        ("learning_curves.png", ladder, "the budget ladder and its ceilings: validation accuracy in training", False),
         (
-            "learning_curves.png",
-            [r for r in runs if not is_recipe_run(r) and not r.ablations],
-            "validation accuracy while training",
+            "learning_curves_settings.png",
+            others + (defaults if others else []),
+            "every other setting (A/B runs, earlier recipes) beside the explicit defaults",
+            True,
         ),
         (  # each ablation beside the full model of the setting it ablates
             "learning_curves_ablations.png",
@@ -1237,11 +1251,17 @@ def sec_learning_curves(rep: Report, runs: list[Run]) -> None:
                 and (r.ablations or (r.model == "explicit" and r.plain and setting(r) in ablated))
             ],
             "the ablations beside the full explicit model",
+            False,
         ),
-        ("learning_curves_recipe.png", [r for r in runs if is_recipe_run(r)], "the training recipe's leave-one-out"),
+        (
+            "learning_curves_recipe.png",
+            [r for r in runs if is_recipe_run(r)],
+            "the training recipe's leave-one-out",
+            True,
+        ),
     ):
         path = rep.fig / name
-        if plot_learning_curves(subset, path, f"{title} (64 val images)"):
+        if plot_learning_curves(subset, path, f"{title} (64 val images)", by_setting):
             rep.image(path, title)
             drawn = True
     if not drawn:
