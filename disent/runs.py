@@ -13,6 +13,7 @@ crashed or running job); readers return ``None`` or empty lists then, never rais
 
 from __future__ import annotations
 
+import copy
 import functools
 import json
 import math
@@ -565,9 +566,13 @@ DEFAULT_GROUPS = {  # conf/config.yaml's default choices as overrides ("model=ex
 }
 
 
-@functools.lru_cache(maxsize=64)
 def composed_config(groups: tuple) -> dict:
-    """The resolved config that ``python -m disent GROUPS...`` trains with, from today's ``conf/``."""
+    """The resolved config that ``python -m disent GROUPS...`` trains with, from today's ``conf/`` (a copy)."""
+    return copy.deepcopy(_composed(tuple(groups)))
+
+
+@functools.lru_cache(maxsize=64)
+def _composed(groups: tuple) -> dict:
     from hydra import compose, initialize_config_dir
 
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
