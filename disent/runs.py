@@ -599,7 +599,7 @@ def retyped_overrides(run: Run) -> list[str]:
     if not run.cfg:  # no resolved config recorded: nothing to compare
         return sorted(str(o) for o in run.overrides)
     groups = sorted(
-        {*(str(o) for o in run.overrides if config_group(o) and o not in DEFAULT_GROUPS), f"model={run.model}"}
+        {*(str(o) for o in run.overrides if config_group(o) and str(o) not in DEFAULT_GROUPS), f"model={run.model}"}
     )
     try:
         today = composed_config(tuple(groups))
