@@ -243,7 +243,9 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
     rep.add(
         f"Each verdict needs {MIN_SEEDS} seeds per arm and a difference larger than the arms' seed spread "
         "(std). Runs of the budget ladder only (the defaults, `+experiment=long`; no other override), grouped by "
-        "their overrides apart from the seed and the time guard (the *setting*). Trained on: "
+        "their *setting*: what one types today to train them again, apart from the seed and the time guard (the "
+        "config groups, and each run-defining value that differs from today's `conf/`, so runs trained before a "
+        "default changed show the old value). Trained on: "
         f"{machines(done)}.\n"
     )
     rep.add(
