@@ -558,12 +558,11 @@ def config_group(override) -> bool:
     return "." not in key and not key.startswith("hydra") and (CONF_DIR / key).is_dir()
 
 
-DEFAULT_GROUPS = {  # conf/config.yaml's default choices as overrides ("model=explicit"): typed or not, the same run
-    f"{k}={v}"
-    for d in (yaml.safe_load((CONF_DIR / "config.yaml").read_text())["defaults"])
-    if isinstance(d, dict)
-    for k, v in d.items()
-}
+@functools.lru_cache(maxsize=1)
+def default_groups() -> frozenset:
+    """conf/config.yaml's default choices as overrides (``model=explicit``): typed or not, the same run."""
+    defaults = yaml.safe_load((CONF_DIR / "config.yaml").read_text())["defaults"]
+    return frozenset(f"{k}={v}" for d in defaults if isinstance(d, dict) for k, v in d.items())
 
 
 def composed_config(groups: tuple) -> dict:
@@ -599,7 +598,7 @@ def retyped_overrides(run: Run) -> list[str]:
     if not run.cfg:  # no resolved config recorded: nothing to compare
         return sorted(str(o) for o in run.overrides)
     groups = sorted(
-        {*(str(o) for o in run.overrides if config_group(o) and str(o) not in DEFAULT_GROUPS), f"model={run.model}"}
+        {*(str(o) for o in run.overrides if config_group(o) and str(o) not in default_groups()), f"model={run.model}"}
     )
     try:
         today = composed_config(tuple(groups))
