@@ -190,13 +190,17 @@ def _ms(st, fmt=".2f") -> str:
     return f"{st['mean']:{fmt}} ± {st['std']:{fmt}} (n={st['n']})"
 
 
-def measured_setting(info: dict) -> str:
+def measured_setting(info: dict, loaded: dict | None = None) -> str:
     """The setting of a run that a tool measured (its ``run`` folder and ``setting``): read again from the folder
-    where it is still there, since a setting is read against today's ``conf/``; else as the tool wrote it."""
+    where it is still there (``loaded``: the report's runs by resolved path, so none is read twice), since a
+    setting is read against today's ``conf/``; else as the tool wrote it."""
     folder = Path(str(info.get("run", "")))
-    if info.get("setting") not in (None, "shipped") and (folder / ".hydra" / "config.yaml").is_file():
-        return setting(Run.load(folder), drop_model=True)
-    return info.get("setting", "shipped")
+    if info.get("setting") in (None, "shipped"):
+        return info.get("setting", "shipped")
+    run = (loaded or {}).get(folder.resolve())
+    if run is None and (folder / ".hydra" / "config.yaml").is_file():
+        run = Run.load(folder)
+    return setting(run, drop_model=True) if run is not None else info["setting"]
 
 
 def on_the_ladder(run: Run) -> bool:
@@ -234,6 +238,7 @@ def verdict(a, b, better: str) -> str:
 def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
     """The paper's claims, each with its numbers (mean ± std over seeds, grouped by setting) and a verdict."""
     done = ladder_runs(runs)
+    loaded = {r.path.resolve(): r for r in runs}  # for the tools' records of these runs
     if not done:
         rep.note(
             "no finished runs of the plain models; train them (`python -m disent -m model=baseline,explicit,"
@@ -269,7 +274,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
         groups: dict = {}  # (model, setting) -> the protocol's rows of its trained models (seeds)
         for name, info in runs_of.items():
             if name in est:
-                groups.setdefault((info["model"], measured_setting(info)), []).append(est[name])
+                groups.setdefault((info["model"], measured_setting(info, loaded)), []).append(est[name])
         ls = est.get("ls_pseudo")
         if groups and ls:
             rep.add(
@@ -329,7 +334,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
     for p in sorted((eval_dir.parent / "edit").glob("*/edit.json")):
         res = _load_json(p)
         if res and res.get("claims"):
-            groups.setdefault((res.get("model", p.parent.name), measured_setting(res)), []).append(res)
+            groups.setdefault((res.get("model", p.parent.name), measured_setting(res, loaded)), []).append(res)
     if not groups:
         rep.note(
             "`reports/edit/*/edit.json`; run `python -m disent.edit measure explicit` (and `implicit`, or run "

@@ -601,7 +601,7 @@ def retyped_overrides(run: Run) -> list[str]:
         {*(str(o) for o in run.overrides if config_group(o) and str(o) not in default_groups()), f"model={run.model}"}
     )
     try:
-        today = composed_config(tuple(groups))
+        today = _composed(tuple(groups))  # read only: no copy
         trained = OmegaConf.to_container(OmegaConf.create(run.cfg), resolve=True)
     except (HydraException, OmegaConfBaseException):
         return sorted(str(o) for o in run.overrides)
