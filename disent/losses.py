@@ -173,6 +173,14 @@ NEEDS = {
     "L_true": "sh",
 }
 
+# loss settings (conf/loss) that act only through these terms
+TERM_SETTINGS = {
+    "recon_fg_p": ("recon_fg",),
+    "lhat_white": ("recon_L",),
+    "recon_L_space": ("recon_L",),
+    "bws_c": ("BWS", "recon_L"),
+}
+
 
 def active_terms(weights: dict, out: dict) -> list[str]:
     """Terms with a nonzero weight whose model output exists."""

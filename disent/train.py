@@ -10,6 +10,7 @@ that same order; every ``train.val_every`` steps a fixed validation subset is sc
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import time
@@ -276,9 +277,32 @@ class _Absent:
 ABSENT = _Absent()  # a key that one config lacks (and ADDED_LATER does not know)
 
 
-def config_changes(old: dict | None, new: dict, keys=RUN_DEFINING) -> dict:
-    """``{key: (old, new)}`` for each leaf under ``keys`` whose value differs between two resolved configs; a key
-    one of them lacks reads as its ``ADDED_LATER`` value, else as ``ABSENT``."""
+@functools.lru_cache(maxsize=None)
+def _model_outputs(model_json: str) -> frozenset:
+    """The output names of a model config's forward pass (one black image, eval mode)."""
+    cfg = json.loads(model_json)
+    model = build_model(cfg).eval()
+    res = cfg.get("resolution", 64)
+    with torch.no_grad():
+        return frozenset(model(torch.zeros(1, 3, res, res)))
+
+
+def idle_settings(cfg: dict | None) -> frozenset:
+    """``loss.weights.T`` of each term the config's model cannot compute (it lacks the output the term needs,
+    :data:`disent.losses.NEEDS`: E_recon-N for the baseline), and the loss settings that act only through such
+    terms (:data:`disent.losses.TERM_SETTINGS`): they never reach training, so they do not define the run."""
+    model = (cfg or {}).get("model")
+    if not isinstance(model, dict) or "name" not in model:
+        return frozenset()
+    outputs = _model_outputs(json.dumps(model, sort_keys=True))
+    idle = {t for t, needed in L.NEEDS.items() if needed not in outputs}
+    by_term = {k: terms for k, terms in L.TERM_SETTINGS.items() if idle.issuperset(terms)}  # recon_fg_p, ...
+    return frozenset([f"loss.weights.{t}" for t in idle] + [f"loss.{k}" for k in by_term])
+
+
+def config_changes(old: dict | None, new: dict, keys=RUN_DEFINING, ignore=frozenset()) -> dict:
+    """``{key: (old, new)}`` for each leaf under ``keys`` (less ``ignore``) whose value differs between two resolved
+    configs; a key one of them lacks reads as its ``ADDED_LATER`` value, else as ``ABSENT``."""
 
     def leaves(d, prefix=""):
         if isinstance(d, dict):
@@ -290,13 +314,14 @@ def config_changes(old: dict | None, new: dict, keys=RUN_DEFINING) -> dict:
     return {
         k: (a.get(k, ABSENT), b.get(k, ABSENT))
         for k in sorted(set(a) | set(b))
-        if under(k) and k not in NOT_DEFINING and a.get(k, ABSENT) != b.get(k, ABSENT)
+        if under(k) and k not in NOT_DEFINING and k not in ignore and a.get(k, ABSENT) != b.get(k, ABSENT)
     }
 
 
-def config_differences(old: dict | None, new: dict, keys=RUN_DEFINING) -> list[str]:
-    """``key: old -> new`` for each leaf under ``keys`` whose value differs between two resolved configs."""
-    return [f"{k}: {a!r} -> {b!r}" for k, (a, b) in config_changes(old, new, keys).items()]
+def config_differences(old: dict | None, new: dict, keys=RUN_DEFINING, ignore=frozenset()) -> list[str]:
+    """``key: old -> new`` for each leaf under ``keys`` (less ``ignore``) whose value differs between two resolved
+    configs."""
+    return [f"{k}: {a!r} -> {b!r}" for k, (a, b) in config_changes(old, new, keys, ignore).items()]
 
 
 def run(cfg, run_dir) -> dict:
@@ -358,7 +383,8 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
     resume = Path(cfg.resume) if cfg.resume else (ckpt_path if ckpt_path.exists() else None)
     if resume is not None:
         ck = load_checkpoint(resume / "checkpoints" / "last.pt" if resume.is_dir() else resume, fallback=True)
-        diffs = config_differences(ck.get("cfg"), OmegaConf.to_container(cfg, resolve=True))
+        resolved = OmegaConf.to_container(cfg, resolve=True)
+        diffs = config_differences(ck.get("cfg"), resolved, ignore=idle_settings(resolved))
         if diffs and not cfg.get("resume_force", False):
             raise ConfigError(
                 f"{resume} was trained with other settings ({'; '.join(diffs[:6])}"

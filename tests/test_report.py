@@ -564,3 +564,19 @@ def test_setting_is_what_one_types_today_to_train_the_run_again(tmp_path):
     assert report.measured_setting(stale) == setting(runs["b"], drop_model=True) != "(defaults)"
     assert report.measured_setting({"run": str(tmp_path / "gone"), "setting": "(defaults)"}) == "(defaults)"
     assert report.measured_setting({"run": "explicit", "setting": "shipped"}) == "shipped"
+
+
+def test_a_loss_weight_the_model_has_no_term_for_is_not_part_of_its_setting(tmp_path):
+    """The baseline has no normals: a run of it trained under another E_recon-N weight (or the masked
+    reconstruction's norm) is the same setting as today's; the explicit model's is not."""
+    from disent.runs import setting
+
+    for model in ("baseline", "explicit"):
+        d = make_run(tmp_path, model, model)
+        cfg = yaml.safe_load((d / ".hydra" / "config.yaml").read_text())
+        cfg["loss"]["weights"]["recon_N"] += 1.0
+        cfg["loss"]["recon_fg_p"] = 3 - cfg["loss"]["recon_fg_p"]  # 1 <-> 2
+        (d / ".hydra" / "config.yaml").write_text(yaml.safe_dump(cfg))
+    runs = {r.path.name: r for r in find_runs([tmp_path])}
+    assert setting(runs["baseline"]) == "model=baseline"
+    assert "loss.weights.recon_N=" in setting(runs["explicit"]) and "loss.recon_fg_p=" in setting(runs["explicit"])

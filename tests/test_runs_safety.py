@@ -105,6 +105,15 @@ def test_resuming_under_other_settings_is_refused_unless_forced(tmp_path):
     assert load_checkpoint(folder / "checkpoints" / "last.pt")["step"] == 3
 
 
+def test_a_loss_weight_the_model_cannot_use_does_not_stop_a_resume(tmp_path):
+    folder = tmp_path / "run"
+    run(cfg_of(*TINY, "model=baseline", "train.max_steps=1"), folder)
+    run(cfg_of(*TINY, "model=baseline", "train.max_steps=2", "loss.weights.recon_N=1", "loss.bws_c=0.5"), folder)
+    assert load_checkpoint(folder / "checkpoints" / "last.pt")["step"] == 2
+    with pytest.raises(ConfigError, match=r"loss.weights.recon: "):
+        run(cfg_of(*TINY, "model=baseline", "train.max_steps=3", "loss.weights.recon=1"), folder)
+
+
 def test_a_setting_added_later_resumes_runs_from_before_it_only_at_its_old_behaviour():
     from disent.train import ADDED_LATER, config_differences
 
