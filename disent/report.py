@@ -1514,6 +1514,8 @@ def residual_text(d: Path) -> str:
 
 def sec_lighting(rep: Report, out: Path) -> None:
     """How uncertain L-hat is and which lighting order a scene needs, from ``reports/lighting/*.json``."""
+    from disent.lighting.experiments import EROSION
+
     d = out / "lighting"
     order, cal, cal_p, speed = (
         _load_json(d / f"{n}.json") for n in ("order", "calibration", "calibration_pseudo", "speed")
@@ -1538,8 +1540,10 @@ def sec_lighting(rep: Report, out: Path) -> None:
             "candidate's light (`select_order(..., normal_sigma=...)`). *Residual process*: the misfit is "
             "spatially correlated, noise covariance sigma^2 (I + rho exp(-d / ell)) over pixel distance d, "
             "with rho and ell by maximum likelihood on train scenes' residuals at their true light "
-            f"({residual_text(d)}; `select_order(..., residual=(rho, ell))`). Constants were chosen on val; test "
-            "only reports.\n",
+            f"({residual_text(d)}; `select_order(..., residual=(rho, ell))`). *Eroded mask*: the pseudo mask less "
+            "its edge pixels, where the coarse fit's normals graze and its silhouette leaks onto hair or background "
+            "(`disent.lighting.experiments.EROSION`). Constants were chosen on val; test only reports; the order "
+            "study alone: `python -m disent.lighting task=order`.\n",
             *table_head(
                 "split",
                 "albedo",
@@ -1552,9 +1556,12 @@ def sec_lighting(rep: Report, out: Path) -> None:
         for key, r in order.items():
             split, albedo, geometry = key.split("/", 2)
             normals, _, noise = geometry.partition("+")
-            geometry = ("true normals" if normals == "normal" else "pseudo normals + mask") + (
-                f", {noise.replace('_', ' ')}" if noise else ""
-            )
+            erosion = EROSION.get(normals)
+            geometry = (
+                "true normals"
+                if normals == "normal"
+                else "pseudo normals + mask" + (f" eroded {erosion} px" if erosion else "")
+            ) + (f", {noise.replace('_', ' ')}" if noise else "")
             ev, bic = r["evidence"], r["bic"]
             rep.add(
                 f"| {split} | {albedo} | {geometry} | {ev['confusion']} | {_pct(ev['accuracy'])} | "

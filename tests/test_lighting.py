@@ -504,3 +504,25 @@ def test_residual_process_maximum_likelihood_finds_the_generating_constants():
     assert (fit["rho"], fit["ell"]) == (3.0, 2.0) and len(fit["log_likelihood"]) == 12
     iid = [(data, 0.01 * rng.normal(size=(data.n_pixels, 3))) for _ in range(4)]
     assert max_likelihood_residual(iid, grid)["rho"] == 0.0
+
+
+def test_eroded_pseudo_mask_drops_exactly_the_edge_ring():
+    from disent.lighting.experiments import EROSION, eroded, item_data
+
+    m = torch.zeros(1, 8, 8)
+    m[0, 2:7, 1:6] = 1  # a 5 x 5 square
+    e = eroded(m, 1)[0]
+    assert e.sum() == 9 and e[3:6, 2:5].all()  # the 3 x 3 inside it
+    assert eroded(m, 2)[0].sum() == 1 and eroded(m, 3)[0].sum() == 0
+    big = torch.zeros(1, 12, 12)
+    big[0, 2:10, 2:10] = 1  # 8 x 8: the fit keeps the inner 6 x 6 on the eroded geometry
+    item = {
+        "image": torch.rand(3, 12, 12),
+        "normal_pseudo": torch.nn.functional.normalize(torch.rand(3, 12, 12) + 0.5, dim=0),
+        "mask_pseudo": big,
+    }
+    assert EROSION["normal_pseudo_eroded"] == 1
+    full = item_data(item, 0.0, known_albedo=False, normals="normal_pseudo")
+    cut = item_data(item, 0.0, known_albedo=False, normals="normal_pseudo_eroded")
+    assert full.n_pixels == 64 and cut.n_pixels == 36
+    assert set(cut.index.tolist()) == {r * 12 + c for r in range(3, 9) for c in range(3, 9)}

@@ -11,7 +11,7 @@ import torch
 from omegaconf import DictConfig
 
 import disent.runs  # noqa: F401  (registers ${pid:}, used by the default run folder in conf/lighting.yaml)
-from disent.lighting.experiments import figures_for, noisy, run_all
+from disent.lighting.experiments import figures_for, noisy, order_report, run_all
 from disent.lighting.order import select_order
 from disent.lighting.posterior import prepare, sample_posterior
 from disent.lighting.texture import texture_for
@@ -80,11 +80,11 @@ def main(cfg: DictConfig) -> None:
 
 
 def run(cfg: DictConfig) -> None:
-    if cfg.task not in ("posterior", "report"):
-        raise ValueError(f"task must be 'posterior' or 'report', got {cfg.task!r}")
+    if cfg.task not in ("posterior", "report", "order"):
+        raise ValueError(f"task must be 'posterior', 'report' or 'order', got {cfg.task!r}")
     out = tool_folder("lighting", hydra.utils.to_absolute_path(cfg.out))
-    if cfg.task == "report":
-        run_all(out, cfg.split, cfg.data.resolution, cfg.data.seed)
+    if cfg.task in ("report", "order"):
+        (run_all if cfg.task == "report" else order_report)(out, cfg.split, cfg.data.resolution, cfg.data.seed)
         log.info("wrote %s; publish it with: python -m disent.report --publish %s", out, out)
         return
     results = []
