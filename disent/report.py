@@ -27,7 +27,17 @@ import torch
 
 from disent.eval import ablation as _ablation
 from disent.images import over_max, to_array
-from disent.runs import RUN_ROOTS, Run, find_runs, machine_text, pick_runs, publish, setting, tool_folder
+from disent.runs import (
+    RUN_ROOTS,
+    Run,
+    find_runs,
+    group_by_setting,
+    machine_text,
+    pick_runs,
+    publish,
+    setting,
+    tool_folder,
+)
 from disent.runs import defining_overrides as _overrides
 
 MODELS = ("baseline", "explicit", "implicit")
@@ -313,8 +323,9 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
         ),
     )
     across: dict = {}
-    for r in done:
-        across.setdefault(setting(r, drop_model=True), {}).setdefault(r.model, []).append(r)
+    for where, rs in group_by_setting(done).items():
+        for r in rs:
+            across.setdefault(where, {}).setdefault(r.model, []).append(r)
     for where, by_model in sorted(across.items()):
         if "baseline" not in by_model or not ({"explicit", "implicit"} & set(by_model)):
             continue
@@ -818,10 +829,8 @@ def claim_ablations(rep: Report, runs: list[Run]) -> None:
 def sec_ablation(rep: Report, runs: list[Run]) -> None:
     """One table per setting apart from the model and the ablation (the budget, ``+experiment=``, and any other
     override), so runs of different settings never share a mean."""
-    groups = {}
-    for r in (r for r in runs if not is_recipe_run(r) and not r.ceiling):  # the ceiling has its own section
-        groups.setdefault(setting(r, drop_model=True, drop=("ablation=",)), []).append(r)
-    tables = {}
+    kept = [r for r in runs if not is_recipe_run(r) and not r.ceiling]  # the ceiling has its own section
+    groups, tables = group_by_setting(kept, drop=("ablation=",)), {}
     for name, rs in sorted(groups.items()) or [("(defaults)", [])]:
         tables[name] = _ablation.ablation_table(rs)
         if len(groups) > 1:

@@ -91,7 +91,7 @@ PUBLISH_TO = {
     "bench": ".",
     "sheet": "figures",
 }  # a tool not named here (python -m disent.photos writes "decompose" folders) is never published
-NOT_PUBLISHED = ("git.txt", "command.txt", ".tool")
+NOT_PUBLISHED = ("git.txt", "command.txt", ".tool")  # and weights (.pt), logs (.log), Hydra's .hydra/
 
 
 def tool_folder(tool: str, out=None) -> Path:
@@ -126,7 +126,11 @@ def publish(folder, reports="reports") -> list[Path]:
     tool = marker.read_text().strip()
     if tool not in PUBLISH_TO:
         raise ValueError(f"{marker}: the results of {tool!r} are not published; publishable: {', '.join(PUBLISH_TO)}")
-    files = [p for p in sorted(folder.rglob("*")) if p.is_file() and p.name not in NOT_PUBLISHED and p.suffix != ".pt"]
+    files = [
+        p
+        for p in sorted(folder.rglob("*"))
+        if p.is_file() and p.name not in NOT_PUBLISHED and p.suffix not in (".pt", ".log") and ".hydra" not in p.parts
+    ]
     if not files:
         raise FileNotFoundError(f"{folder} holds no results to publish")
     dest = Path(reports) / PUBLISH_TO[tool]
@@ -622,6 +626,43 @@ def setting(run: Run, drop_model: bool = False, drop: tuple = ()) -> str:
     to train it again (:func:`defining_overrides`).  ``drop``: more override prefixes to leave out
     (``("ablation=",)``: the setting of the full model it ablates)."""
     return " ".join(defining_overrides(run, SEED_FREE + (("model=",) if drop_model else ()) + drop)) or "(defaults)"
+
+
+def idle_keys(run: Run) -> frozenset:
+    """The settings ``run``'s model has no use for (:func:`disent.train.idle_settings`); none without a config."""
+    from omegaconf.errors import OmegaConfBaseException
+
+    from disent.train import idle_settings
+
+    if not run.cfg:
+        return frozenset()
+    try:
+        return idle_settings(OmegaConf.to_container(OmegaConf.create(run.cfg), resolve=True))
+    except (OmegaConfBaseException, TypeError, ValueError, KeyError):  # an old or unresolvable config
+        return frozenset()
+
+
+def group_by_setting(runs, drop: tuple = ()) -> dict[str, list]:
+    """``{setting apart from the model (and drop): runs}``.  A run whose model ignores settings that another
+    model's runs were trained under (the baseline has no rendering terms, :func:`idle_keys`) trains the same
+    under any value of them, so it joins each group of other models' runs whose setting differs from its own only
+    there; a group left holding only runs that joined others (the baseline's own) is dropped."""
+    groups: dict[str, list] = {}
+    for r in runs:
+        groups.setdefault(setting(r, drop_model=True, drop=drop), []).append(r)
+
+    def without(label: str, idle) -> str:
+        kept = [o for o in label.split() if o != "(defaults)" and o.lstrip("+~").split("=", 1)[0] not in idle]
+        return " ".join(kept) or "(defaults)"
+
+    joined, models = set(), {label: {r.model for r in rs} for label, rs in groups.items()}
+    for r in runs:
+        idle, mine = idle_keys(r), setting(r, drop_model=True, drop=drop)
+        for label, rs in groups.items():
+            if idle and label != mine and without(label, idle) == mine and r.model not in models[label]:
+                rs.append(r)
+                joined.add(id(r))
+    return {label: rs for label, rs in groups.items() if not all(id(r) in joined for r in rs)}
 
 
 def pick_runs(runs, variants=None) -> dict[str, Run]:

@@ -9,7 +9,7 @@ import yaml
 from disent import report
 from disent.eval.ablation import ablation_table, to_markdown
 from disent.eval.stability import training_stability
-from disent.runs import composed_config, find_runs, pick_runs
+from disent.runs import composed_config, find_runs, group_by_setting, pick_runs
 
 
 def make_run(
@@ -580,3 +580,9 @@ def test_a_loss_weight_the_model_has_no_term_for_is_not_part_of_its_setting(tmp_
     runs = {r.path.name: r for r in find_runs([tmp_path])}
     assert setting(runs["baseline"]) == "model=baseline"
     assert "loss.weights.recon_N=" in setting(runs["explicit"]) and "loss.recon_fg_p=" in setting(runs["explicit"])
+    # compared across models, the baseline joins the explicit runs it trains the same as, and leaves its own group
+    groups = group_by_setting(list(runs.values()))
+    assert list(groups) == [setting(runs["explicit"], drop_model=True)]
+    assert sorted(r.model for r in groups[setting(runs["explicit"], drop_model=True)]) == ["baseline", "explicit"]
+    alone = group_by_setting([runs["baseline"]])
+    assert list(alone) == ["(defaults)"]

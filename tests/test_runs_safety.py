@@ -186,6 +186,9 @@ def test_tool_folders_publish_their_results_and_nothing_else(tmp_path, monkeypat
     (edit / "explicit").mkdir()
     (edit / "explicit" / "edit.md").write_text("table")
     (edit / "measure_net.pt").write_bytes(b"weights")
+    (edit / "__main__.log").write_text("a Hydra job's log")
+    (edit / ".hydra").mkdir()
+    (edit / ".hydra" / "config.yaml").write_text("seed: 0")
     written = publish(edit, tmp_path / "reports")
     assert written == [tmp_path / "reports" / "edit" / "explicit" / "edit.md"]
     assert not (tmp_path / "reports" / "edit" / "measure_net.pt").exists()
