@@ -592,13 +592,13 @@ def retyped_overrides(run: Run) -> list[str]:
     (always ``model=``; ``+experiment=``, ``+ablation=``, ``loss=`` where not the default) and ``key=value`` for
     each setting that defines a run (``SETTING_KEYS``) whose value differs from what those choices give with
     today's ``conf/``: an override it was given, or a default changed since it trained; an override that repeats
-    today's default is none, and so is a loss weight the model has no term for (:func:`disent.train.idle_settings`).
+    today's default is none, and so is a loss weight the model has no term for (:func:`idle_keys`).
     Where today's ``conf/`` cannot compose its choices or its config cannot be
     resolved: its overrides as typed."""
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
-    from disent.train import ABSENT, SETTING_KEYS, config_changes, idle_settings
+    from disent.train import ABSENT, SETTING_KEYS, config_changes
 
     if not run.cfg:  # no resolved config recorded: nothing to compare
         return sorted(str(o) for o in run.overrides)
@@ -610,7 +610,7 @@ def retyped_overrides(run: Run) -> list[str]:
         trained = OmegaConf.to_container(OmegaConf.create(run.cfg), resolve=True)
     except (HydraException, OmegaConfBaseException):
         return sorted(str(o) for o in run.overrides)
-    changes = config_changes(trained, today, SETTING_KEYS, idle_settings(trained)).items()
+    changes = config_changes(trained, today, SETTING_KEYS, idle_keys(run)).items()
     return sorted(groups + [f"{k}={_typed(old)}" for k, (old, _) in changes if old is not ABSENT])
 
 
