@@ -399,6 +399,7 @@ class Run:
     ended: dict | None = None
     machine: dict | None = None  # machine.json: what it trained on (runs of older versions lack it)
     retyped: list | None = None  # retyped_overrides, once computed
+    idle: frozenset | None = None  # idle_keys, once computed
 
     @classmethod
     def load(cls, path) -> "Run":
@@ -629,17 +630,18 @@ def setting(run: Run, drop_model: bool = False, drop: tuple = ()) -> str:
 
 
 def idle_keys(run: Run) -> frozenset:
-    """The settings ``run``'s model has no use for (:func:`disent.train.idle_settings`); none without a config."""
+    """The settings ``run``'s model has no use for (:func:`disent.train.idle_settings`), computed once; none without
+    a config."""
     from omegaconf.errors import OmegaConfBaseException
 
     from disent.train import idle_settings
 
-    if not run.cfg:
-        return frozenset()
-    try:
-        return idle_settings(OmegaConf.to_container(OmegaConf.create(run.cfg), resolve=True))
-    except (OmegaConfBaseException, TypeError, ValueError, KeyError):  # an old or unresolvable config
-        return frozenset()
+    if run.idle is None:
+        try:
+            run.idle = idle_settings(OmegaConf.to_container(OmegaConf.create(run.cfg or {}), resolve=True))
+        except (OmegaConfBaseException, TypeError, ValueError, KeyError):  # an old or unresolvable config
+            run.idle = frozenset()
+    return run.idle
 
 
 def group_by_setting(runs, drop: tuple = ()) -> dict[str, list]:

@@ -59,7 +59,8 @@ def item_data(
 
 def eroded(mask, pixels: int) -> torch.Tensor:
     """``mask [1,H,W]`` (or ``[H,W]``) > 0.5 less the pixels within ``pixels`` (chessboard distance) of its edge."""
-    m = (torch.as_tensor(mask) > 0.5).float().reshape(1, 1, *torch.as_tensor(mask).shape[-2:])
+    m = (torch.as_tensor(mask) > 0.5).float()
+    m = m.reshape(1, 1, *m.shape[-2:])
     return -torch.nn.functional.max_pool2d(-m, 2 * pixels + 1, 1, pixels)[0]
 
 
