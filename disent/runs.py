@@ -9,6 +9,10 @@ with the error of a failed one).  A running job holds ``.lock`` (:class:`RunLock
 
 Read: :class:`Run`, :func:`find_runs`, :func:`pick_runs`, :func:`load_models`.  Anything may be missing (a
 crashed or running job); readers return ``None`` or empty lists then, never raise.
+
+Kept: :func:`record_run` copies an ended run's record (everything above but its checkpoints and samples) into
+``reports/runs/``, with ``origin.txt`` naming the folder it came from, so that the report's tables and curves
+outlive the run folders; :func:`find_runs` reads a record like a run folder and prefers the folder itself.
 """
 
 from __future__ import annotations
@@ -346,6 +350,9 @@ class RunLock:
 
 # ----------------------------------------------------------------------------- reading runs
 RUN_ROOTS = ("outputs", "multirun")
+RECORD = (".hydra/config.yaml", ".hydra/overrides.yaml", ".hydra/hydra.yaml", "eval.json", "metrics.jsonl")
+RECORD += ("status.json", "machine.json", "git.txt")  # what a run folder says about itself, less its weights
+ORIGIN = "origin.txt"  # in a record: the run folder it was copied from
 
 
 def _load_yaml(path: Path):
@@ -400,6 +407,7 @@ class Run:
     machine: dict | None = None  # machine.json: what it trained on (runs of older versions lack it)
     retyped: list | None = None  # retyped_overrides, once computed
     idle: frozenset | None = None  # idle_keys, once computed
+    recorded_from: str | None = None  # origin.txt of a record (record_run): the run folder it was copied from
 
     @classmethod
     def load(cls, path) -> "Run":
@@ -414,7 +422,13 @@ class Run:
             metrics=read_jsonl(p / "metrics.jsonl"),
             ended=_load_json(p / "status.json"),
             machine=_load_json(p / "machine.json"),
+            recorded_from=(p / ORIGIN).read_text().strip() if (p / ORIGIN).is_file() else None,
         )
+
+    @property
+    def origin(self) -> Path:
+        """The run folder this run was trained in: its own path, or for a record the folder it was copied from."""
+        return Path(self.recorded_from) if self.recorded_from else self.path.resolve()
 
     # --------------------------------------------------------------- labels
     @property
@@ -542,13 +556,38 @@ class RunStatus(Callback):
 
 
 def find_runs(roots=RUN_ROOTS) -> list[Run]:
-    """Every run folder (one holding ``.hydra/config.yaml``) under ``roots``, sorted by path."""
+    """Every run folder (one holding ``.hydra/config.yaml``) under ``roots``, sorted by path; a run found both
+    as its folder and as a record (:func:`record_run`) is read once, from its folder."""
     found = set()
     for root in roots:
         root = Path(root)
         if root.is_dir():
             found.update(c.parent.parent for c in root.rglob(".hydra/config.yaml"))
-    return [Run.load(p) for p in sorted(found)]
+    runs = [Run.load(p) for p in sorted(found)]
+    folders = {r.origin for r in runs if r.recorded_from is None}
+    return [r for r in runs if r.recorded_from is None or r.origin not in folders]
+
+
+# ----------------------------------------------------------------------------- records of ended runs
+
+
+def record_run(run: Run, records) -> Path:
+    """Copy the record of ``run`` (:data:`RECORD`) into ``records/<parent>-<name>/`` with ``origin.txt``, the
+    folder it came from; a record of the same folder is replaced, one of another folder keeps its name (the
+    new one gets the origin's hash).  Returns the record's folder."""
+    import hashlib
+
+    origin = str(run.origin)
+    name = f"{run.origin.parent.name}-{run.origin.name}"
+    dest = Path(records) / name
+    if (dest / ORIGIN).is_file() and (dest / ORIGIN).read_text().strip() != origin:
+        dest = dest.with_name(f"{name}-{hashlib.sha1(origin.encode()).hexdigest()[:6]}")
+    for rel in RECORD:
+        if (run.path / rel).is_file():
+            (dest / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(run.path / rel, dest / rel)
+    (dest / ORIGIN).write_text(origin + "\n")
+    return dest
 
 
 # overrides that do not change what a run is (its seed, bookkeeping, the CPU time guard of a budget rung)

@@ -2,6 +2,7 @@
 
 import json
 import math
+import shutil
 
 import pytest
 import yaml
@@ -9,7 +10,7 @@ import yaml
 from disent import report
 from disent.eval.ablation import ablation_table, to_markdown
 from disent.eval.stability import training_stability
-from disent.runs import composed_config, find_runs, group_by_setting, pick_runs
+from disent.runs import composed_config, find_runs, group_by_setting, pick_runs, record_run
 
 
 def make_run(
@@ -107,6 +108,7 @@ def test_missing_inputs_never_erase_published_sections(tmp_path):
     runs_before = report.published_sections(first)["Runs"]
     assert any("explicit+no_bws" in line for line in runs_before)
     (tmp_path / "empty").mkdir()
+    shutil.rmtree(out / "runs")  # no records of the runs either (test_records_outlive_the_run_folders)
     second = report.build(out, roots=[tmp_path / "empty"], n_vis=2).read_text()
     runs_after = report.published_sections(second)["Runs"]
     assert runs_after[0].startswith("> **Kept:** as published before") and "no run folders" in runs_after[0]
@@ -116,6 +118,37 @@ def test_missing_inputs_never_erase_published_sections(tmp_path):
     with pytest.raises(SystemExit):
         report.main(["--out", str(out), "--roots", str(tmp_path / "nonexistent")])
     assert (out / "README.md").read_text() == third
+
+
+def test_records_outlive_the_run_folders(tmp_path):
+    fake_suite(tmp_path / "runs")
+    (tmp_path / "runs" / "1" / "checkpoints").mkdir()
+    (tmp_path / "runs" / "1" / "checkpoints" / "last.pt").write_bytes(b"weights")
+    out = tmp_path / "reports"
+    first = report.build(out, roots=[tmp_path / "runs"], n_vis=2).read_text()
+    recorded = sorted(p.name for p in (out / "runs").iterdir())
+    assert recorded == [f"runs-{k}" for k in "012345"]  # every ended run; "6" is still running
+    assert (out / "runs" / "runs-1" / "origin.txt").read_text().strip() == str((tmp_path / "runs" / "1").resolve())
+    assert not (out / "runs" / "runs-1" / "checkpoints").exists()  # weights are not kept
+    both = find_runs([tmp_path / "runs", out / "runs"])  # a run is read once, from its folder while there is one
+    assert len(both) == 7 and all(r.recorded_from is None for r in both)
+
+    shutil.rmtree(tmp_path / "runs")
+    (tmp_path / "empty").mkdir()
+    second = report.build(out, roots=[tmp_path / "empty"], n_vis=2).read_text()
+    rows_before, rows_after = (
+        {line for block in report.published_sections(md)["Runs"] for line in block.splitlines() if line[:3] == "| `"}
+        for md in (first, second)
+    )
+    running = {line for line in rows_before if line.startswith(f"| `{(tmp_path / 'runs' / '6').resolve()}`")}
+    assert len(running) == 1 and rows_after == rows_before - running  # the same rows, read from the records
+    assert "6 record(s) of earlier runs" in second
+
+    # a record of another folder with the same name is not replaced
+    twin = make_run(tmp_path / "elsewhere" / "runs", "1", "explicit", eval_={"recon_mse": 0.5})
+    record_run(find_runs([twin])[0], out / "runs")
+    assert len(list((out / "runs").glob("runs-1*"))) == 2
+    assert (out / "runs" / "runs-1" / "origin.txt").read_text().strip() == str((tmp_path / "runs" / "1").resolve())
 
 
 def test_run_status_callback_marks_nan(tmp_path):
