@@ -81,8 +81,9 @@ def _rel(path: Path, out: Path) -> str:
 class Report:
     """Markdown assembled section by section; each section survives the others' failures."""
 
-    def __init__(self, out: Path, previous: str = ""):
+    def __init__(self, out: Path, previous: str = "", only=None):
         self.out = Path(out)
+        self.only = set(only) if only else None  # section names (sec_NAME) to build; the others are kept
         self.fig = self.out / "figures"
         self.fig.mkdir(parents=True, exist_ok=True)
         self.lines: list[str] = []
@@ -110,13 +111,17 @@ class Report:
         published report has content for the section, that content is kept, marked as such."""
         self.add(f"## {title}\n")
         start = len(self.lines)
+        old = self.previous.get(title, [])
+        if self.only is not None and section_name(fn) not in self.only and old:
+            self.lines += [f"{KEPT} as published before; not rebuilt in this build (`--sections`)\n"]
+            self.lines += [line for line in old if not line.startswith(KEPT)]
+            return
         try:
             fn(self, *args)
         except Exception as e:  # a broken section is reported, the rest of the report still builds
             self.note(f"this section failed: `{type(e).__name__}: {e}`")
             traceback.print_exc()
         new = self.lines[start:]
-        old = self.previous.get(title, [])
         if all(line.startswith(MISSING) for line in new) and any(not line.startswith((MISSING, KEPT)) for line in old):
             why = " ".join(line[len(MISSING) :].strip() for line in new)
             self.lines[start:] = [f"{KEPT} as published before; its inputs are missing in this build ({why})\n"] + [
@@ -125,6 +130,12 @@ class Report:
 
 
 MISSING, KEPT = "> **Missing:**", "> **Kept:**"
+EARLIER = "*Kept sections:*"  # the header of the full build whose sections a --sections build keeps
+
+
+def section_name(fn) -> str:
+    """A section's name for ``--sections``: its function's, less ``sec_`` (``sec_claims``: ``claims``)."""
+    return fn.__name__.removeprefix("sec_")
 
 
 def published_sections(markdown: str) -> dict[str, list[str]]:
@@ -1493,6 +1504,8 @@ def sec_bench(rep: Report, out: Path) -> None:
             plot_fractions(rep, models, device, bench.get("threads"), f"{path.stem}_fractions.png")
         if isinstance(cost := bench.get("norm_cost"), dict) and cost:
             rep.add(*norm_cost_lines(cost), "")
+        if isinstance(tta := bench.get("time_to_accuracy"), dict) and tta.get("run"):
+            rep.add(time_to_accuracy_text(tta), "")
         if isinstance(bench.get("profile"), dict):
             plot_profile(rep, bench["profile"], f"{path.stem}_profile.png")
         rep.add(f"<details><summary>Every figure in {path.name}</summary>\n")
@@ -1505,6 +1518,26 @@ def sec_bench(rep: Report, out: Path) -> None:
                     "",
                 )
         rep.add("</details>\n")
+
+
+def time_to_accuracy_text(tta: dict) -> str:
+    """One paragraph of ``python -m disent.bench time_to_accuracy``: when the run's normals beat each target."""
+    reached = []
+    for key, what in (("trivial", "the dataset-mean map"), ("pseudo_gt", "the pseudo-GT")):
+        hit = tta.get(key) or {}
+        if hit.get("minutes") is None:
+            reached.append(f"{what} never (its {_fmt(hit.get('target'), '.2f')} deg)")
+        else:
+            reached.append(
+                f"{what} after **{hit['minutes']:.1f} training minutes** (step {hit['step']:,}, "
+                f"{hit.get('images') or 0:,} images; {hit['normal_mean']:.2f} against {hit['target']:.2f} deg on the "
+                f"{hit['source']} images)"
+            )
+    return (
+        f"Time to accuracy (`python -m disent.bench time_to_accuracy --run RUN`, from the run's records): "
+        f"`{tta['run']}`'s normals beat {reached[0]}, and {reached[1]}; its best "
+        f"{_fmt(tta.get('best_normal_mean'), '.2f')} deg after {_fmt(tta.get('best_minutes'), '.1f')} minutes."
+    )
 
 
 ORDER_TARGET = 0.85  # share of scenes whose lighting order is chosen right on pseudo geometry
@@ -1647,10 +1680,20 @@ def _git_revision() -> str:
 
 
 def build(
-    out="reports", roots=RUN_ROOTS, n_vis: int = 6, compute: bool = False, name: str = "README.md", publish_folders=()
+    out="reports",
+    roots=RUN_ROOTS,
+    n_vis: int = 6,
+    compute: bool = False,
+    name: str = "README.md",
+    publish_folders=(),
+    sections=None,
 ) -> Path:
     """Publish each tool folder of ``publish_folders`` into ``out`` (:func:`disent.runs.publish`), then write
-    ``out/name`` and ``out/figures/*.png``; returns the Markdown path."""
+    ``out/name`` and ``out/figures/*.png``; returns the Markdown path.  ``sections`` (names, see
+    :data:`SECTIONS`): build only these and keep the others as published."""
+    unknown = set(sections or ()) - set(SECTIONS)
+    if unknown:
+        raise ValueError(f"unknown section(s) {', '.join(sorted(unknown))}; the sections: {', '.join(SECTIONS)}")
     out = Path(out)
     eval_dir = out / "eval"
     missing = [str(r) for r in roots if not Path(r).is_dir()]
@@ -1672,11 +1715,13 @@ def build(
     runs = find_runs([*roots, records])
     recorded = sum(r.recorded_from is not None for r in runs)
     published = out / name
-    rep = Report(out, published.read_text() if published.is_file() else "")
+    previous = published.read_text() if published.is_file() else ""
+    rep = Report(out, previous, only=sections)
     budget = _ablation.budget(runs)
+    which = f"Sections {', '.join(sections)} generated" if sections else "Generated"
     rep.add(
         "# disent report\n",
-        f"Generated by `python -m disent.report` at revision `{_git_revision()}` on "
+        f"{which} by `python -m disent.report` at revision `{_git_revision()}` on "
         f"{_dt.datetime.now(_dt.timezone.utc).strftime('%Y-%m-%d %H:%M UTC')} from {len(runs)} run(s): "
         f"{len(runs) - recorded} folder(s) under {', '.join(f'`{r}/`' for r in roots) or 'no root'} and {recorded} "
         f"record(s) of earlier runs in `{_rel(records, out)}/` (config, git revision, metrics and eval of each "
@@ -1687,22 +1732,40 @@ def build(
         "Regenerate: run the suite (`ablations/suite.sh EXPERIMENT`, see `ablations/README.md`), then "
         f"`python -m disent.report --compute --roots {' '.join(map(str, roots))}`.\n",
     )
-    rep.section("Runs", sec_runs, runs)
-    rep.section("Floor and ceiling: what each layer can reach", sec_ceiling, runs)
-    rep.section("The paper's claims, measured", sec_claims, runs, eval_dir)
-    rep.section("Teaser: input, recon, albedo, normal, shading, matte", sec_teaser, runs, n_vis)
-    rep.section("Lighting stability: SH variance (supplement protocol)", sec_sh_variance, eval_dir)
-    rep.section("Ablations", sec_ablation, runs)
-    rep.section("Stability where methods fail", sec_stability, eval_dir)
-    rep.section("Training recipe: leave-one-out", sec_recipe, runs)
-    rep.section("Learning curves", sec_learning_curves, runs)
-    rep.section("Real photos: the domain gap", sec_photos, out)
-    rep.section("Methods on one plane: time against accuracy", sec_methods, eval_dir)
-    rep.section("Benchmarks (`reports/bench*.json`)", sec_bench, out)
-    rep.section("L-hat uncertainty and lighting model order", sec_lighting, out)
+    if sections:  # the kept sections' provenance: the last full build's header, carried from build to build
+        head = previous.split("\n## ")[0].split("\n\n")
+        earlier = [b for b in head if b.startswith(EARLIER)] or [
+            f"{EARLIER} {b[0].lower()}{b[1:]}" for b in head if b.startswith(("Generated by", "Regenerate:"))
+        ]
+        rep.lines[-1] = f"Regenerate these sections: `python -m disent.report --roots {' '.join(map(str, roots))} "
+        rep.lines[-1] += f"--sections {' '.join(sections)}`.\n"
+        rep.add(*(b.rstrip("\n") + "\n" for b in earlier))
+    inputs = {"runs": runs, "eval_dir": eval_dir, "out": out, "n_vis": n_vis}
+    for title, fn, needs in SECTIONS.values():
+        rep.section(title, fn, *(inputs[k] for k in needs))
     path = out / name
     path.write_text("\n".join(rep.lines) + "\n")
     return path
+
+
+SECTIONS = {  # name (--sections): title, builder, its inputs; in the report's order
+    section_name(fn): (title, fn, needs)
+    for title, fn, needs in (
+        ("Runs", sec_runs, ("runs",)),
+        ("Floor and ceiling: what each layer can reach", sec_ceiling, ("runs",)),
+        ("The paper's claims, measured", sec_claims, ("runs", "eval_dir")),
+        ("Teaser: input, recon, albedo, normal, shading, matte", sec_teaser, ("runs", "n_vis")),
+        ("Lighting stability: SH variance (supplement protocol)", sec_sh_variance, ("eval_dir",)),
+        ("Ablations", sec_ablation, ("runs",)),
+        ("Stability where methods fail", sec_stability, ("eval_dir",)),
+        ("Training recipe: leave-one-out", sec_recipe, ("runs",)),
+        ("Learning curves", sec_learning_curves, ("runs",)),
+        ("Real photos: the domain gap", sec_photos, ("out",)),
+        ("Methods on one plane: time against accuracy", sec_methods, ("eval_dir",)),
+        ("Benchmarks (`reports/bench*.json`)", sec_bench, ("out",)),
+        ("L-hat uncertainty and lighting model order", sec_lighting, ("out",)),
+    )
+}
 
 
 def main(argv=None):
@@ -1718,10 +1781,17 @@ def main(argv=None):
         metavar="FOLDER",
         help="tool folders (edit, lighting, photos, eval, bench, sheet) to copy into the report first",
     )
+    p.add_argument(
+        "--sections",
+        nargs="+",
+        default=None,
+        metavar="NAME",
+        help=f"build only these sections and keep the others as published ({', '.join(SECTIONS)})",
+    )
     a = p.parse_args(argv)
     torch.set_num_threads(1)
     try:
-        path = build(a.out, a.roots, a.n_vis, a.compute, publish_folders=a.publish)
+        path = build(a.out, a.roots, a.n_vis, a.compute, publish_folders=a.publish, sections=a.sections)
     except (FileNotFoundError, ValueError) as e:
         p.error(str(e))
     print(f"wrote {path}")
