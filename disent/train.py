@@ -251,6 +251,7 @@ def check_config(cfg) -> None:
 # Budget and bookkeeping (max_steps, epochs, time limit, threads, logging, device) may change between sessions.
 RUN_DEFINING = (
     "seed",
+    "init",
     "model",
     "data",
     "loss",
@@ -266,7 +267,7 @@ RUN_DEFINING = (
 SETTING_KEYS = tuple(k for k in RUN_DEFINING if k != "seed") + ("train.max_steps", "train.epochs")
 NOT_DEFINING = ("data.test_size", "model.kernels")  # evaluation only; the same function computed another way
 # settings added after runs existed, each with the value that trains as those runs did
-ADDED_LATER = {"loss.recon_p": 2, "loss.recon_fg_p": 2, **{f"loss.weights.{t}": 0.0 for t in L.TRUTH}}
+ADDED_LATER = {"init": None, "loss.recon_p": 2, "loss.recon_fg_p": 2, **{f"loss.weights.{t}": 0.0 for t in L.TRUTH}}
 
 
 class _Absent:
@@ -322,6 +323,25 @@ def config_differences(old: dict | None, new: dict, keys=RUN_DEFINING, ignore=fr
     """``key: old -> new`` for each leaf under ``keys`` (less ``ignore``) whose value differs between two resolved
     configs."""
     return [f"{k}: {a!r} -> {b!r}" for k, (a, b) in config_changes(old, new, keys, ignore).items()]
+
+
+def warm_start(model, cfg) -> None:
+    """Load the model weights of ``cfg.init`` (a run folder, checkpoint or shipped name) into ``model``; its
+    model settings must be ``cfg.model``'s (``kernels`` aside: the same function computed another way)."""
+    from disent.models import checkpoint_path
+    from disent.models.shipped import load_weights
+
+    path = checkpoint_path(cfg.init)
+    ck = load_checkpoint(path)
+    theirs, ours = dict((ck.get("cfg") or {}).get("model") or {}), OmegaConf.to_container(cfg.model, resolve=True)
+    differ = sorted(k for k in set(theirs) | set(ours) if k != "kernels" and theirs.get(k) != ours.get(k))
+    if differ:
+        raise ConfigError(
+            f"init={cfg.init}: its model differs from this run's in "
+            + "; ".join(f"model.{k} {theirs.get(k)!r} there, {ours.get(k)!r} here" for k in differ)
+        )
+    load_weights(model, ck["model"], path)  # a shipped model's half precision is cast back on loading
+    print(f"warm start from {path}")
 
 
 def run(cfg, run_dir) -> dict:
@@ -399,6 +419,8 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
         set_rng_state(ck["rng"])
         log.truncate_after(step)
         print(f"resumed from {ck.get('loaded_from', resume)} at step {step}")
+    elif cfg.get("init"):
+        warm_start(model, cfg)
 
     def last_good() -> str:
         if ckpt_path.exists():

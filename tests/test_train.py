@@ -77,6 +77,24 @@ def test_stop_step_replays_a_cut_run_on_the_full_schedule(tmp_path):
         T.check_config(cfg_of(*common, "train.stop_step=0"))
 
 
+def test_warm_start_loads_the_weights_and_refuses_another_model(tmp_path):
+    run(cfg_of(*TINY, "model=implicit"), tmp_path / "source")
+    cfg = cfg_of(*TINY, "model=implicit", f"init={tmp_path / 'source'}")
+    model, fresh = T.build_model(cfg.model), T.build_model(cfg.model)
+    T.warm_start(model, cfg)
+    source, _ = load_run(tmp_path / "source")
+    assert all(torch.equal(v, source.state_dict()[k]) for k, v in model.state_dict().items())
+    assert not all(torch.equal(v, fresh.state_dict()[k]) for k, v in model.state_dict().items())
+    shipped = cfg_of(*TINY, "init=explicit")  # a shipped name: half precision, cast back on loading
+    model = T.build_model(shipped.model)
+    T.warm_start(model, shipped)
+    assert next(model.parameters()).dtype == torch.float32
+    with pytest.raises(T.ConfigError, match="model.name 'implicit' there, 'explicit' here"):
+        T.warm_start(T.build_model(cfg_of(*TINY).model), cfg_of(*TINY, f"init={tmp_path / 'source'}"))
+    with pytest.raises(T.ConfigError, match="model.norm 'batch' there, 'group' here"):
+        T.warm_start(model, cfg_of(*TINY, "model=implicit", "model.norm=group", f"init={tmp_path / 'source'}"))
+
+
 def test_resume_equals_an_uninterrupted_run(tmp_path, monkeypatch):
     """2 epochs of 2 steps; one run is killed during step 4 (its last checkpoint: the end of epoch 0) and
     started again in its folder: weights, optimisers and logs agree bitwise with the uninterrupted run."""
