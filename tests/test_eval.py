@@ -7,6 +7,7 @@ import torch
 from eval_fakes import FakeFaces, OracleModel
 from torch.utils.data import default_collate
 
+from disent.eval import protocols
 from disent.eval import stability as st
 from disent.eval.evaluate import evaluate_model, face_mask, metrics_from_outputs
 from disent.eval.protocols import sh_variance, sh_variance_protocol
@@ -41,6 +42,20 @@ def test_sh_variance_protocol_orders_estimators():
     assert res["ls_true"]["mean"] > 1e3 * res["ls_oracle"]["mean"]
     assert res["ls_pseudo"]["mean"] > res["ls_true"]["mean"]
     assert res["ls_pseudo"]["n_conditions"] == 4
+
+
+def test_a_rerun_of_the_protocol_keeps_the_rows_it_does_not_measure_again():
+    row = lambda v: {"mean": v, "relative": v, "sh_error": v}
+    info = lambda model, seed, setting="(defaults)": {"model": model, "setting": setting, "seed": seed, "run": "/x"}
+    old = {
+        "estimators": {"ls_pseudo": row(1.0), "e0": row(0.1), "e1": row(0.2), "old long": row(0.3)},
+        "runs": {"e0": info("explicit", 0), "e1": info("explicit", 1), "old long": info("explicit", 0, "long")},
+    }
+    new = {"estimators": {"ls_pseudo": row(1.0), "explicit s0 again": row(0.4)}, "runs": {}}
+    new["runs"]["explicit s0 again"] = info("explicit", 0)
+    kept = protocols.keep_rows(new, old)
+    assert set(kept["estimators"]) == {"ls_pseudo", "explicit s0 again", "e1", "old long"}  # e0 measured again
+    assert kept["runs"]["old long"]["setting"] == "long" and kept["estimators"]["e1"] == row(0.2)
 
 
 def test_sh_variance_protocol_needs_fixed_lights():

@@ -171,6 +171,20 @@ def plot_sh_variance(result: dict, path) -> None:
     plt.close(fig)
 
 
+def keep_rows(new: dict, old: dict) -> dict:
+    """``new`` with the trained models' rows of ``old`` that it does not measure again (the same model, setting
+    and seed, or the same name): measurements of runs whose folders are gone survive a re-run."""
+    runs = new.get("runs") or {}
+    measured = {(i["model"], i["setting"], i["seed"]) for i in runs.values()}
+    kept = {
+        name: info
+        for name, info in (old.get("runs") or {}).items()
+        if name not in new["estimators"] and (info["model"], info["setting"], info["seed"]) not in measured
+    }
+    estimators = {**new["estimators"], **{name: old["estimators"][name] for name in kept if name in old["estimators"]}}
+    return {**new, "estimators": estimators, "runs": {**runs, **kept}}
+
+
 def main(argv=None):
     from disent.data import SynthFaces
     from disent.runs import RUN_ROOTS, find_runs, load_models, tool_folder
@@ -187,6 +201,14 @@ def main(argv=None):
         "--every-run",
         action="store_true",
         help="score every finished plain run under --roots (the seeds of a setting side by side), not one a model",
+    )
+    p.add_argument(
+        "--keep",
+        type=Path,
+        default=None,
+        metavar="JSON",
+        help="a published sh_variance.json (reports/eval/): its rows of trained models not measured again here "
+        "are kept (their run folders may be gone); a model of the same model, setting and seed is replaced",
     )
     a = p.parse_args(argv)
     torch.manual_seed(0)
@@ -207,6 +229,8 @@ def main(argv=None):
     res["split"], res["resolution"] = "lightbank", a.resolution
     if runs:  # which trained model each network row is, for the report's verdict over seeds
         res["runs"] = {name: info for name, (_, info) in runs.items()}
+    if a.keep is not None:
+        res = keep_rows(res, json.loads(a.keep.read_text()))
     out = tool_folder("eval", a.out)
     (out / "sh_variance.json").write_text(json.dumps(res, indent=1))
     plot_sh_variance(res, out / "sh_variance.png")
