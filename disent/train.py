@@ -334,7 +334,7 @@ def warm_start(model, cfg) -> None:
     path = checkpoint_path(cfg.init)
     ck = load_checkpoint(path)
     theirs, ours = dict((ck.get("cfg") or {}).get("model") or {}), OmegaConf.to_container(cfg.model, resolve=True)
-    differ = sorted(k for k in set(theirs) | set(ours) if k != "kernels" and theirs.get(k) != ours.get(k))
+    differ = sorted(k for k in {*theirs, *ours} if f"model.{k}" not in NOT_DEFINING and theirs.get(k) != ours.get(k))
     if differ:
         raise ConfigError(
             f"init={cfg.init}: its model differs from this run's in "
