@@ -88,6 +88,8 @@ class Report:
         self.fig.mkdir(parents=True, exist_ok=True)
         self.lines: list[str] = []
         self.previous = published_sections(previous)  # what is published now, by section title
+        self.title = ""  # the section being built
+        self.kept_rows = 0  # rows of the published section kept by rows_kept in the section being built
 
     def add(self, *lines: str) -> None:
         self.lines.extend(lines)
@@ -110,6 +112,7 @@ class Report:
         """``## title`` and what ``fn`` adds.  Where ``fn`` finds only missing inputs (or fails) but the
         published report has content for the section, that content is kept, marked as such."""
         self.add(f"## {title}\n")
+        self.title, self.kept_rows = title, 0
         start = len(self.lines)
         old = self.previous.get(title, [])
         if self.only is not None and section_name(fn) not in self.only and old:
@@ -121,6 +124,8 @@ class Report:
         except Exception as e:  # a broken section is reported, the rest of the report still builds
             self.note(f"this section failed: `{type(e).__name__}: {e}`")
             traceback.print_exc()
+        if self.kept_rows:
+            self.add(f"_{KEPT_ROW}: {KEPT_ROW_TEXT}_\n")
         new = self.lines[start:]
         if all(line.startswith(MISSING) for line in new) and any(not line.startswith((MISSING, KEPT)) for line in old):
             why = " ".join(line[len(MISSING) :].strip() for line in new)
@@ -128,8 +133,59 @@ class Report:
                 line for line in old if not line.startswith(KEPT)
             ]
 
+    def rows_kept(self, head: str, rows: list[str], key: int = 1, unless: str | None = None) -> list[str]:
+        """``rows`` of a table with header line ``head``, then the rows of the published table under the same
+        header in this section whose first ``key`` cells match none of ``rows`` (and that do not contain
+        ``unless``): an earlier build measured them on runs this build does not have.  Those are marked
+        :data:`KEPT_ROW` (a note under the section says why)."""
+
+        def key_of(line):
+            return tuple(c.replace(KEPT_ROW, "").strip() for c in line.strip().strip("|").split("|")[:key])
+
+        have = {key_of(r) for r in rows}
+        kept = []
+        for block in self.previous.get(self.title, []):
+            lines = block.rstrip("\n").split("\n")
+            if lines[0] == head:
+                kept += [
+                    line
+                    for line in lines[2:]
+                    if line.startswith("|") and key_of(line) not in have and not (unless and unless in line)
+                ]
+        for i, line in enumerate(kept):
+            cells = line.split("|")
+            if KEPT_ROW not in cells[1]:
+                cells[1] = f"{cells[1].rstrip()} {KEPT_ROW} "
+            kept[i] = "|".join(cells)
+        self.kept_rows += len(kept)
+        return [*rows, *kept]
+
+    def subsections_kept(self, start: int) -> None:
+        """Append the published ``###`` subsections of this section whose headings ``self.lines[start:]`` lack
+        (an earlier build measured them on runs this build does not have), their headings marked :data:`KEPT_ROW`."""
+
+        def heading(block):
+            return block.split("\n")[0].replace(KEPT_ROW, "").strip()
+
+        have = {heading(line) for line in self.lines[start:] if line.startswith("### ")}
+        groups: list[list[str]] = []
+        for block in self.previous.get(self.title, []):
+            if block.startswith("### "):
+                groups.append([block])
+            elif groups and not block.startswith(f"_{KEPT_ROW}:"):
+                groups[-1].append(block)
+        for head, *body in groups:
+            if heading(head) not in have:
+                self.add(f"{heading(head)} {KEPT_ROW}\n", *body)
+                self.kept_rows += 1
+
 
 MISSING, KEPT = "> **Missing:**", "> **Kept:**"
+KEPT_ROW = "‡"
+KEPT_ROW_TEXT = (
+    "as an earlier build published it; its runs are not among this build's inputs (their folders are gone and "
+    "they left no record in `reports/runs/`)"
+)
 EARLIER = "*Kept sections:*"  # the header of the full build whose sections a --sections build keeps
 
 
@@ -275,18 +331,23 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
         "default changed show the old value). Trained on: "
         f"{machines(done)}.\n"
     )
-    rep.add(
-        "### 1. The network's normals go beyond the morphable-model fit that supervised them\n",
-        *table_head("setting", "model", "network normals (deg)", "pseudo-GT (deg)", "mean map (deg)", "verdict"),
-    )
+    head = table_head("setting", "model", "network normals (deg)", "pseudo-GT (deg)", "mean map (deg)", "verdict")
     groups: dict = {}
     for r in done:
         groups.setdefault((setting(r), r.model), []).append(r)
+    rows = []
     for (where, model), rs in sorted(groups.items()):
         if model not in ("explicit", "implicit"):
             continue
         net, pseudo, mean = (_spread(rs, k) for k in ("normal_mean", "pseudo_normal_mean", "trivial_normal_mean"))
-        rep.add(f"| `{where}` | {model} | {_ms(net)} | {_ms(pseudo)} | {_ms(mean)} | {verdict(net, pseudo, 'lower')} |")
+        rows.append(
+            f"| `{where}` | {model} | {_ms(net)} | {_ms(pseudo)} | {_ms(mean)} | {verdict(net, pseudo, 'lower')} |"
+        )
+    rep.add(
+        "### 1. The network's normals go beyond the morphable-model fit that supervised them\n",
+        *head,
+        *rep.rows_kept(head[0], rows, key=2),
+    )
     rep.add("", "### 2. The network's light varies less across identities under one light than L-hat\n")
     shv = _load_json(eval_dir / "sh_variance.json")
     if shv:
@@ -322,18 +383,16 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
         rep.add("")
     else:
         rep.note("`reports/eval/sh_variance.json`; run `python -m disent.eval.protocols` and publish it.")
-    rep.add(
-        "### 3. The rendering models reconstruct better than the 265-d baseline; the implicit one more sharply\n",
-        *table_head(
-            "setting",
-            "baseline face PSNR",
-            "explicit",
-            "implicit",
-            "explicit > baseline",
-            "implicit > baseline",
-            "implicit > explicit (face SSIM: baseline / explicit / implicit)",
-        ),
+    head = table_head(
+        "setting",
+        "baseline face PSNR",
+        "explicit",
+        "implicit",
+        "explicit > baseline",
+        "implicit > baseline",
+        "implicit > explicit (face SSIM: baseline / explicit / implicit)",
     )
+    rows = []
     across: dict = {}
     for where, rs in group_by_setting(done).items():
         for r in rs:
@@ -343,13 +402,18 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
             continue
         psnr = {m: _spread(by_model.get(m, []), "recon_face_psnr") for m in ("baseline", "explicit", "implicit")}
         ssim = {m: _spread(by_model.get(m, []), "recon_face_ssim") for m in ("baseline", "explicit", "implicit")}
-        rep.add(
+        rows.append(
             f"| `{where}` | {_ms(psnr['baseline'])} | {_ms(psnr['explicit'])} | {_ms(psnr['implicit'])} | "
             f"{verdict(psnr['explicit'], psnr['baseline'], 'higher')} | "
             f"{verdict(psnr['implicit'], psnr['baseline'], 'higher')} | "
             f"{verdict(ssim['implicit'], ssim['explicit'], 'higher')} "
             f"({' / '.join(_ms(ssim[m], '.3f') for m in ('baseline', 'explicit', 'implicit'))}) |"
         )
+    rep.add(
+        "### 3. The rendering models reconstruct better than the 265-d baseline; the implicit one more sharply\n",
+        *head,
+        *rep.rows_kept(head[0], rows),
+    )
     rep.add("", "### 4. BWS prevents degenerate shading; each prior does what the paper says\n")
     claim_ablations(rep, runs)
     rep.add("### 5. Edits on the paper's manifolds change the attribute with less leakage than other manifolds\n")
@@ -459,18 +523,17 @@ def sec_runs(rep: Report, runs: list[Run]) -> None:
         "light_shading_si_mse",
         "trivial_light_shading_si_mse",
     )
-    rep.add(
-        *table_head("run", "variant", "seed", "status", "train img/s", "infer img/s", *cols),
-    )
-    for r in runs:
 
-        def f(v):
-            return "–" if v is None else f"{v:.4g}"
+    def f(v):
+        return "–" if v is None else f"{v:.4g}"
 
-        rep.add(
-            f"| `{r.origin}` | {r.variant} | {r.seed} | {r.status} | {f(_speed(r, TRAIN_SPEED_KEY))} | "
-            f"{f(_speed(r, INFER_SPEED_KEY))} | " + " | ".join(f(r.value(c)) for c in cols) + " |"
-        )
+    head = table_head("run", "variant", "seed", "status", "train img/s", "infer img/s", *cols)
+    rows = [
+        f"| `{r.origin}` | {r.variant} | {r.seed} | {r.status} | {f(_speed(r, TRAIN_SPEED_KEY))} | "
+        f"{f(_speed(r, INFER_SPEED_KEY))} | " + " | ".join(f(r.value(c)) for c in cols) + " |"
+        for r in runs
+    ]
+    rep.add(*head, *rep.rows_kept(head[0], rows, unless="| incomplete |"))  # a running job's row is not kept
     rep.add(
         "",
         "_`trivial_*`: the dataset-mean normal map, albedo map and light on the same test images "
@@ -805,17 +868,18 @@ def claim_ablations(rep: Report, runs: list[Run]) -> None:
         "(the full model better beyond both arms' seed spread: confirmed), *verdict* reads it only where the full "
         "model meets the default-run targets at that budget (`TARGETS`; the budget check under each ablation "
         "table).\n",
-        *table_head(
-            "setting",
-            "ablation",
-            "what the paper says the piece does",
-            "metric",
-            "full model",
-            "without it",
-            "difference",
-            "verdict",
-        ),
     )
+    head = table_head(
+        "setting",
+        "ablation",
+        "what the paper says the piece does",
+        "metric",
+        "full model",
+        "without it",
+        "difference",
+        "verdict",
+    )
+    rows = []
     for where in sorted({w for w, _ in ablated}):
         misses = budget_misses(full.get(where, []))
         gate = (
@@ -831,11 +895,11 @@ def claim_ablations(rep: Report, runs: list[Run]) -> None:
                 continue
             a, b = _spread(full.get(where, []), key), _spread(rs, key)
             diff = verdict(a, b, "higher" if key in HIGHER_IS_BETTER else "lower")
-            rep.add(
+            rows.append(
                 f"| `{where}` | {ablation} | {reason} | {CLAIM_METRICS[key]} | {_ms(a, '.4g')} | {_ms(b, '.4g')} | "
                 f"{diff} | {gate or diff} |"
             )
-    rep.add("")
+    rep.add(*head, *rep.rows_kept(head[0], rows, key=2), "")
 
 
 def sec_ablation(rep: Report, runs: list[Run]) -> None:
@@ -843,13 +907,14 @@ def sec_ablation(rep: Report, runs: list[Run]) -> None:
     override), so runs of different settings never share a mean."""
     kept = [r for r in runs if not is_recipe_run(r) and not r.ceiling]  # the ceiling has its own section
     groups, tables = group_by_setting(kept, drop=("ablation=",)), {}
+    start = len(rep.lines)
     for name, rs in sorted(groups.items()) or [("(defaults)", [])]:
         tables[name] = _ablation.ablation_table(rs)
-        if len(groups) > 1:
-            rep.add(f"### {name if name == '(defaults)' else f'`{name}`'}\n")
+        rep.add(f"### {name if name == '(defaults)' else f'`{name}`'}\n")
         rep.add(_ablation.to_markdown(tables[name]))
         rep.add(budget_check([r for r in rs if r.variant == "explicit" and r.status == "ok"]))
         rep.add(f"_Trained on: {machines(rs)}._\n")
+    rep.subsections_kept(start)
     (rep.out / "ablation.json").write_text(
         json.dumps(tables if len(tables) > 1 else next(iter(tables.values()), {}), indent=1)
     )

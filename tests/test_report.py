@@ -652,3 +652,36 @@ def test_time_to_accuracy_is_read_out_in_the_bench_section():
     text = report.time_to_accuracy_text(tta)
     assert "mean map after **1.1 training minutes** (step 150, 3,750 images; 17.20 against 17.50" in text
     assert "the pseudo-GT never (its 11.46 deg)" in text and "best 12.48 deg after 9.3 minutes" in text
+
+
+def test_rows_of_runs_that_left_no_record_are_kept_marked(tmp_path):
+    """A run whose folder and record are both gone keeps its published rows (marked), and a setting whose runs
+    are all gone keeps its published ablation table; nothing is counted twice once the runs come back."""
+    fake_suite(tmp_path / "runs")
+    lr = ("+experiment=smoke", "train.lr=0.01")
+    make_run(tmp_path / "other", "7", "explicit", eval_={"recon_mse": 0.05, "normal_mean": 25.0}, extra=lr)
+    out = tmp_path / "reports"
+    roots = [tmp_path / "runs", tmp_path / "other"]
+    first = report.build(out, roots=roots, n_vis=2).read_text()
+    assert "‡" not in first
+    gone = (tmp_path / "runs" / "3").resolve()
+    for folder in (tmp_path / "runs" / "3", out / "runs" / "runs-3", tmp_path / "other", out / "runs" / "other-7"):
+        shutil.rmtree(folder)
+    second = report.build(out, roots=[tmp_path / "runs"], n_vis=2).read_text()
+    runs = "\n".join(report.published_sections(second)["Runs"])
+    assert f"| `{gone}` ‡ | explicit+no_bws |" in runs and "_‡: as an earlier build published it" in runs
+    ablation = "\n".join(report.published_sections(second)["Ablations"])
+    assert "### `+experiment=smoke train.lr=0.01` ‡" in ablation and ablation.count("### ") == 2
+    third = report.build(out, roots=[tmp_path / "runs"], n_vis=2).read_text()
+    assert report.published_sections(third)["Runs"] == report.published_sections(second)["Runs"]  # kept, not nested
+    make_run(
+        tmp_path / "runs",
+        "3",
+        "explicit",
+        ["no_bws"],
+        eval_={"recon_mse": 0.03, "normal_mean": 30.0},
+        ips=700,
+        extra=("+experiment=smoke",),
+    )
+    fourth = "\n".join(report.published_sections(report.build(out, roots=[tmp_path / "runs"]).read_text())["Runs"])
+    assert f"`{gone}` |" in fourth and "‡ | explicit+no_bws" not in fourth  # measured again: one row, unmarked
