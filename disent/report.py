@@ -268,17 +268,18 @@ def _ms(st, fmt=".2f") -> str:
     return f"{st['mean']:{fmt}} ± {st['std']:{fmt}} (n={st['n']})"
 
 
-def measured_setting(info: dict, loaded: dict | None = None) -> str:
-    """The setting of a run that a tool measured (its ``run`` folder and ``setting``): read again from the folder
-    where it is still there (``loaded``: the report's runs by resolved path, so none is read twice), since a
-    setting is read against today's ``conf/``; else as the tool wrote it."""
+def measured_setting(info: dict, loaded: dict | None = None) -> str | None:
+    """The setting of a run that a tool measured (its ``run`` folder and ``setting``), read against today's
+    ``conf/`` from the run's folder or record (``loaded``: the report's runs by origin, so none is read twice);
+    ``shipped`` for a shipped model.  None where neither is left: the setting the tool wrote was read against
+    the ``conf/`` of its day, which may have changed since (its published rows are kept instead)."""
     folder = Path(str(info.get("run", "")))
     if info.get("setting") in (None, "shipped"):
         return info.get("setting", "shipped")
     run = (loaded or {}).get(folder.resolve())
     if run is None and (folder / ".hydra" / "config.yaml").is_file():
         run = Run.load(folder)
-    return setting(run, drop_model=True) if run is not None else info["setting"]
+    return setting(run, drop_model=True) if run is not None else None
 
 
 def on_the_ladder(run: Run) -> bool:
@@ -356,23 +357,27 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
         runs_of = shv.get("runs") or {m: {"model": m, "setting": "one run a model"} for m in ("explicit", "implicit")}
         groups: dict = {}  # (model, setting) -> the protocol's rows of its trained models (seeds)
         for name, info in runs_of.items():
-            if name in est:
-                groups.setdefault((info["model"], measured_setting(info, loaded)), []).append(est[name])
+            where = measured_setting(info, loaded)
+            if name in est and where is not None:
+                groups.setdefault((info["model"], where), []).append(est[name])
         ls = est.get("ls_pseudo")
-        if groups and ls:
+        head = table_head("model", "setting", "relative variance", "L-hat", "SH error", "L-hat", "verdict")
+        rows = []
+        for (model, where), measured in sorted(groups.items()) if ls else ():
+            rel, err = (_ablation.mean_std([r[k] for r in measured]) for k in ("relative", "sh_error"))
+            fixed = {k: {"mean": ls[k], "std": 0.0, "n": rel["n"]} for k in ("relative", "sh_error")}
+            both = {verdict(rel, fixed["relative"], "lower"), verdict(err, fixed["sh_error"], "lower")}
+            rows.append(
+                f"| {model} | `{where}` | {_ms(rel, '.3f')} | {ls['relative']:.3f} | {_ms(err, '.3f')} | "
+                f"{ls['sh_error']:.3f} | {both.pop() if len(both) == 1 else 'mixed: ' + ' / '.join(sorted(both))} |"
+            )
+        if rows := rep.rows_kept(head[0], rows, key=2):
             rep.add(
                 "Relative variance and SH error on the light bank (`python -m disent.eval.protocols --every-run`), "
                 "mean ± std over the trained models of a setting, against L-hat's (a deterministic fit: no "
                 "spread). Confirmed where the network is lower on both beyond its seed spread.\n",
-                *table_head("model", "setting", "relative variance", "L-hat", "SH error", "L-hat", "verdict"),
-            )
-        for (model, where), rows in sorted(groups.items()) if ls else ():
-            rel, err = (_ablation.mean_std([r[k] for r in rows]) for k in ("relative", "sh_error"))
-            fixed = {k: {"mean": ls[k], "std": 0.0, "n": rel["n"]} for k in ("relative", "sh_error")}
-            both = {verdict(rel, fixed["relative"], "lower"), verdict(err, fixed["sh_error"], "lower")}
-            rep.add(
-                f"| {model} | `{where}` | {_ms(rel, '.3f')} | {ls['relative']:.3f} | {_ms(err, '.3f')} | "
-                f"{ls['sh_error']:.3f} | {both.pop() if len(both) == 1 else 'mixed: ' + ' / '.join(sorted(both))} |"
+                *head,
+                *rows,
             )
         rep.add("")
         if trivial:
@@ -420,9 +425,66 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
     groups: dict = {}  # (model, setting) -> the edit results of its trained models (seeds)
     for p in sorted((eval_dir.parent / "edit").glob("*/edit.json")):
         res = _load_json(p)
-        if res and res.get("claims"):
-            groups.setdefault((res.get("model", p.parent.name), measured_setting(res, loaded)), []).append(res)
-    if not groups:
+        where = measured_setting(res, loaded) if res and res.get("claims") else None
+        if where is not None:
+            groups.setdefault((res.get("model", p.parent.name), where), []).append(res)
+    head = table_head(
+        "model",
+        "setting",
+        "method",
+        "attribute",
+        "paper's manifolds: gain per leakage",
+        "best other",
+        "best success",
+        "verdict",
+    )
+    rows, idle, relit = [], [], []
+    for (model, where), results in sorted(groups.items()):
+        cells: dict = {}  # (method, attribute) -> manifolds -> [(gain per leak, best success)] over models
+        for res in results:
+            for c in res["claims"]:
+                cells.setdefault((c["method"], c["attribute"]), {}).setdefault(c["manifolds"], []).append(
+                    (c["gain_per_leak"], c["best_success"])
+                )
+        cannot = []  # the edits no manifold set makes, with their best success
+        for (method, attribute), sets in cells.items():
+            stats = {m: _ablation.mean_std([g for g, _ in v]) for m, v in sets.items()}
+            paper = next((m for m in sets if str(m).startswith("paper:")), None)
+            if paper is None:
+                continue
+            others = [m for m in sets if m != paper]
+            rival = max(others, key=lambda m: stats[m]["mean"]) if others else None
+            success = max(_ablation.mean_std([s for _, s in v])["mean"] for v in sets.values())
+            if success < EDIT_WORKS:  # listed under the table: no verdict to read
+                cannot.append(f"{attribute} by {method} {success:.2f}")
+                continue
+            rows.append(
+                f"| {model} | `{where}` | {method} | {attribute} | {paper[6:]}: {_ms(stats[paper], '.3g')} | "
+                f"{rival}: {_ms(stats[rival], '.3g') if rival else '–'} | {success:.2f} | "
+                f"{verdict(stats[paper], stats[rival] if rival else None, 'higher')} |"
+            )
+        if cannot:
+            idle.append(f"| {model} | `{where}` | {', '.join(cannot)} |")
+        faces = [{r["method"]: r["psnr_face"] for r in res.get("relight") or []} for res in results]
+        faces = [f for f in faces if {"transfer", "ratio", "input"} <= set(f)]
+        if faces:
+
+            def col(fn):
+                return _ms(_ablation.mean_std([fn(f) for f in faces]))
+
+            relit.append(
+                f"| {model} | `{where}` | {col(lambda f: f['transfer'])} | {col(lambda f: f['ratio'])} | "
+                f"{col(lambda f: f.get('decode', float('nan')))} | {col(lambda f: f['input'])} | "
+                f"{col(lambda f: f['transfer'] - f['input'])} | {col(lambda f: f['transfer'] - f['ratio'])} |"
+            )
+    idle_head = table_head("model", "setting", "edits no manifold set makes (attribute by method: best success)")
+    relit_head = table_head(
+        "model", "setting", "transfer", "ratio", "decode", "input", "transfer - input", "transfer - ratio"
+    )
+    rows, idle, relit = (
+        rep.rows_kept(h[0], r, key=k) for h, r, k in ((head, rows, 4), (idle_head, idle, 2), (relit_head, relit, 2))
+    )
+    if not (rows or idle or relit):
         rep.note(
             "`reports/edit/*/edit.json`; run `python -m disent.edit measure explicit` (and `implicit`, or run "
             "folders), then publish its folder."
@@ -435,72 +497,22 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
         f"{MIN_SEEDS} models and a difference beyond the spread, and is read only where some manifold set makes the "
         f"edit (best success, the share of edited faces read as having the attribute, >= {EDIT_WORKS} on average). "
         "`shipped`: the shipped long-budget weights.\n",
-        *table_head(
-            "model",
-            "setting",
-            "method",
-            "attribute",
-            "paper's manifolds: gain per leakage",
-            "best other",
-            "best success",
-            "verdict",
-        ),
+        *head,
+        *rows,
+        "",
     )
-    idle: dict = {}  # (model, setting) -> the edits no manifold set makes
-    for (model, where), results in sorted(groups.items()):
-        cells: dict = {}  # (method, attribute) -> manifolds -> [(gain per leak, best success)] over models
-        for res in results:
-            for c in res["claims"]:
-                cells.setdefault((c["method"], c["attribute"]), {}).setdefault(c["manifolds"], []).append(
-                    (c["gain_per_leak"], c["best_success"])
-                )
-        for (method, attribute), sets in cells.items():
-            stats = {m: _ablation.mean_std([g for g, _ in v]) for m, v in sets.items()}
-            paper = next((m for m in sets if str(m).startswith("paper:")), None)
-            if paper is None:
-                continue
-            others = [m for m in sets if m != paper]
-            rival = max(others, key=lambda m: stats[m]["mean"]) if others else None
-            success = max(_ablation.mean_std([s for _, s in v])["mean"] for v in sets.values())
-            if success < EDIT_WORKS:  # listed under the table: no verdict to read
-                idle.setdefault((model, where), []).append(f"{attribute} by {method} {success:.2f}")
-                continue
-            rep.add(
-                f"| {model} | `{where}` | {method} | {attribute} | {paper[6:]}: {_ms(stats[paper], '.3g')} | "
-                f"{rival}: {_ms(stats[rival], '.3g') if rival else '–'} | {success:.2f} | "
-                f"{verdict(stats[paper], stats[rival] if rival else None, 'higher')} |"
-            )
-    rep.add("")
     if idle:
-        rep.add(
-            f"Not testable, no manifold set makes the edit (best success < {EDIT_WORKS}, the attribute and method "
-            "with its best success):\n",
-            *(f"- {model}, `{where}`: {', '.join(cells)}" for (model, where), cells in sorted(idle.items())),
-            "",
-        )
+        rep.add(f"Not testable, no manifold set makes the edit (best success < {EDIT_WORKS}):\n", *idle_head, *idle, "")
     rep.add(
         "### Relighting with detailed albedo (Sec. 5.3)\n",
         "PSNR (dB) on the face against the generator's own render of the face under the source light, "
         "8 faces x 6 lights per model, mean ± std over the models of a setting: *transfer* (detailed albedo), the "
         "naive *ratio* image, *decode* (the network re-rendered with the new light), and the unrelit *input* as "
         "the floor.\n",
-        *table_head("model", "setting", "transfer", "ratio", "decode", "input", "transfer - input", "transfer - ratio"),
+        *relit_head,
+        *relit,
+        "",
     )
-    for (model, where), results in sorted(groups.items()):
-        faces = [{r["method"]: r["psnr_face"] for r in res.get("relight") or []} for res in results]
-        faces = [f for f in faces if {"transfer", "ratio", "input"} <= set(f)]
-        if not faces:
-            continue
-
-        def col(fn):
-            return _ms(_ablation.mean_std([fn(f) for f in faces]))
-
-        rep.add(
-            f"| {model} | `{where}` | {col(lambda f: f['transfer'])} | {col(lambda f: f['ratio'])} | "
-            f"{col(lambda f: f.get('decode', float('nan')))} | {col(lambda f: f['input'])} | "
-            f"{col(lambda f: f['transfer'] - f['input'])} | {col(lambda f: f['transfer'] - f['ratio'])} |"
-        )
-    rep.add("")
 
 
 def sec_runs(rep: Report, runs: list[Run]) -> None:
@@ -856,19 +868,6 @@ def claim_ablations(rep: Report, runs: list[Run]) -> None:
     for r in done:
         if r.plain and not is_recipe_run(r):
             full.setdefault(setting(r), []).append(r)
-    if not ablated:
-        rep.note(
-            "no finished ablation runs of the explicit model; run the suite (`ablations/suite.sh`) and point the "
-            "report at its folders."
-        )
-        return
-    rep.add(
-        "Each ablation of `conf/ablation/` against the full explicit model of the same setting (budget), on the "
-        "test metric where the paper's reason for the piece should show; *difference* applies the claims' rule "
-        "(the full model better beyond both arms' seed spread: confirmed), *verdict* reads it only where the full "
-        "model meets the default-run targets at that budget (`TARGETS`; the budget check under each ablation "
-        "table).\n",
-    )
     head = table_head(
         "setting",
         "ablation",
@@ -899,7 +898,22 @@ def claim_ablations(rep: Report, runs: list[Run]) -> None:
                 f"| `{where}` | {ablation} | {reason} | {CLAIM_METRICS[key]} | {_ms(a, '.4g')} | {_ms(b, '.4g')} | "
                 f"{diff} | {gate or diff} |"
             )
-    rep.add(*head, *rep.rows_kept(head[0], rows, key=2), "")
+    if not (rows := rep.rows_kept(head[0], rows, key=4)):
+        rep.note(
+            "no finished ablation runs of the explicit model; run the suite (`ablations/suite.sh`) and point the "
+            "report at its folders."
+        )
+        return
+    rep.add(
+        "Each ablation of `conf/ablation/` against the full explicit model of the same setting (budget), on the "
+        "test metric where the paper's reason for the piece should show; *difference* applies the claims' rule "
+        "(the full model better beyond both arms' seed spread: confirmed), *verdict* reads it only where the full "
+        "model meets the default-run targets at that budget (`TARGETS`; the budget check under each ablation "
+        "table).\n",
+        *head,
+        *rows,
+        "",
+    )
 
 
 def sec_ablation(rep: Report, runs: list[Run]) -> None:

@@ -509,8 +509,13 @@ def test_edit_claims_are_read_over_the_seeds_of_a_setting(tmp_path):
     for i, (paper, rival) in enumerate(((2.0, 1.0), (2.1, 1.1), (1.9, 0.9))):
         d = out / "edit" / f"explicit_seed{i}_1200steps"
         d.mkdir(parents=True)
+        run = make_run(tmp_path / "runs", f"s{i}", seed=i, eval_={"normal_mean": 12.0})
         res = {"model": "explicit", "setting": "(defaults)", "claims": claims(paper, rival, 0.6), "relight": []}
-        (d / "edit.json").write_text(json.dumps(res))
+        (d / "edit.json").write_text(json.dumps(res | {"run": str(run)}))
+    gone = out / "edit" / "explicit_seed9_1200steps"  # its run folder is gone and left no record: not counted
+    gone.mkdir()
+    stale = {"model": "explicit", "setting": "(defaults)", "claims": claims(9.0, 1.0, 0.6), "run": "/nowhere"}
+    (gone / "edit.json").write_text(json.dumps(stale))
     (out / "edit" / "explicit").mkdir()
     shipped = {"model": "explicit", "setting": "shipped", "claims": claims(2.0, 1.0, 0.6), "relight": []}
     (out / "edit" / "explicit" / "edit.json").write_text(json.dumps(shipped))
@@ -523,7 +528,7 @@ def test_edit_claims_are_read_over_the_seeds_of_a_setting(tmp_path):
         in rows
     )
     assert not any("| smiling |" in r for r in rows)  # no edit works: listed under the table, not as a row
-    assert "- explicit, `(defaults)`: smiling by dmt 0.20" in rep.lines
+    assert "| explicit | `(defaults)` | smiling by dmt 0.20 |" in rep.lines
     assert any(r.startswith("| explicit | `shipped` | dmt | beard |") and "not testable (1 seed(s)" in r for r in rows)
 
 
@@ -535,11 +540,14 @@ def test_light_claim_is_read_over_the_seeds_the_protocol_scored(tmp_path):
     est = {"ls_pseudo": {"relative": 0.8, "sh_error": 0.9}}
     runs = {}
     for seed, rel in enumerate((0.18, 0.20, 0.16)):
+        run = make_run(tmp_path / "runs", f"s{seed}", seed=seed, eval_={"normal_mean": 12.0})
         est[f"e{seed}"], runs[f"e{seed}"] = (
             {"relative": rel, "sh_error": 0.6},
-            {"model": "explicit", "setting": "(defaults)"},
+            {"model": "explicit", "setting": "(defaults)", "run": str(run)},
         )
-    est["long"], runs["long"] = {"relative": 0.5, "sh_error": 0.7}, {"model": "explicit", "setting": "+experiment=long"}
+    long = make_run(tmp_path / "runs", "long", eval_={"normal_mean": 10.0}, extra=("+experiment=long",))
+    est["long"], runs["long"] = {"relative": 0.5, "sh_error": 0.7}, {"model": "explicit", "run": str(long)}
+    runs["long"]["setting"] = "(defaults)"  # as written on its day; read again from its folder: +experiment=long
     (out / "eval" / "sh_variance.json").write_text(json.dumps({"estimators": est, "runs": runs}))
     make_run(tmp_path / "runs", "a", eval_={"normal_mean": 12.0, "pseudo_normal_mean": 11.5})
     rep = report.Report(out, "")
@@ -615,7 +623,7 @@ def test_setting_is_what_one_types_today_to_train_the_run_again(tmp_path):
     # a tool's record of a run (edit.json, sh_variance.json) is read with the setting of today's conf/
     stale = {"run": str(b), "setting": "(defaults)"}
     assert report.measured_setting(stale) == setting(runs["b"], drop_model=True) != "(defaults)"
-    assert report.measured_setting({"run": str(tmp_path / "gone"), "setting": "(defaults)"}) == "(defaults)"
+    assert report.measured_setting({"run": str(tmp_path / "gone"), "setting": "(defaults)"}) is None  # stale
     assert report.measured_setting({"run": "explicit", "setting": "shipped"}) == "shipped"
 
 
