@@ -389,6 +389,35 @@ def test_budget_check_names_each_missed_target(tmp_path):
     assert "no finished full explicit run" in budget_check([])
 
 
+def test_targets_section_reads_each_rung_against_its_own_targets(tmp_path):
+    """The glance table: the default rung against the absolute targets, the long rung against the pseudo-GT they
+    were supervised by (15 % better), the baseline without intrinsic targets."""
+    good = {
+        "normal_mean": 12.0,
+        "pseudo_normal_mean": 11.5,
+        "trivial_normal_mean": 17.0,
+        "recon_face_psnr": 26.5,
+        "albedo_si_mse": 0.005,
+        "trivial_albedo_si_mse": 0.0125,
+    }
+    for seed in range(2):
+        make_run(tmp_path, f"d{seed}", seed=seed, eval_={**good, "albedo_si_mse": 0.008})  # 0.64 of the mean map's
+        long = {**good, "normal_mean": 9.8 + seed / 10}
+        make_run(tmp_path, f"l{seed}", seed=seed, eval_=long, extra=("+experiment=long",))
+    make_run(tmp_path, "b", "baseline", eval_={"recon_face_psnr": 24.0})
+    rep = report.Report(tmp_path, "")
+    report.sec_targets(rep, find_runs([tmp_path]))
+    rows = {line.split("|")[1].strip() + line.split("|")[2].strip(): line for line in rep.lines if "| `" in line}
+    assert rows["`(defaults)`explicit"].endswith("| 0.64 | albedo 0.64 of the mean map's (<= 0.5) |")
+    assert "| 12.00 ± 0.00 (n=2) | 17.00 / 11.50 |" in rows["`(defaults)`explicit"]
+    assert rows["`+experiment=long`explicit"].endswith("| normals (<= 9.78) |")  # 9.85 against 0.85 x 11.5
+    assert rows["`(defaults)`baseline"].endswith("| – | – / – | 24.00 (n=1) | – | – |")
+    assert not any("No run of the long rung" in line for line in rep.lines)
+    rep = report.Report(tmp_path, "")
+    report.sec_targets(rep, [r for r in find_runs([tmp_path]) if not r.path.name.startswith("l")])
+    assert any("No run of the long rung" in line for line in rep.lines)
+
+
 def test_ablation_claims_pair_each_ablation_with_the_full_model_and_gate_on_the_budget(tmp_path):
     """Claim 4: an ablation's runs meet the full model's runs of the same setting on the paper's metric; the
     difference is read by the claims' rule, and becomes a verdict only where the full model meets the targets."""
