@@ -551,6 +551,7 @@ LAYERS = (  # (label, network key, trivial key, pseudo-GT key, unit): lower is b
     ("albedo, scale-inv. MSE", "albedo_si_mse", "trivial_albedo_si_mse", None, ""),
     ("  its coarse part", "albedo_coarse_si_mse", "trivial_albedo_coarse_si_mse", None, ""),  # 2-px blur of the error
     ("  its detail", "albedo_fine_si_mse", "trivial_albedo_fine_si_mse", None, ""),  # what the blur leaves
+    ("albedo, detailed (I / S)", "albedo_detailed_si_mse", "trivial_albedo_si_mse", None, ""),  # Sec. 5.3
     ("albedo, one scale", "albedo_global_si_mse", "trivial_albedo_global_si_mse", None, ""),
     ("albedo, with hair+neck", "albedo_face_si_mse", "trivial_albedo_face_si_mse", None, ""),
     ("light, SH error", "sh_error", "trivial_sh_error", "pseudo_sh_error", ""),

@@ -70,8 +70,21 @@ def test_perfect_model_scores_perfectly():
     assert m["normal_mean"] == pytest.approx(0, abs=1e-3) and m["normal_under_20"] == 1.0
     assert m["pseudo_normal_mean"] > 1.0  # the bent pseudo normals are wrong on the same pixels
     assert m["albedo_si_mse"] < 1e-12 and m["sh_error"] < 1e-12 and m["n_eval"] == 6
-    assert m["light_shading_si_mse"] < 1e-12
+    assert m["light_shading_si_mse"] < 1e-12 and m["albedo_detailed_si_mse"] < 1e-10
     assert m["infer_images_per_s"] > 0
+
+
+def test_detailed_albedo_carries_the_shading_error():
+    """Sec. 5.3's detailed albedo, the image over the model's shading: exact with the true shading whatever the decoded
+    albedo, blind to the shading's scale, and wrong where the shading is."""
+    ds = FakeFaces("test", size=4)
+    gt = default_collate([ds[i] for i in range(4)])
+    flat = torch.full_like(gt["albedo"], 0.5)  # a decoded albedo that knows nothing
+    error = lambda shading: metrics_from_outputs({"albedo": flat, "shading": shading}, gt)["albedo_detailed_si_mse"]
+    assert error(gt["shading"]) < 1e-10 and error(2.0 * gt["shading"]) < 1e-10
+    assert metrics_from_outputs({"albedo": flat}, gt)["albedo_si_mse"] > 1e-4
+    ramp = 1 + torch.linspace(0, 1, gt["shading"].shape[-1])  # shading wrong by a left-right ramp
+    assert error(gt["shading"] * ramp) > 1e-3
 
 
 def test_intrinsic_layers_are_scored_where_the_model_renders_the_face():

@@ -115,7 +115,8 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     :func:`decomposed_region`: ``normal_*`` the model's angular error against the true normals and
     ``pseudo_normal_*`` the pseudo-GT's; ``albedo_si_mse`` (a scale per image and channel),
     ``albedo_global_si_mse`` (a scale per channel for all images), ``albedo_coarse_si_mse`` and
-    ``albedo_fine_si_mse`` (``albedo_si_mse``'s error above and below a 2-px blur), ``shading_si_mse``.  For reference
+    ``albedo_fine_si_mse`` (``albedo_si_mse``'s error above and below a 2-px blur), ``albedo_detailed_si_mse`` (the
+    detailed albedo of Sec. 5.3, the image over the model's shading), ``shading_si_mse``.  For reference
     ``albedo_face_si_mse``: the albedo over the whole true face mask, hair and neck included.
     ``sh_error`` after the per-image scale alignment, and ``sh_error_coefficients`` its share per coefficient;
     ``light_shading_si_mse``: the light's shading through the true normals against the true shading.
@@ -134,6 +135,13 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
         m["albedo_face_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], face)
         bands = scale_invariant_mse_bands(out["albedo"], gt["albedo"], region)
         m["albedo_coarse_si_mse"], m["albedo_fine_si_mse"] = bands["coarse"], bands["fine"]
+    if {"albedo", "shading"} <= set(out) and {"albedo", "image"} <= set(gt):
+        # Sec. 5.3's "detailed" albedo, Eq. 2 solved for A with the model's own shading: I / S_e keeps every detail
+        # of the image, and every error of S_e (the relighting transfer renders with it)
+        from disent.edit.relight import detailed_albedo
+
+        detailed = detailed_albedo(gt["image"].to(out["shading"].dtype), out["shading"], out["albedo"])
+        m["albedo_detailed_si_mse"] = scale_invariant_mse(detailed, gt["albedo"], region)
     if "shading" in out and "shading" in gt:  # (the validation batch carries no true shading)
         shading = out["shading"].expand_as(gt["shading"])
         m["shading_si_mse"] = scale_invariant_mse(shading, gt["shading"], region)

@@ -6,7 +6,8 @@ A layer counts as learned only where the network beats its trivial baseline:
   face pixels of the training images; the frontal normal where no face ever covers the pixel);
 * albedo: the dataset-mean albedo map (per pixel mean over face pixels), scored by the same
   scale-invariant MSEs as the network's albedo;
-* shading: the mean light through the mean normal map (scale-invariant, like the network's shading);
+* shading: the mean light through the mean normal map (scale-invariant, like the network's shading), and the
+  detailed albedo it gives, the image over that shading;
 * light: the mean true SH light, scored by the same scale-aligned SH error; beside it, for context,
   ``trivial_lhat_sh_error``: the mean L-hat, the constant a network could learn from its supervision alone
   (L-hat's constant albedo carries skin tone and the face's dark features into the light, so its mean is
@@ -33,6 +34,7 @@ KEYS = (
     "albedo_face_si_mse",
     "albedo_coarse_si_mse",
     "albedo_fine_si_mse",
+    "albedo_detailed_si_mse",
     "shading_si_mse",
     "sh_error",
     "light_shading_si_mse",
