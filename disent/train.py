@@ -586,6 +586,12 @@ def print_eval(m: dict, run_dir) -> None:
             if net in learned:
                 line += "   learned" if learned[net] else "   NOT learned (no better than the dataset mean)"
             print(line)
+    if "normal_spread" in m:
+        flat = "   FLAT: the normals collapsed" if m["normal_spread"] < 0.25 * m["true_normal_spread"] else ""
+        print(
+            f"  normals' spread about each face's mean  network {m['normal_spread']:.1f}deg   "
+            f"truth {m['true_normal_spread']:.1f}deg{flat}"
+        )
     if "sh_error_coefficients" in m and "trivial_sh_error_coefficients" in m:
         names = ("DC", "y", "z", "x", "xy", "yz", "3z2-1", "xz", "x2-y2")
         print("  light error by SH coefficient " + " ".join(f"{n:>6}" for n in names))

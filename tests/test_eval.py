@@ -69,6 +69,7 @@ def test_perfect_model_scores_perfectly():
     assert m["recon_mse"] == 0 and math.isinf(m["recon_face_psnr"])
     assert m["normal_mean"] == pytest.approx(0, abs=1e-3) and m["normal_under_20"] == 1.0
     assert m["pseudo_normal_mean"] > 1.0  # the bent pseudo normals are wrong on the same pixels
+    assert m["normal_spread"] == pytest.approx(m["true_normal_spread"]) and m["normal_spread"] > 10
     assert m["albedo_si_mse"] < 1e-12 and m["sh_error"] < 1e-12 and m["n_eval"] == 6
     assert m["light_shading_si_mse"] < 1e-12 and m["albedo_detailed_si_mse"] < 1e-10
     assert m["infer_images_per_s"] > 0

@@ -182,3 +182,23 @@ def test_scale_invariant_mse_bands_add_up_to_the_total():
     checker = (1 + 0.1 * (-1.0) ** (x + y)).double()[None, None].expand(3, 3, -1, -1)
     smooth, fine = (scale_invariant_mse_bands(target * f, target, mask) for f in (ramp, checker))
     assert smooth["coarse"] > 5 * smooth["fine"] and fine["fine"] > 5 * fine["coarse"]
+
+
+def test_normal_spread_is_zero_for_a_flat_map_and_blind_to_a_global_rotation():
+    from disent.eval.metrics import normal_spread
+
+    theta = math.radians(30.0)
+    pair = torch.tensor([[math.sin(theta), 0.0, math.cos(theta)], [-math.sin(theta), 0.0, math.cos(theta)]])
+    normal = pair.T.reshape(1, 3, 1, 2)  # two pixels, 30 deg either side of +z: each is 30 deg from their mean
+    mask = torch.ones(1, 1, 1, 2)
+    assert normal_spread(normal, mask) == pytest.approx(30.0, abs=1e-6)
+    flat = torch.tensor([0.3, -0.2, 0.9]).view(1, 3, 1, 1).expand(2, 3, 5, 5)
+    assert normal_spread(flat, torch.ones(2, 1, 5, 5)) == pytest.approx(0.0, abs=1e-4)
+    g = torch.Generator().manual_seed(0)
+    n = torch.nn.functional.normalize(torch.randn(2, 3, 6, 6, generator=g), dim=1)
+    q, _ = torch.linalg.qr(torch.randn(3, 3, generator=g, dtype=torch.float64))
+    rotated = torch.einsum("ij,bjhw->bihw", q.float(), n)
+    m = (torch.rand(2, 1, 6, 6, generator=g) > 0.3).float()
+    assert normal_spread(rotated, m) == pytest.approx(normal_spread(n, m), abs=1e-4)
+    with pytest.raises(ValueError, match="no pixel"):
+        normal_spread(n, torch.zeros(2, 1, 6, 6))

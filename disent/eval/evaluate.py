@@ -13,6 +13,7 @@ from torch.utils.data import DataLoader, Subset
 
 from disent.eval.metrics import (
     normal_angular_error,
+    normal_spread,
     reconstruction_metrics,
     scale_invariant_mse,
     scale_invariant_mse_bands,
@@ -74,12 +75,16 @@ def decomposed_region(gt: dict) -> torch.Tensor:
 
 def normal_metrics(normal: torch.Tensor, gt: dict) -> dict:
     """``normal_*``: the angular error of ``normal`` against the true normals; ``pseudo_normal_*``:
-    the pseudo-GT's, on the same pixels (:func:`decomposed_region`)."""
+    the pseudo-GT's, on the same pixels (:func:`decomposed_region`); ``normal_spread`` and ``true_normal_spread``
+    (:func:`~disent.eval.metrics.normal_spread`)."""
     both = decomposed_region(gt)
     m = {f"normal_{k}": v for k, v in normal_angular_error(normal, gt["normal"], both).items()}
     m.update(
         {f"pseudo_normal_{k}": v for k, v in normal_angular_error(gt["normal_pseudo"], gt["normal"], both).items()}
     )
+    # a collapse check: a model trained without E_recon-N can put one flat normal on every pixel (its albedo then
+    # takes the shading); the spread about each image's mean normal shows it, beside the truth's
+    m["normal_spread"], m["true_normal_spread"] = normal_spread(normal, both), normal_spread(gt["normal"], both)
     return m
 
 
