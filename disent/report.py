@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from disent.eval import ablation as _ablation
+from disent.eval.metrics import FLAT_SHARE
 from disent.images import over_max, to_array
 from disent.runs import (
     RUN_ROOTS,
@@ -975,6 +976,27 @@ def claim_ablations(rep: Report, runs: list[Run]) -> None:
         *rows,
         "",
     )
+    collapsed = [r for rs in ablated.values() for r in rs if flat_normals(r)]
+    if collapsed:
+        rep.add(
+            "Runs whose normals collapsed flat (their spread about each face's mean normal under a quarter of the "
+            "truth's; the albedo then takes the shading, and the reconstruction can stay good):\n",
+            *(
+                f"- `{r.origin}` ({r.variant}, seed {r.seed}): spread {r.value('normal_spread'):.1f} deg against "
+                f"{r.value('true_normal_spread'):.1f}, normals {r.value('normal_mean'):.1f} deg off, albedo "
+                f"{r.value('albedo_si_mse'):.4f} against the mean map's "
+                f"{_fmt(r.value('trivial_albedo_si_mse'), '.4f')}, face PSNR {r.value('recon_face_psnr'):.2f} dB"
+                for r in sorted(collapsed, key=lambda r: str(r.origin))
+            ),
+            "",
+        )
+
+
+def flat_normals(run: Run) -> bool:
+    """Whether ``run``'s normals collapsed flat (``normal_spread`` under :data:`FLAT_SHARE` of the truth's); False
+    where its evaluation predates the measurement."""
+    spread, truth = run.value("normal_spread"), run.value("true_normal_spread")
+    return spread is not None and truth is not None and spread < FLAT_SHARE * truth
 
 
 def sec_ablation(rep: Report, runs: list[Run]) -> None:

@@ -445,6 +445,20 @@ def test_ablation_claims_pair_each_ablation_with_the_full_model_and_gate_on_the_
     assert "no finished ablation runs" in "\n".join(rep.lines)
 
 
+def test_ablation_runs_whose_normals_collapsed_flat_are_named(tmp_path):
+    good = {"normal_mean": 12.0, "recon_face_psnr": 26.5, "albedo_si_mse": 0.005, "trivial_albedo_si_mse": 0.0127}
+    spread = {"normal_spread": 37.0, "true_normal_spread": 39.0}
+    make_run(tmp_path, "full", eval_={**good, **spread})
+    make_run(tmp_path, "kept", ablations=["no_pseudo_normal"], eval_={**good, **spread, "normal_mean": 20.0})
+    flat = {**good, "normal_spread": 1.5, "true_normal_spread": 39.0, "normal_mean": 82.0, "albedo_si_mse": 0.03}
+    make_run(tmp_path, "flat", ablations=["no_pseudo_normal"], seed=1, eval_=flat)
+    make_run(tmp_path, "old", ablations=["no_bws"], eval_=good)  # evaluated before the spread was measured
+    rep = report.Report(tmp_path, "")
+    report.claim_ablations(rep, find_runs([tmp_path]))
+    listed = [line for line in rep.lines if line.startswith("- `")]
+    assert len(listed) == 1 and "flat`" in listed[0] and "spread 1.5 deg against 39.0" in listed[0], listed
+
+
 def test_ood_table_reports_where_each_estimator_breaks(tmp_path):
     from disent import report
 

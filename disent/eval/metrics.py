@@ -72,6 +72,9 @@ def normal_angular_error(pred: torch.Tensor, target: torch.Tensor, mask: torch.T
     return out
 
 
+FLAT_SHARE = 0.25  # a normal map whose spread is under this share of the truth's has collapsed to one flat normal
+
+
 def normal_spread(normal: torch.Tensor, mask: torch.Tensor) -> float:
     """Mean angle (degrees) between each masked pixel's normal and its image's mean normal, over the masked pixels of
     the batch: how much a normal map varies across a face (a flat map scores 0; SynthFaces' true normals ~39)."""
@@ -219,6 +222,7 @@ __all__ = [
     "angular_error_deg",
     "normal_angular_error",
     "normal_spread",
+    "FLAT_SHARE",
     "reconstruction_metrics",
     "scale_invariant_mse",
     "sh_error",
