@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from disent.eval import ablation as _ablation
-from disent.eval.metrics import FLAT_SHARE
+from disent.eval.metrics import FLAT_SHARE, normals_collapsed
 from disent.images import over_max, to_array
 from disent.runs import (
     RUN_ROOTS,
@@ -976,11 +976,11 @@ def claim_ablations(rep: Report, runs: list[Run]) -> None:
         *rows,
         "",
     )
-    collapsed = [r for rs in ablated.values() for r in rs if flat_normals(r)]
+    collapsed = [r for rs in ablated.values() for r in rs if normals_collapsed(r.eval)]
     if collapsed:
         rep.add(
-            "Runs whose normals collapsed flat (their spread about each face's mean normal under a quarter of the "
-            "truth's; the albedo then takes the shading, and the reconstruction can stay good):\n",
+            f"Runs whose normals collapsed flat (their spread about each face's mean normal under {FLAT_SHARE:.0%} of "
+            "the truth's; the albedo then takes the shading, and the reconstruction can stay good):\n",
             *(
                 f"- `{r.origin}` ({r.variant}, seed {r.seed}): spread {r.value('normal_spread'):.1f} deg against "
                 f"{r.value('true_normal_spread'):.1f}, normals {r.value('normal_mean'):.1f} deg off, albedo "
@@ -990,13 +990,6 @@ def claim_ablations(rep: Report, runs: list[Run]) -> None:
             ),
             "",
         )
-
-
-def flat_normals(run: Run) -> bool:
-    """Whether ``run``'s normals collapsed flat (``normal_spread`` under :data:`FLAT_SHARE` of the truth's); False
-    where its evaluation predates the measurement."""
-    spread, truth = run.value("normal_spread"), run.value("true_normal_spread")
-    return spread is not None and truth is not None and spread < FLAT_SHARE * truth
 
 
 def sec_ablation(rep: Report, runs: list[Run]) -> None:

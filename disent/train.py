@@ -587,9 +587,9 @@ def print_eval(m: dict, run_dir) -> None:
                 line += "   learned" if learned[net] else "   NOT learned (no better than the dataset mean)"
             print(line)
     if "normal_spread" in m:
-        from disent.eval.metrics import FLAT_SHARE
+        from disent.eval.metrics import normals_collapsed
 
-        flat = "   FLAT: the normals collapsed" if m["normal_spread"] < FLAT_SHARE * m["true_normal_spread"] else ""
+        flat = "   FLAT: the normals collapsed" if normals_collapsed(m) else ""
         print(
             f"  normals' spread about each face's mean  network {m['normal_spread']:.1f}deg   "
             f"truth {m['true_normal_spread']:.1f}deg{flat}"

@@ -79,12 +79,19 @@ def normal_spread(normal: torch.Tensor, mask: torch.Tensor) -> float:
     """Mean angle (degrees) between each masked pixel's normal and its image's mean normal, over the masked pixels of
     the batch: how much a normal map varies across a face (a flat map scores 0; SynthFaces' true normals ~39)."""
     w = _mask(mask, normal)
+    if not w.any():
+        raise ValueError("normal_spread: the mask selects no pixel")
     n = torch.nn.functional.normalize(normal.double(), dim=1, eps=1e-12)
     mean = torch.nn.functional.normalize((n * w).sum((2, 3), keepdim=True), dim=1, eps=1e-12)
     angle = torch.rad2deg(torch.acos((n * mean).sum(1, keepdim=True).clamp(-1.0, 1.0)))
-    if not w.any():
-        raise ValueError("normal_spread: the mask selects no pixel")
     return angle[w].mean().item()
+
+
+def normals_collapsed(metrics: dict) -> bool:
+    """Whether an evaluation's normals collapsed flat: its ``normal_spread`` under :data:`FLAT_SHARE` of its
+    ``true_normal_spread`` (False where either was not measured)."""
+    spread, truth = metrics.get("normal_spread"), metrics.get("true_normal_spread")
+    return spread is not None and truth is not None and spread < FLAT_SHARE * truth
 
 
 def _win_size(H: int, W: int) -> int:
@@ -222,6 +229,7 @@ __all__ = [
     "angular_error_deg",
     "normal_angular_error",
     "normal_spread",
+    "normals_collapsed",
     "FLAT_SHARE",
     "reconstruction_metrics",
     "scale_invariant_mse",
