@@ -339,8 +339,7 @@ def sec_targets(rep: Report, runs: list[Run]) -> None:
     rows = []
     for (where, model), rs in sorted(groups.items()):
         normal, pseudo, floor = (_spread(rs, k) for k in ("normal_mean", "pseudo_normal_mean", "trivial_normal_mean"))
-        psnr, albedo, trivial = (_spread(rs, k) for k in ("recon_face_psnr", "albedo_si_mse", "trivial_albedo_si_mse"))
-        share = albedo["mean"] / trivial["mean"] if albedo and trivial else None
+        psnr, share = _spread(rs, "recon_face_psnr"), albedo_share(rs)
         misses = []
         if where == "(defaults)" and model != "baseline":
             misses = budget_misses(rs) or []
@@ -369,7 +368,7 @@ def sec_targets(rep: Report, runs: list[Run]) -> None:
         *rep.rows_kept(head[0], rows, key=2),
         "",
     )
-    if not any(where.startswith("+experiment=long") for where, _ in groups):
+    if not any(where == "+experiment=long" for where, _ in groups):
         rep.add(
             "_No run of the long rung is among this build's inputs (runs from before `reports/runs/` kept records "
             "left none): its numbers are the kept rows of claims 1 and 3._\n"
@@ -856,14 +855,18 @@ def is_recipe_run(run: Run) -> bool:
 TARGETS = {"normal_mean": 12.5, "recon_face_psnr": 26.0, "albedo_share_of_trivial": 0.5}
 
 
+def albedo_share(runs: list[Run]) -> float | None:
+    """The runs' mean albedo error as a share of their mean map's (the albedo target's measure), or None."""
+    albedo, trivial = _spread(runs, "albedo_si_mse"), _spread(runs, "trivial_albedo_si_mse")
+    return albedo["mean"] / trivial["mean"] if albedo and trivial else None
+
+
 def budget_misses(explicit: list[Run]) -> list[str] | None:
     """The :data:`TARGETS` the full explicit model misses at a budget (the mean over its seeds; empty: it meets
     them all), or None without a finished run there."""
-    normal, psnr = _spread(explicit, "normal_mean"), _spread(explicit, "recon_face_psnr")
-    albedo, trivial = _spread(explicit, "albedo_si_mse"), _spread(explicit, "trivial_albedo_si_mse")
-    if not (normal and psnr and albedo and trivial):
+    normal, psnr, share = _spread(explicit, "normal_mean"), _spread(explicit, "recon_face_psnr"), albedo_share(explicit)
+    if not (normal and psnr and share is not None):
         return None
-    share = albedo["mean"] / trivial["mean"]
     misses = []
     if normal["mean"] > TARGETS["normal_mean"]:
         misses.append(f"normals {normal['mean']:.2f} deg (target <= {TARGETS['normal_mean']})")
