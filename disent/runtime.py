@@ -1,7 +1,7 @@
 """Runtime tuning, in one place: how the CPU is used, never what is computed.
 
 - :func:`tune_malloc`: glibc keeps freed activations for reuse (``train.malloc_tuning``, the benchmarks).
-- :class:`Prefetcher`: training batches rendered ahead in a background thread (``train.prefetch``).
+- :class:`Prefetcher`: training batches rendered ahead in background threads (``train.prefetch``, ``_workers``).
 - :class:`single_thread`: one torch thread inside (SynthFaces generation is written for one core).
 - :func:`single_core`: one torch thread and one OpenBLAS thread (the lighting experiments).
 """
@@ -9,8 +9,8 @@
 from __future__ import annotations
 
 import ctypes
-import queue
-import threading
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import ContextDecorator, contextmanager
 
 import torch
@@ -35,62 +35,47 @@ def tune_malloc() -> bool:
 
 
 class Prefetcher:
-    """``make_batch(step)`` for ``steps`` in order, computed up to ``depth`` steps ahead in a
-    background thread while the training step runs (torch ops release the GIL).  ``get(step)``
+    """``make_batch(step)`` for ``steps`` in order, computed up to ``depth`` steps ahead by ``workers``
+    background threads while the training step runs (torch ops release the GIL).  ``get(step)``
     returns the batch of ``step`` and checks that the steps are consumed in the order given, so
-    prefetching never changes which images a step sees.  ``depth=0``: ``make_batch`` in the caller.
-    An exception in the thread is raised again by ``get``.
+    prefetching never changes which images a step sees, whatever the worker count.  ``depth=0``:
+    ``make_batch`` in the caller.  An exception in a worker is raised again by ``get``.  One worker
+    suits the 2-core machine; a GPU step outruns one rendering core, so ``device=cuda`` wants several.
     """
 
-    def __init__(self, make_batch, steps, depth: int = 2):
+    def __init__(self, make_batch, steps, depth: int = 2, workers: int = 1):
         self.make_batch, self.depth = make_batch, depth
         self.steps = iter(steps)
+        self.pending: deque = deque()  # (step, future), in step order
         if depth > 0:
             # torch initialises a thread's OpenMP count lazily from the last set_num_threads of ANY
-            # thread; initialise this one now, so the worker's set_num_threads(1) leaves it alone
+            # thread; initialise this one now, so the workers' set_num_threads(1) leaves it alone
             torch.get_num_threads()
-            self.queue: queue.Queue = queue.Queue(maxsize=depth)
-            self.stopped = threading.Event()
-            self.thread = threading.Thread(target=self._work, name="prefetch", daemon=True)
-            self.thread.start()
+            workers = max(1, int(workers))
+            self.pool = ThreadPoolExecutor(workers, "prefetch", initializer=torch.set_num_threads, initargs=(1,))
+            for _ in range(max(depth, workers)):  # rendering on one core per worker
+                self._submit()
 
-    def _work(self) -> None:
-        torch.set_num_threads(1)  # rendering on one core; the training thread keeps its own count
-        try:
-            for step in self.steps:
-                item = (step, self.make_batch(step))
-                while not self.stopped.is_set():
-                    try:
-                        self.queue.put(item, timeout=0.1)
-                        break
-                    except queue.Full:
-                        pass
-                if self.stopped.is_set():
-                    return
-        except BaseException as e:  # handed to the training thread
-            self.queue.put((None, e))
+    def _submit(self) -> None:
+        step = next(self.steps, None)
+        if step is not None:
+            self.pending.append((step, self.pool.submit(self.make_batch, step)))
 
     def get(self, step: int) -> dict:
         if self.depth == 0:
             got = next(self.steps)
             batch = self.make_batch(got)
         else:
-            got, batch = self.queue.get()
-            if got is None:
-                raise batch
+            got, future = self.pending.popleft()
+            self._submit()
+            batch = future.result()
         if got != step:
             raise RuntimeError(f"prefetcher out of order: asked for step {step}, has step {got}")
         return batch
 
     def close(self) -> None:
         if self.depth > 0:
-            self.stopped.set()
-            while self.thread.is_alive():
-                try:
-                    self.queue.get(timeout=0.1)
-                except queue.Empty:
-                    pass
-            self.thread.join()
+            self.pool.shutdown(wait=True, cancel_futures=True)
 
 
 class single_thread(ContextDecorator):

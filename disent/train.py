@@ -4,7 +4,7 @@ One step (Sec. 4.2): the model renders I_o; the EBGAN discriminator D scores it;
 minimises sum_k w_k E_k (disent/losses.py) and D its margin loss, both from the same forward
 pass (optimiser and lr schedule: conf/train/default.yaml).  The data order of epoch e is a permutation seeded by
 (seed, e), so a run resumed from ``checkpoints/last.pt`` replays exactly the steps it missed.
-Batches are rendered ``train.prefetch`` steps ahead in a background thread (``Prefetcher``), in
+Batches are rendered ``train.prefetch`` steps ahead in background threads (``Prefetcher``), in
 that same order; every ``train.val_every`` steps a fixed validation subset is scored (``validate``).
 """
 
@@ -458,7 +458,7 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
         idx = step_indices(cfg.seed, s, steps_per_epoch, t.batch_size, len(data))
         return to_device(get_batch(data, idx, keys), "cpu", t.channels_last)
 
-    prefetch = Prefetcher(make_batch, range(step, total_steps), t.get("prefetch", 0))
+    prefetch = Prefetcher(make_batch, range(step, total_steps), t.get("prefetch", 0), t.get("prefetch_workers", 1))
     bar = tqdm(total=total_steps, initial=step, disable=not t.progress, unit="step", dynamic_ncols=True)
     last_saved, stopped, batch = step, "steps", None
     try:

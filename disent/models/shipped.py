@@ -128,9 +128,10 @@ def main(argv=None):
     p = argparse.ArgumentParser(description="Ship a finished run's weights inside the package (disent/weights/).")
     p.add_argument("run", help="run folder with checkpoints/last.pt and eval.json")
     p.add_argument("name", help="name to load it by: load_run(NAME), python -m disent.edit relight NAME ...")
+    p.add_argument("--folder", type=Path, default=WEIGHTS, help="where the weights and manifest.json go")
     a = p.parse_args(argv)
     torch.set_num_threads(1)
-    e = ship(a.run, a.name)
+    e = ship(a.run, a.name, a.folder)
     print(
         f"shipped {a.name}: {e['bytes'] / 1e6:.1f} MB, {e['steps']} steps, "
         f"check on {CHECK_IMAGES} test images {e['check']}"
