@@ -1363,6 +1363,13 @@ def val_curves(run: Run) -> list[dict]:
     return out
 
 
+def curve_label(run: Run) -> str:
+    """A learning curve's legend label: the seeds of a setting share it; a GPU run names its GPU (its wall minutes
+    are not the CPU's)."""
+    gpu = (run.machine or {}).get("gpu")
+    return f"{run.variant}: {setting(run, drop_model=True)}" + (f" ({gpu})" if gpu else "")
+
+
 def plot_learning_curves(runs: list[Run], path: Path, title: str = "", colour_by_setting: bool = False) -> bool:
     """Each accuracy of the ``val`` records against training images (top) and wall minutes (bottom), one
     line per run (a colour per model, or per model and setting; dash-dotted for a ceiling run), with the trivial
@@ -1374,11 +1381,8 @@ def plot_learning_curves(runs: list[Run], path: Path, title: str = "", colour_by
     plt = _plt()
     fig, axes = plt.subplots(2, len(CURVE_PANELS), figsize=(4 * len(CURVE_PANELS), 6.4), squeeze=False)
 
-    def line_label(r):  # the seeds of a setting share a label
-        return f"{r.variant}: {setting(r, drop_model=True)}"
-
     def kind(r):  # what shares a colour: the model (and ablation), or each labelled line
-        return line_label(r) if colour_by_setting else r.variant.removesuffix("+ceiling")
+        return curve_label(r) if colour_by_setting else r.variant.removesuffix("+ceiling")
 
     kinds = sorted({kind(r) for r, _ in curves})
     for col, (key, trivial, pseudo, label) in enumerate(CURVE_PANELS):
@@ -1390,12 +1394,12 @@ def plot_learning_curves(runs: list[Run], path: Path, title: str = "", colour_by
                 if not pts or (r.ceiling and key == "recon_face_psnr"):  # a ceiling does not train the reconstruction
                     continue
                 finals.append(pts[-1][1])
-                name = line_label(r)
+                name = curve_label(r)
                 ax.plot(
                     *zip(*pts),
                     color=f"C{kinds.index(kind(r)) % 10}",
                     ls="-." if r.ceiling else "-",
-                    lw=1.0,
+                    lw=2.0 if (r.machine or {}).get("gpu") else 1.0,
                     label=None if name in seen else name,
                 )
                 seen.add(name)
@@ -1438,7 +1442,7 @@ def sec_learning_curves(rep: Report, runs: list[Run]) -> None:
     others = [r for r in runs if r.plain and not on_the_ladder(r) and not is_recipe_run(r)]
     defaults = [r for r in ladder if r.plain and r.model == "explicit" and setting(r, drop_model=True) == "(defaults)"]
     for name, subset, title, by_setting in (
-        ("learning_curves.png", ladder, "the budget ladder and its ceilings: validation accuracy in training", False),
+        ("learning_curves.png", ladder, "the budget ladder and its ceilings: validation accuracy in training", True),
         (
             "learning_curves_settings.png",
             others + (defaults if others else []),

@@ -10,7 +10,7 @@ import yaml
 from disent import report
 from disent.eval.ablation import ablation_table, to_markdown
 from disent.eval.stability import training_stability
-from disent.runs import composed_config, find_runs, group_by_setting, pick_runs, record_run
+from disent.runs import Run, composed_config, find_runs, group_by_setting, pick_runs, record_run
 
 
 def make_run(
@@ -736,3 +736,15 @@ def test_rows_of_runs_that_left_no_record_are_kept_marked(tmp_path):
     )
     fourth = "\n".join(report.published_sections(report.build(out, roots=[tmp_path / "runs"]).read_text())["Runs"])
     assert f"`{gone}` |" in fourth and "‡ | explicit+no_bws" not in fourth  # measured again: one row, unmarked
+
+
+def test_curve_label_shares_a_setting_across_seeds_and_names_a_gpu(tmp_path):
+    from disent.report import curve_label
+
+    cpu0, cpu1, gpu = (
+        Run.load(make_run(tmp_path, name, seed=seed, extra=("+experiment=long",)))
+        for name, seed in (("c0", 0), ("c1", 1), ("g0", 0))
+    )
+    gpu.machine = {"device": "cuda", "gpu": "NVIDIA H100 80GB HBM3"}
+    assert curve_label(cpu0) == curve_label(cpu1) == "explicit: +experiment=long"
+    assert curve_label(gpu) == "explicit: +experiment=long (NVIDIA H100 80GB HBM3)"
