@@ -1232,7 +1232,14 @@ def sec_methods(rep: Report, eval_dir: Path) -> None:
         "thread (a network at that batch); metrics on the pixels the networks are scored on. The coarse fit is "
         "the simulated pseudo ground truth: it starts from the scene's parameters, so its time is a lower bound "
         "for a real fit; *landmarks + fit* is the real pipeline (dlib and the face model) on the renders, scored "
-        "where dlib found the face.\n",
+        "where dlib found the face."
+        + (
+            f" Load average {res['load']['before']:.1f} at the start and {res['load']['after']:.1f} at the end on "
+            f"{res['load']['cpus']} CPUs: above the CPU count, other work shared the cores and every time is "
+            "inflated alike, so compare the times with each other, not with another run's.\n"
+            if res.get("load")
+            else "\n"
+        ),
         *table_head("estimator", "ms / image", "images", *(label for _, label, _ in PANELS)),
     )
     for name, r in res["rows"].items():

@@ -1,6 +1,7 @@
 """Evaluation protocols and stability studies on an analytic stand-in for SynthFaces (tests/eval_fakes.py)."""
 
 import math
+import os
 
 import pytest
 import torch
@@ -256,6 +257,7 @@ def test_methods_plane_scores_each_estimator_on_the_same_images(tmp_path):
     res = json.loads((tmp_path / "methods.json").read_text())
     rows = res["rows"]
     assert res["n"] == 6 and (tmp_path / "methods.png").exists()
+    assert res["load"]["cpus"] == os.cpu_count() and res["load"]["before"] >= 0 and res["load"]["after"] >= 0
     mean, coarse = rows["mean map / mean light"], rows["coarse fit (simulated pseudo-GT)"]
     assert mean["seconds_per_image"] == 0.0 and mean["constant"]
     assert coarse["seconds_per_image"] > 0 and coarse["normal_mean"] < mean["normal_mean"]

@@ -3,6 +3,7 @@ order, periodic validation, a multirun of the three models."""
 
 import json
 import math
+import os
 import subprocess
 import sys
 import time
@@ -384,3 +385,23 @@ def test_rescore_rewrites_eval_json_and_keeps_the_bookkeeping(tmp_path, capsys):
     for k in ("albedo_si_mse", "trivial_sh_error", "normal_mean", "recon_mse"):
         assert again[k] == pytest.approx(first[k], rel=1e-6, abs=1e-9)  # the same weights, the same numbers
     assert "test metrics" in capsys.readouterr().out
+
+
+def test_ladder_gpu_script_trains_the_three_models_side_by_side_and_skips_finished_runs(tmp_path):
+    """ablations/ladder_gpu.sh, run here on the CPU (DEVICE=cpu) at a tiny budget: one folder per model, each
+    trained and evaluated; a second call finds them finished and starts nothing."""
+    root = Path(__file__).resolve().parents[1]
+    tiny = "train.max_steps=2 train.eval_size=8 data.test_size=8 train.val_size=4 train.val_every=0 "
+    tiny += "data.train_size=32 train.batch_size=4 train.checkpoint_every=2 train.threads=1"
+    env = {**os.environ, "DEVICE": "cpu", "WORKERS": "2", "PYTHON": sys.executable}
+    cmd = ["bash", str(root / "ablations" / "ladder_gpu.sh"), str(tmp_path), "3", *tiny.split()]
+    subprocess.run(cmd, cwd=root, env=env, check=True, capture_output=True, timeout=600)
+    for model in ("explicit", "implicit", "baseline"):
+        run = tmp_path / f"{model}_s3"
+        ev = json.loads((run / "eval.json").read_text())
+        assert ev["steps"] == 2
+        config = (run / ".hydra" / "config.yaml").read_text()
+        assert f"name: {model}" in config and "prefetch_workers: 2" in config and "seed: 3" in config
+    stamps = {p: p.stat().st_mtime_ns for p in tmp_path.glob("*/eval.json")}
+    subprocess.run(cmd, cwd=root, env=env, check=True, capture_output=True, timeout=60)
+    assert {p: p.stat().st_mtime_ns for p in tmp_path.glob("*/eval.json")} == stamps

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 
 import numpy as np
@@ -117,6 +118,7 @@ def measure(runs, n: int = 64, n_posterior: int = 8, seed: int = 0) -> dict:
     test = SynthFaces("test", 64, seed)
     gt = test.get_batch(range(n))
     rows = {}
+    load_before = os.getloadavg()[0]  # other work on the machine inflates every time alike; the report says how much
 
     def score(name, out, seconds, images=n, keep=None, **extra):
         g = gt if keep is None else subset(gt, keep)
@@ -163,7 +165,8 @@ def measure(runs, n: int = 64, n_posterior: int = 8, seed: int = 0) -> dict:
         out, sec = timed(predict, model, gt["image"])
         name = f"{cfg.model.name} network" + ("" if str(run) == cfg.model.name else f" ({run})")
         score(name, {k: v for k, v in out.items() if k in ("normal", "sh", "recon")}, sec / n)
-    return {"n": n, "threads": 1, "machine": __import__("platform").processor() or "cpu", "rows": rows}
+    load = {"before": load_before, "after": os.getloadavg()[0], "cpus": os.cpu_count()}
+    return {"n": n, "threads": 1, "machine": __import__("platform").processor() or "cpu", "load": load, "rows": rows}
 
 
 def plot(res: dict, path) -> None:
