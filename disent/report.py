@@ -1370,10 +1370,15 @@ def val_curves(run: Run) -> list[dict]:
     return out
 
 
+def trained_on_gpu(run: Run) -> str | None:
+    """The GPU ``run`` trained on (its ``machine.json``), or None for a CPU run or one that recorded no machine."""
+    return (run.machine or {}).get("gpu")
+
+
 def curve_label(run: Run) -> str:
     """A learning curve's legend label: the seeds of a setting share it; a GPU run names its GPU (its wall minutes
     are not the CPU's)."""
-    gpu = (run.machine or {}).get("gpu")
+    gpu = trained_on_gpu(run)
     return f"{run.variant}: {setting(run, drop_model=True)}" + (f" ({gpu})" if gpu else "")
 
 
@@ -1406,7 +1411,7 @@ def plot_learning_curves(runs: list[Run], path: Path, title: str = "", colour_by
                     *zip(*pts),
                     color=f"C{kinds.index(kind(r)) % 10}",
                     ls="-." if r.ceiling else "-",
-                    lw=2.0 if (r.machine or {}).get("gpu") else 1.0,
+                    lw=2.0 if trained_on_gpu(r) else 1.0,
                     label=None if name in seen else name,
                 )
                 seen.add(name)
