@@ -526,3 +526,20 @@ def test_eroded_pseudo_mask_drops_exactly_the_edge_ring():
     cut = item_data(item, 0.0, known_albedo=False, normals="normal_pseudo_eroded")
     assert full.n_pixels == 64 and cut.n_pixels == 36
     assert set(cut.index.tolist()) == {r * 12 + c for r in range(3, 9) for c in range(3, 9)}
+
+
+def test_oracle_geometries_swap_in_exactly_one_true_layer():
+    """The order study's oracle rows: ``oracle_uv`` is the eroded pseudo geometry with the texture model reached
+    through the true uv; ``oracle_normals`` is it with the true normals (same pixels, the pseudo uv)."""
+    from disent.data import SynthFaces
+    from disent.lighting.experiments import order_data
+    from disent.lighting.texture import texture_for
+
+    item = SynthFaces("val", 64, 0)[0]
+    pseudo, tex_pseudo = order_data(item, 0.02, 1, "texture", "normal_pseudo_eroded", n_components=4)
+    for normals, uv_key, same_normals in (("oracle_uv", "uv", True), ("oracle_normals", "uv_pseudo", False)):
+        data, tex = order_data(item, 0.02, 1, "texture", normals, n_components=4)
+        assert np.array_equal(data.index, pseudo.index) and np.array_equal(data.y, pseudo.y)
+        assert np.array_equal(data.basis, pseudo.basis) == same_normals
+        np.testing.assert_array_equal(tex[0], texture_for(data, item[uv_key], 4)[0])
+        assert np.array_equal(tex[0], tex_pseudo[0]) == (uv_key == "uv_pseudo")

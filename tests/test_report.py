@@ -326,6 +326,10 @@ def test_lighting_section_is_generated_from_the_published_json(tmp_path):
         "test/texture/normal_pseudo+geometry_noise": {"evidence": confusion(0.95), "bic": confusion(0.5)},
         "test/texture/normal_pseudo+residual_process": {"evidence": confusion(0.62), "bic": confusion(0.5)},
     }
+    for split, base, uv, normals in (("val", 0.53, 0.68, 0.45), ("test", 0.62, 0.8, 0.5)):  # the oracle rows
+        order[f"{split}/texture/normal_pseudo_eroded"] = {"evidence": confusion(base), "bic": confusion(base)}
+        order[f"{split}/texture/oracle_uv"] = {"evidence": confusion(uv), "bic": confusion(uv)}
+        order[f"{split}/texture/oracle_normals"] = {"evidence": confusion(normals), "bic": confusion(normals)}
     (d / "calibration.json").write_text(
         json.dumps({"lambertian/gaussian": {"inside68": 0.674, "inside95": 0.94, "z_rms": 1.02}, "settings": {"n": 10}})
     )
@@ -342,6 +346,10 @@ def test_lighting_section_is_generated_from_the_published_json(tmp_path):
         assert "(`texture/normal_pseudo+residual_process`, val 0.55)" in text
         assert f"on test: {acc:.2f} against the target {report.ORDER_TARGET:.2f}: **{verdict}**." in text
         assert "| lambertian / gaussian | 0.67 / 0.94 (1.0) | – |" in text and "settings" not in text
+        # an oracle row (val 0.68, above every noise model) is a diagnosis, never the chosen method
+        assert "| val | texture | pseudo normals + mask eroded 1 px, true uv (oracle) |" in text
+        assert "0.53/0.62 on the pseudo geometry, 0.68/0.80 with only its uv made true, 0.45/0.50 with only" in text
+        assert "Neither layer made true alone brings the test accuracy to the target" in text
     rep = report.Report(tmp_path / "empty")
     report.sec_lighting(rep, tmp_path / "empty")
     assert rep.lines[0].startswith(report.MISSING)

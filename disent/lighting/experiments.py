@@ -21,14 +21,25 @@ from disent.lighting.posterior import N_COEFFS, prepare, sample_posterior
 from disent.render import C4, fit_sh, sh_basis
 
 BANDS = {0: [0], 1: [1, 2, 3], 2: [4, 5, 6, 7, 8]}
-GEOMETRY = {
-    "normal": ("normal", "matte", "uv"),
-    "normal_pseudo": ("normal_pseudo", "mask_pseudo", "uv_pseudo"),
-    "normal_pseudo_eroded": ("normal_pseudo", "mask_pseudo", "uv_pseudo"),
-}
-# pixels taken off the mask's edge: the coarse fit's silhouette is where its geometry is least right (grazing
+# pixels taken off the pseudo mask's edge: the coarse fit's silhouette is where its geometry is least right (grazing
 # normals) and where it leaks onto hair or background (up to ~30 pixels of a val face lie outside its matte)
-EROSION = {"normal_pseudo_eroded": 1}
+EDGE = 1
+# geometry of a lighting fit: (normals, mask, uv of the texture model) keys of an item, and the report's label.
+# The two oracle rows each put one true layer into the pseudo geometry, to split its error between the coarse
+# fit's shape (its normals) and its misregistration (the uv through which the texture model reaches the image).
+GEOMETRY = {
+    "normal": ("normal", "matte", "uv", "true normals"),
+    "normal_pseudo": ("normal_pseudo", "mask_pseudo", "uv_pseudo", "pseudo normals + mask"),
+    "normal_pseudo_eroded": ("normal_pseudo", "mask_pseudo", "uv_pseudo", f"pseudo normals + mask eroded {EDGE} px"),
+    "oracle_uv": ("normal_pseudo", "mask_pseudo", "uv", f"pseudo normals + mask eroded {EDGE} px, true uv (oracle)"),
+    "oracle_normals": (
+        "normal",
+        "mask_pseudo",
+        "uv_pseudo",
+        f"true normals, pseudo mask eroded {EDGE} px and uv (oracle)",
+    ),
+}
+EROSION = {"normal_pseudo_eroded": EDGE, "oracle_uv": EDGE, "oracle_normals": EDGE}
 ALBEDO = ("known", "constant", "texture")
 
 
@@ -48,7 +59,7 @@ def item_data(
 ):
     """One item's pixels on its true (``normals="normal"``, matte) or pseudo (``normal_pseudo``,
     mask_pseudo) geometry; ``mask`` overrides the mask."""
-    n_key, m_key, _ = GEOMETRY[normals]
+    n_key, m_key = GEOMETRY[normals][:2]
     mask = item[m_key] if mask is None else mask
     if EROSION.get(normals):
         mask = eroded(mask, EROSION[normals])
@@ -295,6 +306,8 @@ ORDER_ROWS = (
     ("texture", "normal_pseudo", "residual_process"),
     ("texture", "normal_pseudo_eroded"),
     ("texture", "normal_pseudo_eroded", "residual_process"),
+    ("texture", "oracle_uv"),
+    ("texture", "oracle_normals"),
 )
 RESIDUAL_GRID = {"rho": (1.0, 3.0, 10.0, 30.0, 100.0, 300.0, 1000.0), "ell": (0.5, 1.0, 2.0, 4.0)}
 
