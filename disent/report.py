@@ -1890,7 +1890,7 @@ def build(
     out = Path(out)
     eval_dir = out / "eval"
     missing = [str(r) for r in roots if not Path(r).is_dir()]
-    if missing:
+    if missing and any("runs" in SECTIONS[s][2] for s in sections or SECTIONS):  # a run root only where runs are read
         raise FileNotFoundError(f"run root(s) not found: {', '.join(missing)}")
     for folder in publish_folders:
         print(f"published {len(publish(folder, out))} file(s) of {folder}")
@@ -1902,6 +1902,7 @@ def build(
         stability.main(["--out", str(folder), "--roots", *map(str, roots)])
         publish(folder, out)
     records = out / "runs"  # the records of the runs the report has read (record_run)
+    roots = [r for r in roots if Path(r).is_dir()]
     for r in find_runs(roots):
         if r.status != "incomplete" and r.recorded_from is None:
             record_run(r, records)

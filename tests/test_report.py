@@ -169,6 +169,10 @@ def test_sections_builds_only_the_named_sections(tmp_path):
     assert again.split("## Runs")[0].count("*Kept sections:*") == 2  # the full build's two lines, carried once
     with pytest.raises(SystemExit):
         report.main(["--out", str(out), "--roots", str(tmp_path / "runs"), "--sections", "claim"])
+    gone = tmp_path / "gone"  # a missing run root stops only a build that reads runs
+    assert "## Runs" in report.build(out, roots=[gone], n_vis=2, sections=["bench"]).read_text()
+    with pytest.raises(FileNotFoundError, match="run root"):
+        report.build(out, roots=[gone], n_vis=2, sections=["claims"])
 
 
 def test_run_status_callback_marks_nan(tmp_path):
