@@ -1106,6 +1106,39 @@ def _stability_ood(rep: Report, res: dict) -> None:
             sh_range, sh_at = breaks(c.get("sh_error"))
             rep.add(f"| {effect} | {est} | {n_range} | {n_at} | {sh_range} | {sh_at} |")
     rep.add("")
+    uv = [(e, est, c) for e, curves in res["effects"].items() for est, c in curves.items() if c.get("uv_error")]
+    if uv:  # why the implicit model's normals break: its UV map, or its UV-space normals
+        rep.add(
+            "Why a UV model's normals break: its UV map against the true one (*uv error*, UV units) and its "
+            "UV-space normals looked up at the true UV (`disent.eval.evaluate.uv_metrics`), each read at the "
+            f"severity where the normals break: a step whose error has passed {BREAK_FACTOR:g}x its clean value "
+            "there has failed.\n",
+            *table_head(
+                "effect", "estimator", "uv error: clean -> worst", "normals at the true UV (deg)", "normals break in"
+            ),
+        )
+        for effect, est, c in uv:
+            at = first_past(sev, c["normal_mean"], c["normal_mean"][0], BREAK_FACTOR)
+            looked_up = c["normal_at_true_uv_mean"]
+            if at is None:
+                where = "–"
+            else:
+                i = sev.index(at)
+                failed = [
+                    step
+                    for step, curve in (("the UV map", c["uv_error"]), ("the UV-space normals", looked_up))
+                    if curve[i] >= BREAK_FACTOR * curve[0]
+                ]
+                where = " and ".join(failed) or "neither step alone"
+                where += (
+                    f" (at {at:g}: uv error {c['uv_error'][i]:.3g}, normals {c['normal_mean'][i]:.3g} deg, "
+                    f"{looked_up[i]:.3g} at the true UV)"
+                )
+            rep.add(
+                f"| {effect} | {est} | {c['uv_error'][0]:.3g} -> {max(c['uv_error']):.3g} | "
+                f"{looked_up[0]:.3g} -> {max(looked_up):.3g} | {where} |"
+            )
+        rep.add("")
 
 
 def _stability_bws(rep: Report, res: dict) -> None:

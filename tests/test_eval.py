@@ -301,3 +301,28 @@ def test_sh_variance_groups_put_the_seeds_of_a_setting_in_one_bar():
     groups = sh_variance_groups({"estimators": est, "runs": runs})
     assert {k: len(v) for k, v in groups.items()} == {"ls_pseudo": 1, "explicit a": 2}
     assert set(sh_variance_groups({"estimators": est})) == {"ls_pseudo", "explicit a seed 0", "explicit a seed 1"}
+
+
+def test_uv_metrics_score_the_uv_map_and_the_uv_space_normals_apart():
+    """The implicit model's UV map and its UV-space normals, scored apart: at the true UV the looked-up normals are
+    the model's own; a UV map off by (0.03, 0.04) is 0.05 off and moves the model's normals, not the looked-up ones."""
+    from disent.data import SynthFaces
+    from disent.models.implicit import sample_uv
+    from disent.render import unit
+
+    gt = SynthFaces("test", 64, 0).get_batch(range(4))
+    g = torch.Generator().manual_seed(0)
+    normal_uv = unit(torch.nn.functional.interpolate(torch.randn(4, 3, 4, 4, generator=g), size=64, mode="bilinear"))
+    normal_uv[:, 2] = normal_uv[:, 2].abs() + 0.5  # facing the camera, smooth
+    normal_uv = unit(normal_uv)
+
+    def metrics(uv):
+        out = {"uv": uv, "normal_uv": normal_uv, "normal": unit(sample_uv(normal_uv, uv))}
+        return metrics_from_outputs(out, gt)
+
+    exact = metrics(gt["uv"])
+    assert exact["uv_error"] == 0 and exact["normal_at_true_uv_mean"] == pytest.approx(exact["normal_mean"], abs=1e-4)
+    shifted = metrics(gt["uv"] + torch.tensor([0.03, 0.04])[None, :, None, None])
+    assert shifted["uv_error"] == pytest.approx(0.05, rel=1e-5)
+    assert shifted["normal_at_true_uv_mean"] == pytest.approx(exact["normal_at_true_uv_mean"], abs=1e-6)
+    assert abs(shifted["normal_mean"] - exact["normal_mean"]) > 0.1

@@ -760,3 +760,32 @@ def test_curve_label_shares_a_setting_across_seeds_and_names_a_gpu(tmp_path):
     gpu.machine = {"device": "cuda", "gpu": "NVIDIA H100 80GB HBM3"}
     assert curve_label(cpu0) == curve_label(cpu1) == "explicit: +experiment=long"
     assert curve_label(gpu) == "explicit: +experiment=long (NVIDIA H100 80GB HBM3)"
+
+
+def test_ood_section_says_where_a_uv_model_breaks(tmp_path):
+    """The out-of-distribution table, and for a model with a UV map the step its normals break in, read where they
+    break: the UV map, the UV-space normals looked up at the true UV, or both."""
+
+    def curves(normal, uv, looked_up):
+        return {"implicit": {"normal_mean": normal, "uv_error": uv, "normal_at_true_uv_mean": looked_up}}
+
+    res = {
+        "severities": [0.0, 0.5, 1.0],
+        "n": 8,
+        "effects": {
+            "yaw": curves([10.0, 12.0, 30.0], [0.02, 0.03, 0.2], [9.0, 10.0, 11.0]),
+            "noise": curves([10.0, 16.0, 20.0], [0.02, 0.02, 0.03], [9.0, 15.0, 19.0]),
+            "occluder": curves([10.0, 20.0, 20.0], [0.02, 0.1, 0.1], [9.0, 20.0, 20.0]),
+            "light": curves([10.0, 11.0, 12.0], [0.02, 0.02, 0.02], [9.0, 9.5, 10.0]),
+        },
+    }
+    rep = report.Report(tmp_path)
+    report._stability_ood(rep, res)
+    text = "\n".join(rep.lines)
+    assert "| yaw | implicit | 10 -> 30 | 1 |" in text and "| light | implicit | 10 -> 12 | – |" in text
+    assert "| yaw | implicit | 0.02 -> 0.2 | 9 -> 11 | the UV map (at 1: uv error 0.2, normals 30 deg, 11 at" in text
+    assert (
+        "| noise | implicit | 0.02 -> 0.03 | 9 -> 19 | the UV-space normals (at 0.5: uv error 0.02, normals 16" in text
+    )
+    assert "| occluder | implicit | 0.02 -> 0.1 | 9 -> 20 | the UV map and the UV-space normals (at 0.5:" in text
+    assert "| light | implicit | 0.02 -> 0.02 | 9 -> 10 | – |" in text

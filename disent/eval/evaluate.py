@@ -52,7 +52,11 @@ def _cat(parts):
 
 
 def model_outputs(
-    model, dataset, limit: int = 256, batch_size: int = 64, keys=("recon", "normal", "albedo", "shading", "sh", "matte")
+    model,
+    dataset,
+    limit: int = 256,
+    batch_size: int = 64,
+    keys=("recon", "normal", "albedo", "shading", "sh", "matte", "uv", "normal_uv"),
 ):
     """Concatenated model outputs and ground truth over the first ``limit`` items, plus images/s."""
     outs, gts, seconds = [], [], 0.0
@@ -161,7 +165,27 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
             m[name] = scale_invariant_mse(sh_shading(gt["normal"].double(), sh.double()), true_shading, region)
     if {"albedo", "shading"} <= set(out) and "shading" in gt:
         m.update(bws_stats(out, gt))
+    if {"uv", "normal_uv"} <= set(out) and "uv" in gt:
+        m.update(uv_metrics(out, gt))
     return m
+
+
+def uv_metrics(out: dict, gt: dict) -> dict:
+    """The implicit model's two steps, scored apart on the pixels of :func:`decomposed_region`: ``uv_error``, the
+    distance of its UV map from the true one (UV units: the texture square is 1 wide), and
+    ``normal_at_true_uv_mean``, the angular error of its UV-space normals looked up at the true UV.  Normals
+    right at the true UV but wrong at its own say the UV map failed; wrong at both, the UV-space normals did."""
+    from disent.models.implicit import sample_uv
+    from disent.render import unit
+
+    region = decomposed_region(gt)
+    w = region[:, 0].to(out["uv"].dtype)
+    distance = (out["uv"] - gt["uv"].to(out["uv"].dtype)).norm(dim=1)  # [B,H,W]
+    looked_up = unit(sample_uv(out["normal_uv"], gt["uv"].to(out["normal_uv"].dtype)))
+    return {
+        "uv_error": ((distance * w).sum() / w.sum().clamp_min(1)).item(),
+        "normal_at_true_uv_mean": normal_angular_error(looked_up, gt["normal"], region)["mean"],
+    }
 
 
 def evaluate_model(model, dataset, limit: int = 256, batch_size: int = 64, trivial: dict | None = None) -> dict:
@@ -183,6 +207,7 @@ __all__ = [
     "model_outputs",
     "metrics_from_outputs",
     "bws_stats",
+    "uv_metrics",
     "evaluate_model",
 ]
 

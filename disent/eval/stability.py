@@ -173,7 +173,7 @@ def ood_batch(dataset_cls, effect: str, severity: float, n: int, resolution: int
     return get_batch(ds, range(n))
 
 
-OOD_KEYS = ("recon_face_mse", "normal_mean", "albedo_si_mse", "sh_error")
+OOD_KEYS = ("recon_face_mse", "normal_mean", "albedo_si_mse", "sh_error", "uv_error", "normal_at_true_uv_mean")
 
 
 def ood_curves(
