@@ -1824,8 +1824,11 @@ def sec_lighting(rep: Report, out: Path) -> None:
                 f"(`{chosen[4:]}`, val {order[chosen]['evidence']['accuracy']:.2f}), on test: {acc:.2f} against "
                 f"the target {ORDER_TARGET:.2f}: **{'reached' if acc >= ORDER_TARGET else 'not reached'}**.\n",
             )
-        rows = {"normal_pseudo_eroded": "on the pseudo geometry", "oracle_uv": "with only its uv made true"}
-        rows["oracle_normals"] = "with only its normals made true"
+        rows = {
+            "normal_pseudo_eroded": "on the pseudo geometry",
+            "oracle_uv": "with only its uv made true",
+            "oracle_normals": "with only its normals made true",
+        }
         accuracy = {  # the oracle rows and the pseudo geometry they start from, texture model, i.i.d. noise
             (split, k): order[f"{split}/texture/{k}"]["evidence"]["accuracy"]
             for split in ("val", "test")
@@ -1935,7 +1938,7 @@ def build(
         stability.main(["--out", str(folder), "--roots", *map(str, roots)])
         publish(folder, out)
     records = out / "runs"  # the records of the runs the report has read (record_run)
-    roots = [r for r in roots if Path(r).is_dir()]
+    roots = [r for r in roots if str(r) not in missing]
     for r in find_runs(roots):
         if r.status != "incomplete" and r.recorded_from is None:
             record_run(r, records)

@@ -166,24 +166,23 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     if {"albedo", "shading"} <= set(out) and "shading" in gt:
         m.update(bws_stats(out, gt))
     if {"uv", "normal_uv"} <= set(out) and "uv" in gt:
-        m.update(uv_metrics(out, gt))
+        m.update(uv_metrics(out, gt, region))
     return m
 
 
-def uv_metrics(out: dict, gt: dict) -> dict:
-    """The implicit model's two steps, scored apart on the pixels of :func:`decomposed_region`: ``uv_error``, the
+def uv_metrics(out: dict, gt: dict, region: torch.Tensor) -> dict:
+    """The implicit model's two steps, scored apart on ``region`` (:func:`decomposed_region`): ``uv_error``, the
     distance of its UV map from the true one (UV units: the texture square is 1 wide), and
     ``normal_at_true_uv_mean``, the angular error of its UV-space normals looked up at the true UV.  Normals
     right at the true UV but wrong at its own say the UV map failed; wrong at both, the UV-space normals did."""
+    from disent.losses import masked_mean
     from disent.models.implicit import sample_uv
     from disent.render import unit
 
-    region = decomposed_region(gt)
-    w = region[:, 0].to(out["uv"].dtype)
-    distance = (out["uv"] - gt["uv"].to(out["uv"].dtype)).norm(dim=1)  # [B,H,W]
+    distance = (out["uv"] - gt["uv"].to(out["uv"].dtype)).norm(dim=1, keepdim=True)  # [B,1,H,W]
     looked_up = unit(sample_uv(out["normal_uv"], gt["uv"].to(out["normal_uv"].dtype)))
     return {
-        "uv_error": ((distance * w).sum() / w.sum().clamp_min(1)).item(),
+        "uv_error": masked_mean(distance, region.to(distance.dtype)).item(),
         "normal_at_true_uv_mean": normal_angular_error(looked_up, gt["normal"], region)["mean"],
     }
 
