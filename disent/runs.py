@@ -57,6 +57,19 @@ def write_git_revision(run_dir: Path) -> None:
     (run_dir / "git.txt").write_text(text)
 
 
+def cpu_name() -> str:
+    """The processor's model name (``/proc/cpuinfo`` on Linux), else what :mod:`platform` knows."""
+    import platform
+
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
 def machine_info(device="cpu", threads=None) -> dict:
     """What a number was measured on: system, processor, CPU count, torch build, device (with the GPU's name)."""
     import platform
@@ -65,7 +78,7 @@ def machine_info(device="cpu", threads=None) -> dict:
 
     info = {
         "system": platform.platform(),
-        "processor": platform.processor() or platform.machine(),
+        "processor": cpu_name(),
         "cpus": os.cpu_count(),
         "torch": torch.__version__,
         "device": str(device),

@@ -16,13 +16,14 @@ from __future__ import annotations
 
 import json
 import os
-import platform
 import statistics
 import time
 from pathlib import Path
 from typing import Callable, Sequence
 
 import torch
+
+from disent.runs import cpu_name
 
 BENCH_JSON = Path("bench.json")  # in the bench tool folder; published to reports/bench.json
 DEVICE = "cpu"  # set by --device
@@ -81,7 +82,7 @@ def machine_info() -> dict:
         "torch": torch.__version__,
         "threads": torch.get_num_threads(),
         "device": DEVICE if DEVICE == "cpu" else f"{DEVICE} ({torch.cuda.get_device_name(DEVICE)})",
-        "cpu": platform.processor() or platform.machine(),
+        "cpu": cpu_name(),
         "cpu_count": os.cpu_count(),
     }
 
@@ -97,6 +98,9 @@ def save(section: str, figures: dict, path: Path = BENCH_JSON) -> None:
     figures = dict(figures)
     data.update(figures.pop("top", {}))
     data[section] = figures
+    # the 1-minute load average as the section is written (the benchmark's own threads count in it): more than
+    # the thread count means other work shared the cores
+    data.setdefault("load_average_1min", {})[section] = round(os.getloadavg()[0], 2)
     from disent.runs import atomic_write
 
     atomic_write(path, lambda f: f.write(json.dumps(data, indent=2, sort_keys=True).encode()))

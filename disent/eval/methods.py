@@ -32,6 +32,7 @@ import numpy as np
 import torch
 
 from disent.eval.evaluate import metrics_from_outputs, predict
+from disent.runs import cpu_name
 
 PANELS = (
     ("normal_mean", "normal error (deg)", False),
@@ -166,7 +167,7 @@ def measure(runs, n: int = 64, n_posterior: int = 8, seed: int = 0) -> dict:
         name = f"{cfg.model.name} network" + ("" if str(run) == cfg.model.name else f" ({run})")
         score(name, {k: v for k, v in out.items() if k in ("normal", "sh", "recon")}, sec / n)
     load = {"before": load_before, "after": os.getloadavg()[0], "cpus": os.cpu_count()}
-    return {"n": n, "threads": 1, "machine": __import__("platform").processor() or "cpu", "load": load, "rows": rows}
+    return {"n": n, "threads": 1, "machine": cpu_name(), "load": load, "rows": rows}
 
 
 def plot(res: dict, path) -> None:
