@@ -1113,7 +1113,8 @@ def _stability_ood(rep: Report, res: dict) -> None:
         f"Where each estimator breaks: the first severity at which its error passes {BREAK_FACTOR:g}x its error on "
         f"clean images ({res['n']} test images a point; `–`: not within the range). `light` turns the light "
         "out of the training prior (severity x 180 deg about the camera's x axis); `yaw` turns every face to "
-        "severity x 90 deg (the prior spans +-45 deg).\n",
+        "severity x 90 deg (the prior spans +-45 deg); `scale` draws every face at (1 - severity / 2) times its "
+        "scale (the prior spans +-10 %), the framing real photos' crops and heads vary in.\n",
         *table_head(
             "effect", "estimator", "normal error: clean -> worst", "breaks at", "SH error: clean -> worst", "breaks at"
         ),

@@ -274,6 +274,18 @@ def test_yaw_effect_turns_every_face_to_the_severity_s_yaw():
     assert "yaw" in st.EFFECTS
 
 
+def test_scale_effect_shrinks_every_face_and_its_pseudo_fit():
+    from disent.data import SynthFaces
+    from disent.eval import stability as st
+
+    clean, half = (st.ood_batch(SynthFaces, "scale", s, n=4, resolution=64) for s in (0.0, 0.5))
+    k = (1 - 0.5 * st.MAX_SHRINK) ** 2  # areas go with the square of the scale
+    for key in ("matte", "mask_pseudo"):
+        ratio = (half[key] > 0.5).float().sum((1, 2, 3)) / (clean[key] > 0.5).float().sum((1, 2, 3))
+        assert torch.allclose(ratio, torch.full_like(ratio, k), atol=0.08), (key, ratio)
+    assert torch.equal(clean["pose"], half["pose"]) and torch.equal(clean["sh"], half["sh"])  # only the scale
+
+
 def test_stability_studies_without_runs_write_nothing(tmp_path):
     """A study whose sweeps are absent writes no JSON, so publishing its folder cannot replace a published
     study with an empty one."""

@@ -39,8 +39,9 @@ BLOWUP = 10.0  # a condition number this many times the well-posed one marks the
 YAWS = (0, 10, 20, 30, 40, 45, 50, 60, 70, 80, 90)
 MASK_FRACTIONS = (1.0, 0.7, 0.5, 0.3, 0.2, 0.1, 0.05, 0.02)
 SEVERITIES = (0.0, 0.25, 0.5, 0.75, 1.0)
-EFFECTS = ("specular", "cast_shadow", "noise", "occluder", "light", "yaw")
+EFFECTS = ("specular", "cast_shadow", "noise", "occluder", "light", "yaw", "scale")
 MAX_YAW = 90.0  # the yaw effect at severity 1 (the training prior spans +-45 degrees)
+MAX_SHRINK = 0.5  # the scale effect at severity 1 draws each face at half its scale (the prior spans +-10 %)
 MIN_PIXELS = 9  # 9 unknowns per channel
 ORACLE_NOISE = 0.02  # sensor noise of the oracle fit (images in [0, 1])
 LS_ESTIMATORS = ("ls_pseudo", "ls_true", "ls_oracle_noisy")
@@ -163,11 +164,14 @@ def tilt_light(sh: torch.Tensor, severity: float) -> torch.Tensor:
 
 def ood_batch(dataset_cls, effect: str, severity: float, n: int, resolution: int = 64) -> dict:
     """``n`` test items with one effect at ``severity`` (``light``: the tilted light; ``yaw``: every face turned
-    to ``severity x MAX_YAW`` degrees, pitch = roll = 0)."""
-    if effect in ("light", "yaw"):
+    to ``severity x MAX_YAW`` degrees, pitch = roll = 0; ``scale``: every face drawn at ``1 - severity x
+    MAX_SHRINK`` times its scale, its pseudo-GT fit with it)."""
+    if effect in ("light", "yaw", "scale"):
         ds = dataset_cls(split="test", resolution=resolution, seed=0)
         if effect == "yaw":
             return get_batch(ds, range(n), pose=torch.tensor([severity * MAX_YAW, 0.0, 0.0]))
+        if effect == "scale":
+            return get_batch(ds, range(n), scale=ds.params(range(n))["scale"] * (1 - severity * MAX_SHRINK))
         return get_batch(ds, range(n), sh=tilt_light(get_batch(ds, range(n))["sh"], severity))
     ds = dataset_cls(split="test", resolution=resolution, seed=0, effects={effect: severity} if severity > 0 else None)
     return get_batch(ds, range(n))
@@ -412,7 +416,8 @@ def plot_ood(res: dict, path) -> None:
                 if k in c:
                     ax.plot(res["severities"], c[k], "o-", ms=3, color=colour[name], label=name)
             if i == 0:
-                ax.set_title(f"yaw (severity x {MAX_YAW:g} deg)" if e == "yaw" else e, fontsize=9)
+                titles = {"yaw": f"yaw (severity x {MAX_YAW:g} deg)", "scale": f"scale (x 1 - {MAX_SHRINK:g} severity)"}
+                ax.set_title(titles.get(e, e), fontsize=9)
             if j == 0:
                 ax.set_ylabel(k, fontsize=8)
             if i == len(keys) - 1:
