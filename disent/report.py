@@ -1322,7 +1322,7 @@ def sec_methods(rep: Report, eval_dir: Path) -> None:
 def sec_photos(rep: Report, out: Path) -> None:
     """The shipped models on real photos: the domain gap against the pseudo ground truth, beside the training set's
     constants, and the decompositions (``reports/photos/``, published from ``python -m disent.eval.photos``)."""
-    from disent.eval.photos import GAP_TEXT, gap_table
+    from disent.eval.photos import GAP_TEXT, anatomy_table, gap_table
 
     folder = out / "photos"
     gaps = []
@@ -1342,6 +1342,8 @@ def sec_photos(rep: Report, out: Path) -> None:
         f"face model; its accuracy on renders: `photos/pseudo_gt.md`). {GAP_TEXT}\n",
         *gap_table(gaps),
         "",
+        *(anatomy := anatomy_table(gaps)),
+        *([""] if anatomy else []),
     )
     for g in gaps:
         for kind, alt in (("decomposition", "decomposition"), ("relight", "relighting")):

@@ -556,6 +556,26 @@ def test_domain_gap_numbers_on_photo_records(tmp_path):
     assert gap["trivial_sh_vs_pseudo_mse"] == pytest.approx(0, abs=1e-6)
 
 
+def test_grayscale_and_zoom_of_a_photo_batch(tmp_path):
+    from disent.eval.photos import grayscale, photo_batch, zoomed
+
+    records, _ = photo_records_and_model(tmp_path)
+    batch = photo_batch(records)
+    gray = grayscale(batch["image"])
+    assert torch.equal(gray[:, 0], gray[:, 1]) and torch.equal(gray[:, 1], gray[:, 2])
+    white = grayscale(torch.ones(1, 3, 2, 2))
+    assert torch.allclose(white, torch.ones_like(white))  # the luma weights sum to 1
+    same = zoomed(batch, 1.0)  # x1 is the identity
+    for k in ("image", "normal_pseudo", "mask_pseudo"):
+        on = batch["mask_pseudo"][:, 0] > 0.5 if k == "normal_pseudo" else slice(None)
+        a, b = (x.movedim(1, -1)[on] if k == "normal_pseudo" else x for x in (same[k], batch[k]))
+        assert torch.allclose(a, b, atol=1e-3), k  # the cached normals are stored at reduced precision
+    twice = zoomed(batch, 2.0)  # the mask's area grows with the square of the zoom, less what leaves the crop
+    ratio = twice["mask_pseudo"].sum() / batch["mask_pseudo"].sum()
+    assert 2.5 < ratio <= 4.05
+    assert torch.allclose(twice["normal_pseudo"].norm(dim=1)[twice["mask_pseudo"][:, 0] > 0.5], torch.tensor(1.0))
+
+
 @pytest.mark.slow
 def test_photo_figures(tmp_path):
     from disent.eval.photos import figures, photo_batch

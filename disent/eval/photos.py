@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
 from disent.data.photos import pseudo_gt as pg
 from disent.images import over_max, to_array
@@ -34,6 +35,33 @@ def photo_batch(records: list) -> dict:
         "normal_pseudo": f("normal_pseudo"),
         "mask_pseudo": f("mask_pseudo"),
         "sh_pseudo": f("sh_pseudo"),
+    }
+
+
+ZOOMS = (0.8, 0.9, 1.0, 1.1, 1.25)  # the photo crops magnified about their centre (1: the pseudo-GT template's framing)
+
+
+def grayscale(image: torch.Tensor) -> torch.Tensor:
+    """``image [B,3,H,W]`` as its luma (ITU-R BT.601) in all three channels: an LFW photo's colour."""
+    luma = (image * image.new_tensor([0.299, 0.587, 0.114])[:, None, None]).sum(1, keepdim=True)
+    return luma.expand_as(image).contiguous()
+
+
+def zoomed(batch: dict, zoom: float) -> dict:
+    """The photo ``batch`` (:func:`photo_batch`) magnified ``zoom`` times about the crop's centre: the image
+    (its edge pixels repeated past the crop), ``normal_pseudo`` and ``mask_pseudo`` alike."""
+    image = batch["image"]
+    theta = image.new_tensor([[1 / zoom, 0, 0], [0, 1 / zoom, 0]]).expand(len(image), 2, 3)
+    grid = F.affine_grid(theta, list(image.shape), align_corners=False)
+
+    def warp(x, mode, padding):
+        return F.grid_sample(x, grid, mode=mode, padding_mode=padding, align_corners=False)
+
+    return {
+        **batch,
+        "image": warp(image, "bilinear", "border"),
+        "normal_pseudo": F.normalize(warp(batch["normal_pseudo"], "bilinear", "zeros"), dim=1),
+        "mask_pseudo": warp(batch["mask_pseudo"], "nearest", "zeros"),
     }
 
 
@@ -134,6 +162,10 @@ def apply_run(run_dir, records: list, out: Path, n_show: int = 8) -> dict:
         "training": budget,
         "photos": gap_metrics(model, photos, trivial),
         "synthfaces_test": gap_metrics(model, synth, trivial),
+        "anatomy": {  # what the gap is made of: the photos' colour, and the framing of their crops
+            "synthfaces_test_grayscale": gap_metrics(model, {**synth, "image": grayscale(synth["image"])}, trivial),
+            "photos_zoom": {f"{z:g}": gap_metrics(model, zoomed(photos, z), trivial) for z in ZOOMS},
+        },
         "tag": tag,
     }
     (out / f"domain_gap_{tag}.json").write_text(json.dumps(gap, indent=2) + "\n")
@@ -200,6 +232,42 @@ def gap_table(gaps: list[dict]) -> list[str]:
     return lines
 
 
+def anatomy_table(gaps: list[dict]) -> list[str]:
+    """What the gap is made of (Markdown lines; results with an ``anatomy``): each model's normals against
+    ``normal_pseudo`` on SynthFaces in colour and in gray (LFW's photos are gray), and on the photos with their
+    crops magnified about the centre (:data:`ZOOMS`; 1 is the template's framing, which matches SynthFaces')."""
+    from disent.report import table_head
+
+    gaps = [g for g in gaps if "normal_vs_pseudo_deg" in g.get("anatomy", {}).get("synthfaces_test_grayscale", {})]
+    if not gaps:
+        return []
+    zooms = list(gaps[0]["anatomy"]["photos_zoom"])
+    lines = [
+        "Normals against `normal_pseudo` (deg) where the domains differ one way at a time: SynthFaces' test faces "
+        "in colour and turned gray, and the photos' crops magnified about their centre (x1: the template's framing, "
+        "the SynthFaces faces' mean size).\n",
+        *table_head("model (tag)", "SynthFaces", "SynthFaces gray", *(f"photos x{z}" for z in zooms)),
+    ]
+    for g in gaps:
+        a = g["anatomy"]
+        cells = [g["synthfaces_test"], a["synthfaces_test_grayscale"], *(a["photos_zoom"][z] for z in zooms)]
+        degrees = " | ".join(f"{m['normal_vs_pseudo_deg']:.2f}" for m in cells)
+        lines.append(f"| {g['model']} ({g['tag']}) | {degrees} |")
+    lines.append("")
+    for g in gaps:  # how much of the gap (photos at x1 over SynthFaces) each difference accounts for
+        a, deg = g["anatomy"], lambda m: m["normal_vs_pseudo_deg"]  # noqa: E731
+        gap = deg(g["photos"]) - deg(g["synthfaces_test"])
+        gray = deg(a["synthfaces_test_grayscale"]) - deg(g["synthfaces_test"])
+        best = min(zooms, key=lambda z: deg(a["photos_zoom"][z]))
+        reframed = round(deg(g["photos"]) - deg(a["photos_zoom"][best]), 2) + 0.0  # no "-0.00"
+        small = max(gray, reframed) < 0.25 * gap
+        lines.append(
+            f"- {g['tag']}: the gap is {gap:.2f} deg; gray faces account for {gray:.2f} of it, and the best framing "
+            f"(x{best}) for {reframed:.2f}" + (": most of the gap lies in the faces' appearance." if small else ".")
+        )
+    return lines
+
+
 GAP_TEXT = (
     "Every number is against the *pseudo* ground truth, the same landmark-fit rendering on both domains; reference: "
     "as many SynthFaces test faces. *Mean map* and *mean L-hat*: the training set's mean normal map and mean L-hat "
@@ -216,6 +284,8 @@ def gap_markdown(gaps: list[dict], command: str) -> str:
                 f"`{command}` (numbers: `domain_gap_<tag>.json`; figures: `decomposition_<tag>.png`, "
                 f"`relight_<tag>.png`). {GAP_TEXT}\n",
                 *gap_table(gaps),
+                "",
+                *anatomy_table(gaps),
             ]
         )
         + "\n"
