@@ -1844,7 +1844,7 @@ def sec_lighting(rep: Report, out: Path) -> None:
             "with rho and ell by maximum likelihood on train scenes' residuals at their true light "
             f"({residual_text(d)}; `select_order(..., residual=(rho, ell))`). *Eroded mask*: the pseudo mask less "
             "its edge pixels, where the coarse fit's normals graze and its silhouette leaks onto hair or background "
-            "(`disent.lighting.experiments.EROSION`). *Oracle* rows put one true layer into the pseudo geometry, "
+            "(`disent.lighting.experiments.GEOMETRY`). *Oracle* rows put one true layer into the pseudo geometry, "
             "to say which of its errors costs the choice: the true uv (the texture model registered to the face) "
             "or the true normals (`disent.lighting.experiments.GEOMETRY`). Constants were chosen on val; test only "
             "reports; the order study alone: `python -m disent.lighting task=order`.\n",
@@ -1860,7 +1860,7 @@ def sec_lighting(rep: Report, out: Path) -> None:
         for key, r in order.items():
             split, albedo, geometry = key.split("/", 2)
             normals, _, noise = geometry.partition("+")
-            geometry = GEOMETRY[normals][3] + (f", {noise.replace('_', ' ')}" if noise else "")
+            geometry = GEOMETRY[normals].label + (f", {noise.replace('_', ' ')}" if noise else "")
             ev, bic = r["evidence"], r["bic"]
             rep.add(
                 f"| {split} | {albedo} | {geometry} | {ev['confusion']} | {_pct(ev['accuracy'])} | "

@@ -507,7 +507,7 @@ def test_residual_process_maximum_likelihood_finds_the_generating_constants():
 
 
 def test_eroded_pseudo_mask_drops_exactly_the_edge_ring():
-    from disent.lighting.experiments import EROSION, eroded, item_data
+    from disent.lighting.experiments import GEOMETRY, eroded, item_data
 
     m = torch.zeros(1, 8, 8)
     m[0, 2:7, 1:6] = 1  # a 5 x 5 square
@@ -521,7 +521,7 @@ def test_eroded_pseudo_mask_drops_exactly_the_edge_ring():
         "normal_pseudo": torch.nn.functional.normalize(torch.rand(3, 12, 12) + 0.5, dim=0),
         "mask_pseudo": big,
     }
-    assert EROSION["normal_pseudo_eroded"] == 1
+    assert GEOMETRY["normal_pseudo_eroded"].erosion == 1 and GEOMETRY["normal_pseudo"].erosion == 0
     full = item_data(item, 0.0, known_albedo=False, normals="normal_pseudo")
     cut = item_data(item, 0.0, known_albedo=False, normals="normal_pseudo_eroded")
     assert full.n_pixels == 64 and cut.n_pixels == 36

@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -24,22 +25,33 @@ BANDS = {0: [0], 1: [1, 2, 3], 2: [4, 5, 6, 7, 8]}
 # pixels taken off the pseudo mask's edge: the coarse fit's silhouette is where its geometry is least right (grazing
 # normals) and where it leaks onto hair or background (up to ~30 pixels of a val face lie outside its matte)
 EDGE = 1
-# geometry of a lighting fit: (normals, mask, uv of the texture model) keys of an item, and the report's label.
-# The two oracle rows each put one true layer into the pseudo geometry, to split its error between the coarse
-# fit's shape (its normals) and its misregistration (the uv through which the texture model reaches the image).
+
+
+# geometry of a lighting fit: the normals, mask and uv (of the texture model) keys of an item, the pixels eroded
+# off the mask's edge, and the report's label. The two oracle rows each put one true layer into the pseudo
+# geometry, to split its error between the coarse fit's shape (its normals) and its misregistration (the uv
+# through which the texture model reaches the image).
+class Geometry(NamedTuple):
+    normals: str
+    mask: str
+    uv: str
+    erosion: int
+    label: str
+
+
 GEOMETRY = {
-    "normal": ("normal", "matte", "uv", "true normals"),
-    "normal_pseudo": ("normal_pseudo", "mask_pseudo", "uv_pseudo", "pseudo normals + mask"),
-    "normal_pseudo_eroded": ("normal_pseudo", "mask_pseudo", "uv_pseudo", f"pseudo normals + mask eroded {EDGE} px"),
-    "oracle_uv": ("normal_pseudo", "mask_pseudo", "uv", f"pseudo normals + mask eroded {EDGE} px, true uv (oracle)"),
-    "oracle_normals": (
-        "normal",
-        "mask_pseudo",
-        "uv_pseudo",
-        f"true normals, pseudo mask eroded {EDGE} px and uv (oracle)",
+    "normal": Geometry("normal", "matte", "uv", 0, "true normals"),
+    "normal_pseudo": Geometry("normal_pseudo", "mask_pseudo", "uv_pseudo", 0, "pseudo normals + mask"),
+    "normal_pseudo_eroded": Geometry(
+        "normal_pseudo", "mask_pseudo", "uv_pseudo", EDGE, f"pseudo normals + mask eroded {EDGE} px"
+    ),
+    "oracle_uv": Geometry(
+        "normal_pseudo", "mask_pseudo", "uv", EDGE, f"pseudo normals + mask eroded {EDGE} px, true uv (oracle)"
+    ),
+    "oracle_normals": Geometry(
+        "normal", "mask_pseudo", "uv_pseudo", EDGE, f"true normals, pseudo mask eroded {EDGE} px and uv (oracle)"
     ),
 }
-EROSION = {"normal_pseudo_eroded": EDGE, "oracle_uv": EDGE, "oracle_normals": EDGE}
 ALBEDO = ("known", "constant", "texture")
 
 
@@ -59,13 +71,12 @@ def item_data(
 ):
     """One item's pixels on its true (``normals="normal"``, matte) or pseudo (``normal_pseudo``,
     mask_pseudo) geometry; ``mask`` overrides the mask."""
-    n_key, m_key = GEOMETRY[normals][:2]
-    mask = item[m_key] if mask is None else mask
-    if EROSION.get(normals):
-        mask = eroded(mask, EROSION[normals])
-    return prepare(
-        noisy(item["image"], noise, seed), item[n_key], mask, item["albedo"] if known_albedo else None, gray=gray
-    )
+    geometry = GEOMETRY[normals]
+    mask = item[geometry.mask] if mask is None else mask
+    if geometry.erosion:
+        mask = eroded(mask, geometry.erosion)
+    albedo = item["albedo"] if known_albedo else None
+    return prepare(noisy(item["image"], noise, seed), item[geometry.normals], mask, albedo, gray=gray)
 
 
 def eroded(mask, pixels: int) -> torch.Tensor:
@@ -239,7 +250,7 @@ def order_data(
     data = item_data(item, noise, seed, known_albedo=albedo == "known", normals=normals)
     if albedo != "texture":
         return data, None
-    return data, texture_for(data, item[GEOMETRY[normals][2]], n_components)
+    return data, texture_for(data, item[GEOMETRY[normals].uv], n_components)
 
 
 def order_confusion(
