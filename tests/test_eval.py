@@ -76,6 +76,35 @@ def test_perfect_model_scores_perfectly():
     assert m["infer_images_per_s"] > 0
 
 
+def test_normal_error_binned_by_the_pseudo_gts_own_error():
+    from disent.eval.evaluate import PSEUDO_ERROR_BINS, normal_metrics
+
+    g = torch.Generator().manual_seed(0)
+    true = torch.nn.functional.normalize(
+        torch.randn(4, 3, 16, 16, generator=g) + torch.tensor([0, 0, 2.0])[:, None, None], dim=1
+    )
+    pseudo = torch.nn.functional.normalize(true + 0.4 * torch.randn(true.shape, generator=g), dim=1)
+    gt = {
+        "normal": true,
+        "normal_pseudo": pseudo,
+        "matte": torch.ones(4, 1, 16, 16),
+        "mask_pseudo": torch.ones(4, 1, 16, 16),
+    }
+    bins = list(zip(PSEUDO_ERROR_BINS, PSEUDO_ERROR_BINS[1:]))
+    m = normal_metrics(pseudo, gt)  # a network that returns the pseudo-GT scores as it does in every bin
+    for lo, hi in bins:
+        assert m[f"normal_mean_where_pseudo_{lo}_{hi}"] == pytest.approx(
+            m[f"pseudo_normal_mean_where_pseudo_{lo}_{hi}"]
+        )
+        assert lo <= m[f"pseudo_normal_mean_where_pseudo_{lo}_{hi}"] < hi
+    shares = [m[f"share_where_pseudo_{lo}_{hi}"] for lo, hi in bins]
+    assert sum(shares) == pytest.approx(1.0)
+    pooled = sum(s * m[f"pseudo_normal_mean_where_pseudo_{lo}_{hi}"] for s, (lo, hi) in zip(shares, bins))
+    assert pooled == pytest.approx(m["pseudo_normal_mean"], rel=1e-5)  # the bins partition the scored pixels
+    exact = normal_metrics(true, gt)
+    assert all(exact[f"normal_mean_where_pseudo_{lo}_{hi}"] == pytest.approx(0, abs=0.05) for lo, hi in bins)
+
+
 def test_detailed_albedo_carries_the_shading_error():
     """Sec. 5.3's detailed albedo, the image over the model's shading: exact with the true shading whatever the decoded
     albedo, blind to the shading's scale, and wrong where the shading is."""

@@ -368,6 +368,30 @@ def test_lighting_section_is_generated_from_the_published_json(tmp_path):
     assert rep.lines[0].startswith(report.MISSING)
 
 
+def test_beyond_the_fit_reads_each_bin_against_the_seed_spread():
+    from types import SimpleNamespace
+
+    from disent.eval.evaluate import PSEUDO_ERROR_BINS
+
+    bins = [f"{lo}_{hi}" for lo, hi in zip(PSEUDO_ERROR_BINS, PSEUDO_ERROR_BINS[1:])]
+
+    def run(net):  # the network's error in each bin; the pseudo-GT's is the bin's index x 10
+        values = {f"share_where_pseudo_{b}": 0.25 for b in bins}
+        values.update({f"pseudo_normal_mean_where_pseudo_{b}": 10.0 * i for i, b in enumerate(bins)})
+        values.update({f"normal_mean_where_pseudo_{b}": v for b, v in zip(bins, net)})
+        return SimpleNamespace(value=values.get)
+
+    runs = [run([5, 10.2, 15, 20]), run([5, 9.8, 15, 21])]  # loses, ties, loses... beats, beats
+    lines = report.beyond_the_fit({("long", "explicit"): runs, ("long", "baseline"): runs})
+    assert sum(line.startswith("| `long`") for line in lines) == 1  # no row for a model without normals
+    beaten, lost = ", ".join(b.replace("_", "-") for b in bins[2:]), bins[0].replace("_", "-")
+    assert lines[-1] == (
+        f"- `long`: the network beats the pseudo-GT where that errs by {beaten} deg; it loses to the pseudo-GT where "
+        f"that errs by {lost} deg."
+    )
+    assert report.beyond_the_fit({("long", "explicit"): [SimpleNamespace(value=lambda k: None)]}) == []
+
+
 def test_claim_verdicts_need_seeds_and_a_difference_beyond_the_spread():
     from disent.report import MIN_SEEDS, verdict
 

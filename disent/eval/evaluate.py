@@ -12,6 +12,7 @@ import torch
 from torch.utils.data import DataLoader, Subset
 
 from disent.eval.metrics import (
+    angular_error_deg,
     normal_angular_error,
     normal_spread,
     reconstruction_metrics,
@@ -77,10 +78,15 @@ def decomposed_region(gt: dict) -> torch.Tensor:
     return face_mask(gt["matte"]) * (gt["mask_pseudo"] > 0.5)
 
 
+PSEUDO_ERROR_BINS = (0, 5, 10, 20, 180)  # degrees of the pseudo-GT's own error: nearly right ... far off
+
+
 def normal_metrics(normal: torch.Tensor, gt: dict) -> dict:
     """``normal_*``: the angular error of ``normal`` against the true normals; ``pseudo_normal_*``:
     the pseudo-GT's, on the same pixels (:func:`decomposed_region`); ``normal_spread`` and ``true_normal_spread``
-    (:func:`~disent.eval.metrics.normal_spread`)."""
+    (:func:`~disent.eval.metrics.normal_spread`); ``normal_mean_where_pseudo_LO_HI``, ``pseudo_normal_mean_...``
+    and ``share_...``: both errors, and the pixels' share, where the pseudo-GT errs by LO to HI degrees
+    (:data:`PSEUDO_ERROR_BINS`)."""
     both = decomposed_region(gt)
     m = {f"normal_{k}": v for k, v in normal_angular_error(normal, gt["normal"], both).items()}
     m.update(
@@ -89,6 +95,15 @@ def normal_metrics(normal: torch.Tensor, gt: dict) -> dict:
     # a collapse check: a model trained without E_recon-N can put one flat normal on every pixel (its albedo then
     # takes the shading); the spread about each image's mean normal shows it, beside the truth's
     m["normal_spread"], m["true_normal_spread"] = normal_spread(normal, both), normal_spread(gt["normal"], both)
+    # how the network goes beyond the fit: both errors on the pixels binned by the pseudo-GT's own error
+    pseudo_error = angular_error_deg(gt["normal_pseudo"], gt["normal"])[:, None]
+    for lo, hi in zip(PSEUDO_ERROR_BINS, PSEUDO_ERROR_BINS[1:]):
+        where = both * ((pseudo_error >= lo) & (pseudo_error < hi))
+        if where.any():
+            tag = f"where_pseudo_{lo}_{hi}"
+            m[f"normal_mean_{tag}"] = normal_angular_error(normal, gt["normal"], where)["mean"]
+            m[f"pseudo_normal_mean_{tag}"] = normal_angular_error(gt["normal_pseudo"], gt["normal"], where)["mean"]
+            m[f"share_{tag}"] = (where.sum() / both.sum()).item()
     return m
 
 
