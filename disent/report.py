@@ -269,6 +269,7 @@ def _models(chosen: dict[str, Run]) -> dict:
 
 
 # ----------------------------------------------------------------------------- sections
+ERROR_WHITE = 40.0  # degrees of angular error drawn white in the normals figure
 RUNG = ("model=", "+experiment=", "experiment=")  # a run of the budget ladder sets only these
 MIN_SEEDS = 3  # a verdict needs at least this many seeds per arm
 EDIT_WORKS = 0.5  # an edit works where at least this share of the edited faces reads as having the attribute
@@ -796,6 +797,9 @@ def sec_ceiling(rep: Report, runs: list[Run]) -> None:
 
 
 def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
+    from disent.eval.evaluate import decomposed_region
+    from disent.eval.metrics import angular_error_deg
+
     chosen = pick_runs(runs)
     if not chosen:
         rep.note("no finished run with a checkpoint; the teaser needs one per model.")
@@ -849,9 +853,22 @@ def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
         ("normal true", batch["normal"] * batch["matte"]),
         ("normal pseudo-GT", batch["normal_pseudo"] * batch["mask_pseudo"]),
     ]
-    nrm += [(f"normal {k}", foreground(outs[k], "normal")) for k in MODELS if k in outs and "normal" in outs[k]]
+    with_normals = [k for k in MODELS if k in outs and "normal" in outs[k]]
+    nrm += [(f"normal {k}", foreground(outs[k], "normal")) for k in with_normals]
+    scored = decomposed_region(batch)  # the angular error where it is scored, black 0 to white ERROR_WHITE degrees
+
+    def error(normal):
+        return (angular_error_deg(normal, batch["normal"])[:, None] / ERROR_WHITE).clamp(0, 1) * scored
+
+    nrm += [("error pseudo-GT", error(batch["normal_pseudo"]))]
+    nrm += [(f"error {k}", error(outs[k]["normal"])) for k in with_normals]
     path = rep.fig / "normals.png"
-    _grid(nrm, path, "Our normals against the pseudo-GT they were trained on and the true normals")
+    _grid(
+        nrm,
+        path,
+        "Our normals against the pseudo-GT they were trained on and the true normals; their angular error on the "
+        f"scored pixels (black 0, white >= {ERROR_WHITE:g} deg)",
+    )
     rep.add("### Our normals against the pseudo-GT and the truth\n")
     rep.image(path, "normals")
     rows = [(n, r) for n, r in chosen.items() if r.value("normal_mean") is not None]
