@@ -1787,12 +1787,12 @@ def sec_bench(rep: Report, out: Path) -> None:
         env = {k: v for k, v in bench.items() if not isinstance(v, dict)}
         if env:
             rep.add("Machine: " + ", ".join(f"{k}={fmt(v)}" for k, v in env.items()) + "\n")
-        if isinstance(loads := bench.get("load_average_1min"), dict):  # the sections of the latest publish
+        if isinstance(loads := bench.get("load_average_1min"), dict):  # the sections measured on this machine
             fresh = {*loads, *(f"{k}_setup" for k in loads), "load_average_1min"}
             kept = [k for k, v in bench.items() if isinstance(v, dict) and k not in fresh]
             rep.add(
-                "Measured on that machine by the latest benchmark run: "
-                + ", ".join(f"{k} (1-minute load average {v:.2f})" for k, v in loads.items())
+                "Measured on that machine (the 1-minute load average as each section was written): "
+                + ", ".join(f"{k} ({v:.2f})" for k, v in loads.items())
                 + f"; the load counts the benchmark's own {bench.get('threads')} thread(s)."
                 + (
                     f" Kept from earlier runs, whose machine this file does not record: {', '.join(kept)}; compare "

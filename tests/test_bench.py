@@ -56,6 +56,19 @@ def test_gpu_figures_go_beside_the_cpu_ones():
     assert bench.bench_json("cuda") == bench.bench_json("cuda:1") == bench.BENCH_JSON.with_name("bench-cuda.json")
 
 
+def test_load_average_names_only_this_machines_sections(tmp_path):
+    path = tmp_path / "bench.json"
+    path.write_text(
+        json.dumps({"cpu": "another CPU", "device": "cpu", "data": {"x": 1}, "load_average_1min": {"data": 0.1}})
+    )
+    bench.save("peak", {"gflops": 1.0}, path)
+    d = json.loads(path.read_text())
+    assert d["cpu"] == bench.cpu_name() and d["data"] == {"x": 1}  # the other machine's section is kept,
+    assert set(d["load_average_1min"]) == {"peak"}  # but not listed as measured here
+    bench.save("render", {"ms": 2.0}, path)
+    assert set(json.loads(path.read_text())["load_average_1min"]) == {"peak", "render"}
+
+
 def test_bench_json_schema(tiny_run):
     d = tiny_run
     assert d["peak_gflops"] > 0 and d["threads"] == 1 and d["device"] == "cpu" and d["torch"] == torch.__version__

@@ -94,7 +94,10 @@ def save(section: str, figures: dict, path: Path = BENCH_JSON) -> None:
     """
     path.parent.mkdir(parents=True, exist_ok=True)
     data = json.loads(path.read_text()) if path.exists() else {}
-    data.update(machine_info())
+    machine = machine_info()
+    if any(data.get(k) != machine[k] for k in ("cpu", "device")):  # load_average_1min names this machine's sections
+        data.pop("load_average_1min", None)
+    data.update(machine)
     figures = dict(figures)
     data.update(figures.pop("top", {}))
     data[section] = figures
