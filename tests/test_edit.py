@@ -444,13 +444,15 @@ def test_edit_and_relight_tables_run_end_to_end_on_a_toy_generator():
     recon = rows[0]
     assert recon["method"] == "reconstruction" and recon["gain"] == 0 and recon["leakage"] == 0
     assert rows[1]["method"] == "truth" and rows[1]["d_bg"] == 0  # the true edit leaves the background alone
+    drawn = rows[2]  # the model's reconstruction of the true edit: read against the input, like the truth
+    assert drawn["method"] == "truth reconstructed" and 0 <= drawn["success"] <= 1
     # paper choice (UV+Ni), UV, Ni, Ai, all  x  (2 lambdas + 1 alpha)
-    assert len(rows) == 2 + 5 * 3
+    assert len(rows) == 3 + 5 * 3
     assert all(math.isfinite(r[k]) for r in rows for k in ("success", "gain", "leakage"))
     assert shown[("paper:UV+Ni", "dmt", 0.03)].shape == (3, 3, 16, 16)
     bary = [r for r in rows if r["method"] == "barycenter"]
     assert all(r["step"] == pytest.approx(1.0, rel=1e-4) for r in bary)  # alpha = 1 moves one mean difference
-    claims = claim_summary(rows[2:])
+    claims = claim_summary(rows[3:])
     assert len(claims) == 2 * 5 and {c["method"] for c in claims} == {"dmt", "barycenter"}
     assert sorted(c["rank"] for c in claims if c["method"] == "dmt") == [1, 2, 3, 4, 5]
     bank = {
@@ -462,6 +464,36 @@ def test_edit_and_relight_tables_run_end_to_end_on_a_toy_generator():
     assert set(by) == {"transfer", "ratio", "decode", "input", "oracle"}
     assert by["oracle"]["psnr"] == 100.0  # the transfer formulas on true intrinsics: exact up to float32
     assert example["transfer"].shape == (2, 3, 16, 16)
+
+
+def test_what_a_perfect_autoencoder_draws_reads_as_the_truth_does():
+    """The ``truth reconstructed`` row bounds an edit by what the model can draw: for a model that reconstructs
+    exactly it reads as the truth itself."""
+    from disent.edit.classifier import MeasureNet
+    from disent.edit.measure import edit_table
+    from disent.models import build_model
+
+    class Exact(torch.nn.Module):  # the implicit model's codes, and the input itself as the reconstruction
+        def __init__(self):
+            super().__init__()
+            self.inner = build_model({"name": "implicit", "resolution": 16, "code_dim": 8}).eval()
+            self.CODE_NAMES = self.inner.CODE_NAMES
+
+        def encode(self, x):
+            self.last = x
+            return self.inner.encode(x)
+
+        def decode(self, codes):
+            return {"recon": self.last}
+
+    torch.manual_seed(0)
+    net = MeasureNet(16, width=4, identity_dim=3).eval()
+    rows, _ = edit_table(
+        Exact(), net, FakeSynth, "smiling", 12, 3, (0.1,), (1.0,), resolution=16, truth_override=lambda a: {a: 1.0}
+    )
+    truth, drawn = rows[1], rows[2]
+    assert drawn["method"] == "truth reconstructed"
+    assert drawn["success"] == truth["success"] and drawn["gain"] == pytest.approx(truth["gain"])
 
 
 # ----------------------------------------------------------------------------- command line

@@ -17,7 +17,8 @@ manifold choice, with DMT (lambda) or the barycenter (alpha), and decoded.  A
 
 Every number is taken against the **unedited reconstruction**, so model error is not counted
 as leakage.  ``truth`` rows are the generator's own counterfactual (same face, attribute on):
-what a perfect edit scores under the same reader.
+what a perfect edit scores under the same reader; ``truth reconstructed`` rows, the model's reconstruction of
+those faces: how often what the model can draw at all reads as the attribute, the most an edit can reach.
 
 **Relighting.**  Target faces re-rendered by the generator under a light of the bank are the
 ground truth; the light comes from the model's estimate on a *different* face under that light
@@ -215,6 +216,12 @@ def edit_table(
         )
         rows.append(row)
         shown["truth"] = true_edit["image"][:n_show]
+        # what the model can draw at all: its reconstruction of the faces that truly have the attribute. An edit
+        # cannot read as the attribute more often than this (beside the truth's own rate, the reader's recall)
+        drawn = model.decode(model.encode(true_edit["image"]))["recon"]
+        rd = read(net, drawn)
+        leak = leakage(r_in, rd, src["image"], drawn, src["matte"], attribute, spread)
+        rows.append(summarize(attribute, "-", "truth reconstructed", 1.0, r_in["p"][:, i_attr], rd, leak))
     choices = choices or manifold_choices(model_kind(codes0), attribute)
     for label, manifolds in choices.items():
         for method, strengths in (("dmt", lambdas), ("barycenter", alphas)):
