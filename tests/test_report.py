@@ -599,7 +599,11 @@ def test_edit_claims_are_read_over_the_seeds_of_a_setting(tmp_path):
         d.mkdir(parents=True)
         run = make_run(tmp_path / "runs", f"s{i}", seed=i, eval_={"normal_mean": 12.0})
         res = {"model": "explicit", "setting": "(defaults)", "claims": claims(paper, rival, 0.6), "relight": []}
-        (d / "edit.json").write_text(json.dumps(res | {"run": str(run)}))
+        drawn = [  # how often the reconstructed (0.1 + 0.1 i) and the true faces with a smile read as smiling
+            {"attribute": "smiling", "method": m, "success": v}
+            for m, v in (("truth reconstructed", 0.1 * (i + 1)), ("truth", 0.7))
+        ]
+        (d / "edit.json").write_text(json.dumps(res | {"run": str(run), "traversal": drawn}))
     gone = out / "edit" / "explicit_seed9_1200steps"  # its run folder is gone and left no record: not counted
     gone.mkdir()
     stale = {"model": "explicit", "setting": "(defaults)", "claims": claims(9.0, 1.0, 0.6), "run": "/nowhere"}
@@ -616,7 +620,8 @@ def test_edit_claims_are_read_over_the_seeds_of_a_setting(tmp_path):
         in rows
     )
     assert not any("| smiling |" in r for r in rows)  # no edit works: listed under the table, not as a row
-    assert "| explicit | `(defaults)` | smiling by dmt 0.20 |" in rep.lines
+    assert "| explicit | `(defaults)` | smiling by dmt 0.20 | smiling 0.20 (truth 0.70) |" in rep.lines  # mean of 3
+    assert "| explicit | `shipped` | smiling by dmt 0.20 | – |" in rep.lines  # measured before the rows existed
     assert any(r.startswith("| explicit | `shipped` | dmt | beard |") and "not testable (1 seed(s)" in r for r in rows)
 
 
