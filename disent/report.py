@@ -571,7 +571,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
                 cells.setdefault((c["method"], c["attribute"]), {}).setdefault(c["manifolds"], []).append(
                     (c["gain_per_leak"], c["best_success"])
                 )
-        cannot, drawn = [], {}  # the edits no manifold set makes, with their best success; their attributes
+        cannot = []  # the edits no manifold set makes: (attribute, method, best success)
         for (method, attribute), sets in cells.items():
             stats = {m: _ablation.mean_std([g for g, _ in v]) for m, v in sets.items()}
             paper = next((m for m in sets if str(m).startswith("paper:")), None)
@@ -581,8 +581,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
             rival = max(others, key=lambda m: stats[m]["mean"]) if others else None
             success = max(_ablation.mean_std([s for _, s in v])["mean"] for v in sets.values())
             if success < EDIT_WORKS:  # listed under the table: no verdict to read
-                cannot.append(f"{attribute} by {method} {success:.2f}")
-                drawn.setdefault(attribute, None)
+                cannot.append((attribute, method, success))
                 continue
             rows.append(
                 f"| {model} | `{where}` | {method} | {attribute} | {paper[6:]}: {_ms(stats[paper], '.3g')} | "
@@ -591,7 +590,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
             )
         if cannot:
             ceiling = []  # how often the model's reconstruction of faces that have the attribute reads as it
-            for attribute in drawn:
+            for attribute in dict.fromkeys(a for a, _, _ in cannot):
                 rates = {
                     m: _ablation.mean_std(
                         [
@@ -607,7 +606,10 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
                     ceiling.append(
                         f"{attribute} {rates['truth reconstructed']['mean']:.2f} (truth {rates['truth']['mean']:.2f})"
                     )
-            idle.append(f"| {model} | `{where}` | {', '.join(cannot)} | {', '.join(ceiling) or '–'} |")
+            idle.append(
+                f"| {model} | `{where}` | {', '.join(f'{a} by {m} {v:.2f}' for a, m, v in cannot)} | "
+                f"{', '.join(ceiling) or '–'} |"
+            )
         faces = [{r["method"]: r["psnr_face"] for r in res.get("relight") or []} for res in results]
         faces = [f for f in faces if {"transfer", "ratio", "input"} <= set(f)]
         if faces:

@@ -96,14 +96,17 @@ def normal_metrics(normal: torch.Tensor, gt: dict) -> dict:
     # takes the shading); the spread about each image's mean normal shows it, beside the truth's
     m["normal_spread"], m["true_normal_spread"] = normal_spread(normal, both), normal_spread(gt["normal"], both)
     # how the network goes beyond the fit: both errors on the pixels binned by the pseudo-GT's own error
-    pseudo_error = angular_error_deg(gt["normal_pseudo"], gt["normal"])[:, None]
+    scored = both[:, 0] > 0.5
+    errors = {
+        k: angular_error_deg(n, gt["normal"]).double() for k, n in (("normal", normal), ("pseudo", gt["normal_pseudo"]))
+    }
     for lo, hi in zip(PSEUDO_ERROR_BINS, PSEUDO_ERROR_BINS[1:]):
-        where = both * ((pseudo_error >= lo) & (pseudo_error < hi))
+        where = scored & (errors["pseudo"] >= lo) & (errors["pseudo"] < hi)
         if where.any():
             tag = f"where_pseudo_{lo}_{hi}"
-            m[f"normal_mean_{tag}"] = normal_angular_error(normal, gt["normal"], where)["mean"]
-            m[f"pseudo_normal_mean_{tag}"] = normal_angular_error(gt["normal_pseudo"], gt["normal"], where)["mean"]
-            m[f"share_{tag}"] = (where.sum() / both.sum()).item()
+            m[f"normal_mean_{tag}"] = errors["normal"][where].mean().item()
+            m[f"pseudo_normal_mean_{tag}"] = errors["pseudo"][where].mean().item()
+            m[f"share_{tag}"] = (where.sum() / scored.sum()).item()
     return m
 
 

@@ -254,8 +254,12 @@ def anatomy_table(gaps: list[dict]) -> list[str]:
         degrees = " | ".join(f"{m['normal_vs_pseudo_deg']:.2f}" for m in cells)
         lines.append(f"| {g['model']} ({g['tag']}) | {degrees} |")
     lines.append("")
+
+    def deg(m):
+        return m["normal_vs_pseudo_deg"]
+
     for g in gaps:  # how much of the gap (photos at x1 over SynthFaces) each difference accounts for
-        a, deg = g["anatomy"], lambda m: m["normal_vs_pseudo_deg"]  # noqa: E731
+        a = g["anatomy"]
         gap = deg(g["photos"]) - deg(g["synthfaces_test"])
         gray = deg(a["synthfaces_test_grayscale"]) - deg(g["synthfaces_test"])
         best = min(zooms, key=lambda z: deg(a["photos_zoom"][z]))
