@@ -30,13 +30,15 @@ EDGE = 1
 # geometry of a lighting fit: the normals, mask and uv (of the texture model) keys of an item, the pixels eroded
 # off the mask's edge, and the report's label. The two oracle rows each put one true layer into the pseudo
 # geometry, to split its error between the coarse fit's shape (its normals) and its misregistration (the uv
-# through which the texture model reaches the image).
+# through which the texture model reaches the image). The registered row corrects the pseudo uv by the affine map
+# that best registers the texture model to the image (disent.lighting.texture.register).
 class Geometry(NamedTuple):
     normals: str
     mask: str
     uv: str
     erosion: int
     label: str
+    register: bool = False  # the uv corrected by registering the texture model to the image (texture.register)
 
 
 GEOMETRY = {
@@ -44,6 +46,14 @@ GEOMETRY = {
     "normal_pseudo": Geometry("normal_pseudo", "mask_pseudo", "uv_pseudo", 0, "pseudo normals + mask"),
     "normal_pseudo_eroded": Geometry(
         "normal_pseudo", "mask_pseudo", "uv_pseudo", EDGE, f"pseudo normals + mask eroded {EDGE} px"
+    ),
+    "normal_pseudo_registered": Geometry(
+        "normal_pseudo",
+        "mask_pseudo",
+        "uv_pseudo",
+        EDGE,
+        f"pseudo normals + mask eroded {EDGE} px, uv registered",
+        register=True,
     ),
     "oracle_uv": Geometry(
         "normal_pseudo", "mask_pseudo", "uv", EDGE, f"pseudo normals + mask eroded {EDGE} px, true uv (oracle)"
@@ -250,7 +260,16 @@ def order_data(
     data = item_data(item, noise, seed, known_albedo=albedo == "known", normals=normals)
     if albedo != "texture":
         return data, None
-    return data, texture_for(data, item[GEOMETRY[normals].uv], n_components)
+    return data, texture_for(data, uv_of(item, data, normals, n_components), n_components)
+
+
+def uv_of(item: dict, data, normals: str, n_components: int = 20) -> torch.Tensor:
+    """The uv through which the texture model reaches ``data``'s pixels on geometry ``normals``: the item's,
+    registered to the image first where the geometry says so (:func:`disent.lighting.texture.register`)."""
+    from disent.lighting.texture import register, texture_model
+
+    geometry, uv = GEOMETRY[normals], item[GEOMETRY[normals].uv]
+    return register(data, uv, texture_model(uv.shape[-1], n_components)) if geometry.register else uv
 
 
 def order_confusion(
@@ -304,7 +323,8 @@ def order_confusion(
 # measured mean angular error on SynthFaces, 11.5 deg = 0.20 rad, as the per-axis std of an isotropic tangent
 # Gaussian (mean |delta n| = sigma sqrt(pi/2)); set from that measurement, not fitted to the order choice.
 GEOMETRY_NOISE = {"normal_sigma": 0.16}
-# (albedo, normals[, noise model]); "residual_process": rho, ell by fit_residual_process on train scenes
+# (albedo, normals[, noise model]); "residual_process": rho, ell by fit_residual_process on train scenes, on the
+# row's own geometry
 ORDER_ROWS = (
     ("known", "normal"),
     ("constant", "normal"),
@@ -317,25 +337,27 @@ ORDER_ROWS = (
     ("texture", "normal_pseudo", "residual_process"),
     ("texture", "normal_pseudo_eroded"),
     ("texture", "normal_pseudo_eroded", "residual_process"),
+    ("texture", "normal_pseudo_registered"),
+    ("texture", "normal_pseudo_registered", "residual_process"),
     ("texture", "oracle_uv"),
     ("texture", "oracle_normals"),
 )
 RESIDUAL_GRID = {"rho": (1.0, 3.0, 10.0, 30.0, 100.0, 300.0, 1000.0), "ell": (0.5, 1.0, 2.0, 4.0)}
 
 
-def true_light_residuals(ds, n_scenes: int, noise: float = 0.02) -> list:
-    """``(data, residual [P, C])`` of scenes ``0..n-1`` of ``ds`` (lights cut to order ``i % 3``) on pseudo
-    geometry: the image less the texture model's albedo (ridge fit under its PCA prior, and a gain per
-    channel) times the scene's true light through the pseudo normals, the misfit the right lighting model
-    leaves."""
+def true_light_residuals(ds, n_scenes: int, noise: float = 0.02, normals: str = "normal_pseudo") -> list:
+    """``(data, residual [P, C])`` of scenes ``0..n-1`` of ``ds`` (lights cut to order ``i % 3``) on the pseudo
+    geometry ``normals`` (a key of :data:`GEOMETRY`): the image less the texture model's albedo (ridge fit under
+    its PCA prior, and a gain per channel) times the scene's true light through the pseudo normals, the misfit
+    the right lighting model leaves."""
     from disent.lighting.texture import texture_for
 
     out = []
     for i in range(n_scenes):
         sh = light_of_order(ds[i]["sh"], i % 3)
         item = ds.sample(i, sh=sh)
-        data = item_data(item, noise, 7000 + i, known_albedo=False, normals="normal_pseudo")
-        tex, variance = texture_for(data, item["uv_pseudo"])
+        data = item_data(item, noise, 7000 + i, known_albedo=False, normals=normals)
+        tex, variance = texture_for(data, uv_of(item, data, normals))
         shading = data.basis @ sh.double().numpy().T  # [P, C]
         X = (tex[1:] * shading[None]).reshape(len(variance), -1).T  # [P*C, J], pixel-major
         beta = np.linalg.solve(
@@ -347,12 +369,12 @@ def true_light_residuals(ds, n_scenes: int, noise: float = 0.02) -> list:
     return out
 
 
-def fit_residual_process(ds, n_scenes: int = 18, grid: dict = RESIDUAL_GRID) -> dict:
+def fit_residual_process(ds, n_scenes: int = 18, grid: dict = RESIDUAL_GRID, normals: str = "normal_pseudo") -> dict:
     """``rho, ell`` of the order choice's residual process (:func:`disent.lighting.order.residual_whitener`)
-    by maximum likelihood (sigma profiled) over :func:`true_light_residuals` of ``ds`` (the train split), on
-    a grid; returns ``{"rho", "ell", "log_likelihood": {"rho,ell": value}}``."""
-    fit = max_likelihood_residual(true_light_residuals(ds, n_scenes), grid)
-    return fit | {"n_scenes": n_scenes, "split": ds.split}
+    by maximum likelihood (sigma profiled) over :func:`true_light_residuals` of ``ds`` (the train split) on the
+    geometry ``normals``, on a grid; returns ``{"rho", "ell", "log_likelihood": {"rho,ell": value}}``."""
+    fit = max_likelihood_residual(true_light_residuals(ds, n_scenes, normals=normals), grid)
+    return fit | {"n_scenes": n_scenes, "split": ds.split, "normals": normals}
 
 
 def max_likelihood_residual(residuals: list, grid: dict = RESIDUAL_GRID) -> dict:
@@ -385,22 +407,29 @@ def order_study(
     n_train_scenes: int = 18,
 ) -> dict:
     """The order-choice confusion matrices of every ``(albedo, normals[, noise model])`` row on each split
-    (the residual process fitted first on ``n_train_scenes`` train scenes, ``out/residual_process.json``);
+    (the residual process fitted first on ``n_train_scenes`` train scenes, per geometry of a row that uses it,
+    ``out/residual_process.json``);
     written to ``out/<name>.json`` (the method and its constants are chosen on
     ``val``; ``test`` only reports)."""
     from disent.data import SynthFaces
 
-    result, models = {}, {"geometry_noise": GEOMETRY_NOISE}
-    if any(row[2:] == ("residual_process",) for row in rows):
-        fit = fit_residual_process(SynthFaces("train", resolution, seed), n_train_scenes)
-        save_json("residual_process", fit, out)
-        models["residual_process"] = {"residual": (fit["rho"], fit["ell"])}
+    result, fits = {}, {}
+    train = SynthFaces("train", resolution, seed)
+    for normals in dict.fromkeys(row[1] for row in rows if row[2:] == ("residual_process",)):
+        fits[normals] = fit_residual_process(train, n_train_scenes, normals=normals)
+        save_json("residual_process", fits, out)
+
+    def noise_model(normals, model):
+        if model == "residual_process":
+            return {"residual": (fits[normals]["rho"], fits[normals]["ell"])}
+        return {"geometry_noise": GEOMETRY_NOISE}[model]
+
     for split in splits:
         ds = SynthFaces(split, resolution, seed)
         for albedo, normals, *model in rows:
             key = f"{split}/{albedo}/{normals}" + (f"+{model[0]}" if model else "")
             result[key] = order_confusion(
-                ds, n_per_order, noise, albedo, normals, noise_model=models[model[0]] if model else None
+                ds, n_per_order, noise, albedo, normals, noise_model=noise_model(normals, model[0]) if model else None
             )
             save_json(name, result, out)
     return result

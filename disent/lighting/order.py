@@ -289,6 +289,7 @@ def score(
         "sigma": float(math.sqrt(v.min())),
         "bic": float(-2 * loglik + (d + 1) * math.log(N)),
         "log_evidence": float(log_evidence),
+        "light": _light(theta, C, K, gray).tolist(),
         "texture": None if beta is None else beta.tolist(),
     }
 
