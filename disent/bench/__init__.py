@@ -23,7 +23,7 @@ from typing import Callable, Sequence
 
 import torch
 
-from disent.runs import cpu_name
+from disent.runs import machine_info as runs_machine_info
 
 BENCH_JSON = Path("bench.json")  # in the bench tool folder; published to reports/bench.json
 DEVICE = "cpu"  # set by --device
@@ -78,12 +78,14 @@ def measure_peak_gflops(n: int = 2048, rounds: int = 5, device: str = "cpu") -> 
 
 
 def machine_info() -> dict:
+    """:func:`disent.runs.machine_info` under the benchmark file's keys (the GPU's name inside ``device``)."""
+    info = runs_machine_info(DEVICE, torch.get_num_threads())
     return {
-        "torch": torch.__version__,
-        "threads": torch.get_num_threads(),
-        "device": DEVICE if DEVICE == "cpu" else f"{DEVICE} ({torch.cuda.get_device_name(DEVICE)})",
-        "cpu": cpu_name(),
-        "cpu_count": os.cpu_count(),
+        "torch": info["torch"],
+        "threads": info["threads"],
+        "device": DEVICE if "gpu" not in info else f"{DEVICE} ({info['gpu']})",
+        "cpu": info["processor"],
+        "cpu_count": info["cpus"],
     }
 
 

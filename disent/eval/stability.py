@@ -409,6 +409,7 @@ def plot_ood(res: dict, path) -> None:
     fig, axes = plt.subplots(len(keys), len(effects), figsize=(2.6 * len(effects), 2.0 * len(keys)), squeeze=False)
     names = list(dict.fromkeys(n for e in effects for n in res["effects"][e]))
     colour = {n: f"C{i % 10}" for i, n in enumerate(names)}  # one colour per estimator in every panel
+    titles = {"yaw": f"yaw (severity x {MAX_YAW:g} deg)", "scale": f"scale (x 1 - {MAX_SHRINK:g} severity)"}
     for j, e in enumerate(effects):
         for i, k in enumerate(keys):
             ax = axes[i, j]
@@ -416,7 +417,6 @@ def plot_ood(res: dict, path) -> None:
                 if k in c:
                     ax.plot(res["severities"], c[k], "o-", ms=3, color=colour[name], label=name)
             if i == 0:
-                titles = {"yaw": f"yaw (severity x {MAX_YAW:g} deg)", "scale": f"scale (x 1 - {MAX_SHRINK:g} severity)"}
                 ax.set_title(titles.get(e, e), fontsize=9)
             if j == 0:
                 ax.set_ylabel(k, fontsize=8)
