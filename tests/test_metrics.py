@@ -202,3 +202,48 @@ def test_normal_spread_is_zero_for_a_flat_map_and_blind_to_a_global_rotation():
     assert normal_spread(rotated, m) == pytest.approx(normal_spread(n, m), abs=1e-4)
     with pytest.raises(ValueError, match="no pixel"):
         normal_spread(n, torch.zeros(2, 1, 6, 6))
+
+
+def frontal_normals(B=2, H=24):
+    """Unit normals of a camera-facing cap (n_z >= ~0.5), the share of the sphere a face shows, and its mask."""
+    y, x = torch.meshgrid(torch.linspace(-0.8, 0.8, H), torch.linspace(-0.8, 0.8, H), indexing="ij")
+    n = torch.stack([x, y, torch.sqrt((1 - x**2 - y**2).clamp_min(0.25))])
+    n = torch.nn.functional.normalize(n, dim=0).double()
+    return n.expand(B, -1, -1, -1), torch.ones(B, 1, H, H)
+
+
+def test_sh_error_split_adds_up_and_ignores_scale():
+    """shown + hidden is the whole relative coefficient error at the shading-space scale; a prediction that is
+    the truth times a per-channel factor scores 0 in both parts."""
+    from disent.eval.metrics import sh_error_shown_hidden
+    from disent.render import sh_basis
+
+    normal, mask = frontal_normals()
+    g = torch.Generator().manual_seed(0)
+    true, pred = (torch.randn(2, 3, 9, generator=g, dtype=torch.float64) for _ in range(2))
+    split = sh_error_shown_hidden(pred, true, normal, mask)
+    Y = sh_basis(normal, 1).flatten(2)  # [B, 9, P]
+    G = Y @ Y.transpose(1, 2) / Y.shape[-1]
+    s = torch.einsum("nck,nkl,ncl->nc", pred, G, true) / torch.einsum("nck,nkl,ncl->nc", pred, G, pred)
+    whole = ((s[..., None] * pred - true) ** 2).sum((1, 2)) / (true**2).sum((1, 2))
+    assert split["shown"] + split["hidden"] == pytest.approx(whole.mean().item(), rel=1e-9)
+    zero = sh_error_shown_hidden(true * torch.tensor([2.0, 0.5, 3.0], dtype=torch.float64)[:, None], true, normal, mask)
+    assert zero["shown"] == pytest.approx(0, abs=1e-20) and zero["hidden"] == pytest.approx(0, abs=1e-20)
+
+
+def test_sh_error_split_puts_an_invisible_light_in_hidden():
+    """Adding to the true light the SH direction the cap's shading barely changes under (G's smallest eigenvector)
+    leaves the shown error near 0 and puts the whole added energy (0.5^2 per channel over the truth's 1 per
+    channel) in hidden."""
+    from disent.eval.metrics import sh_error_shown_hidden
+    from disent.render import sh_basis
+
+    normal, mask = frontal_normals(B=1)
+    Y = sh_basis(normal, 1).flatten(2)[0]
+    values, vectors = torch.linalg.eigh(Y @ Y.T / Y.shape[-1])
+    assert values[0] < 0.01 * values[-1]  # a cap hides some SH directions
+    true = torch.zeros(1, 3, 9, dtype=torch.float64)
+    true[0, :, 0] = 1.0  # ambient light
+    split = sh_error_shown_hidden(true + 0.5 * vectors[:, 0], true, normal, mask)
+    assert split["shown"] < 1e-3 * split["hidden"]
+    assert split["hidden"] == pytest.approx(0.25, rel=0.05)  # the scale, read from shading, stays ~1

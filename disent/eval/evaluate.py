@@ -19,6 +19,7 @@ from disent.eval.metrics import (
     scale_invariant_mse,
     scale_invariant_mse_bands,
     sh_error,
+    sh_error_shown_hidden,
 )
 from disent.render import sh_shading
 
@@ -146,7 +147,9 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     detailed albedo of Sec. 5.3, the image over the model's shading), ``shading_si_mse``.  For reference
     ``albedo_face_si_mse``: the albedo over the whole true face mask, hair and neck included.
     ``sh_error`` after the per-image scale alignment, and ``sh_error_coefficients`` its share per coefficient;
-    ``light_shading_si_mse``: the light's shading through the true normals against the true shading.
+    ``light_shading_si_mse``: the light's shading through the true normals against the true shading;
+    ``sh_error_shown`` and ``sh_error_hidden``: the coefficients' error split between the SH directions the face's
+    normals show and those they hide (:func:`~disent.eval.metrics.sh_error_shown_hidden`).
     """
     m = {}
     face = face_mask(gt["matte"])
@@ -181,6 +184,10 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
         true_shading = sh_shading(gt["normal"].double(), gt["sh"].double())
         for name, sh in (("light_shading_si_mse", out["sh"]), ("pseudo_light_shading_si_mse", gt["sh_pseudo"])):
             m[name] = scale_invariant_mse(sh_shading(gt["normal"].double(), sh.double()), true_shading, region)
+        # the coefficients split by what the face shows: only the shown part is identifiable from an image
+        for prefix, sh in (("", out["sh"]), ("pseudo_", gt["sh_pseudo"])):
+            split = sh_error_shown_hidden(sh, gt["sh"], gt["normal"], region)
+            m[f"{prefix}sh_error_shown"], m[f"{prefix}sh_error_hidden"] = split["shown"], split["hidden"]
     if {"albedo", "shading"} <= set(out) and "shading" in gt:
         m.update(bws_stats(out, gt))
     if {"uv", "normal_uv"} <= set(out) and "uv" in gt:

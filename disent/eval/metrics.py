@@ -9,7 +9,9 @@ Scale conventions (intrinsic images are defined only up to scale, Grosse et al. 
   scalar per image **and per channel** before the MSE;
 * lighting: :func:`sh_error` rescales the predicted SH by the least-squares optimal scalar
   per image (one scalar for all 3 x 9 coefficients; ``per_channel=True`` uses one per channel,
-  matching the albedo convention), then divides the squared error by the truth's squared norm.
+  matching the albedo convention), then divides the squared error by the truth's squared norm;
+  :func:`sh_error_shown_hidden` splits it between the SH directions a face's normals show and those
+  they hide.
 """
 
 from __future__ import annotations
@@ -217,6 +219,31 @@ def sh_error(pred_sh: torch.Tensor, true_sh: torch.Tensor, per_channel: bool = F
     return _reduce(share.sum(1), reduction)
 
 
+def sh_error_shown_hidden(
+    pred_sh: torch.Tensor, true_sh: torch.Tensor, normal: torch.Tensor, mask: torch.Tensor, fraction: float = 0.01
+) -> dict:
+    """The SH error split by what the face shows: ``{"shown", "hidden"}``, each a share of ``||true||^2``.
+
+    A face's normals cover part of the sphere, so some SH directions barely change its shading: per image, the
+    Gram matrix ``G = mean over the mask of Y(n) Y(n)^T`` (Eq. 4's basis at the true ``normal [B,3,H,W]``) has
+    eigenvalues spanning orders of magnitude.  ``pred_sh [B,C,9]`` is scaled per image and channel where the scale
+    can be seen, in shading (``argmin_s (s p - t)^T G (s p - t)``); its error ``e = s p - t`` then splits over
+    G's eigenvectors into the *hidden* directions, eigenvalue below ``fraction`` of the largest, which no image of
+    the face can pin down, and the *shown* rest (``shown + hidden`` is ``||e||^2 / ||t||^2``)."""
+    from disent.render import sh_basis
+
+    p, t = pred_sh.detach().double(), true_sh.detach().double()
+    Y = sh_basis(normal.detach().double(), 1)  # [B, 9, H, W]
+    w = (mask > 0.5).double()
+    G = torch.einsum("nkhw,nlhw->nkl", Y * w, Y) / w.sum((1, 2, 3)).clamp_min(1)[:, None, None]
+    scale = torch.einsum("nck,nkl,ncl->nc", p, G, t) / torch.einsum("nck,nkl,ncl->nc", p, G, p).clamp_min(1e-300)
+    values, vectors = torch.linalg.eigh(G)  # ascending, per image
+    hidden = (values < fraction * values[:, -1:])[:, None, :]  # [B, 1, 9]
+    error = torch.einsum("nck,nkj->ncj", scale[..., None] * p - t, vectors)  # in G's eigenvectors
+    energy = error**2 / t.pow(2).sum((1, 2))[:, None, None]
+    return {k: (energy * part).sum((1, 2)).mean().item() for k, part in (("shown", ~hidden), ("hidden", hidden))}
+
+
 def _reduce(per_image: torch.Tensor, reduction: str):
     if reduction == "none":
         return per_image
@@ -234,6 +261,7 @@ __all__ = [
     "reconstruction_metrics",
     "scale_invariant_mse",
     "sh_error",
+    "sh_error_shown_hidden",
     "optimal_scale",
     "ANGLE_THRESHOLDS",
 ]

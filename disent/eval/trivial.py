@@ -37,6 +37,8 @@ KEYS = (
     "albedo_detailed_si_mse",
     "shading_si_mse",
     "sh_error",
+    "sh_error_shown",
+    "sh_error_hidden",
     "light_shading_si_mse",
 )
 
