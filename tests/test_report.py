@@ -361,7 +361,9 @@ def test_lighting_section_is_generated_from_the_published_json(tmp_path):
         assert "rho 300, ell 1 px from 18 train scenes on pseudo normals + mask" in text
         # the residual process is best on val (0.55 > 0.47): its test figure decides, not the best test row (0.95)
         assert "(`texture/normal_pseudo+residual_process`, val 0.55)" in text
-        assert f"on test: {acc:.2f} against the target {report.ORDER_TARGET:.2f}: **{verdict}**." in text
+        lo, hi = report.wilson_interval(acc, 60)
+        assert f"on test: {acc:.2f} (95 % interval {lo:.2f}-{hi:.2f} over its 60 scenes)" in text
+        assert f"against the target {report.ORDER_TARGET:.2f}: **{verdict}**." in text
         assert "| lambertian / gaussian | 0.67 / 0.94 (1.0) | – |" in text and "settings" not in text
         # an oracle row (val 0.68, above every noise model) is a diagnosis, never the chosen method
         assert "| val | texture | pseudo normals + mask eroded 1 px, true uv (oracle) |" in text
@@ -831,3 +833,14 @@ def test_ood_section_says_where_a_uv_model_breaks(tmp_path):
     )
     assert "| occluder | implicit | 0.02 -> 0.1 | 9 -> 20 | the UV map and the UV-space normals (at 0.5:" in text
     assert "| light | implicit | 0.02 -> 0.02 | 9 -> 10 | – |" in text
+
+
+def test_wilson_interval_matches_the_closed_form():
+    """Wilson's 95 % score interval: 50 of 100 gives 0.404-0.596 (the textbook value); it stays inside [0, 1] at
+    0 and n successes, where the normal approximation would not."""
+    from disent.report import wilson_interval
+
+    lo, hi = wilson_interval(0.5, 100)
+    assert lo == pytest.approx(0.4038, abs=1e-4) and hi == pytest.approx(0.5962, abs=1e-4)
+    assert wilson_interval(0.0, 20)[0] == pytest.approx(0.0, abs=1e-12) and 0 < wilson_interval(0.0, 20)[1] < 0.2
+    assert wilson_interval(1.0, 20)[1] == pytest.approx(1.0, abs=1e-12)
