@@ -1936,6 +1936,8 @@ def residual_text(d: Path) -> str:
     fits = _load_json(d / "residual_process.json")
     if not fits:
         return "not fitted in this report's inputs"
+    if "rho" in fits:  # one fit, on the pseudo geometry, as studies before the per-geometry fits wrote it
+        fits = {"normal_pseudo": fits}
     return "; ".join(
         f"rho {fit['rho']:g}, ell {fit['ell']:g} px from {fit['n_scenes']} {fit['split']} scenes on "
         f"{GEOMETRY[normals].label}"
