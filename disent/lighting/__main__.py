@@ -11,10 +11,9 @@ import torch
 from omegaconf import DictConfig
 
 import disent.runs  # noqa: F401  (registers ${pid:}, used by the default run folder in conf/lighting.yaml)
-from disent.lighting.experiments import figures_for, noisy, order_report, run_all
+from disent.lighting.experiments import GEOMETRY, figures_for, noisy, order_data, order_report, run_all
 from disent.lighting.order import select_order
 from disent.lighting.posterior import prepare, sample_posterior
-from disent.lighting.texture import texture_for
 from disent.runs import tool_folder
 from disent.runtime import single_core
 
@@ -51,17 +50,19 @@ def posterior_of(cfg: DictConfig, name: str, item: dict) -> dict:
     albedo = item["albedo"] if cfg.known_albedo and "albedo" in item else None
     noise = cfg.noise if cfg.noise is not None else (0.0 if cfg.image else 0.01)
     data = prepare(noisy(item["image"], noise, cfg.seed), item[normals], mask, albedo, gray=cfg.gray)
-    uv_key = "uv_pseudo" if normals == "normal_pseudo" else "uv"
-    texture = None
-    if albedo is None and cfg.texture_components > 0 and uv_key in item and not cfg.gray:
-        texture = texture_for(data, item[uv_key], cfg.texture_components)
     post = sample_posterior(
         data, order=cfg.order, likelihood=cfg.likelihood, nu=cfg.nu, seed=cfg.seed, max_steps=cfg.max_steps
     )
     result = {"name": name, "normals": normals, "known_albedo": albedo is not None} | post.summary()
+    # the order choice: without a known albedo, the texture model on the geometry the order study chose
+    geometry = cfg.order_geometry if normals == "normal_pseudo" else "normal"
+    choice_data, texture = data, None
+    if albedo is None and cfg.texture_components > 0 and GEOMETRY[geometry].uv in item and not cfg.gray:
+        choice_data, texture = order_data(item, noise, cfg.seed, "texture", geometry, cfg.texture_components)
     residual = tuple(cfg.order_residual) if cfg.order_residual else None
-    choice = select_order(data, texture=texture, residual=residual)
+    choice = select_order(choice_data, texture=texture, residual=residual)
     result["order_choice"] = {k: v for k, v in choice.items() if k != "criterion"} | {"residual": residual}
+    result["order_choice"]["geometry"] = geometry if texture is not None else normals
     result["order_choice"]["texture_components"] = 0 if texture is None else len(texture[1])
     if "sh" in item:
         truth = item["sh"].double().numpy()
