@@ -364,6 +364,36 @@ def test_cli_writes_intervals_and_diagnostics(tmp_path):
     assert 0 <= result["true_inside95"] <= 1  # the truth is known on SynthFaces
 
 
+def test_cli_order_choice_on_pseudo_geometry_uses_the_chosen_geometry(monkeypatch):
+    """Without a known albedo on pseudo normals, the CLI's order choice scores the texture model on
+    ``order_geometry`` (the registered uv and eroded mask by default): the pixels it sees are that geometry's,
+    not the posterior's whole pseudo mask."""
+    from pathlib import Path
+
+    from omegaconf import OmegaConf
+
+    import disent.lighting.__main__ as cli
+    from disent.data import SynthFaces
+    from disent.lighting.experiments import item_data
+
+    cfg = OmegaConf.load(Path(__file__).resolve().parents[1] / "conf" / "lighting.yaml")
+    cfg.data = {"resolution": 64}
+    cfg.normals, cfg.known_albedo, cfg.max_steps, cfg.texture_components = "normal_pseudo", False, 200, 4
+    seen = {}
+
+    def spy(data, **kwargs):
+        seen["index"], seen["texture"] = data.index, kwargs["texture"]
+        return {"choice": "order0", "order": 0, "gray": False, "scores": {}, "criterion": "evidence"}
+
+    monkeypatch.setattr(cli, "select_order", spy)
+    item = SynthFaces("test", resolution=64, size=1)[0]
+    result, _, data = cli.posterior_of(cfg, "x", item)
+    assert cfg.order_geometry == "normal_pseudo_registered" and result["order_choice"]["geometry"] == cfg.order_geometry
+    eroded = item_data(item, 0.0, 0, known_albedo=False, normals=cfg.order_geometry)
+    assert np.array_equal(seen["index"], eroded.index) and len(seen["index"]) < len(data.index)
+    assert seen["texture"][0].shape == (5, len(eroded.index), 3)  # the mean and 4 components at those pixels
+
+
 def test_single_core_sets_and_restores_torch_and_blas_threads():
     from disent.runtime import _openblas
 
