@@ -260,6 +260,11 @@ def main(argv=None) -> None:
     m.add_argument("--lambdas", nargs="+", type=float, default=None)
     m.add_argument("--alphas", nargs="+", type=float, default=None)
     m.add_argument(
+        "--background",
+        action="store_true",
+        help="a diagnostic: the background code joins the manifold sets (written to <name>_background/)",
+    )
+    m.add_argument(
         "--measure-net",
         default=None,
         help="a trained measuring net (default: the shipped "

@@ -53,13 +53,17 @@ PSNR_CAP = 100.0  # dB; float32 round-off of an exact answer lands above it
 LEAK_KEYS = ("d_light", "d_pose", "d_identity", "d_attrs", "d_bg")
 
 
-def manifold_choices(kind: str, attribute: str) -> dict[str, tuple[str, ...]]:
-    """The paper's choice, each face manifold alone, and all of them (duplicates dropped)."""
+def manifold_choices(kind: str, attribute: str, background: bool = False) -> dict[str, tuple[str, ...]]:
+    """The paper's choice, each face manifold alone, and all of them (duplicates dropped); with ``background``
+    also the background code alone and with every face code (a diagnostic: an attribute the image shows outside
+    the face, such as hair, lives there)."""
     face = FACE_CODES[kind]
     choices = {"paper": DEFAULT_MANIFOLDS[kind][attribute]}
     for m in face:
         choices[m] = (m,)
     choices["all"] = face
+    if background and kind != "baseline":
+        choices["bg"], choices["all+bg"] = ("bg",), (*face, "bg")
     out, seen = {}, set()
     for label, ms in choices.items():
         key = tuple(sorted(ms))
@@ -165,6 +169,7 @@ def edit_table(
     truth_override=None,
     n_show: int = 4,
     read_identity: bool = True,
+    background: bool = False,
 ) -> tuple[list[dict], dict]:
     """Rows of the traversal table for one attribute (see the module docstring), and the first
     ``n_show`` images of each setting (``input``, ``recon``, ``truth``, ``(label, method, strength)``).
@@ -172,11 +177,13 @@ def edit_table(
     ``data_cls``: the :class:`~disent.data.SynthFaces` class (or one with its interface).
     ``truth_override(attribute) -> dict`` gives the generator overrides that switch the attribute
     on, for the ``truth`` row (omitted when None).  ``read_identity=False`` leaves ``d_identity`` out (for a
-    measuring net whose held-out identity error is no better than guessing the mean).
+    measuring net whose held-out identity error is no better than guessing the mean).  ``background``: the
+    background code joins the manifold sets (:func:`manifold_choices`).
     """
     pool_data = data_cls(split=f"pool_{attribute}", resolution=resolution, seed=seed, size=pool_size)
     pool_batch = get_batch(pool_data, range(len(pool_data)))
-    pool = encode_pool(model, pool_batch["image"], pool_batch["attrs"][attribute], attribute)
+    extra = ("bg",) if background else ()
+    pool = encode_pool(model, pool_batch["image"], pool_batch["attrs"][attribute], attribute, extra_codes=extra)
     test = data_cls(split="test", resolution=resolution, seed=seed)
     candidates = get_batch(test, range(min(len(test), 20 * n_sources)))
     idx = torch.nonzero(candidates["attrs"][attribute] < 0.5).flatten()[:n_sources].tolist()
@@ -222,7 +229,7 @@ def edit_table(
         rd = read(net, drawn)
         leak = leakage(r_in, rd, src["image"], drawn, src["matte"], attribute, spread)
         rows.append(summarize(attribute, "-", "truth reconstructed", 1.0, r_in["p"][:, i_attr], rd, leak))
-    choices = choices or manifold_choices(model_kind(codes0), attribute)
+    choices = choices or manifold_choices(model_kind(codes0), attribute, background)
     for label, manifolds in choices.items():
         for method, strengths in (("dmt", lambdas), ("barycenter", alphas)):
             for s in strengths:
@@ -457,7 +464,9 @@ def run_measurements(a) -> None:
     shipped = model.shipped
     run_folder = Path(a.run) if Path(a.run).is_dir() else Path(a.run).parent.parent  # .../checkpoints/x.pt
     tag = hashlib.sha1(str(run_folder.resolve()).encode()).hexdigest()[:6]
-    out = folder / (cfg.model.name if shipped else f"{cfg.model.name}_seed{cfg.seed}_{steps}steps_{tag}")
+    background = getattr(a, "background", False)
+    name = cfg.model.name if shipped else f"{cfg.model.name}_seed{cfg.seed}_{steps}steps_{tag}"
+    out = folder / (name + ("_background" if background else ""))  # a diagnostic beside, not over, the main one
     out.mkdir(exist_ok=True)
     R = int(getattr(model, "resolution", 64))
     net, net_info = _measure_net(a, out, SynthFaces, R)
@@ -487,6 +496,7 @@ def run_measurements(a) -> None:
             seed=a.seed,
             truth_override=truth_override,
             read_identity=read_identity,
+            background=background,
         )
         rows += r
         print(f"{attribute}: {len(r)} rows in {time.time() - t0:.0f} s", flush=True)
@@ -544,6 +554,7 @@ def run_measurements(a) -> None:
                 "seed": cfg.seed,
                 "steps": steps,
                 "setting": "shipped" if shipped else setting(Run.load(run_folder), drop_model=True),
+                "background": background,
                 "measure_net": net_info,
                 "traversal": rows,
                 "claims": claims,

@@ -177,16 +177,17 @@ class AttributePool:
 
 @torch.no_grad()
 def encode_pool(
-    model, images: torch.Tensor, labels: torch.Tensor, attribute: str, batch_size: int = 64
+    model, images: torch.Tensor, labels: torch.Tensor, attribute: str, batch_size: int = 64, extra_codes=()
 ) -> AttributePool:
-    """Encode ``images [N,3,H,W]`` with ``model.encode`` and split the face codes by ``labels [N]`` (0/1)."""
+    """Encode ``images [N,3,H,W]`` with ``model.encode`` and split the face codes (and ``extra_codes``, e.g.
+    ``("bg",)``) by ``labels [N]`` (0/1)."""
     labels = torch.as_tensor(labels).flatten() > 0.5
     if len(labels) != len(images):
         raise ValueError(f"{len(images)} images but {len(labels)} labels")
     if labels.all() or not labels.any():
         raise ValueError(f"pool for {attribute!r} needs both positive and negative examples")
     chunks = [model.encode(images[i : i + batch_size]) for i in range(0, len(images), batch_size)]
-    names = FACE_CODES[model_kind(chunks[0])]
+    names = (*FACE_CODES[model_kind(chunks[0])], *extra_codes)
     codes = {n: torch.cat([c[n].flatten(1) for c in chunks]).float() for n in names}
     return AttributePool(attribute, {n: c[labels] for n, c in codes.items()}, {n: c[~labels] for n, c in codes.items()})
 
