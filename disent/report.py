@@ -465,6 +465,34 @@ def shown_hidden_lines(runs: list[Run]) -> list[str]:
     ]
 
 
+def background_lines(measured: list[tuple]) -> list[str]:
+    """The edits made through the background code (``python -m disent.edit measure RUN --background``): per model,
+    attribute and method, the best success of the manifold sets with the background code against those without."""
+    lines = []
+    for model, where, res in measured:
+        best: dict = {}  # (attribute, method) -> {with background: best success}
+        for c in res["claims"]:
+            key, with_bg = (c["attribute"], c["method"]), "bg" in c["manifolds"].split("+")
+            best.setdefault(key, {})[with_bg] = max(best.get(key, {}).get(with_bg, 0.0), c["best_success"])
+        cells = [
+            f"{attribute} by {method}: {v[True]:.2f} with it, {v[False]:.2f} with the face codes alone"
+            for (attribute, method), v in best.items()
+            if {True, False} <= set(v)
+        ]
+        if cells:
+            lines.append(f"- {model} (`{where}`): " + "; ".join(cells) + ".")
+    if not lines:
+        return []
+    return [
+        "Outside the face: the same measurement with the background code among the manifold sets "
+        "(`python -m disent.edit measure RUN --background`; best success). An edit the face codes cannot make but "
+        "the background code can is one the reader sees outside the face, in what the model draws as background "
+        "(SynthFaces greys a senior face's hair).\n",
+        *lines,
+        "",
+    ]
+
+
 def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
     """The paper's claims, each with its numbers (mean ± std over seeds, grouped by setting) and a verdict."""
     done = ladder_runs(runs)
@@ -576,10 +604,13 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
     claim_ablations(rep, runs)
     rep.add("### 5. Edits on the paper's manifolds change the attribute with less leakage than other manifolds\n")
     groups: dict = {}  # (model, setting) -> the edit results of its trained models (seeds)
+    outside = []  # the --background diagnostics: (model, setting, result)
     for p in sorted((eval_dir.parent / "edit").glob("*/edit.json")):
         res = _load_json(p)
         where = measured_setting(res, loaded) if res and res.get("claims") else None
-        if where is not None:
+        if where is not None and res.get("background"):
+            outside.append((res.get("model", p.parent.name), where, res))
+        elif where is not None:
             groups.setdefault((res.get("model", p.parent.name), where), []).append(res)
     head = table_head(
         "model",
@@ -690,6 +721,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
             *idle,
             "",
         )
+    rep.add(*background_lines(outside))
     rep.add(
         "### Relighting with detailed albedo (Sec. 5.3)\n",
         "PSNR (dB) on the face against the generator's own render of the face under the source light, "

@@ -651,3 +651,15 @@ def test_measure_command_names_a_run_folders_results_by_seed_and_steps(tmp_path,
     assert (res["model"], res["seed"], res["steps"], res["setting"]) == ("explicit", 2, 7, "train.lr=0.002")
     assert res["run"] == str(run.resolve())
     assert res["claims"] and res["relight"] and not list(folder.glob("*.png"))
+
+
+def test_background_manifold_sets_are_a_separate_diagnostic():
+    """``background=True`` adds the background code alone and with every face code, for the two rendering models
+    only; the default sets never move it (the paper's traversal edits the face)."""
+    from disent.edit.measure import manifold_choices
+
+    for kind, face in (("explicit", ("Ne", "Ae")), ("implicit", ("UV", "Ni", "Ai"))):
+        plain, more = manifold_choices(kind, "senior"), manifold_choices(kind, "senior", background=True)
+        assert all("bg" not in ms for ms in plain.values())
+        assert more == plain | {"bg": ("bg",), "all+bg": (*face, "bg")}
+    assert manifold_choices("baseline", "senior", background=True) == manifold_choices("baseline", "senior")

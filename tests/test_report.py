@@ -844,3 +844,19 @@ def test_wilson_interval_matches_the_closed_form():
     assert lo == pytest.approx(0.4038, abs=1e-4) and hi == pytest.approx(0.5962, abs=1e-4)
     assert wilson_interval(0.0, 20)[0] == pytest.approx(0.0, abs=1e-12) and 0 < wilson_interval(0.0, 20)[1] < 0.2
     assert wilson_interval(1.0, 20)[1] == pytest.approx(1.0, abs=1e-12)
+
+
+def test_background_diagnostic_sets_edits_through_the_background_against_the_face_codes():
+    """``edit measure --background`` results: per attribute and method, the best success of the sets holding the
+    background code beside the best of the face codes alone; none measured, no lines."""
+    from disent.report import background_lines
+
+    claims = [
+        {"attribute": "senior", "method": "dmt", "manifolds": "paper:Ae+Ne", "best_success": 0.0},
+        {"attribute": "senior", "method": "dmt", "manifolds": "Ae", "best_success": 0.06},
+        {"attribute": "senior", "method": "dmt", "manifolds": "bg", "best_success": 1.0},
+        {"attribute": "senior", "method": "dmt", "manifolds": "all+bg", "best_success": 0.94},
+    ]
+    lines = background_lines([("explicit", "shipped", {"claims": claims})])
+    assert "- explicit (`shipped`): senior by dmt: 1.00 with it, 0.06 with the face codes alone." in lines
+    assert background_lines([]) == []
