@@ -182,18 +182,16 @@ def register(
             r, X = _registration_residual(data, uv, level, gradients, x, delta, order)
             noise = r @ r / r.size
 
-            def cost(delta, r):
+            def cost(delta, r):  # the negative log posterior, at this step's noise level
                 return 0.5 * r @ r / noise + 0.5 * (((delta - mean) / std) ** 2).sum()
 
             now = cost(delta, r)
             H = X @ X.T / noise + np.diag(1 / std**2)
             step = np.linalg.solve(H, X @ r / noise - (delta - mean) / std**2)
             for t in (1.0, 0.5, 0.25, 0.125):
-                if (
-                    cost(delta + t * step, _registration_residual(data, uv, level, None, x, delta + t * step, order))
-                    < now
-                ):
-                    delta = delta + t * step
+                trial = delta + t * step
+                if cost(trial, _registration_residual(data, uv, level, None, x, trial, order)) < now:
+                    delta = trial
                     break
             else:
                 break  # no step helps: this level has converged
