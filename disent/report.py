@@ -444,7 +444,8 @@ def shown_hidden_lines(runs: list[Run]) -> list[str]:
     scored = [r for r in runs if r.value("sh_error_shown") is not None]
     if not scored:
         return []
-    parts = []
+    parts, learned = [], []
+    mean_light = _spread(scored, "trivial_sh_error_shown")
     for label, rs, prefix in (
         *((model, [r for r in scored if r.model == model], "") for model in ("explicit", "implicit")),
         ("the mean light", scored, "trivial_"),
@@ -453,6 +454,8 @@ def shown_hidden_lines(runs: list[Run]) -> list[str]:
         shown, hidden = (_spread(rs, f"{prefix}sh_error_{k}") for k in ("shown", "hidden"))
         if shown is not None:
             parts.append(f"{label} {_ms(shown, '.3f')} shown / {_ms(hidden, '.3f')} hidden")
+            if not prefix:
+                learned.append(f"{label} {verdict(shown, mean_light, 'lower')}")
     return [
         "- The SH error split by what the face shows (`sh_error_shown` / `sh_error_hidden`, test split, relative to "
         "the true light; `disent.eval.metrics.sh_error_shown_hidden`): a face's normals cover part of the sphere, "
@@ -460,8 +463,10 @@ def shown_hidden_lines(runs: list[Run]) -> list[str]:
         "frontal normals ambient, n_z and 3 n_z^2 - 1 are nearly collinear, as are n_y and n_y n_z) are hidden from "
         "any image of it; the scale is read from the shading. "
         + "; ".join(parts)
-        + ". A light counts as learned where its shown error beats the mean light's; the hidden part is a guess "
-        "that only a prior (the mean light's) can make well."
+        + ". A light counts as learned where its shown error beats the mean light's (over the seeds, beyond their "
+        "spread): "
+        + ", ".join(learned)
+        + "; the hidden part is a guess that only a prior (the mean light's) can make well."
     ]
 
 

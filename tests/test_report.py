@@ -860,3 +860,22 @@ def test_background_diagnostic_sets_edits_through_the_background_against_the_fac
     lines = background_lines([("explicit", "shipped", {"claims": claims})])
     assert "- explicit (`shipped`): senior by dmt: 1.00 with it, 0.06 with the face codes alone." in lines
     assert background_lines([]) == []
+
+
+def test_claim_two_reads_the_light_as_learned_only_where_the_face_shows_it(tmp_path):
+    """The shown/hidden line: each model's shown SH error over its seeds against the mean light's; confirmed only
+    with three seeds beyond the spread, and no line for runs scored before the split existed."""
+    from disent.report import shown_hidden_lines
+
+    light = {"trivial_sh_error_shown": 0.25, "trivial_sh_error_hidden": 0.14}
+    light |= {"pseudo_sh_error_shown": 0.19, "pseudo_sh_error_hidden": 19.0}
+    for seed, shown in enumerate((0.11, 0.12, 0.115)):
+        ev = {"sh_error_shown": shown, "sh_error_hidden": 1.1} | light
+        make_run(tmp_path, f"e{seed}", "explicit", seed=seed, eval_=ev, extra=("+experiment=smoke",))
+    make_run(tmp_path, "i0", "implicit", eval_={"sh_error_shown": 0.3} | light, extra=("+experiment=smoke",))
+    make_run(tmp_path, "old", "explicit", seed=3, eval_={"sh_error": 0.5}, extra=("+experiment=smoke",))
+    (line,) = shown_hidden_lines(find_runs([tmp_path]))
+    assert "explicit 0.115 ± 0.005 (n=3) shown / 1.100 ± 0.000 (n=3) hidden" in line
+    assert "the mean light 0.250 ± 0.000 (n=4) shown" in line and "L-hat 0.190 ± 0.000 (n=4) shown" in line
+    assert "explicit **confirmed**, implicit not testable (1 seed(s); 3 needed)" in line
+    assert shown_hidden_lines(find_runs([tmp_path / "old"])) == []
