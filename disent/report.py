@@ -2082,6 +2082,14 @@ def sec_lighting(rep: Report, out: Path) -> None:
         for name in ("order_confusion", "order_confusion_val"):
             if (d / f"{name}.png").exists():
                 rep.image(d / f"{name}.png", name)
+        if (registration := _load_json(d / "registration.json")) and (d / "registration.png").exists():
+            rep.add(
+                "The texture model fitted through the pseudo, registered and true uv on val scenes under order-1 "
+                f"light (`disent.lighting.experiments.plot_registration`); uv error, rms per axis over the shown "
+                f"scenes: {registration['uv_pseudo']:.1f} px pseudo, {registration['normal_pseudo_registered']:.1f} "
+                "px registered.\n"
+            )
+            rep.image(d / "registration.png", "registration")
     if cal or cal_p:
         rep.add(
             "### Calibration of the posterior\n",
