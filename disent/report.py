@@ -477,8 +477,8 @@ def background_lines(measured: list[tuple]) -> list[str]:
     for model, where, res in measured:
         best: dict = {}  # (attribute, method) -> {with background: best success}
         for c in res["claims"]:
-            key, with_bg = (c["attribute"], c["method"]), "bg" in c["manifolds"].split("+")
-            best.setdefault(key, {})[with_bg] = max(best.get(key, {}).get(with_bg, 0.0), c["best_success"])
+            cell, with_bg = best.setdefault((c["attribute"], c["method"]), {}), "bg" in c["manifolds"].split("+")
+            cell[with_bg] = max(cell.get(with_bg, 0.0), c["best_success"])
         cells = [
             f"{attribute} by {method}: {v[True]:.2f} with it, {v[False]:.2f} with the face codes alone"
             for (attribute, method), v in best.items()
@@ -2086,8 +2086,8 @@ def sec_lighting(rep: Report, out: Path) -> None:
             rep.add(
                 "The texture model fitted through the pseudo, registered and true uv on val scenes under order-1 "
                 f"light (`disent.lighting.experiments.plot_registration`); uv error, rms per axis over the shown "
-                f"scenes: {registration['uv_pseudo']:.1f} px pseudo, {registration['normal_pseudo_registered']:.1f} "
-                "px registered.\n"
+                f"scenes: {registration['normal_pseudo_eroded']:.1f} px pseudo, "
+                f"{registration['normal_pseudo_registered']:.1f} px registered.\n"
             )
             rep.image(d / "registration.png", "registration")
     if cal or cal_p:

@@ -488,7 +488,7 @@ def plot_registration(ds, path: Path, n_scenes: int = 4, noise: float = 0.02, n_
     from disent.lighting.order import score
     from disent.lighting.texture import texture_for
 
-    columns = ("uv_pseudo", "normal_pseudo_registered", "uv")
+    columns = {"normal_pseudo_eroded": "pseudo uv", "normal_pseudo_registered": "registered uv", "oracle_uv": "true uv"}
     fig, axes = plt.subplots(n_scenes, 2 + len(columns), figsize=(2.0 * (2 + len(columns)), 2.1 * n_scenes))
     errors = {c: [] for c in columns}
     for i in range(n_scenes):
@@ -497,8 +497,8 @@ def plot_registration(ds, path: Path, n_scenes: int = 4, noise: float = 0.02, n_
         truth = item["uv"].double().flatten(1)[:, data.index]
         H, W = data.shape
         panels = [(item["image"].permute(1, 2, 0).clamp(0, 1).numpy(), "image")]
-        for c in columns:
-            uv = uv_of(item, data, "normal_pseudo_registered", n_components) if c.endswith("registered") else item[c]
+        for c, label in columns.items():  # geometries with the same normals and mask, each with its uv
+            uv = uv_of(item, data, c, n_components)
             tex, variance = texture_for(data, uv, n_components)
             beta = np.array(score(data, 2, texture=(tex, variance))["texture"])
             canvas = np.zeros((H * W, 3))
@@ -506,7 +506,6 @@ def plot_registration(ds, path: Path, n_scenes: int = 4, noise: float = 0.02, n_
             canvas /= max(canvas.max(), 1e-6)
             rms = float(((uv.double().flatten(1)[:, data.index] - truth) ** 2).sum(0).mean().sqrt() * (W - 1) / 2**0.5)
             errors[c].append(rms)
-            label = {"uv_pseudo": "pseudo uv", "uv": "true uv"}.get(c, "registered uv")
             panels.append((canvas.reshape(H, W, 3), f"{label}, {rms:.1f} px"))
         albedo = item["albedo"].permute(1, 2, 0).numpy()
         panels.append((albedo / max(albedo.max(), 1e-6), "true albedo"))
