@@ -180,9 +180,11 @@ def edit_table(
     measuring net whose held-out identity error is no better than guessing the mean).  ``background``: the
     background code joins the manifold sets (:func:`manifold_choices`).
     """
+    kind = model_kind(dict.fromkeys(model.CODE_NAMES))
+    choices = choices or manifold_choices(kind, attribute, background)
+    extra = tuple(dict.fromkeys(c for ms in choices.values() for c in ms if c not in FACE_CODES[kind]))  # e.g. bg
     pool_data = data_cls(split=f"pool_{attribute}", resolution=resolution, seed=seed, size=pool_size)
     pool_batch = get_batch(pool_data, range(len(pool_data)))
-    extra = ("bg",) if background else ()
     pool = encode_pool(model, pool_batch["image"], pool_batch["attrs"][attribute], attribute, extra_codes=extra)
     test = data_cls(split="test", resolution=resolution, seed=seed)
     candidates = get_batch(test, range(min(len(test), 20 * n_sources)))
@@ -229,7 +231,6 @@ def edit_table(
         rd = read(net, drawn)
         leak = leakage(r_in, rd, src["image"], drawn, src["matte"], attribute, spread)
         rows.append(summarize(attribute, "-", "truth reconstructed", 1.0, r_in["p"][:, i_attr], rd, leak))
-    choices = choices or manifold_choices(model_kind(codes0), attribute, background)
     for label, manifolds in choices.items():
         for method, strengths in (("dmt", lambdas), ("barycenter", alphas)):
             for s in strengths:
