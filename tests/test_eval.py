@@ -59,6 +59,46 @@ def test_a_rerun_of_the_protocol_keeps_the_rows_it_does_not_measure_again():
     assert kept["runs"]["old long"]["setting"] == "long" and kept["estimators"]["e1"] == row(0.2)
 
 
+def test_sh_variance_split_by_what_faces_show():
+    """shown + hidden is the unbiased within-condition variance of the estimates scaled in shading (a share of
+    ||true||^2); estimates that differ within a condition only along each face's hidden SH direction have no
+    shown variance."""
+    from disent.eval.metrics import scale_in_shading, sh_gram
+    from disent.eval.protocols import sh_variance_shown_hidden
+
+    g = torch.Generator().manual_seed(0)
+    ds = FakeFaces("lightbank")
+    batch = default_collate([ds[i] for i in range(0, len(ds), 3)])
+    gram, cond, truth = sh_gram(batch["normal"], face_mask(batch["matte"])), batch["light_id"], batch["sh"].double()
+    sh = truth + 0.3 * torch.randn(truth.shape, generator=g, dtype=torch.float64)
+    split = sh_variance_shown_hidden(sh, truth, gram, cond)
+    x = scale_in_shading(sh, truth, gram)
+    whole = []
+    for c in cond.unique():
+        xc = x[cond == c]
+        whole += (
+            ((xc - xc.mean(0)) ** 2).sum((1, 2)) * len(xc) / (len(xc) - 1) / truth[cond == c].pow(2).sum((1, 2))
+        ).tolist()
+    assert split["shown"] + split["hidden"] == pytest.approx(sum(whole) / len(whole), rel=1e-9)
+    assert split["shown"] > 0 and split["hidden"] > 0
+    hidden_direction = torch.linalg.eigh(gram)[1][:, None, :, 0]  # [N, 1, 9]: each face's least shown direction
+    wobble = truth + 0.3 * torch.randn(len(truth), 1, 1, generator=g, dtype=torch.float64) * hidden_direction
+    only_hidden = sh_variance_shown_hidden(wobble, truth, gram, cond)
+    assert only_hidden["shown"] < 1e-3 * only_hidden["hidden"]
+
+
+def test_sh_variance_protocol_scores_the_mean_light_beside_the_estimators():
+    """The constant mean light: no raw variance, its error that of a constant; the oracle's shown parts vanish."""
+    ds = FakeFaces("lightbank")
+    res = sh_variance_protocol(ds, mean_light=ds.bank.mean(0))["estimators"]
+    assert res["mean_light"]["mean"] == pytest.approx(0, abs=1e-12) and res["mean_light"]["sh_error"] > 0.01
+    assert res["mean_light"]["sh_error_shown"] + res["mean_light"]["sh_error_hidden"] > 0.01
+    assert res["ls_oracle"]["variance_shown"] < 1e-10 and res["ls_oracle"]["sh_error_shown"] < 1e-10
+    assert (
+        res["ls_pseudo"]["variance_shown"] > res["ls_true"]["variance_shown"] > 1e3 * res["ls_oracle"]["variance_shown"]
+    )
+
+
 def test_sh_variance_protocol_needs_fixed_lights():
     with pytest.raises(ValueError, match="lightbank"):
         sh_variance_protocol(FakeFaces("test", size=6))

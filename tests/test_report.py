@@ -657,6 +657,21 @@ def test_light_claim_is_read_over_the_seeds_the_protocol_scored(tmp_path):
         == "| explicit | `(defaults)` | 0.180 ± 0.020 (n=3) | 0.800 | 0.600 ± 0.000 (n=3) | 0.900 | **confirmed** |"
     )
     assert rows[1].endswith("| not testable (1 seed(s); 3 needed) |")
+    assert not any("shown variance" in line for line in rep.lines)  # a protocol run before the split: no table
+
+    # the protocol's split by what the faces show: a second table against L-hat and the mean light
+    est["ls_pseudo"] |= {"variance_shown": 0.05, "sh_error_shown": 0.2}
+    est["mean_light"] = {"relative": 0.0, "sh_error": 0.4, "variance_shown": 0.001, "sh_error_shown": 0.25}
+    for seed, var in enumerate((0.02, 0.03, 0.04)):
+        est[f"e{seed}"] |= {"variance_shown": var, "sh_error_shown": 0.1}
+    (out / "eval" / "sh_variance.json").write_text(json.dumps({"estimators": est, "runs": runs}))
+    rep = report.Report(out, "")
+    report.sec_claims(rep, find_runs([tmp_path / "runs"]), out / "eval")
+    shown = [line for line in rep.lines if line.startswith("| explicit |") and "0.050" in line]
+    assert shown == [
+        "| explicit | `(defaults)` | 0.030 ± 0.010 (n=3) | 0.050 | 0.001 | 0.100 ± 0.000 (n=3) | 0.200 | 0.250 | "
+        "**confirmed** |"
+    ]  # the long run was measured before the split: not in this table
 
 
 def test_photo_section_marks_a_network_no_better_than_the_training_means(tmp_path):

@@ -219,29 +219,52 @@ def sh_error(pred_sh: torch.Tensor, true_sh: torch.Tensor, per_channel: bool = F
     return _reduce(share.sum(1), reduction)
 
 
+def sh_gram(normal: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """``[B,9,9]``: per image, ``G = mean over the mask of Y(n) Y(n)^T`` (Eq. 4's basis at ``normal [B,3,H,W]``):
+    the shading energy ``L^T G L`` a light ``L`` makes over the face.  Its eigenvalues span orders of magnitude, as
+    a face's normals cover part of the sphere."""
+    from disent.render import sh_basis
+
+    Y = sh_basis(normal.detach().double(), 1)  # [B, 9, H, W]
+    w = (mask > 0.5).double()
+    return torch.einsum("nkhw,nlhw->nkl", Y * w, Y) / w.sum((1, 2, 3)).clamp_min(1)[:, None, None]
+
+
+def scale_in_shading(pred_sh: torch.Tensor, true_sh: torch.Tensor, gram: torch.Tensor) -> torch.Tensor:
+    """``s pred_sh`` with ``s`` per image and channel where the scale can be seen, in shading:
+    ``argmin_s (s p - t)^T G (s p - t)`` (``gram``: :func:`sh_gram`)."""
+    p, t = pred_sh.detach().double(), true_sh.detach().double()
+    s = torch.einsum("nck,nkl,ncl->nc", p, gram, t) / torch.einsum("nck,nkl,ncl->nc", p, gram, p).clamp_min(1e-300)
+    return s[..., None] * p
+
+
+def shown_hidden_energy(x: torch.Tensor, gram: torch.Tensor, fraction: float = 0.01) -> tuple:
+    """``(shown [B], hidden [B])``: the squared norm of SH vectors ``x [B,C,9]`` (summed over channels) split over
+    ``gram``'s eigenvectors into the *hidden* directions, eigenvalue below ``fraction`` of the largest, which no
+    image of the face can pin down, and the *shown* rest."""
+    values, vectors = torch.linalg.eigh(gram)  # ascending, per image
+    hidden = (values < fraction * values[:, -1:])[:, None, :]  # [B, 1, 9]
+    energy = torch.einsum("nck,nkj->ncj", x, vectors) ** 2
+    return (energy * ~hidden).sum((1, 2)), (energy * hidden).sum((1, 2))
+
+
 def sh_error_shown_hidden(
     pred_sh: torch.Tensor, true_sh: torch.Tensor, normal: torch.Tensor, mask: torch.Tensor, fraction: float = 0.01
 ) -> dict:
     """The SH error split by what the face shows: ``{"shown", "hidden"}``, each a share of ``||true||^2``.
 
-    A face's normals cover part of the sphere, so some SH directions barely change its shading: per image, the
-    Gram matrix ``G = mean over the mask of Y(n) Y(n)^T`` (Eq. 4's basis at the true ``normal [B,3,H,W]``) has
-    eigenvalues spanning orders of magnitude.  ``pred_sh [B,C,9]`` is scaled per image and channel where the scale
-    can be seen, in shading (``argmin_s (s p - t)^T G (s p - t)``); its error ``e = s p - t`` then splits over
-    G's eigenvectors into the *hidden* directions, eigenvalue below ``fraction`` of the largest, which no image of
-    the face can pin down, and the *shown* rest (``shown + hidden`` is ``||e||^2 / ||t||^2``)."""
-    from disent.render import sh_basis
+    ``pred_sh [B,C,9]`` is scaled per image and channel in shading (:func:`scale_in_shading`); its error
+    ``e = s p - t`` splits over the face's SH directions (:func:`shown_hidden_energy` of :func:`sh_gram` at the
+    true ``normal``) into the hidden and the shown part (``shown + hidden`` is ``||e||^2 / ||t||^2``)."""
+    return sh_error_split(pred_sh, true_sh, sh_gram(normal, mask), fraction)
 
-    p, t = pred_sh.detach().double(), true_sh.detach().double()
-    Y = sh_basis(normal.detach().double(), 1)  # [B, 9, H, W]
-    w = (mask > 0.5).double()
-    G = torch.einsum("nkhw,nlhw->nkl", Y * w, Y) / w.sum((1, 2, 3)).clamp_min(1)[:, None, None]
-    scale = torch.einsum("nck,nkl,ncl->nc", p, G, t) / torch.einsum("nck,nkl,ncl->nc", p, G, p).clamp_min(1e-300)
-    values, vectors = torch.linalg.eigh(G)  # ascending, per image
-    hidden = (values < fraction * values[:, -1:])[:, None, :]  # [B, 1, 9]
-    error = torch.einsum("nck,nkj->ncj", scale[..., None] * p - t, vectors)  # in G's eigenvectors
-    energy = error**2 / t.pow(2).sum((1, 2))[:, None, None]
-    return {k: (energy * part).sum((1, 2)).mean().item() for k, part in (("shown", ~hidden), ("hidden", hidden))}
+
+def sh_error_split(pred_sh: torch.Tensor, true_sh: torch.Tensor, gram: torch.Tensor, fraction: float = 0.01) -> dict:
+    """:func:`sh_error_shown_hidden` with each face's ``gram [B,9,9]`` (:func:`sh_gram`) given."""
+    t = true_sh.detach().double()
+    shown, hidden = shown_hidden_energy(scale_in_shading(pred_sh, t, gram) - t, gram, fraction)
+    norm = t.pow(2).sum((1, 2))
+    return {"shown": (shown / norm).mean().item(), "hidden": (hidden / norm).mean().item()}
 
 
 def _reduce(per_image: torch.Tensor, reduction: str):
@@ -262,6 +285,10 @@ __all__ = [
     "scale_invariant_mse",
     "sh_error",
     "sh_error_shown_hidden",
+    "sh_error_split",
+    "sh_gram",
+    "scale_in_shading",
+    "shown_hidden_energy",
     "optimal_scale",
     "ANGLE_THRESHOLDS",
 ]

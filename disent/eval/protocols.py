@@ -21,6 +21,14 @@ zero variance and says nothing about the light, so two more numbers sit beside i
 ``within_share``, the within-condition variance over the variance across all images (1: the
 estimate ignores the light; 0: it depends on the light only), and the SH error against the truth.
 
+A face's normals cover part of the sphere, so some SH directions barely change its shading and no image of it
+pins them down (:func:`disent.eval.metrics.sh_error_split`).  An estimator's spread in those directions
+says nothing about the light, so ``variance_shown`` / ``variance_hidden`` split the within-condition variance
+(each estimate scaled to the truth in shading first, a share of the true light's squared norm) by the directions
+the face shows and those it hides (:func:`sh_variance_shown_hidden`), and ``sh_error_shown`` / ``sh_error_hidden``
+split the error the same way.  ``mean_light`` (the training split's mean true light, the trivial baseline) sits
+beside the estimators: its only spread is its per-image scale.
+
 ``python -m disent.eval.protocols`` writes ``sh_variance.json`` and its bar chart (a tool folder, published
 to ``reports/eval/``).
 """
@@ -29,12 +37,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
 import torch
 
 from disent.eval.evaluate import batches, face_mask, predict
-from disent.eval.metrics import sh_error
+from disent.eval.metrics import scale_in_shading, sh_error, sh_error_split, sh_gram, shown_hidden_energy
 from disent.render import SH_NAMES, fit_sh
 
 
@@ -72,6 +81,30 @@ def sh_variance(sh: torch.Tensor, condition: torch.Tensor) -> dict:
     }
 
 
+def sh_variance_shown_hidden(
+    sh: torch.Tensor, truth: torch.Tensor, gram: torch.Tensor, condition: torch.Tensor, fraction: float = 0.01
+) -> dict:
+    """Within-condition variance of ``sh [N,C,9]`` split by what each face shows: ``{"shown", "hidden"}``.
+
+    Each estimate is scaled to the truth ``[N,C,9]`` in shading (:func:`~disent.eval.metrics.scale_in_shading`
+    with the face's ``gram [N,9,9]``, :func:`~disent.eval.metrics.sh_gram`); its deviation from its condition's
+    mean, times ``n / (n - 1)`` (unbiased), splits over its own face's SH directions
+    (:func:`~disent.eval.metrics.shown_hidden_energy`); each part is averaged over the images of conditions with at
+    least 2 images, as a share of the true light's squared norm.  ``shown + hidden`` is the unbiased
+    within-condition variance of the scaled estimates, summed over coefficients and channels."""
+    x = scale_in_shading(sh, truth, gram)
+    ids, inv, counts = torch.unique(condition, return_inverse=True, return_counts=True)
+    mean = torch.zeros(len(ids), *x.shape[1:], dtype=x.dtype).index_add_(0, inv, x) / counts.double()[:, None, None]
+    n = counts[inv].double()
+    keep = n >= 2
+    if not keep.any():
+        raise ValueError("sh_variance_shown_hidden needs a condition with at least 2 images")
+    deviation = (x - mean[inv]) * (n / (n - 1).clamp_min(1)).sqrt()[:, None, None]
+    norm = truth.double().pow(2).sum((1, 2))
+    shown, hidden = (part[keep] / norm[keep] for part in shown_hidden_energy(deviation, gram, fraction))
+    return {"shown": shown.mean().item(), "hidden": hidden.mean().item()}
+
+
 def ls_estimates(batch: dict) -> dict:
     """Least-squares SH of one batch for the three LS estimators (and the truth)."""
     image, face = batch["image"], face_mask(batch["matte"])
@@ -84,9 +117,10 @@ def ls_estimates(batch: dict) -> dict:
 
 
 def collect_sh(dataset, models: dict | None = None, limit: int | None = None, batch_size: int = 128):
-    """SH estimates of every estimator on ``dataset`` -> ``({name: [N,C,9]}, sh_true [N,C,9], light_id [N])``."""
+    """SH estimates of every estimator on ``dataset`` -> ``({name: [N,C,9]}, sh_true [N,C,9], light_id [N],
+    gram [N,9,9])`` (``gram``: each face's :func:`~disent.eval.metrics.sh_gram` over its true normals)."""
     models = dict(models or {})
-    parts, truth, cond = {}, [], []
+    parts, truth, cond, gram = {}, [], [], []
     for batch in batches(dataset, batch_size, limit):
         est = ls_estimates(batch)
         for name, model in list(models.items()):
@@ -99,21 +133,35 @@ def collect_sh(dataset, models: dict | None = None, limit: int | None = None, ba
             parts.setdefault(k, []).append(v.detach().double())
         truth.append(batch["sh"].double())
         cond.append(batch["light_id"])
-    return {k: torch.cat(v) for k, v in parts.items()}, torch.cat(truth), torch.cat(cond)
+        gram.append(sh_gram(batch["normal"], face_mask(batch["matte"])))
+    return {k: torch.cat(v) for k, v in parts.items()}, torch.cat(truth), torch.cat(cond), torch.cat(gram)
 
 
-def sh_variance_protocol(dataset, models: dict | None = None, limit: int | None = None) -> dict:
-    """The supplement's table: variance (and aligned SH error) of every estimator on ``dataset``."""
-    est, truth, cond = collect_sh(dataset, models, limit)
+def sh_variance_protocol(
+    dataset, models: dict | None = None, limit: int | None = None, mean_light: torch.Tensor | None = None
+) -> dict:
+    """The supplement's table: variance (and aligned SH error) of every estimator on ``dataset``, each split by
+    what the faces show; ``mean_light [C,9]`` (:func:`disent.eval.trivial.dataset_means`' ``sh``) adds the
+    constant estimator ``mean_light``."""
+    est, truth, cond, gram = collect_sh(dataset, models, limit)
     if (cond < 0).any():
         raise ValueError("sh_variance_protocol needs fixed light conditions (light_id >= 0): use split='lightbank'")
+    if mean_light is not None:
+        est["mean_light"] = mean_light.double().expand_as(truth)
     out = {}
     for name, sh in est.items():
-        out[name] = {**sh_variance(sh, cond), "sh_error": sh_error(sh, truth)}
+        spread, error = sh_variance_shown_hidden(sh, truth, gram, cond), sh_error_split(sh, truth, gram)
+        out[name] = {
+            **sh_variance(sh, cond),
+            "sh_error": sh_error(sh, truth),
+            **{f"variance_{k}": v for k, v in spread.items()},
+            **{f"sh_error_{k}": v for k, v in error.items()},
+        }
     return {"estimators": out, "coefficients": list(SH_NAMES), "paper": {"ls_3dmm": 0.36, "network": 0.16}}
 
 
-CHECKS = ("true", "ls_oracle")  # sanity rows of the table (zero variance by construction), not plotted
+# rows of the table with zero variance by construction, not plotted: the checks and the constant mean light
+CHECKS = ("true", "ls_oracle", "mean_light")
 
 
 def sh_variance_groups(result: dict) -> dict:
@@ -142,7 +190,8 @@ def plot_sh_variance(result: dict, path) -> None:
     groups = sh_variance_groups(result)
     x = np.arange(9)
     width = 0.8 / max(len(groups), 1)
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    legend_in = 0.16 * (len(groups) + 1)  # one legend line per bar colour, below the panels
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.6 + legend_in))
     for ax, key in zip(axes, ("mean", "relative")):
         for i, (name, rows) in enumerate(groups.items()):
             bars = np.array([np.array(v["per_coeff"]) * (v[key] / v["mean"] if v["mean"] > 0 else 1.0) for v in rows])
@@ -156,6 +205,7 @@ def plot_sh_variance(result: dict, path) -> None:
                 width,
                 yerr=whisker,
                 error_kw={"lw": 0.6},
+                color=plt.cm.tab20(i % 20),  # one colour a bar up to 20 estimators
                 label=f"{name}{seeds} ({value:.3g})",
             )
         ax.set_xticks(x, result.get("coefficients", SH_NAMES))
@@ -164,8 +214,8 @@ def plot_sh_variance(result: dict, path) -> None:
     axes[0].set_title("SH variance within a light condition (mean over conditions and RGB)", fontsize=9)
     axes[1].set_title("the same, scale-free", fontsize=9)
     handles, labels = axes[1].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=min(3, len(labels)), fontsize=7, frameon=False)
-    fig.tight_layout(rect=(0, 0.06 * ((len(labels) + 2) // 3), 1, 1))
+    fig.legend(handles, labels, loc="lower left", ncol=1, fontsize=7, frameon=False)
+    fig.tight_layout(rect=(0, legend_in / (3.6 + legend_in), 1, 1))
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -224,8 +274,11 @@ def main(argv=None):
         models = {name: load_run(r.path)[0] for name, (r, _) in runs.items()}
     else:
         models = load_models(a.runs if a.runs is not None else find_runs(a.roots or RUN_ROOTS))
+    from disent.eval.trivial import dataset_means
+
     ds = SynthFaces(split="lightbank", resolution=a.resolution, seed=0)
-    res = sh_variance_protocol(ds, models, a.limit)
+    mean_light = dataset_means(SynthFaces(split="train", resolution=a.resolution, seed=0))["sh"]
+    res = sh_variance_protocol(ds, models, a.limit, mean_light)
     res["split"], res["resolution"] = "lightbank", a.resolution
     if runs:  # which trained model each network row is, for the report's verdict over seeds
         res["runs"] = {name: info for name, (_, info) in runs.items()}
@@ -237,7 +290,8 @@ def main(argv=None):
     for k, v in res["estimators"].items():
         print(
             f"{k:28s} variance {v['mean']:.4g}  relative {v['relative']:.4g}  within {v['within_share']:.3g}  "
-            f"sh_error {v['sh_error']:.4g}  "
+            f"sh_error {v['sh_error']:.4g}  shown: variance {v.get('variance_shown', math.nan):.4g} "
+            f"error {v.get('sh_error_shown', math.nan):.4g}  "
             f"({v['n_conditions']} conditions, {v['n_images']} images)"
         )
 
