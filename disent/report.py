@@ -438,6 +438,13 @@ def beyond_the_fit(groups: dict) -> list[str]:
     ]
 
 
+def lower_than_fixed(*pairs: tuple) -> str:
+    """One verdict over ``(spread over seeds, a deterministic estimator's value)`` pairs: the network lower on
+    each (:func:`verdict`), or ``mixed`` naming the verdicts where they differ."""
+    verdicts = {verdict(net, {"mean": fixed, "std": 0.0, "n": net["n"]}, "lower") for net, fixed in pairs}
+    return verdicts.pop() if len(verdicts) == 1 else "mixed: " + " / ".join(sorted(verdicts))
+
+
 def shown_variance_table(rep: Report, groups: dict, est: dict) -> list[str]:
     """Claim 2 on the light the faces show: per ``(model, setting)`` group of the SH-variance protocol's rows, the
     within-condition variance and the error in the SH directions a face shows
@@ -454,15 +461,11 @@ def shown_variance_table(rep: Report, groups: dict, est: dict) -> list[str]:
         if not measured:
             continue
         var, err = (_ablation.mean_std([r[k] for r in measured]) for k in ("variance_shown", "sh_error_shown"))
-        both = {
-            verdict(var, {"mean": ls["variance_shown"], "std": 0.0, "n": var["n"]}, "lower"),
-            verdict(err, {"mean": ls["sh_error_shown"], "std": 0.0, "n": err["n"]}, "lower"),
-        }
         rows.append(
             f"| {model} | `{where}` | {_ms(var, '.3f')} | {ls['variance_shown']:.3f} | "
             f"{mean_light.get('variance_shown', float('nan')):.3f} | {_ms(err, '.3f')} | {ls['sh_error_shown']:.3f} | "
             f"{mean_light.get('sh_error_shown', float('nan')):.3f} | "
-            f"{both.pop() if len(both) == 1 else 'mixed: ' + ' / '.join(sorted(both))} |"
+            f"{lower_than_fixed((var, ls['variance_shown']), (err, ls['sh_error_shown']))} |"
         )
     if not (rows := rep.rows_kept(head[0], rows, key=2)):
         return []
@@ -591,11 +594,9 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
         rows = []
         for (model, where), measured in sorted(groups.items()) if ls else ():
             rel, err = (_ablation.mean_std([r[k] for r in measured]) for k in ("relative", "sh_error"))
-            fixed = {k: {"mean": ls[k], "std": 0.0, "n": rel["n"]} for k in ("relative", "sh_error")}
-            both = {verdict(rel, fixed["relative"], "lower"), verdict(err, fixed["sh_error"], "lower")}
             rows.append(
                 f"| {model} | `{where}` | {_ms(rel, '.3f')} | {ls['relative']:.3f} | {_ms(err, '.3f')} | "
-                f"{ls['sh_error']:.3f} | {both.pop() if len(both) == 1 else 'mixed: ' + ' / '.join(sorted(both))} |"
+                f"{ls['sh_error']:.3f} | {lower_than_fixed((rel, ls['relative']), (err, ls['sh_error']))} |"
             )
         if rows := rep.rows_kept(head[0], rows, key=2):
             rep.add(
@@ -1077,7 +1078,9 @@ def sec_sh_variance(rep: Report, eval_dir: Path) -> None:
         )
     rep.add("")
     published_figure(rep, eval_dir / "sh_variance.png", "SH variance per coefficient")
-    if not any(k not in ("ls_pseudo", "ls_true", "ls_oracle", "true", "mean_light") for k in res["estimators"]):
+    from disent.eval.protocols import CHECKS, FITTED
+
+    if not any(k not in (*FITTED, *CHECKS) for k in res["estimators"]):
         rep.note(
             "no trained model's Z_L in the SH-variance table (no finished explicit/implicit run when it was computed)."
         )

@@ -162,6 +162,7 @@ def sh_variance_protocol(
 
 # rows of the table with zero variance by construction, not plotted: the checks and the constant mean light
 CHECKS = ("true", "ls_oracle", "mean_light")
+FITTED = ("ls_pseudo", "ls_true")  # the least-squares estimators; every other row is a trained network's
 
 
 def sh_variance_groups(result: dict) -> dict:
