@@ -1561,10 +1561,14 @@ def sec_photos(rep: Report, out: Path) -> None:
         *([""] if anatomy else []),
     )
     for g in gaps:
-        for kind, alt in (("decomposition", "decomposition"), ("relight", "relighting")):
-            path = folder / f"{kind}_{g['tag']}.png"
-            if path.is_file():
-                rep.image(path, f"{alt} of photos, {g['tag']}")
+        for name, alt in (
+            (f"decomposition_{g['tag']}", "decomposition of photos"),
+            (f"decomposition_{g['tag']}_colour_matched", "decomposition of colour-matched photos"),  # the anatomy's
+            (f"relight_{g['tag']}", "relighting of photos"),
+            (f"relight_{g['tag']}_colour_matched", "relighting of colour-matched photos"),
+        ):
+            if (folder / f"{name}.png").is_file():
+                rep.image(folder / f"{name}.png", f"{alt}, {g['tag']}")
 
 
 RECIPE_COLUMNS = (

@@ -576,6 +576,28 @@ def test_grayscale_and_zoom_of_a_photo_batch(tmp_path):
     assert torch.allclose(twice["normal_pseudo"].norm(dim=1)[twice["mask_pseudo"][:, 0] > 0.5], torch.tensor(1.0))
 
 
+def test_colour_match_gives_each_face_the_target_statistics():
+    """Inside ``mask_pseudo`` each channel gets the target mean and std (no clamping where the target sits well
+    inside [0, 1]); a batch already at the target is left as it is; pixels outside move with the same map."""
+    from disent.eval.photos import colour_matched, face_colour
+
+    g = torch.Generator().manual_seed(0)
+    mask = torch.zeros(2, 1, 16, 16)
+    mask[:, :, 4:12, 3:13] = 1
+    image = 0.3 + 0.2 * torch.rand(2, 3, 16, 16, generator=g)
+    image[1] = image[1] * torch.tensor([0.5, 1.0, 0.7])[:, None, None]  # a different colour cast per photo
+    batch = {"image": image, "mask_pseudo": mask}
+    target = (torch.tensor([0.55, 0.45, 0.40]), torch.tensor([0.05, 0.04, 0.03]))
+    matched = colour_matched(batch, target)
+    mean, std = face_colour(matched)
+    assert torch.allclose(mean, target[0].expand(2, 3), atol=1e-5) and torch.allclose(std, target[1].expand(2, 3))
+    again = colour_matched(matched, target)
+    assert torch.allclose(again["image"], matched["image"], atol=1e-5)
+    m0, s0 = face_colour(batch)
+    corner = (image[:, :, 0, 0] - m0) * target[1] / s0 + target[0]  # outside the mask: the same affine map
+    assert torch.allclose(matched["image"][:, :, 0, 0], corner.clamp(0, 1), atol=1e-5)
+
+
 @pytest.mark.slow
 def test_photo_figures(tmp_path):
     from disent.eval.photos import figures, photo_batch
@@ -592,3 +614,27 @@ def test_folder_config_lists_every_setting():
     dataset_keys = {"name", "root", "resolution", "train_size", "test_size", "seed", "split_by", "cache_dir", "workers"}
     assert set(cfg) - dataset_keys == set(PseudoGTSettings.__dataclass_fields__) - {"resolution"}
     assert cfg.name == "folder" and OmegaConf.is_missing(cfg, "root")
+
+
+def test_anatomy_reads_what_the_colour_match_closes():
+    from disent.eval.photos import anatomy_table
+
+    def m(deg):
+        return {"normal_vs_pseudo_deg": deg, "trivial_normal_vs_pseudo_deg": 16.7}
+
+    gap = {
+        "model": "explicit",
+        "tag": "explicit_shipped",
+        "photos": m(16.0),
+        "synthfaces_test": m(8.0),
+        "anatomy": {
+            "synthfaces_test_grayscale": m(8.3),
+            "photos_zoom": {"1": m(16.0)},
+            "photos_colour_matched": m(14.0),
+        },
+    }
+    lines = anatomy_table([gap])
+    assert "| explicit (explicit_shipped) | 8.00 | 8.30 | 16.00 | 14.00 | 16.70 |" in lines
+    assert any("matching the face's colour statistics closes 2.00" in line for line in lines)
+    del gap["anatomy"]["photos_colour_matched"]  # a result written before the colour match
+    assert "| explicit (explicit_shipped) | 8.00 | 8.30 | 16.00 | – | – |" in anatomy_table([gap])

@@ -9,6 +9,11 @@ reconstruction error, the angle between predicted normals and ``normal_pseudo`` 
 ``mask_pseudo``, the overlap of the predicted matte with ``mask_pseudo``, and the SH error
 against ``sh_pseudo``; the same numbers on SynthFaces' test split are the reference.  The crops are those
 of the bundled photos' pseudo-GT study (:mod:`disent.data.photos.study`), which this command runs first.
+
+What the gap is made of is measured one difference at a time (``anatomy``): SynthFaces turned gray, the photos'
+crops reframed, and the photos with their face's colour statistics matched to SynthFaces' (:func:`colour_matched`:
+per channel, the affine map that gives the pixels inside ``mask_pseudo`` the training faces' mean and std), a
+preprocessing any photo through the pseudo-GT pipeline can have.
 """
 
 from __future__ import annotations
@@ -38,6 +43,7 @@ def photo_batch(records: list) -> dict:
     }
 
 
+COLOUR_FACES = 256  # training faces whose mean colour statistics the photos are matched to (colour_matched)
 ZOOMS = (0.8, 0.9, 1.0, 1.1, 1.25)  # the photo crops magnified about their centre (1: the pseudo-GT template's framing)
 
 
@@ -63,6 +69,25 @@ def zoomed(batch: dict, zoom: float) -> dict:
         "normal_pseudo": F.normalize(warp(batch["normal_pseudo"], "bilinear", "zeros"), dim=1),
         "mask_pseudo": warp(batch["mask_pseudo"], "nearest", "zeros"),
     }
+
+
+def face_colour(batch: dict) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(mean [B,3], std [B,3])`` of each image's pixels inside its ``mask_pseudo``, per channel."""
+    mask = (batch["mask_pseudo"] > 0.5).to(batch["image"].dtype)
+    n = mask.sum((2, 3)).clamp_min(1)
+    mean = (batch["image"] * mask).sum((2, 3)) / n
+    std = (((batch["image"] - mean[..., None, None]) ** 2 * mask).sum((2, 3)) / n).sqrt()
+    return mean, std
+
+
+def colour_matched(batch: dict, target: tuple) -> dict:
+    """``batch`` with each image mapped, per channel, by the affine map that gives its face (``mask_pseudo``) the
+    ``target = (mean [3], std [3])`` colour statistics (:func:`face_colour` of the training faces, averaged),
+    clamped to [0, 1]."""
+    mean, std = face_colour(batch)
+    gain = target[1] / std.clamp_min(1e-3)
+    image = (batch["image"] - mean[..., None, None]) * gain[..., None, None] + target[0][:, None, None]
+    return {**batch, "image": image.clamp(0, 1)}
 
 
 @torch.no_grad()
@@ -155,6 +180,8 @@ def apply_run(run_dir, records: list, out: Path, n_show: int = 8) -> dict:
     synth = SynthFaces("test", res, size=len(records)).get_batch(range(len(records)))
     budget = {"train_size": cfg.data.get("train_size"), "steps": model.trained_steps}
     trivial = dataset_means(SynthFaces("train", res)) if cfg.data.name == "synth" else None
+    train = SynthFaces("train", res, size=COLOUR_FACES).get_batch(range(COLOUR_FACES))
+    matched = colour_matched(photos, tuple(x.mean(0) for x in face_colour(train)))
     gap = {
         "run": str(run_dir),
         "model": cfg.model.name,
@@ -165,6 +192,7 @@ def apply_run(run_dir, records: list, out: Path, n_show: int = 8) -> dict:
         "anatomy": {  # what the gap is made of: the photos' colour, and the framing of their crops
             "synthfaces_test_grayscale": gap_metrics(model, {**synth, "image": grayscale(synth["image"])}, trivial),
             "photos_zoom": {f"{z:g}": gap_metrics(model, zoomed(photos, z), trivial) for z in ZOOMS},
+            "photos_colour_matched": gap_metrics(model, matched, trivial),  # its PSNR: against the matched input
         },
         "tag": tag,
     }
@@ -172,14 +200,16 @@ def apply_run(run_dir, records: list, out: Path, n_show: int = 8) -> dict:
     show = [r for r in records if not Path(r.path).stem.startswith("lfw")][:2] + [
         r for r in records if Path(r.path).stem.startswith("lfw")
     ][: n_show - 2]
-    figures(
-        model,
-        photo_batch(show),
-        [Path(r.path).stem for r in show],
-        out,
-        tag,
-        f": {budget['train_size']} images, {steps_text(budget)}",
-    )
+    shown = [records.index(r) for r in show]
+    for batch, suffix in ((photos, ""), (matched, "_colour_matched")):
+        figures(
+            model,
+            {k: v[shown] for k, v in batch.items()},
+            [Path(r.path).stem for r in show],
+            out,
+            tag + suffix,
+            f": {budget['train_size']} images, {steps_text(budget)}",
+        )
     for dom in ("photos", "synthfaces_test"):
         print(f"{tag} {dom:16s} " + "  ".join(f"{k} {v:.4g}" for k, v in gap[dom].items()))
     return gap
@@ -234,30 +264,41 @@ def gap_table(gaps: list[dict]) -> list[str]:
 
 def anatomy_table(gaps: list[dict]) -> list[str]:
     """What the gap is made of (Markdown lines; results with an ``anatomy``): each model's normals against
-    ``normal_pseudo`` on SynthFaces in colour and in gray (LFW's photos are gray), and on the photos with their
-    crops magnified about the centre (:data:`ZOOMS`; 1 is the template's framing, which matches SynthFaces')."""
+    ``normal_pseudo`` on SynthFaces in colour and in gray (LFW's photos are gray), on the photos with their
+    crops magnified about the centre (:data:`ZOOMS`; 1 is the template's framing, which matches SynthFaces'), and
+    on the photos colour-matched to SynthFaces (:func:`colour_matched`)."""
     from disent.report import table_head
 
     gaps = [g for g in gaps if "normal_vs_pseudo_deg" in g.get("anatomy", {}).get("synthfaces_test_grayscale", {})]
     if not gaps:
         return []
-    zooms = list(gaps[0]["anatomy"]["photos_zoom"])
-    lines = [
-        "Normals against `normal_pseudo` (deg) where the domains differ one way at a time: SynthFaces' test faces "
-        "in colour and turned gray, and the photos' crops magnified about their centre (x1: the template's framing, "
-        "the SynthFaces faces' mean size).\n",
-        *table_head("model (tag)", "SynthFaces", "SynthFaces gray", *(f"photos x{z}" for z in zooms)),
-    ]
-    for g in gaps:
-        a = g["anatomy"]
-        cells = [g["synthfaces_test"], a["synthfaces_test_grayscale"], *(a["photos_zoom"][z] for z in zooms)]
-        degrees = " | ".join(f"{m['normal_vs_pseudo_deg']:.2f}" for m in cells)
-        lines.append(f"| {g['model']} ({g['tag']}) | {degrees} |")
-    lines.append("")
 
     def deg(m):
         return m["normal_vs_pseudo_deg"]
 
+    zooms = list(gaps[0]["anatomy"]["photos_zoom"])
+    lines = [
+        "Normals against `normal_pseudo` (deg) where the domains differ one way at a time: SynthFaces' test faces "
+        "in colour and turned gray, and the photos' crops magnified about their centre (x1: the template's framing, "
+        "the SynthFaces faces' mean size), and the photos with their face's colour matched to SynthFaces' "
+        "(`colour_matched`: per channel, the training faces' mean and std inside `mask_pseudo`).\n",
+        *table_head(
+            "model (tag)",
+            "SynthFaces",
+            "SynthFaces gray",
+            *(f"photos x{z}" for z in zooms),
+            "photos colour-matched",
+            "mean map",
+        ),
+    ]
+    for g in gaps:
+        a = g["anatomy"]
+        cells = [g["synthfaces_test"], a["synthfaces_test_grayscale"], *(a["photos_zoom"][z] for z in zooms)]
+        matched = a.get("photos_colour_matched")
+        degrees = " | ".join(f"{m['normal_vs_pseudo_deg']:.2f}" for m in cells)
+        tail = "– | –" if matched is None else f"{deg(matched):.2f} | {matched['trivial_normal_vs_pseudo_deg']:.2f}"
+        lines.append(f"| {g['model']} ({g['tag']}) | {degrees} | {tail} |")
+    lines.append("")
     for g in gaps:  # how much of the gap (photos at x1 over SynthFaces) each difference accounts for
         a = g["anatomy"]
         gap = deg(g["photos"]) - deg(g["synthfaces_test"])
@@ -265,9 +306,12 @@ def anatomy_table(gaps: list[dict]) -> list[str]:
         best = min(zooms, key=lambda z: deg(a["photos_zoom"][z]))
         reframed = round(deg(g["photos"]) - deg(a["photos_zoom"][best]), 2) + 0.0  # no "-0.00"
         small = max(gray, reframed) < 0.25 * gap
+        colour = deg(g["photos"]) - deg(a["photos_colour_matched"]) if "photos_colour_matched" in a else None
         lines.append(
             f"- {g['tag']}: the gap is {gap:.2f} deg; gray faces account for {gray:.2f} of it, and the best framing "
-            f"(x{best}) for {reframed:.2f}" + (": most of the gap lies in the faces' appearance." if small else ".")
+            f"(x{best}) for {reframed:.2f}"
+            + ("" if colour is None else f"; matching the face's colour statistics closes {colour:.2f}")
+            + (": most of the gap lies in the faces' appearance." if small else ".")
         )
     return lines
 
