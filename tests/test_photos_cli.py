@@ -174,6 +174,32 @@ def test_edit_aligns_faces_as_the_photo_pipeline_does(tmp_path, template_dlib):
     assert torch.equal(x, torch.from_numpy(crop.astype("float32") / 255).permute(2, 0, 1))
 
 
+def test_edit_colour_match_gives_the_face_synthfaces_colours(tmp_path, template_dlib, monkeypatch):
+    """``--colour-match``: the photo's face (its pseudo-GT mask) gets the target's colour statistics; the crop is the
+    aligned one, mapped per channel; without alignment it is refused."""
+    pytest.importorskip("dlib")  # load_inputs only aligns where dlib is installed
+    from disent.edit.__main__ import load_inputs
+    from disent.eval import photos
+
+    target = (torch.tensor([0.6, 0.45, 0.35]), torch.tensor([0.08, 0.06, 0.05]))
+    monkeypatch.setattr(photos, "colour_target", lambda resolution: target)  # no SynthFaces rendering here
+    photo_folder(tmp_path / "in")
+    path = tmp_path / "in" / "plain.png"
+    ((name, x),) = load_inputs([str(path)], 64, colour_match=True)
+    maps = pg.process(path.read_bytes(), PseudoGTSettings(resolution=64))
+    mask = torch.from_numpy(maps["mask_pseudo"].astype("float32")).reshape(1, 1, 64, 64)
+    mean, std = photos.face_colour({"image": x[None], "mask_pseudo": mask})
+    assert torch.allclose(mean[0], target[0], atol=0.02) and torch.allclose(std[0], target[1], atol=0.02)
+    crop, _ = pg.aligned_crop(path, PseudoGTSettings(resolution=64))
+    plain = torch.from_numpy(crop.astype("float32") / 255).permute(2, 0, 1)
+    inside = (mask[0, 0] > 0.5) & (x > 0.01).all(0) & (x < 0.99).all(0)  # unclamped face pixels
+    for c in range(3):  # one affine map per channel: the matched pixels are a line of the aligned crop's
+        a, b = plain[c][inside], x[c][inside]
+        assert torch.corrcoef(torch.stack([a, b]))[0, 1] > 0.999
+    with pytest.raises(SystemExit, match="--colour-match needs the face aligned"):
+        load_inputs([str(path)], 64, align=False, colour_match=True)
+
+
 def test_traverse_checks_the_manifolds_against_the_model():
     from disent.edit.__main__ import main
 

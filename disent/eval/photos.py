@@ -80,6 +80,15 @@ def face_colour(batch: dict) -> tuple[torch.Tensor, torch.Tensor]:
     return mean, std
 
 
+def colour_target(resolution: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(mean [3], std [3])``: :func:`face_colour` of the first :data:`COLOUR_FACES` SynthFaces training faces,
+    averaged, the statistics :func:`colour_matched` gives a photo's face."""
+    from disent.data import SynthFaces
+
+    train = SynthFaces("train", resolution, size=COLOUR_FACES).get_batch(range(COLOUR_FACES))
+    return tuple(x.mean(0) for x in face_colour(train))
+
+
 def colour_matched(batch: dict, target: tuple) -> dict:
     """``batch`` with each image mapped, per channel, by the affine map that gives its face (``mask_pseudo``) the
     ``target = (mean [3], std [3])`` colour statistics (:func:`face_colour` of the training faces, averaged),
@@ -180,8 +189,7 @@ def apply_run(run_dir, records: list, out: Path, n_show: int = 8) -> dict:
     synth = SynthFaces("test", res, size=len(records)).get_batch(range(len(records)))
     budget = {"train_size": cfg.data.get("train_size"), "steps": model.trained_steps}
     trivial = dataset_means(SynthFaces("train", res)) if cfg.data.name == "synth" else None
-    train = SynthFaces("train", res, size=COLOUR_FACES).get_batch(range(COLOUR_FACES))
-    matched = colour_matched(photos, tuple(x.mean(0) for x in face_colour(train)))
+    matched = colour_matched(photos, colour_target(res))
     gap = {
         "run": str(run_dir),
         "model": cfg.model.name,

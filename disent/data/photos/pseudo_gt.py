@@ -575,6 +575,14 @@ def _init_worker():
     threading.Thread(target=watch, daemon=True).start()
 
 
+def read_photo(path) -> bytes:
+    """The bytes of an image file; :class:`Skip` ("unreadable") for a missing file, a dangling link or a folder."""
+    try:
+        return Path(path).read_bytes()
+    except OSError as e:
+        raise Skip("unreadable", f"{type(e).__name__}: {e.strerror or e}") from None
+
+
 def aligned_crop(
     path, settings: PseudoGTSettings | None = None, align_face: bool = True
 ) -> tuple[np.ndarray, list[str]]:
@@ -582,11 +590,7 @@ def aligned_crop(
     alignment), or a centre square crop with ``align_face=False``.  Raises :class:`Skip` for a file that
     cannot be used (unreadable, not an image, no face...), naming the reason."""
     settings = settings or PseudoGTSettings()
-    try:
-        data = Path(path).read_bytes()
-    except OSError as e:  # missing, a dangling link, a directory
-        raise Skip("unreadable", f"{type(e).__name__}: {e.strerror or e}") from None
-    rgb, notes = decode_image(data, settings.min_side)
+    rgb, notes = decode_image(read_photo(path), settings.min_side)
     R = settings.resolution
     if align_face:
         landmarks, found = landmark_detector(settings)(rgb)
