@@ -131,6 +131,12 @@ def main(argv=None) -> None:
     ap.add_argument("--workers", type=int, default=0, help="processes for the pseudo-GT pipeline (0: this one)")
     ap.add_argument("--cache-dir", default=None, help="pseudo-GT cache (default: ~/.cache/disent/pseudo_gt)")
     ap.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    ap.add_argument(
+        "--colour-match",
+        action="store_true",
+        help="give each face (its mask_pseudo) the colour statistics of SynthFaces' training faces before the model "
+        "reads it (disent.eval.photos.colour_matched); crop.png and the outputs keep the matched colours",
+    )
     a = ap.parse_args(argv)
     if a.workers < 0 or a.threads < 1 or a.upsample < 0:
         ap.error("--workers must be >= 0, --threads >= 1, --upsample >= 0")
@@ -144,11 +150,14 @@ def main(argv=None) -> None:
     records = run_pipeline(files, a.faces, R, a.upsample, a.cache_dir, a.workers)
     summary = pg.summarize(records)
     used = [r for r in records if r.used]
-    report = {"run": a.run, "faces": a.faces, "upsample": a.upsample, "summary": summary, "photos": []}
+    report = {"run": a.run, "faces": a.faces, "upsample": a.upsample, "colour_match": a.colour_match}
+    report |= {"summary": summary, "photos": []}
     if used:
-        from disent.eval.photos import figures, photo_batch
+        from disent.eval.photos import colour_matched, colour_target, figures, photo_batch
 
         batch = photo_batch(used)
+        if a.colour_match:
+            batch = colour_matched(batch, colour_target(R))
         est = model(batch["image"])
         relit = {}
         if "sh" in est:
@@ -172,7 +181,7 @@ def main(argv=None) -> None:
                 }
             )
         shown = used[:SHOWN]
-        figures(model, photo_batch(shown), [Path(r.path).stem for r in shown], out_dir, "photos")
+        figures(model, {k: v[:SHOWN] for k, v in batch.items()}, [Path(r.path).stem for r in shown], out_dir, "photos")
         (out_dir / "decomposition_photos.png").replace(out_dir / "decomposition.png")
         if (out_dir / "relight_photos.png").exists():
             (out_dir / "relight_photos.png").replace(out_dir / "relight.png")

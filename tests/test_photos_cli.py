@@ -86,6 +86,40 @@ def test_photos_command_on_a_folder_with_bad_entries(tmp_path, template_dlib, ca
     assert "skipped" in text and str(tmp_path / "in" / "dangling.jpg") in text  # the link's own name
 
 
+def test_photos_command_colour_matches_each_face(tmp_path, template_dlib, monkeypatch):
+    """``--colour-match``: each saved crop's face (its mask_pseudo) carries the target's colour statistics."""
+    from PIL import Image
+
+    from disent.eval import photos
+    from disent.photos import main
+
+    def png(path):  # [1, C, H, W] in [0, 1]
+        x = torch.from_numpy(np.asarray(Image.open(path).convert("RGB"), dtype=np.float32) / 255)
+        return x.permute(2, 0, 1)[None]
+
+    target = (torch.tensor([0.6, 0.45, 0.35]), torch.tensor([0.08, 0.06, 0.05]))
+    monkeypatch.setattr(photos, "colour_target", lambda resolution: target)
+    photo_folder(tmp_path / "in")
+    out = tmp_path / "out"
+    main(
+        [
+            str(tmp_path / "in" / "plain.png"),
+            "--out",
+            str(out),
+            "--cache-dir",
+            str(tmp_path / "cache"),
+            "--colour-match",
+        ]
+    )
+    summary = json.loads((out / "summary.json").read_text())
+    (photo,) = summary["photos"]
+    assert summary["colour_match"] and photo["used"]
+    crop, mask = (png(out / photo["folder"] / f) for f in ("crop.png", "mask_pseudo.png"))
+    mask = mask[:, :1]
+    mean, std = photos.face_colour({"image": crop, "mask_pseudo": mask})
+    assert torch.allclose(mean[0], target[0], atol=0.02) and torch.allclose(std[0], target[1], atol=0.02)
+
+
 class TwoFaces(TemplateDetector):
     """Two detections, both at the template (scores 0.9 and 0.4): the choice of face is bookkeeping here."""
 
