@@ -237,8 +237,8 @@ def main(argv=None) -> None:
         "--colour-match",
         action="store_true",
         help="give each photo's face (its pseudo-GT mask) the colour statistics of SynthFaces' training faces "
-        "before the model reads it; outputs keep the matched colours. On the bundled photos it brings the shipped "
-        "models' normals from 16.0-17.5 to 14.1-14.5 deg against normal_pseudo (reports/photos/domain_gap.md)",
+        "before the model reads it (needs dlib); outputs keep the matched colours. Its effect on the bundled photos: "
+        "reports/photos/domain_gap.md",
     )
     run_help = "run folder, checkpoint, or a shipped model: explicit, implicit, baseline (disent/weights/)"
 
