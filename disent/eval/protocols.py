@@ -88,21 +88,22 @@ def sh_variance_shown_hidden(
 
     Each estimate is scaled to the truth ``[N,C,9]`` in shading (:func:`~disent.eval.metrics.scale_in_shading`
     with the face's ``gram [N,9,9]``, :func:`~disent.eval.metrics.sh_gram`); its deviation from its condition's
-    mean, times ``n / (n - 1)`` (unbiased), splits over its own face's SH directions
-    (:func:`~disent.eval.metrics.shown_hidden_energy`); each part is averaged over the images of conditions with at
-    least 2 images, as a share of the true light's squared norm.  ``shown + hidden`` is the unbiased
-    within-condition variance of the scaled estimates, summed over coefficients and channels."""
+    mean splits over its own face's SH directions (:func:`~disent.eval.metrics.shown_hidden_energy`), as a share
+    of the true light's squared norm.  Each part is summed over a condition's images over ``n - 1`` (unbiased) and
+    averaged over the conditions with at least 2 images, as :func:`sh_variance` averages; ``shown + hidden`` is
+    the within-condition variance of the scaled estimates, summed over coefficients and channels."""
     x = scale_in_shading(sh, truth, gram)
     ids, inv, counts = torch.unique(condition, return_inverse=True, return_counts=True)
     mean = torch.zeros(len(ids), *x.shape[1:], dtype=x.dtype).index_add_(0, inv, x) / counts.double()[:, None, None]
-    n = counts[inv].double()
-    keep = n >= 2
+    keep = counts >= 2
     if not keep.any():
         raise ValueError("sh_variance_shown_hidden needs a condition with at least 2 images")
-    deviation = (x - mean[inv]) * (n / (n - 1).clamp_min(1)).sqrt()[:, None, None]
     norm = truth.double().pow(2).sum((1, 2))
-    shown, hidden = (part[keep] / norm[keep] for part in shown_hidden_energy(deviation, gram, fraction))
-    return {"shown": shown.mean().item(), "hidden": hidden.mean().item()}
+    shown, hidden = (
+        (torch.zeros(len(ids), dtype=x.dtype).index_add_(0, inv, part / norm)[keep] / (counts[keep] - 1)).mean().item()
+        for part in shown_hidden_energy(x - mean[inv], gram, fraction)
+    )
+    return {"shown": shown, "hidden": hidden}
 
 
 def ls_estimates(batch: dict) -> dict:
