@@ -19,6 +19,7 @@ preprocessing any photo through the pseudo-GT pipeline can have.
 from __future__ import annotations
 
 import json
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -80,6 +81,7 @@ def face_colour(batch: dict) -> tuple[torch.Tensor, torch.Tensor]:
     return mean, std
 
 
+@lru_cache(maxsize=2)  # one rendering per resolution, shared by every run apply_run measures
 def colour_target(resolution: int) -> tuple[torch.Tensor, torch.Tensor]:
     """``(mean [3], std [3])``: :func:`face_colour` of the first :data:`COLOUR_FACES` SynthFaces training faces,
     averaged, the statistics :func:`colour_matched` gives a photo's face."""
@@ -174,10 +176,18 @@ def figures(model, batch: dict, names: list[str], out: Path, tag: str, budget: s
     plt.close(fig)
 
 
+@lru_cache(maxsize=2)
+def synth_means(resolution: int) -> dict:
+    """:func:`disent.eval.trivial.dataset_means` of the SynthFaces training split, once per resolution."""
+    from disent.data import SynthFaces
+    from disent.eval.trivial import dataset_means
+
+    return dataset_means(SynthFaces("train", resolution))
+
+
 def apply_run(run_dir, records: list, out: Path, n_show: int = 8) -> dict:
     """Figures and gap numbers (``domain_gap_<tag>.json``) of one trained run on the photo records."""
     from disent.data import SynthFaces
-    from disent.eval.trivial import dataset_means
     from disent.models import load_run
 
     model, cfg = load_run(run_dir)
@@ -188,7 +198,7 @@ def apply_run(run_dir, records: list, out: Path, n_show: int = 8) -> dict:
     photos = photo_batch(records)
     synth = SynthFaces("test", res, size=len(records)).get_batch(range(len(records)))
     budget = {"train_size": cfg.data.get("train_size"), "steps": model.trained_steps}
-    trivial = dataset_means(SynthFaces("train", res)) if cfg.data.name == "synth" else None
+    trivial = synth_means(res) if cfg.data.name == "synth" else None
     matched = colour_matched(photos, colour_target(res))
     gap = {
         "run": str(run_dir),
