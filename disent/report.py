@@ -38,6 +38,7 @@ from disent.runs import (
     pick_runs,
     publish,
     record_run,
+    retyped_label,
     setting,
     tool_folder,
 )
@@ -142,7 +143,7 @@ class Report:
         :data:`KEPT_ROW` (a note under the section says why)."""
 
         def key_of(line):
-            return tuple(c.replace(KEPT_ROW, "").strip() for c in line.strip().strip("|").split("|")[:key])
+            return tuple(retyped_cell(c.replace(KEPT_ROW, "")) for c in line.strip().strip("|").split("|")[:key])
 
         have = {key_of(r) for r in rows}
         kept = []
@@ -155,7 +156,7 @@ class Report:
                     if line.startswith("|") and key_of(line) not in have and not (unless and unless in line)
                 ]
         for i, line in enumerate(kept):
-            cells = line.split("|")
+            cells = [f" {retyped_cell(c)} " if c.strip().startswith("`") else c for c in line.split("|")]
             if KEPT_ROW not in cells[1]:
                 cells[1] = f"{cells[1].rstrip()} {KEPT_ROW} "
             kept[i] = "|".join(cells)
@@ -167,7 +168,8 @@ class Report:
         (an earlier build measured them on runs this build does not have), their headings marked :data:`KEPT_ROW`."""
 
         def heading(block):
-            return block.split("\n")[0].replace(KEPT_ROW, "").strip()
+            head = block.split("\n")[0].replace(KEPT_ROW, "").strip()
+            return f"### {retyped_cell(head[4:])}" if head.startswith("### `") else head
 
         have = {heading(line) for line in self.lines[start:] if line.startswith("### ")}
         groups: list[list[str]] = []
@@ -180,6 +182,17 @@ class Report:
             if heading(head) not in have:
                 self.add(f"{heading(head)} {KEPT_ROW}\n", *body)
                 self.kept_rows += 1
+
+
+def retyped_cell(cell: str) -> str:
+    """A table cell or heading that names a setting (```+experiment=long train.max_steps=10000```), read against
+    today's ``conf/`` (:func:`disent.runs.retyped_label`): a row an earlier build published under a default since
+    changed then matches the row this build writes for the same runs.  Any other cell, stripped."""
+    text = cell.strip()
+    inner = text[1:-1] if len(text) > 2 and text[0] == text[-1] == "`" else None
+    if inner is None or not all("=" in w or w == "(defaults)" for w in inner.split()):
+        return text
+    return f"`{retyped_label(inner)}`"
 
 
 MISSING, KEPT = "> **Missing:**", "> **Kept:**"

@@ -667,6 +667,32 @@ def retyped_overrides(run: Run) -> list[str]:
     return sorted(groups + [f"{k}={_typed(old)}" for k, (old, _) in changes if old is not ABSENT])
 
 
+@functools.lru_cache(maxsize=256)
+def retyped_label(label: str) -> str:
+    """A setting label (:func:`setting`) that a report published against the ``conf/`` of its day, read against
+    today's: each ``key=value`` that repeats what the label's config-group choices give today is dropped (a
+    default has changed to it since), so the label names the setting as :func:`setting` names it now.  Unchanged
+    where today's ``conf/`` cannot compose the choices."""
+    from hydra.errors import HydraException
+
+    tokens = [t for t in label.split() if t != "(defaults)"]
+    try:
+        today = _composed(tuple(sorted(t for t in tokens if config_group(t))))
+    except HydraException:
+        return label
+
+    def repeats_today(token: str) -> bool:
+        key, _, value = token.lstrip("+~").partition("=")
+        node = today
+        for part in key.split("."):
+            if not isinstance(node, dict) or part not in node:
+                return False
+            node = node[part]
+        return _typed(node) == value
+
+    return " ".join(t for t in tokens if config_group(t) or not repeats_today(t)) or "(defaults)"
+
+
 def defining_overrides(run: Run, drop=SEED_FREE) -> list[str]:
     """:func:`retyped_overrides` without those starting with ``drop``."""
     if run.retyped is None:

@@ -901,3 +901,47 @@ def test_claim_two_reads_the_light_as_learned_only_where_the_face_shows_it(tmp_p
     assert "the mean light 0.250 ± 0.000 (n=4) shown" in line and "L-hat 0.190 ± 0.000 (n=4) shown" in line
     assert "explicit **confirmed**, implicit not testable (1 seed(s); 3 needed)" in line
     assert shown_hidden_lines(find_runs([tmp_path / "old"])) == []
+
+
+def test_published_rows_under_a_default_since_changed_match_todays_rows(tmp_path):
+    """A row an earlier build published as ``+experiment=long train.max_steps=N`` where ``N`` is today's default
+    names the same runs as today's ``+experiment=long`` row: it is not kept beside it, and a kept row or ablation
+    heading is relabelled as today names its setting."""
+    from disent.runs import composed_config, retyped_label
+
+    steps = composed_config(("+experiment=long",))["train"]["max_steps"]
+    assert retyped_label(f"+experiment=long train.max_steps={steps}") == "+experiment=long"
+    assert (
+        retyped_label(f"+experiment=long train.max_steps={steps + 1}")
+        == f"+experiment=long train.max_steps={steps + 1}"
+    )
+    lr = composed_config(())["train"]["lr"]
+    assert retyped_label(f"model=implicit train.lr={lr}") == "model=implicit"
+    assert retyped_label(f"train.lr={lr}") == "(defaults)" and retyped_label("(defaults)") == "(defaults)"
+    assert retyped_label(f"+ablation=no_such_thing train.lr={lr}") == f"+ablation=no_such_thing train.lr={lr}"
+
+    head = "| setting | value |"
+    previous = "\n\n".join(
+        [
+            "# r",
+            "## T\n",
+            "\n".join(
+                [
+                    head,
+                    "|---|---|",
+                    f"| `+experiment=long train.max_steps={steps}` | 1 |",  # today's +experiment=long
+                    f"| `model=explicit train.lr={lr} train.max_steps=7` | 2 |",  # runs gone: kept, relabelled
+                ]
+            ),
+            f"### `+experiment=long train.max_steps={steps}`\n\nold table",
+            f"### `train.lr={lr} train.max_steps=7`\n\nold table",
+        ]
+    )
+    rep = report.Report(tmp_path, previous)
+    rep.title = "T"
+    rows = rep.rows_kept(head, [head, "|---|---|", "| `+experiment=long` | 3 |"][2:])
+    assert rows == ["| `+experiment=long` | 3 |", "| `model=explicit train.max_steps=7` ‡ | 2 |"]
+    rep.add("### `+experiment=long`\n", "new table\n")
+    rep.subsections_kept(0)
+    headings = [line.split("\n")[0] for line in rep.lines if line.startswith("### ")]
+    assert headings == ["### `+experiment=long`", "### `train.max_steps=7` ‡"]
