@@ -211,8 +211,8 @@ def provenance_row(sections: list[str], built: str, source: str, command: str) -
 
 def kept_provenance(previous: str, rebuilt: list[str]) -> list[str]:
     """The rows of ``previous``'s provenance table that still describe a section after a ``--sections rebuilt``
-    build: each row less the sections rebuilt now, its command rewritten to build what it has left (``--sections``
-    in place of a full build's ``--compute``); a row goes once none is left."""
+    build: each row less the sections rebuilt now, its command rewritten to build only what it has left; a row
+    goes once none is left."""
     kept = []
     for line in previous.split("\n## ")[0].splitlines():
         cells = [c.strip() for c in line.strip().strip("|").split(" | ")]
@@ -2262,8 +2262,8 @@ def build(
     rep = Report(out, previous, only=sections)
     budget = _ablation.budget(runs)
     roots_arg = f" --roots {' '.join(map(str, roots))}" if roots else ""
-    command = f"python -m disent.report{roots_arg}" + (
-        f" --sections {' '.join(sections)}" if sections else " --compute"
+    command = f"python -m disent.report{' --compute' if compute else ''}{roots_arg}" + (
+        f" --sections {' '.join(sections)}" if sections else ""
     )
     source = (
         f"{len(runs)} run(s): {len(runs) - recorded} folder(s) under "
