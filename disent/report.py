@@ -1355,7 +1355,8 @@ def _stability_ood(rep: Report, res: dict) -> None:
         for est, c in curves.items():
             n_range, n_at = breaks(c.get("normal_mean"))
             sh_range, sh_at = breaks(c.get("sh_error"))
-            rep.add(f"| {effect} | {est} | {n_range} | {n_at} | {sh_range} | {sh_at} |")
+            if (n_range, sh_range) != ("–", "–"):  # an estimator of neither (the baseline) has no row
+                rep.add(f"| {effect} | {est} | {n_range} | {n_at} | {sh_range} | {sh_at} |")
     rep.add("")
     uv = [(e, est, c) for e, curves in res["effects"].items() for est, c in curves.items() if c.get("uv_error")]
     if uv:  # why the implicit model's normals break: its UV map, or its UV-space normals

@@ -946,3 +946,22 @@ def test_published_rows_under_a_default_since_changed_match_todays_rows(tmp_path
     rep.subsections_kept(0)
     headings = [line.split("\n")[0] for line in rep.lines if line.startswith("### ")]
     assert headings == ["### `+experiment=long`", "### `train.max_steps=7` ‡"]
+
+
+def test_out_of_distribution_table_reads_each_break_and_leaves_out_a_model_of_neither(tmp_path):
+    """The severity where an error first passes BREAK_FACTOR x its clean value is read off the curve; a model with
+    neither normals nor light (the baseline) gets no row."""
+    res = {
+        "severities": [0.0, 0.5, 1.0],
+        "n": 4,
+        "effects": {
+            "noise": {
+                "explicit": {"normal_mean": [10.0, 14.0, 16.0], "sh_error": [0.5, 0.55, 0.6]},
+                "baseline": {"recon_face_mse": [0.002, 0.004, 0.008]},
+            }
+        },
+    }
+    rep = report.Report(tmp_path)
+    report._stability_ood(rep, res)
+    rows = [line for line in rep.lines if line.startswith("| noise |")]
+    assert rows == ["| noise | explicit | 10 -> 16 | 1 | 0.5 -> 0.6 | – |"]
