@@ -940,7 +940,7 @@ def test_published_rows_under_a_default_since_changed_match_todays_rows(tmp_path
     )
     rep = report.Report(tmp_path, previous)
     rep.title = "T"
-    rows = rep.rows_kept(head, [head, "|---|---|", "| `+experiment=long` | 3 |"][2:])
+    rows = rep.rows_kept(head, ["| `+experiment=long` | 3 |"])
     assert rows == ["| `+experiment=long` | 3 |", "| `model=explicit train.max_steps=7` ‡ | 2 |"]
     rep.add("### `+experiment=long`\n", "new table\n")
     rep.subsections_kept(0)
