@@ -1725,6 +1725,8 @@ def plot_learning_curves(runs: list[Run], path: Path, title: str = "", colour_by
                 top = max(lines)  # a run that ends far above the reference lines (it broke) stays in view, up to 3x
                 ax.set_ylim(top=max(1.5 * top, min(1.1 * max(finals, default=0), 3 * top)))
             ax.set_xlabel("training images" if x == "images" else "training wall minutes")
+            if x == "images":  # 250000 runs into its neighbours: 250k
+                ax.xaxis.set_major_formatter(lambda v, _: f"{v / 1000:g}k" if v else "0")
             ax.set_ylabel(label)
             ax.grid(alpha=0.3)
     legend = {}  # one legend under the panels: every line's label (the baseline has a curve in the PSNR panels only)
