@@ -150,8 +150,14 @@ def main(argv=None) -> None:
     records = run_pipeline(files, a.faces, R, a.upsample, a.cache_dir, a.workers)
     summary = pg.summarize(records)
     used = [r for r in records if r.used]
-    report = {"run": a.run, "faces": a.faces, "upsample": a.upsample, "colour_match": a.colour_match}
-    report |= {"summary": summary, "photos": []}
+    report = {
+        "run": a.run,
+        "faces": a.faces,
+        "upsample": a.upsample,
+        "colour_match": a.colour_match,
+        "summary": summary,
+        "photos": [],
+    }
     if used:
         from disent.eval.photos import colour_matched, colour_target, figures, photo_batch
 

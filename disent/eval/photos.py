@@ -313,7 +313,7 @@ def anatomy_table(gaps: list[dict]) -> list[str]:
         a = g["anatomy"]
         cells = [g["synthfaces_test"], a["synthfaces_test_grayscale"], *(a["photos_zoom"][z] for z in zooms)]
         matched = a.get("photos_colour_matched")
-        degrees = " | ".join(f"{m['normal_vs_pseudo_deg']:.2f}" for m in cells)
+        degrees = " | ".join(f"{deg(m):.2f}" for m in cells)
         tail = "– | –" if matched is None else f"{deg(matched):.2f} | {matched['trivial_normal_vs_pseudo_deg']:.2f}"
         lines.append(f"| {g['model']} ({g['tag']}) | {degrees} | {tail} |")
     lines.append("")
