@@ -4,6 +4,11 @@ A map ``[C,H,W]`` (``C`` = 1, 2 or 3) is shown as an ``[H,W,3]`` array in [0,1]:
 grey shading) is repeated over RGB, a UV map shows u red and v green, a normal map goes from [-1,1] to [0,1]
 with its zero vectors (pixels no model claims) left black, and everything is clipped to [0,1].  Shading under
 BWS has mean 0.75 and peaks above 1: :func:`over_max` divides it by each image's maximum before it is shown.
+
+Photos are stored sRGB-encoded; the paper's image model (I = A * S, Eq. 2) and SynthFaces are linear in
+radiance.  :func:`srgb_to_linear` decodes a photo's pixels before any model or fit sees them, and
+:func:`linear_to_srgb` encodes linear pixels where they leave as a photo (files written for a user's photos,
+renders handed to the landmark detector).
 """
 
 from __future__ import annotations
@@ -15,8 +20,11 @@ import torch
 
 
 def display(x: torch.Tensor, kind: str = "rgb") -> torch.Tensor:
-    """``[C,H,W]`` (or ``[B,C,H,W]``) -> the same with 3 channels in [0,1]; ``kind="normal"`` maps [-1,1] to [0,1]."""
+    """``[C,H,W]`` (or ``[B,C,H,W]``) -> the same with 3 channels in [0,1]; ``kind="normal"`` maps [-1,1] to [0,1],
+    ``kind="srgb"`` encodes linear radiance as a photo is stored (:func:`linear_to_srgb`)."""
     x = x.detach().float().cpu()
+    if kind == "srgb":
+        x = linear_to_srgb(x.clamp(0, 1))
     if kind == "normal":
         x = torch.where(x.abs().sum(-3, keepdim=True) > 0, 0.5 * x + 0.5, torch.zeros_like(x))
     if x.shape[-3] == 1:
@@ -24,6 +32,18 @@ def display(x: torch.Tensor, kind: str = "rgb") -> torch.Tensor:
     elif x.shape[-3] == 2:  # a UV map: u red, v green
         x = torch.cat([x, torch.zeros_like(x[..., :1, :, :])], -3)
     return x[..., :3, :, :].clamp(0, 1)
+
+
+def srgb_to_linear(x):
+    """sRGB-encoded values in [0, 1] -> linear radiance (IEC 61966-2-1), for a tensor or an array."""
+    lib = torch if torch.is_tensor(x) else np
+    return lib.where(x <= 0.04045, x / 12.92, ((lib.clip(x, 0.04045, None) + 0.055) / 1.055) ** 2.4)
+
+
+def linear_to_srgb(x):
+    """Linear radiance in [0, 1] -> sRGB-encoded values, the inverse of :func:`srgb_to_linear`."""
+    lib = torch if torch.is_tensor(x) else np
+    return lib.where(x <= 0.0031308, 12.92 * x, 1.055 * lib.clip(x, 0.0031308, None) ** (1 / 2.4) - 0.055)
 
 
 def to_array(x: torch.Tensor, kind: str = "rgb") -> np.ndarray:

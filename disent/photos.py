@@ -9,7 +9,8 @@ then through a trained model.  Into a run folder (``--out``, default ``outputs/d
 it writes, per photo ``NNN_<name>/``: ``crop.png``, ``normal_pseudo.png``, ``mask_pseudo.png``,
 ``landmarks.json`` (the 68 points in the original photo's pixels and in the crop), the decomposition
 ``recon.png albedo.png normal.png shading.png matte.png`` and ``relit_<light>.png`` (lighting transfer with
-detailed albedo, Sec. 5.3); for the folder, ``decomposition.png`` (one row per photo) and ``summary.json``
+detailed albedo, Sec. 5.3), the colour pictures sRGB-encoded as the photo was (the models read and write linear
+radiance); for the folder, ``decomposition.png`` (one row per photo) and ``summary.json``
 with every file used or skipped and why.  Bad files are reported and left out; they never stop the batch.
 """
 
@@ -93,20 +94,21 @@ def photo_landmarks(arrays: dict) -> dict:
 
 @torch.no_grad()
 def write_photo(folder: Path, arrays: dict, batch: dict, out: dict, relit: dict, i: int) -> None:
+    """One photo's files; the pictures in colour (crop, recon, albedo, relit) sRGB-encoded as the photo was."""
     folder.mkdir(parents=True, exist_ok=True)
-    save_image(batch["image"][i], folder / "crop.png")
+    save_image(batch["image"][i], folder / "crop.png", "srgb")
     save_image(batch["normal_pseudo"][i], folder / "normal_pseudo.png", "normal")
     save_image(batch["mask_pseudo"][i], folder / "mask_pseudo.png", "gray")
     (folder / "landmarks.json").write_text(json.dumps(photo_landmarks(arrays)) + "\n")
-    save_image(out["recon"][i].clamp(0, 1), folder / "recon.png")
-    for key, kind in (("albedo", "rgb"), ("normal", "normal"), ("matte", "gray")):
+    save_image(out["recon"][i], folder / "recon.png", "srgb")
+    for key, kind in (("albedo", "srgb"), ("normal", "normal"), ("matte", "gray")):
         if key in out:
             save_image(out[key][i], folder / f"{key}.png", kind)
     if "shading" in out:
         s = out["shading"][i]
         save_image(over_max(s), folder / "shading.png")  # shown normalised
     for name, x in relit.items():
-        save_image(x[i].clamp(0, 1), folder / f"relit_{name}.png")
+        save_image(x[i], folder / f"relit_{name}.png", "srgb")
 
 
 def main(argv=None) -> None:

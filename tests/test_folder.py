@@ -325,6 +325,46 @@ def test_folder_faces_celeba_layout(tmp_path):
         FolderFaces(root, "lightbank", **kw)
 
 
+def test_srgb_transfer_closed_forms():
+    """IEC 61966-2-1: fixed ends, the linear toe, a known mid value, a continuous knee, and an exact inverse."""
+    from disent.images import linear_to_srgb, srgb_to_linear
+
+    x = torch.linspace(0, 1, 1001, dtype=torch.float64)
+    lin = srgb_to_linear(x)
+    assert float(lin[0]) == 0 and float(lin[-1]) == pytest.approx(1, abs=1e-12)
+    assert float(srgb_to_linear(torch.tensor(0.04, dtype=torch.float64))) == pytest.approx(0.04 / 12.92)
+    assert float(srgb_to_linear(torch.tensor(0.5, dtype=torch.float64))) == pytest.approx(0.214041, abs=1e-6)
+    knee = torch.tensor([0.04045 - 1e-9, 0.04045 + 1e-9], dtype=torch.float64)
+    assert float(srgb_to_linear(knee).diff().abs()) < 1e-6
+    assert (lin.diff() > 0).all()  # monotone: no two codes decode to one radiance
+    assert torch.allclose(linear_to_srgb(lin), x, atol=1e-9)
+    assert np.allclose(srgb_to_linear(x.numpy()), lin.numpy()) and isinstance(srgb_to_linear(x.numpy()), np.ndarray)
+
+
+def test_folder_items_and_their_light_are_in_linear_radiance(tmp_path):
+    """An item's image is its cached 8-bit crop decoded from sRGB, and sh_pseudo is L-hat of that decoded image
+    (not of the stored sRGB codes), so the models and the pseudo-GT light read the same pixels as SynthFaces'."""
+    from disent.data.photos.folder import FolderFaces
+    from disent.images import linear_to_srgb, srgb_to_linear
+    from disent.render import fit_sh
+
+    s = PseudoGTSettings(resolution=32)
+    ds = FolderFaces(
+        celeba_folder(tmp_path / "celeba"),
+        "train",
+        32,
+        cache_dir=tmp_path / "cache",
+        progress=False,
+        detector=TemplateDetector(s),
+    )
+    item, crop = ds[0], pg.load_cached(ds.records[0])["image"]
+    assert torch.allclose(item["image"], srgb_to_linear(torch.from_numpy(crop).permute(2, 0, 1).float() / 255))
+    geometry = (item["normal_pseudo"][None], item["mask_pseudo"][None])
+    decoded, encoded = (fit_sh(x[None], *geometry)[0] for x in (item["image"], linear_to_srgb(item["image"])))
+    assert torch.allclose(item["sh_pseudo"], decoded, rtol=1e-2, atol=1e-3)
+    assert not torch.allclose(item["sh_pseudo"], encoded, rtol=0.1, atol=0.01)
+
+
 def test_build_passes_the_config(monkeypatch):
     from disent.data.photos import folder
 
@@ -633,8 +673,30 @@ def test_anatomy_reads_what_the_colour_match_closes():
             "photos_colour_matched": m(14.0),
         },
     }
-    lines = anatomy_table([gap])
-    assert "| explicit (explicit_shipped) | 8.00 | 8.30 | 16.00 | 14.00 | 16.70 |" in lines
+    lines = anatomy_table([gap])  # a result written before the photos were decoded: no sRGB column
+    assert "| explicit (explicit_shipped) | 8.00 | 8.30 | – | 16.00 | 14.00 | 16.70 |" in lines
     assert any("matching the face's colour statistics closes 2.00" in line for line in lines)
+    assert not any("as stored" in line for line in lines if line.startswith("- "))
+    gap["anatomy"]["photos_srgb"] = m(17.5)
+    lines = anatomy_table([gap])
+    assert "| explicit (explicit_shipped) | 8.00 | 8.30 | 17.50 | 16.00 | 14.00 | 16.70 |" in lines
+    assert any("the gap is 8.00 deg (1.50 less than on the photos as stored" in line for line in lines)
     del gap["anatomy"]["photos_colour_matched"]  # a result written before the colour match
-    assert "| explicit (explicit_shipped) | 8.00 | 8.30 | 16.00 | – | – |" in anatomy_table([gap])
+    assert "| explicit (explicit_shipped) | 8.00 | 8.30 | 17.50 | 16.00 | – | – |" in anatomy_table([gap])
+
+
+def test_gap_table_marks_results_read_from_srgb_codes():
+    """A domain-gap result written before the photos were decoded says so in its domain cell; today's does not."""
+    from disent.eval.photos import gap_table
+
+    m = {"n": 4, "recon_psnr": 22.0, "normal_vs_pseudo_deg": 15.0, "trivial_normal_vs_pseudo_deg": 16.7}
+    old = {"model": "explicit", "tag": "old", "training": {"steps": 10}, "photos": m, "synthfaces_test": m}
+    new = {**old, "tag": "new", "photo_pixels": "linear"}
+    rows = [line for line in gap_table([old, new]) if line.startswith("| explicit")]
+    assert [r.split(" | ")[2] for r in rows] == [
+        "photos, sRGB codes (written before decoding)",
+        "SynthFaces test",
+        "photos",
+        "SynthFaces test",
+    ]
+    assert all("15.00 | 16.70" in r for r in rows)

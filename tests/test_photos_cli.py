@@ -19,6 +19,7 @@ from test_folder import TemplateDetector, portrait
 
 from disent.data.photos import pseudo_gt as pg
 from disent.data.photos.pseudo_gt import PseudoGTSettings
+from disent.images import srgb_to_linear
 
 
 def photo_folder(root: Path) -> dict[str, str]:
@@ -93,9 +94,9 @@ def test_photos_command_colour_matches_each_face(tmp_path, template_dlib, monkey
     from disent.eval import photos
     from disent.photos import main
 
-    def png(path):  # [1, C, H, W] in [0, 1]
+    def png(path):  # [1, C, H, W] in [0, 1], linear: the tool writes its colour pictures sRGB-encoded
         x = torch.from_numpy(np.asarray(Image.open(path).convert("RGB"), dtype=np.float32) / 255)
-        return x.permute(2, 0, 1)[None]
+        return srgb_to_linear(x.permute(2, 0, 1)[None])
 
     target = (torch.tensor([0.6, 0.45, 0.35]), torch.tensor([0.08, 0.06, 0.05]))
     monkeypatch.setattr(photos, "colour_target", lambda resolution: target)
@@ -205,7 +206,7 @@ def test_edit_aligns_faces_as_the_photo_pipeline_does(tmp_path, template_dlib):
     photo_folder(tmp_path / "in")
     ((name, x),) = load_inputs([str(tmp_path / "in" / "plain.png")], 64)
     crop, _ = pg.aligned_crop(tmp_path / "in" / "plain.png", PseudoGTSettings(resolution=64))
-    assert torch.equal(x, torch.from_numpy(crop.astype("float32") / 255).permute(2, 0, 1))
+    assert torch.equal(x, torch.from_numpy(pg.crop_pixels(crop)))  # decoded from sRGB, as the pipeline reads it
 
 
 def test_edit_colour_match_gives_the_face_synthfaces_colours(tmp_path, template_dlib, monkeypatch):
@@ -225,7 +226,7 @@ def test_edit_colour_match_gives_the_face_synthfaces_colours(tmp_path, template_
     mean, std = photos.face_colour({"image": x[None], "mask_pseudo": mask})
     assert torch.allclose(mean[0], target[0], atol=0.02) and torch.allclose(std[0], target[1], atol=0.02)
     crop, _ = pg.aligned_crop(path, PseudoGTSettings(resolution=64))
-    plain = torch.from_numpy(crop.astype("float32") / 255).permute(2, 0, 1)
+    plain = torch.from_numpy(pg.crop_pixels(crop))
     inside = (mask[0, 0] > 0.5) & (x > 0.01).all(0) & (x < 0.99).all(0)  # unclamped face pixels
     for c in range(3):  # one affine map per channel: the matched pixels are a line of the aligned crop's
         a, b = plain[c][inside], x[c][inside]

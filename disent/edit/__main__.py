@@ -36,7 +36,8 @@ from disent.runs import tool_folder
 
 # ----------------------------------------------------------------------------- images
 def load_image(path: Path, resolution: int, align: bool = True, colour: tuple | None = None) -> torch.Tensor:
-    """An image file as ``[3,R,R]`` in [0,1], read and framed as the photos the models are applied to
+    """An image file as ``[3,R,R]`` linear radiance in [0,1] (decoded from sRGB), read and framed as the photos the
+    models are applied to
     (:func:`disent.data.photos.pseudo_gt.aligned_crop`: EXIF rotation, gray/alpha/16-bit converted, the face
     aligned by its landmarks; ``align=False``: centre square crop).  With ``colour`` (a target of
     :func:`disent.eval.photos.colour_matched`) the whole pseudo-GT pipeline runs and the face (its ``mask_pseudo``)
@@ -46,11 +47,11 @@ def load_image(path: Path, resolution: int, align: bool = True, colour: tuple | 
     settings = pg.PseudoGTSettings(resolution=resolution)
     if colour is None:
         crop, _ = pg.aligned_crop(path, settings, align)
-        return torch.from_numpy(crop.astype("float32") / 255.0).permute(2, 0, 1)
+        return torch.from_numpy(pg.crop_pixels(crop))
     from disent.eval.photos import colour_matched
 
     maps = pg.process(pg.read_photo(path), settings)
-    image = torch.from_numpy(maps["image"].astype("float32") / 255.0).permute(2, 0, 1)
+    image = torch.from_numpy(pg.crop_pixels(maps["image"]))
     mask = torch.from_numpy(maps["mask_pseudo"].astype("float32")).reshape(1, 1, resolution, resolution)
     return colour_matched({"image": image[None], "mask_pseudo": mask}, colour)["image"][0]
 

@@ -7,13 +7,16 @@ Real photos have no intrinsic ground truth, so the gap is measured on what both 
 share, each against the *pseudo* ground truth (the same landmark-fit rendering on both):
 reconstruction error, the angle between predicted normals and ``normal_pseudo`` inside
 ``mask_pseudo``, the overlap of the predicted matte with ``mask_pseudo``, and the SH error
-against ``sh_pseudo``; the same numbers on SynthFaces' test split are the reference.  The crops are those
+against ``sh_pseudo``; the same numbers on SynthFaces' test split are the reference.  A photo's pixels are
+stored sRGB-encoded; they are decoded to linear radiance, SynthFaces' and the image model's space, before the
+pseudo-GT fit or a model sees them (:func:`~disent.data.photos.pseudo_gt.crop_pixels`).  The crops are those
 of the bundled photos' pseudo-GT study (:mod:`disent.data.photos.study`), which this command runs first.
 
-What the gap is made of is measured one difference at a time (``anatomy``): SynthFaces turned gray, the photos'
-crops reframed, and the photos with their face's colour statistics matched to SynthFaces' (:func:`colour_matched`:
-per channel, the affine map that gives the pixels inside ``mask_pseudo`` the training faces' mean and std), a
-preprocessing any photo through the pseudo-GT pipeline can have.
+What the gap is made of is measured one difference at a time (``anatomy``): SynthFaces turned gray, the photos
+as stored (sRGB-encoded, not decoded), the photos' crops reframed, and the photos with their face's colour
+statistics matched to SynthFaces' (:func:`colour_matched`: per channel, the affine map that gives the pixels inside
+``mask_pseudo`` the training faces' mean and std), a preprocessing any photo through the pseudo-GT pipeline can
+have.
 """
 
 from __future__ import annotations
@@ -27,17 +30,18 @@ import torch
 import torch.nn.functional as F
 
 from disent.data.photos import pseudo_gt as pg
-from disent.images import over_max, to_array
+from disent.images import linear_to_srgb, over_max, to_array
 
 RELIGHT_NAMES = ("flash_az-60", "flash_az+0", "flash_az+60", "top", "rim_both")
 
 
 def photo_batch(records: list) -> dict:
-    """Stack the cached crops and pseudo ground truth of used records as float32 tensors."""
+    """Stack the cached crops (decoded to linear radiance, :func:`~disent.data.photos.pseudo_gt.crop_pixels`) and
+    pseudo ground truth of used records as float32 tensors."""
     zs = [pg.load_cached(r) for r in records]
     f = lambda k: torch.from_numpy(np.stack([z[k] for z in zs]).astype(np.float32))  # noqa: E731
     return {
-        "image": f("image").permute(0, 3, 1, 2) / 255.0,
+        "image": torch.from_numpy(np.stack([pg.crop_pixels(z["image"]) for z in zs])),
         "normal_pseudo": f("normal_pseudo"),
         "mask_pseudo": f("mask_pseudo"),
         "sh_pseudo": f("sh_pseudo"),
@@ -127,7 +131,8 @@ def gap_metrics(model, batch: dict, trivial: dict | None = None) -> dict:
 
 @torch.no_grad()
 def figures(model, batch: dict, names: list[str], out: Path, tag: str, budget: str = ""):
-    """``decomposition_<tag>.png`` and (models with a light code) ``relight_<tag>.png``."""
+    """``decomposition_<tag>.png`` and (models with a light code) ``relight_<tag>.png``; the colour pictures (input,
+    recon, albedo, relit) sRGB-encoded, as the photos were stored."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -136,13 +141,13 @@ def figures(model, batch: dict, names: list[str], out: Path, tag: str, budget: s
     from disent.edit.relight import named_light, relight
 
     res = model(batch["image"])
-    cols = [("input", batch["image"], "rgb"), ("recon", res["recon"], "rgb")]
+    cols = [("input", batch["image"], "srgb"), ("recon", res["recon"], "srgb")]  # colour pictures shown as photos are
     if "normal" in res:
         cols += [
             ("matte", res["matte"], "gray"),
             ("normal", res["normal"], "normal"),
             ("normal_pseudo", batch["normal_pseudo"], "normal"),
-            ("albedo", res["albedo"], "rgb"),
+            ("albedo", res["albedo"], "srgb"),
             ("shading / max", over_max(res["shading"]), "rgb"),
         ]
     n = len(names)
@@ -166,7 +171,7 @@ def figures(model, batch: dict, names: list[str], out: Path, tag: str, budget: s
     relit = [relight(model, batch["image"], named_light(k).expand(n, -1, -1), method="transfer") for k in RELIGHT_NAMES]
     for i in range(n):
         for j, (title, x) in enumerate([("input", batch["image"])] + list(zip(RELIGHT_NAMES, relit))):
-            axes[i, j].imshow(to_array(x[i], "rgb"))
+            axes[i, j].imshow(to_array(x[i], "srgb"))
             axes[i, j].axis("off")
             if i == 0:
                 axes[i, j].set_title(title, fontsize=7)
@@ -205,10 +210,12 @@ def apply_run(run_dir, records: list, out: Path, n_show: int = 8) -> dict:
         "model": cfg.model.name,
         "trained_on": cfg.data.name,
         "training": budget,
+        "photo_pixels": "linear",  # decoded from sRGB (results without this key read the stored sRGB codes)
         "photos": gap_metrics(model, photos, trivial),
         "synthfaces_test": gap_metrics(model, synth, trivial),
         "anatomy": {  # what the gap is made of: the photos' colour, and the framing of their crops
             "synthfaces_test_grayscale": gap_metrics(model, {**synth, "image": grayscale(synth["image"])}, trivial),
+            "photos_srgb": gap_metrics(model, {**photos, "image": linear_to_srgb(photos["image"])}, trivial),
             "photos_zoom": {f"{z:g}": gap_metrics(model, zoomed(photos, z), trivial) for z in ZOOMS},
             "photos_colour_matched": gap_metrics(model, matched, trivial),  # its PSNR: against the matched input
         },
@@ -264,7 +271,8 @@ def gap_table(gaps: list[dict]) -> list[str]:
     ]
     for g in gaps:
         t = g["training"]
-        for dom, label in (("photos", "photos"), ("synthfaces_test", "SynthFaces test")):
+        photos = "photos" if g.get("photo_pixels") == "linear" else "photos, sRGB codes (written before decoding)"
+        for dom, label in (("photos", photos), ("synthfaces_test", "SynthFaces test")):
             m = g[dom]
             cells = []
             for key, d in (("normal_vs_pseudo_deg", 2), ("sh_vs_pseudo_mse", 3)):
@@ -282,9 +290,10 @@ def gap_table(gaps: list[dict]) -> list[str]:
 
 def anatomy_table(gaps: list[dict]) -> list[str]:
     """What the gap is made of (Markdown lines; results with an ``anatomy``): each model's normals against
-    ``normal_pseudo`` on SynthFaces in colour and in gray (LFW's photos are gray), on the photos with their
-    crops magnified about the centre (:data:`ZOOMS`; 1 is the template's framing, which matches SynthFaces'), and
-    on the photos colour-matched to SynthFaces (:func:`colour_matched`)."""
+    ``normal_pseudo`` on SynthFaces in colour and in gray (LFW's photos are gray), on the photos as stored
+    (sRGB-encoded: what a model reads without the decoding), on the photos with their crops magnified about the
+    centre (:data:`ZOOMS`; 1 is the template's framing, which matches SynthFaces'), and on the photos
+    colour-matched to SynthFaces (:func:`colour_matched`)."""
     from disent.report import table_head
 
     gaps = [g for g in gaps if "normal_vs_pseudo_deg" in g.get("anatomy", {}).get("synthfaces_test_grayscale", {})]
@@ -297,13 +306,15 @@ def anatomy_table(gaps: list[dict]) -> list[str]:
     zooms = list(gaps[0]["anatomy"]["photos_zoom"])
     lines = [
         "Normals against `normal_pseudo` (deg) where the domains differ one way at a time: SynthFaces' test faces "
-        "in colour and turned gray, and the photos' crops magnified about their centre (x1: the template's framing, "
-        "the SynthFaces faces' mean size), and the photos with their face's colour matched to SynthFaces' "
+        "in colour and turned gray, the photos as stored (sRGB-encoded, not decoded to linear radiance), the photos' "
+        "crops magnified about their centre (x1: the template's framing, the SynthFaces faces' mean size), and the "
+        "photos with their face's colour matched to SynthFaces' "
         "(`colour_matched`: per channel, the training faces' mean and std inside `mask_pseudo`).\n",
         *table_head(
             "model (tag)",
             "SynthFaces",
             "SynthFaces gray",
+            "photos as stored (sRGB)",
             *(f"photos x{z}" for z in zooms),
             "photos colour-matched",
             "mean map",
@@ -311,9 +322,14 @@ def anatomy_table(gaps: list[dict]) -> list[str]:
     ]
     for g in gaps:
         a = g["anatomy"]
-        cells = [g["synthfaces_test"], a["synthfaces_test_grayscale"], *(a["photos_zoom"][z] for z in zooms)]
+        cells = [
+            g["synthfaces_test"],
+            a["synthfaces_test_grayscale"],
+            a.get("photos_srgb"),  # results written before the photos were decoded have none
+            *(a["photos_zoom"][z] for z in zooms),
+        ]
         matched = a.get("photos_colour_matched")
-        degrees = " | ".join(f"{deg(m):.2f}" for m in cells)
+        degrees = " | ".join("–" if m is None else f"{deg(m):.2f}" for m in cells)
         tail = "– | –" if matched is None else f"{deg(matched):.2f} | {matched['trivial_normal_vs_pseudo_deg']:.2f}"
         lines.append(f"| {g['model']} ({g['tag']}) | {degrees} | {tail} |")
     lines.append("")
@@ -325,9 +341,11 @@ def anatomy_table(gaps: list[dict]) -> list[str]:
         reframed = round(deg(g["photos"]) - deg(a["photos_zoom"][best]), 2) + 0.0  # no "-0.00"
         small = max(gray, reframed) < 0.25 * gap
         colour = deg(g["photos"]) - deg(a["photos_colour_matched"]) if "photos_colour_matched" in a else None
+        decoded = deg(a["photos_srgb"]) - deg(g["photos"]) if "photos_srgb" in a else None
         lines.append(
-            f"- {g['tag']}: the gap is {gap:.2f} deg; gray faces account for {gray:.2f} of it, and the best framing "
-            f"(x{best}) for {reframed:.2f}"
+            f"- {g['tag']}: the gap is {gap:.2f} deg"
+            + ("" if decoded is None else f" ({decoded:.2f} less than on the photos as stored, sRGB-encoded)")
+            + f"; gray faces account for {gray:.2f} of it, and the best framing (x{best}) for {reframed:.2f}"
             + ("" if colour is None else f"; matching the face's colour statistics closes {colour:.2f}")
             + (": most of the gap lies in the faces' appearance." if small else ".")
         )
@@ -335,7 +353,9 @@ def anatomy_table(gaps: list[dict]) -> list[str]:
 
 
 GAP_TEXT = (
-    "Every number is against the *pseudo* ground truth, the same landmark-fit rendering on both domains; reference: "
+    "The photos' pixels are decoded from sRGB to linear radiance, SynthFaces' space, before the pseudo-GT fit and "
+    "the models read them. Every number is against the *pseudo* ground truth, the same landmark-fit rendering on "
+    "both domains; reference: "
     "as many SynthFaces test faces. *Mean map* and *mean L-hat*: the training set's mean normal map and mean L-hat "
     "scored the same way; a network reads a domain's faces only where it beats them (else marked *not better*)."
 )

@@ -22,14 +22,15 @@ log = logging.getLogger(__name__)
 
 def load_photo(path: str, resolution: int, cache_dir=None) -> dict:
     """A photo with its pseudo ground truth (:mod:`disent.data.photos.pseudo_gt`)."""
-    from disent.data.photos.pseudo_gt import PseudoGTSettings, load_cached
+    from disent.data.photos.pseudo_gt import PseudoGTSettings, crop_pixels, load_cached
     from disent.data.photos.pseudo_gt import prepare as pseudo_gt
 
     (rec,), _ = pseudo_gt([path], PseudoGTSettings(resolution=resolution), cache_dir, progress=False)
     if not rec.used:
         raise ValueError(f"no usable face in {path}: {rec.reason} {rec.detail}")
-    item = {k: torch.as_tensor(v).float() for k, v in load_cached(rec).items() if v.dtype.kind in "fiub"}
-    item["image"] = item["image"].permute(2, 0, 1) / 255.0  # stored as HxWx3 uint8
+    arrays = load_cached(rec)
+    item = {k: torch.as_tensor(v).float() for k, v in arrays.items() if v.dtype.kind in "fiub"}
+    item["image"] = torch.from_numpy(crop_pixels(arrays["image"]))  # stored as HxWx3 sRGB uint8
     return item
 
 

@@ -28,7 +28,14 @@ import torch
 from torch.utils.data import Dataset
 
 from disent.data.attributes import ATTRIBUTES
-from disent.data.photos.pseudo_gt import IMAGE_SUFFIXES, PseudoGTSettings, format_summary, load_cached, prepare
+from disent.data.photos.pseudo_gt import (
+    IMAGE_SUFFIXES,
+    PseudoGTSettings,
+    crop_pixels,
+    format_summary,
+    load_cached,
+    prepare,
+)
 
 log = logging.getLogger(__name__)
 
@@ -195,7 +202,7 @@ class FolderFaces(Dataset):
         rec = self.records[index]
         z = load_cached(rec)
         f32 = lambda a: torch.from_numpy(np.asarray(a, dtype=np.float32))  # noqa: E731
-        item = {"image": f32(z["image"]).permute(2, 0, 1) / 255.0}
+        item = {"image": torch.from_numpy(crop_pixels(z["image"]))}  # linear radiance, as SynthFaces
         item.update({k: f32(z[k]) for k in PSEUDO_KEYS})
         item["sh_pseudo"] = f32(z["sh_pseudo"])
         if self.attributes is not None:

@@ -12,7 +12,8 @@ One photo goes through five steps, each a function here:
    landmarks by regularized least squares (``scipy.optimize.least_squares``);
 5. :func:`maps_from_fit`  the fitted mesh rasterized to ``normal_pseudo``, ``mask_pseudo``,
    ``uv_pseudo``, ``normal_uv_pseudo``; then ``sh_pseudo`` = L-hat with a constant albedo
-   (:func:`disent.render.fit_sh`), by SynthFaces' own code, so both data sets share it.
+   (:func:`disent.render.fit_sh`), by SynthFaces' own code, so both data sets share it, on the crop's
+   pixels decoded from sRGB to linear radiance (:func:`crop_pixels`), as every model reads them.
 
 :func:`prepare` runs the steps over many files with worker processes and a progress bar,
 and caches each result (or the reason it was skipped) under the file's content hash, so a
@@ -44,7 +45,7 @@ IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".webp", ".tif", ".tiff", ".p
 # iBUG 68-point layout: contour 0-16, brows 17-26, nose 27-35, eyes 36-47, mouth 48-67.
 CONTOUR = slice(0, 17)
 INNER = np.arange(17, 68)  # the landmarks that do not slide along the silhouette
-CACHE_VERSION = 4
+CACHE_VERSION = 5  # 5: sh_pseudo fitted on the linear (sRGB-decoded) crop
 
 
 @dataclass(frozen=True)
@@ -506,13 +507,21 @@ def face_notes(found, settings: PseudoGTSettings) -> list[str]:
     return notes
 
 
+def crop_pixels(crop: np.ndarray) -> np.ndarray:
+    """A cached 8-bit sRGB crop ``[R, R, 3]`` as the float32 ``[3, R, R]`` linear radiance that the models, L-hat
+    and SynthFaces share (:func:`disent.images.srgb_to_linear`)."""
+    from disent.images import srgb_to_linear
+
+    return srgb_to_linear(crop.astype(np.float32).transpose(2, 0, 1) / 255.0).astype(np.float32)
+
+
 def pseudo_gt_from_landmarks(rgb: np.ndarray, landmarks: np.ndarray, settings: PseudoGTSettings) -> dict:
     """Steps 3-5 for a decoded photo and its 68 landmarks (no dlib needed)."""
     model = face_model_fitter(settings)
     R = settings.resolution
     crop, lm, M = align(rgb, landmarks, model.template(R), R)
     fit = fit_landmarks(lm, R, settings, model)
-    maps = maps_from_fit(fit, crop.astype(np.float32).transpose(2, 0, 1) / 255.0, model)
+    maps = maps_from_fit(fit, crop_pixels(crop), model)
     sh = maps.pop("sh_pseudo")
     scale = float(np.sqrt(abs(np.linalg.det(M[:2, :2]))))
     return {
