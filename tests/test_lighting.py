@@ -650,3 +650,29 @@ def test_oracle_geometries_swap_in_exactly_one_true_layer():
         assert np.array_equal(data.basis, pseudo.basis) == same_normals
         np.testing.assert_array_equal(tex[0], texture_for(data, item[uv_key], 4)[0])
         assert np.array_equal(tex[0], tex_pseudo[0]) == (uv_key == "uv_pseudo")
+
+
+def test_coarse_fit_made_true_renders_the_pseudo_maps_again():
+    """Nothing made true renders the item's own pseudo maps; the true placement and shape together bring the
+    pseudo normals towards the true ones, and each part alone changes the maps (the oracle rows' geometry)."""
+    from disent.data import SynthFaces
+    from disent.eval.metrics import normal_angular_error
+    from disent.lighting.experiments import coarse_fit_made_true
+
+    ds = SynthFaces("val", 64, 0)
+    errors = {(): [], ("placement", "shape"): []}
+    for i in range(4):
+        item = ds[i]
+        same = coarse_fit_made_true(ds, i, item, ())
+        for k in ("normal_pseudo", "mask_pseudo", "uv_pseudo"):
+            torch.testing.assert_close(same[k], item[k].float(), atol=2e-3, rtol=0)  # the dataset stores half floats
+        for parts in (("placement",), ("shape",)):
+            moved = coarse_fit_made_true(ds, i, item, parts)
+            assert not torch.allclose(moved["normal_pseudo"], same["normal_pseudo"], atol=1e-2)
+        for parts in errors:
+            maps = coarse_fit_made_true(ds, i, item, parts)
+            both = (maps["mask_pseudo"] > 0.5) & (item["matte"] > 0.5)
+            errors[parts].append(
+                normal_angular_error(maps["normal_pseudo"][None], item["normal"][None], both[None])["mean"]
+            )
+    assert np.mean(errors[("placement", "shape")]) < 0.8 * np.mean(errors[()]), errors

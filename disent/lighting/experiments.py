@@ -28,10 +28,12 @@ EDGE = 1
 
 
 # geometry of a lighting fit: the normals, mask and uv (of the texture model) keys of an item, the pixels eroded
-# off the mask's edge, and the report's label. The two oracle rows each put one true layer into the pseudo
-# geometry, to split its error between the coarse fit's shape (its normals) and its misregistration (the uv
-# through which the texture model reaches the image). The registered row corrects the pseudo uv by the affine map
-# that best registers the texture model to the image (disent.lighting.texture.register).
+# off the mask's edge, and the report's label. The oracle rows each make one thing true, to split the pseudo
+# geometry's error: one layer (the normals, or the uv through which the texture model reaches the image), or one
+# part of the coarse fit behind all three maps, which are then rendered again (made_true: its placement, i.e. pose,
+# scale and shift, or its shape, i.e. the identity components it fits and the expression;
+# coarse_fit_made_true). The registered row corrects the pseudo uv by the affine map that best registers the
+# texture model to the image (disent.lighting.texture.register).
 class Geometry(NamedTuple):
     normals: str
     mask: str
@@ -39,6 +41,7 @@ class Geometry(NamedTuple):
     erosion: int
     label: str
     register: bool = False  # the uv corrected by registering the texture model to the image (texture.register)
+    made_true: tuple = ()  # parts of the coarse fit set to the scene's truth before its maps are rendered
 
 
 GEOMETRY = {
@@ -61,7 +64,40 @@ GEOMETRY = {
     "oracle_normals": Geometry(
         "normal", "mask_pseudo", "uv_pseudo", EDGE, f"true normals, pseudo mask eroded {EDGE} px and uv (oracle)"
     ),
+    "oracle_placement": Geometry(
+        "normal_pseudo",
+        "mask_pseudo",
+        "uv_pseudo",
+        EDGE,
+        f"coarse fit at the true pose, scale and shift, mask eroded {EDGE} px (oracle)",
+        made_true=("placement",),
+    ),
+    "oracle_shape": Geometry(
+        "normal_pseudo",
+        "mask_pseudo",
+        "uv_pseudo",
+        EDGE,
+        f"coarse fit with the true shape and expression, mask eroded {EDGE} px (oracle)",
+        made_true=("shape",),
+    ),
 }
+# the scene parameters behind each part of the coarse fit (coarse_fit_made_true)
+COARSE_FIT_PARTS = {"placement": ("pose", "scale", "shift"), "shape": ("alpha", "expression")}
+
+
+def coarse_fit_made_true(ds, index: int, item: dict, parts: tuple) -> dict:
+    """``item`` (scene ``index`` of SynthFaces ``ds``) with ``normal_pseudo``, ``mask_pseudo`` and ``uv_pseudo``
+    rendered again from its coarse fit with ``parts`` (keys of :data:`COARSE_FIT_PARTS`) set to the scene's own
+    values; the shape keeps the fit's number of identity components."""
+    from disent.data.synth.scenes import render_pseudo
+
+    p = ds.params([index])
+    for name in (k for part in parts for k in COARSE_FIT_PARTS[part]):
+        p[f"pseudo_{name}"] = p[name][:, : p["pseudo_alpha"].shape[1]] if name == "alpha" else p[name]
+    maps = render_pseudo(item["image"][None], p, item["image"].shape[-1])
+    return {**item, **{k: maps[k][0] for k in ("normal_pseudo", "mask_pseudo", "uv_pseudo")}}
+
+
 ALBEDO = ("known", "constant", "texture")
 
 
@@ -292,6 +328,8 @@ def order_confusion(
     for order in range(3):
         for i in range(n_per_order):
             item = ds.sample(i, sh=light_of_order(ds[i]["sh"], order))
+            if GEOMETRY[normals].made_true:
+                item = coarse_fit_made_true(ds, i, item, GEOMETRY[normals].made_true)
             data, texture = order_data(item, noise, 1000 * order + i, albedo, normals, n_components)
             scores = select_order(data, texture=texture, **(noise_model or {}))["scores"]
             for crit in conf:
@@ -341,6 +379,8 @@ ORDER_ROWS = (
     ("texture", "normal_pseudo_registered", "residual_process"),
     ("texture", "oracle_uv"),
     ("texture", "oracle_normals"),
+    ("texture", "oracle_placement"),
+    ("texture", "oracle_shape"),
 )
 RESIDUAL_GRID = {"rho": (1.0, 3.0, 10.0, 30.0, 100.0, 300.0, 1000.0), "ell": (0.5, 1.0, 2.0, 4.0)}
 
