@@ -71,10 +71,10 @@ def over_max(shading: torch.Tensor) -> torch.Tensor:
     return shading / shading.amax((-3, -2, -1), keepdim=True).clamp_min(1e-6)
 
 
-def strip(images: list[torch.Tensor], pad: int = 2) -> torch.Tensor:
-    """Maps ``[3,H,W]`` side by side with a white gap of ``pad`` pixels."""
+def strip(images: list[torch.Tensor], pad: int = 2, kind: str = "rgb") -> torch.Tensor:
+    """Maps ``[3,H,W]`` side by side with a white gap of ``pad`` pixels, each shown as ``kind`` (:func:`display`)."""
     gap = torch.ones(3, images[0].shape[1], pad)
-    return torch.cat([t for im in images for t in (display(im), gap)][:-1], 2)
+    return torch.cat([t for im in images for t in (display(im, kind), gap)][:-1], 2)
 
 
 def sample_grid(batch: dict, out: dict, columns, n: int = 8) -> np.ndarray:

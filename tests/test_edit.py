@@ -3,6 +3,7 @@ against ground truth built from the rendering primitives."""
 
 import math
 
+import numpy as np
 import pytest
 import torch
 from scipy.optimize import minimize_scalar
@@ -544,6 +545,13 @@ def test_relight_command_writes_pngs_for_a_folder(tmp_path):
     assert len(names) == 2 * 4 and "p0_transfer_dir_0.5_0.3_0.8.png" in names
     assert (out / ".tool").read_text() == "edit\n" and (out / "git.txt").exists()  # a tool folder (disent.runs)
     assert Image.open(out / "p1_relight_dir_0.5_0.3_0.8_strip.png").size == (6 * 16 + 5 * 2, 16)
+    # the models read a photo decoded to linear radiance, and its pictures are written back sRGB-encoded: the strip's
+    # input tile is the stored crop again, to within rounding
+    from disent.data.photos.pseudo_gt import PseudoGTSettings, aligned_crop
+
+    crop, _ = aligned_crop(photos / "p1.png", PseudoGTSettings(resolution=16), False)
+    tile = np.asarray(Image.open(out / "p1_relight_dir_0.5_0.3_0.8_strip.png").convert("RGB"))[:, :16]
+    assert np.abs(tile.astype(int) - crop.astype(int)).max() <= 1
     with pytest.raises(SystemExit):
         main(["relight", str(run), str(tmp_path / "missing.png"), "--direction", "0", "0", "1"])
 

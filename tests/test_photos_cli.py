@@ -190,7 +190,8 @@ def test_edit_loader_honours_exif_reads_ppm_and_skips_bad_entries(tmp_path, caps
     turned = torch.rot90(plain, 1, (1, 2))
     assert (turned - plain).abs().mean() > 5 * (rotated - plain).abs().mean()
     inputs = load_inputs([str(tmp_path / "in")], 64, align=False)
-    assert sorted(n for n, _ in inputs) == ["gray", "netpbm", "plain", "rotated"]
+    assert sorted(x.name for x in inputs) == ["gray", "netpbm", "plain", "rotated"]
+    assert {x.kind for x in inputs} == {"srgb"}  # photos: their pictures are written back sRGB-encoded
     out = capsys.readouterr().out
     assert "skipped" in out and "text.jpg: not an image" in out and "dangling.jpg: unreadable" in out
     with pytest.raises(SystemExit, match=r"^error: .*text.jpg: not an image"):
@@ -204,7 +205,7 @@ def test_edit_aligns_faces_as_the_photo_pipeline_does(tmp_path, template_dlib):
     from disent.edit.__main__ import load_inputs
 
     photo_folder(tmp_path / "in")
-    ((name, x),) = load_inputs([str(tmp_path / "in" / "plain.png")], 64)
+    ((name, x, _),) = load_inputs([str(tmp_path / "in" / "plain.png")], 64)
     crop, _ = pg.aligned_crop(tmp_path / "in" / "plain.png", PseudoGTSettings(resolution=64))
     assert torch.equal(x, torch.from_numpy(pg.crop_pixels(crop)))  # decoded from sRGB, as the pipeline reads it
 
@@ -220,7 +221,7 @@ def test_edit_colour_match_gives_the_face_synthfaces_colours(tmp_path, template_
     monkeypatch.setattr(photos, "colour_target", lambda resolution: target)  # no SynthFaces rendering here
     photo_folder(tmp_path / "in")
     path = tmp_path / "in" / "plain.png"
-    ((name, x),) = load_inputs([str(path)], 64, colour_match=True)
+    ((name, x, _),) = load_inputs([str(path)], 64, colour_match=True)
     maps = pg.process(path.read_bytes(), PseudoGTSettings(resolution=64))
     mask = torch.from_numpy(maps["mask_pseudo"].astype("float32")).reshape(1, 1, 64, 64)
     mean, std = photos.face_colour({"image": x[None], "mask_pseudo": mask})

@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import NamedTuple
 
 import torch
 
@@ -35,6 +36,15 @@ from disent.runs import tool_folder
 
 
 # ----------------------------------------------------------------------------- images
+class Input(NamedTuple):
+    """An image to edit or relight, and how its pictures are written (:func:`disent.images.display`): ``srgb`` for
+    a photo (encoded back as it was stored), ``rgb`` for a SynthFaces render (shown as the suite shows it)."""
+
+    name: str
+    image: torch.Tensor
+    kind: str
+
+
 def load_image(path: Path, resolution: int, align: bool = True, colour: tuple | None = None) -> torch.Tensor:
     """An image file as ``[3,R,R]`` linear radiance in [0,1] (decoded from sRGB), read and framed as the photos the
     models are applied to
@@ -58,10 +68,11 @@ def load_image(path: Path, resolution: int, align: bool = True, colour: tuple | 
 
 def load_inputs(
     specs: list[str], resolution: int, seed: int = 0, align: bool = True, colour_match: bool = False
-) -> list[tuple[str, torch.Tensor]]:
-    """``(name, image [3,R,R])`` for each file, every image of each folder, and ``synth:INDEX``.  In a
-    folder, a file that cannot be used is reported and left out; a single bad file is an error.  ``colour_match``:
-    each photo's face gets SynthFaces' colour statistics (:func:`load_image`; needs alignment, so dlib)."""
+) -> list[Input]:
+    """An :class:`Input` (``image [3,R,R]``, linear radiance) for each file, every image of each folder, and
+    ``synth:INDEX``.  In a folder, a file that cannot be used is reported and left out; a single bad file is an
+    error.  ``colour_match``: each photo's face gets SynthFaces' colour statistics (:func:`load_image`; needs
+    alignment, so dlib)."""
     from disent.data.photos import pseudo_gt as pg
     from disent.data.photos.folder import list_images
 
@@ -86,7 +97,8 @@ def load_inputs(
             from disent.data import SynthFaces
 
             index = int(spec.split(":", 1)[1])
-            out.append((f"synth{index:05d}", SynthFaces("test", resolution=resolution, seed=seed)[index]["image"]))
+            image = SynthFaces("test", resolution=resolution, seed=seed)[index]["image"]
+            out.append(Input(f"synth{index:05d}", image, "rgb"))
             continue
         p = Path(spec)
         if p.is_dir():
@@ -95,14 +107,14 @@ def load_inputs(
                 raise SystemExit(f"error: no images ({'/'.join(pg.IMAGE_SUFFIXES)}) in folder {p}")
             for f in files:
                 try:
-                    out.append((f.stem, load_image(f, resolution, align, colour)))
+                    out.append(Input(f.stem, load_image(f, resolution, align, colour), "srgb"))
                 except pg.Skip as e:
                     print(f"skipped {f}: {e.reason}{f' ({e.detail})' if e.detail else ''}")
             if not out:
                 raise SystemExit(f"error: no usable image in folder {p}")
         elif p.exists() or p.is_symlink():
             try:
-                out.append((p.stem, load_image(p, resolution, align, colour)))
+                out.append(Input(p.stem, load_image(p, resolution, align, colour), "srgb"))
             except pg.Skip as e:
                 raise SystemExit(f"error: {p}: {e.reason}{f' ({e.detail})' if e.detail else ''}") from None
         else:
@@ -153,7 +165,7 @@ def cmd_traverse(a) -> None:
         )
     inputs = load_inputs(a.inputs, R, a.seed, a.align, a.colour_match)
     pool = build_pool(model, a.attribute, a.pool, a.pool_size, R, a.seed)
-    images = torch.stack([x for _, x in inputs])
+    images = torch.stack([x.image for x in inputs])
     codes = model.encode(images)
     manifolds = tuple(a.manifolds or default_manifolds(codes, a.attribute))
     recon = model.decode(codes)["recon"]
@@ -161,10 +173,10 @@ def cmd_traverse(a) -> None:
     out = tool_folder("edit", a.out)
     key = "lam" if a.method == "dmt" else "alpha"
     tag = f"{'remove' if a.remove else 'add'}_{a.attribute}_{'+'.join(manifolds)}_{a.method}"
-    for i, (name, x) in enumerate(inputs):
+    for i, (name, x, kind) in enumerate(inputs):
         for s, e in zip(a.strength, edits):
-            save_image(e[i], out / f"{name}_{tag}_{key}{s:g}.png")
-        save_image(strip([x, recon[i]] + [e[i] for e in edits]), out / f"{name}_{tag}_strip.png")
+            save_image(e[i], out / f"{name}_{tag}_{key}{s:g}.png", kind)
+        save_image(strip([x, recon[i]] + [e[i] for e in edits], kind=kind), out / f"{name}_{tag}_strip.png")
     print(
         f"{len(inputs)} image(s): {tag}, {key} = {list(a.strength)}; strips (input | reconstruction | "
         f"edits) and edits in {out}/"
@@ -175,7 +187,7 @@ def source_light(a, model, R) -> tuple[str, torch.Tensor]:
     from disent.edit.relight import directional_light, named_light
 
     if a.source:
-        ((name, img),) = load_inputs([a.source], R, a.seed, a.align, a.colour_match)
+        ((name, img, _),) = load_inputs([a.source], R, a.seed, a.align, a.colour_match)
         return f"from_{name}", model(img[None])["sh"]
     if a.light:
         return a.light, named_light(a.light)
@@ -192,16 +204,19 @@ def cmd_relight(a) -> None:
     model, R = load_model(a.run)
     inputs = load_inputs(a.inputs, R, a.seed, a.align, a.colour_match)
     label, sh = source_light(a, model, R)
-    images = torch.stack([x for _, x in inputs])
+    images = torch.stack([x.image for x in inputs])
     out = tool_folder("edit", a.out)
     results = {m: relight(model, images, sh, m) for m in a.method}
     est = model(images)
     S_transfer = sh_shading(est["normal"], sh.expand(len(images), -1, -1))
-    for i, (name, x) in enumerate(inputs):
+    for i, (name, x, kind) in enumerate(inputs):
         for m, r in results.items():
-            save_image(r[i], out / f"{name}_{m}_{label}.png")
+            save_image(r[i], out / f"{name}_{m}_{label}.png", kind)
         save_image(
-            strip([x, over_max(est["shading"][i]), over_max(S_transfer[i])] + [results[m][i] for m in a.method]),
+            strip(
+                [x, over_max(est["shading"][i]), over_max(S_transfer[i])] + [results[m][i] for m in a.method],
+                kind=kind,
+            ),
             out / f"{name}_relight_{label}_strip.png",
         )
     print(
