@@ -594,6 +594,17 @@ def test_domain_gap_numbers_on_photo_records(tmp_path):
     gap = gap_metrics(model, one, trivial)
     assert gap["trivial_normal_vs_pseudo_deg"] == pytest.approx(0, abs=0.1)
     assert gap["trivial_sh_vs_pseudo_mse"] == pytest.approx(0, abs=1e-6)
+    assert gap["trivial_light_vs_pseudo_shading_si_mse"] == pytest.approx(0, abs=1e-9)
+    # the light on the face ignores what the face hides: L-hat's coefficients moved along a direction whose shading
+    # over the face vanishes score the same shading, however far the coefficients moved
+    from disent.eval.metrics import sh_gram
+
+    gram = sh_gram(one["normal_pseudo"].double(), one["mask_pseudo"] > 0.5)[0]
+    hidden = torch.linalg.eigh(gram).eigenvectors[:, 0].float()  # the direction the face shows least
+    moved = {"normal": trivial["normal"], "sh_pseudo": trivial["sh_pseudo"] + 5 * hidden}
+    gap = gap_metrics(model, one, moved)
+    assert gap["trivial_sh_vs_pseudo_mse"] > 0.5  # 1: orthogonal to L-hat's coefficients
+    assert gap["trivial_light_vs_pseudo_shading_si_mse"] < 1e-2 * gap["trivial_sh_vs_pseudo_mse"]
 
 
 def test_grayscale_and_zoom_of_a_photo_batch(tmp_path):
