@@ -701,15 +701,26 @@ def test_photo_section_marks_a_network_no_better_than_the_training_means(tmp_pat
         "trivial_normal_vs_pseudo_deg": 16.7,
         "sh_vs_pseudo_mse": 0.30,
         "trivial_sh_vs_pseudo_mse": 0.38,
+        "light_vs_pseudo_shading_si_mse": 0.009,
+        "trivial_light_vs_pseudo_shading_si_mse": 0.007,
         "matte_iou_mask_pseudo": 0.7,
     }
-    gap = {"model": "explicit", "training": {"epochs": 20, "train_size": 20000}, "photos": dom, "synthfaces_test": dom}
+    gap = {
+        "model": "explicit",
+        "training": {"epochs": 20, "train_size": 20000},
+        "photo_pixels": "linear",
+        "photos": dom,
+        "synthfaces_test": dom,
+    }
     (tmp_path / "photos").mkdir()
     (tmp_path / "photos" / "domain_gap_explicit_shipped.json").write_text(json.dumps(gap))
     rep = report.Report(tmp_path, "")
     report.sec_photos(rep, tmp_path)
     row = next(line for line in rep.lines if line.startswith("| explicit (explicit_shipped) |") and "photos" in line)
-    assert "| 17.50 (not better) | 16.70 | 0.300 | 0.380 | 0.700 |" in row, row
+    assert (
+        "| photos | 4 | 21.80 | 17.50 (not better) | 16.70 | 0.300 | 0.380 | 0.0090 (not better) | 0.0070 | 0.700 |"
+        in row
+    )
 
 
 def test_captions_name_the_machines_the_runs_trained_on(tmp_path):
