@@ -189,10 +189,11 @@ def main(argv=None) -> None:
                 }
             )
         shown = used[:SHOWN]
-        figures(model, {k: v[:SHOWN] for k, v in batch.items()}, [Path(r.path).stem for r in shown], out_dir, "photos")
-        (out_dir / "decomposition_photos.png").replace(out_dir / "decomposition.png")
-        if (out_dir / "relight_photos.png").exists():
-            (out_dir / "relight_photos.png").replace(out_dir / "relight.png")
+        tag = Path(a.run).name  # the figures' titles name the model
+        figures(model, {k: v[:SHOWN] for k, v in batch.items()}, [Path(r.path).stem for r in shown], out_dir, tag)
+        (out_dir / f"decomposition_{tag}.png").replace(out_dir / "decomposition.png")
+        if (out_dir / f"relight_{tag}.png").exists():
+            (out_dir / f"relight_{tag}.png").replace(out_dir / "relight.png")
     report["photos"] += [
         {"path": r.path, "used": False, "face": r.face, "reason": r.reason, "detail": r.detail}
         for r in records
