@@ -6,11 +6,12 @@ A model trained on SynthFaces is applied to the aligned photo crops of the pseud
 Real photos have no intrinsic ground truth, so the gap is measured on what both domains
 share, each against the *pseudo* ground truth (the same landmark-fit rendering on both):
 reconstruction error, the angle between predicted normals and ``normal_pseudo`` inside
-``mask_pseudo``, the overlap of the predicted matte with ``mask_pseudo``, and the SH error
-against ``sh_pseudo``; the same numbers on SynthFaces' test split are the reference.  A photo's pixels are
-stored sRGB-encoded; they are decoded to linear radiance, SynthFaces' and the image model's space, before the
-pseudo-GT fit or a model sees them (:func:`~disent.data.photos.pseudo_gt.crop_pixels`).  The crops are those
-of the bundled photos' pseudo-GT study (:mod:`disent.data.photos.study`), which this command runs first.
+``mask_pseudo``, the overlap of the predicted matte with ``mask_pseudo``, the SH error
+against ``sh_pseudo`` and the light's shading through ``normal_pseudo`` against L-hat's; the same numbers on
+SynthFaces' test split are the reference.  A photo's pixels are stored sRGB-encoded; they are decoded to linear
+radiance, SynthFaces' and the image model's space, before the pseudo-GT fit or a model sees them
+(:func:`~disent.data.photos.pseudo_gt.crop_pixels`).  The crops are those of the bundled photos' pseudo-GT study
+(:mod:`disent.data.photos.study`), which this command runs first.
 
 What the gap is made of is measured one difference at a time (``anatomy``): SynthFaces turned gray, the photos
 as stored (sRGB-encoded, not decoded), the photos' crops reframed, and the photos with their face's colour
