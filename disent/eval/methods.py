@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from disent.eval.evaluate import metrics_from_outputs, predict
-from disent.images import linear_to_srgb
+from disent.images import to_uint8
 from disent.runs import cpu_name
 
 PANELS = (
@@ -72,7 +72,7 @@ def landmark_fit(images: torch.Tensor) -> tuple[list, dict, float]:
     detector, model = pg.landmark_detector(settings), pg.face_model_fitter(settings)
     found, maps, t0 = [], [], time.perf_counter()
     for i, img in enumerate(images):
-        rgb = (linear_to_srgb(img).permute(1, 2, 0).numpy() * 255).round().astype(np.uint8)  # as a photo is stored
+        rgb = to_uint8(img, "srgb")  # as a photo is stored
         try:
             landmarks, _ = detector(rgb)
             fit = pg.fit_landmarks(landmarks, R, settings, model)

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from disent.data.photos import pseudo_gt as pg
-from disent.images import linear_to_srgb
+from disent.images import to_uint8
 from disent.runs import tool_folder
 
 N_LFW_FACES = 100  # lfw_subset: images 0-99 are faces, 100-199 are not
@@ -102,8 +102,7 @@ def synth_landmark_check(settings: pg.PseudoGTSettings, n: int = 64) -> dict:
     ds = SynthFaces("test", R, size=n)
     fitter = pg.face_model_fitter(settings)
     exact = fitter.synth_landmarks(ds.params(range(n)), R)
-    linear = ds.get_batch(range(n))["image"].permute(0, 2, 3, 1).numpy()
-    images = (linear_to_srgb(linear) * 255).round().astype(np.uint8)  # encoded as a photo is stored
+    images = [to_uint8(im, "srgb") for im in ds.get_batch(range(n))["image"]]  # encoded as a photo is stored
     det = pg.landmark_detector(settings)
     dist, dpose = [], []
     for img, lm in zip(images, exact):
