@@ -1147,6 +1147,8 @@ def budget_check(explicit: list[Run]) -> str:
 ABLATION_CLAIMS = (
     ("no_bws", "BWS: no colour cast in the shading (Eq. 14)", "shading_cast"),
     ("no_bws", "BWS: no degenerate split where A_e takes the shading (Sec. 4.2)", "albedo_shading_corr"),
+    ("no_bws", "BWS: the skin's colour stays in A_e, not in S_e (Sec. 4.2)", "albedo_colour_si_mse"),
+    ("no_bws", "BWS: S_e keeps the light's colour, not the skin's (Sec. 4.2)", "shading_colour_si_mse"),
     ("no_smooth_a", "Retinex: a piecewise-constant albedo leaves the shading to S_e (Eq. 10)", "albedo_shading_corr"),
     ("no_smooth_a", "Retinex: a better albedo (Eq. 10)", "albedo_si_mse"),
     ("no_smooth_s", "a smooth shading (Eq. 11)", "shading_si_mse"),
@@ -1161,6 +1163,8 @@ CLAIM_METRICS = {  # metric -> its label in the claims' tables
     "shading_cast": "shading cast",
     "albedo_shading_corr": "corr(albedo, true shading)",
     "albedo_si_mse": "albedo si-MSE",
+    "albedo_colour_si_mse": "albedo si-MSE, one scale for RGB",
+    "shading_colour_si_mse": "shading si-MSE, one scale for RGB",
     "shading_si_mse": "shading si-MSE",
     "recon_face_psnr": "face PSNR",
     "recon_face_ssim": "face SSIM",

@@ -554,6 +554,9 @@ LAYERS = (  # (label, network key, trivial key, pseudo-GT key, unit): lower is b
     ("albedo, detailed (I / S)", "albedo_detailed_si_mse", "trivial_albedo_si_mse", None, ""),  # Sec. 5.3
     ("albedo, one scale", "albedo_global_si_mse", "trivial_albedo_global_si_mse", None, ""),
     ("albedo, with hair+neck", "albedo_face_si_mse", "trivial_albedo_face_si_mse", None, ""),
+    ("albedo, one scale for RGB", "albedo_colour_si_mse", "trivial_albedo_colour_si_mse", None, ""),  # skin colour
+    ("shading, scale-inv. MSE", "shading_si_mse", "trivial_shading_si_mse", None, ""),
+    ("  one scale for RGB", "shading_colour_si_mse", "trivial_shading_colour_si_mse", None, ""),  # light's colour
     ("light, SH error", "sh_error", "trivial_sh_error", "pseudo_sh_error", ""),
     ("  shown by the face", "sh_error_shown", "trivial_sh_error_shown", "pseudo_sh_error_shown", ""),  # scale from
     ("  hidden from it", "sh_error_hidden", "trivial_sh_error_hidden", "pseudo_sh_error_hidden", ""),  # shading

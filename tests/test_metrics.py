@@ -143,6 +143,26 @@ def test_scale_invariant_mse_global_scale_does_not_forgive_per_image_colour():
     assert scale_invariant_mse(per_image, target, mask, per_image=False) > 1e-3
 
 
+def test_scale_invariant_mse_one_scale_for_rgb_does_not_forgive_a_colourless_albedo():
+    """per_channel=False shares one scale among the channels: a gray-scaled copy of the target is forgiven, the
+    degenerate split without BWS (the albedo whitened, the skin's colour left to the shading) is not, though a
+    scale per channel forgives it exactly; and the shading that takes the colour is not forgiven either."""
+    g = torch.Generator().manual_seed(0)
+    albedo = torch.rand(4, 3, 8, 8, generator=g, dtype=torch.float64) * 0.3 + torch.tensor([0.8, 0.5, 0.4])[
+        None, :, None, None
+    ]  # skin-coloured
+    shading = torch.rand(4, 1, 8, 8, generator=g, dtype=torch.float64) + 0.5  # white
+    mask = torch.ones(4, 1, 8, 8)
+    colour = albedo.mean((2, 3), keepdim=True)  # each face's skin colour
+    whitened, tinted = albedo / colour, shading * colour  # the same image: whitened * tinted == albedo * shading
+    assert torch.allclose(whitened * tinted, albedo * shading)
+    gray_scaled = albedo * torch.tensor([0.5, 2.0, 3.0, 0.7], dtype=torch.float64)[:, None, None, None]
+    assert scale_invariant_mse(gray_scaled, albedo, mask, per_channel=False) < 1e-20
+    assert scale_invariant_mse(whitened, albedo, mask) < 1e-20
+    assert scale_invariant_mse(whitened, albedo, mask, per_channel=False) > 1e-2
+    assert scale_invariant_mse(tinted, shading.expand(-1, 3, -1, -1), mask, per_channel=False) > 1e-2
+
+
 def test_masked_blur_keeps_constants_and_removes_the_finest_pattern():
     """Inside any mask a constant is its own blur (the blur is normalised by the blurred mask), and a one-pixel
     checkerboard is all detail: a Gaussian of sigma 2 px passes ~exp(-pi^2 sigma^2 / 2) of it per axis (its

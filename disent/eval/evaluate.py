@@ -142,9 +142,11 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     ``recon_*`` on the whole image, ``recon_face_*`` under the true face mask.  On the pixels of
     :func:`decomposed_region`: ``normal_*`` the model's angular error against the true normals and
     ``pseudo_normal_*`` the pseudo-GT's; ``albedo_si_mse`` (a scale per image and channel),
-    ``albedo_global_si_mse`` (a scale per channel for all images), ``albedo_coarse_si_mse`` and
+    ``albedo_global_si_mse`` (a scale per channel for all images), ``albedo_colour_si_mse`` (one scale per image for
+    the three channels: the skin's colour must be in the albedo, not in the shading), ``albedo_coarse_si_mse`` and
     ``albedo_fine_si_mse`` (``albedo_si_mse``'s error above and below a 2-px blur), ``albedo_detailed_si_mse`` (the
-    detailed albedo of Sec. 5.3, the image over the model's shading), ``shading_si_mse``.  For reference
+    detailed albedo of Sec. 5.3, the image over the model's shading), ``shading_si_mse`` and ``shading_colour_si_mse``
+    (one scale per image for the three channels: the shading must have the light's colour, not the skin's).  For reference
     ``albedo_face_si_mse``: the albedo over the whole true face mask, hair and neck included.
     ``sh_error`` after the per-image scale alignment, and ``sh_error_coefficients`` its share per coefficient;
     ``light_shading_si_mse``: the light's shading through the true normals against the true shading;
@@ -162,6 +164,7 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     if "albedo" in out:
         m["albedo_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], region)
         m["albedo_global_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], region, per_image=False)
+        m["albedo_colour_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], region, per_channel=False)
         m["albedo_face_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], face)
         bands = scale_invariant_mse_bands(out["albedo"], gt["albedo"], region)
         m["albedo_coarse_si_mse"], m["albedo_fine_si_mse"] = bands["coarse"], bands["fine"]
@@ -175,6 +178,7 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     if "shading" in out and "shading" in gt:  # (the validation batch carries no true shading)
         shading = out["shading"].expand_as(gt["shading"])
         m["shading_si_mse"] = scale_invariant_mse(shading, gt["shading"], region)
+        m["shading_colour_si_mse"] = scale_invariant_mse(shading, gt["shading"], region, per_channel=False)
     if "sh" in out:
         m["sh_error"] = sh_error(out["sh"], gt["sh"])
         m["pseudo_sh_error"] = sh_error(gt["sh_pseudo"], gt["sh"])

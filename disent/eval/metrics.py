@@ -136,15 +136,18 @@ def optimal_scale(pred: torch.Tensor, target: torch.Tensor, weight: torch.Tensor
     return torch.where(den > 0, num / den.clamp_min(1e-300), torch.zeros_like(num))
 
 
-def _aligned_error(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, per_image: bool = True):
-    """``(s * pred - target, weight)`` in float64, ``s`` the least-squares scale per image and channel (``per_image``)
-    or per channel over the batch; ``weight [B,1,H,W]`` the mask as 0/1."""
+def _aligned_error(
+    pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, per_image: bool = True, per_channel: bool = True
+):
+    """``(s * pred - target, weight)`` in float64, ``s`` the least-squares scale per image (``per_image``) or over the
+    batch, and per channel (``per_channel``) or shared by the channels; ``weight [B,1,H,W]`` the mask as 0/1."""
     _check_pair(pred, target)
     w = _mask(mask, pred).double()
     if not (w.flatten(1).sum(1) > 0).all():
         raise ValueError("scale_invariant_mse: the mask selects no pixel in some image")
     p, t = pred.detach().double(), target.detach().double()
-    s = optimal_scale(p, t, w, (2, 3) if per_image else (0, 2, 3))  # [B,C,1,1] or [1,C,1,1]
+    dims = (() if per_image else (0,)) + (() if per_channel else (1,)) + (2, 3)
+    s = optimal_scale(p, t, w, dims)  # [B or 1, C or 1, 1, 1]
     return s * p - t, w
 
 
@@ -154,16 +157,22 @@ def _masked_mean_square(e: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
 
 
 def scale_invariant_mse(
-    pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, reduction: str = "mean", per_image: bool = True
+    pred: torch.Tensor,
+    target: torch.Tensor,
+    mask: torch.Tensor,
+    reduction: str = "mean",
+    per_image: bool = True,
+    per_channel: bool = True,
 ):
     """Scale-invariant MSE of albedo (or shading) maps ``[B,C,H,W]`` over the mask.
 
     Each image and channel of ``pred`` is multiplied by its least-squares optimal scale
     before the MSE over masked pixels and channels (``per_image=False``: one scale per channel
-    for the whole batch, so an albedo that leaves each face's colour to the light is not forgiven).
-    ``reduction="none"`` returns ``[B]``, ``"mean"`` their mean as a float.
+    for the whole batch, so an albedo that leaves each face's colour to the light is not forgiven;
+    ``per_channel=False``: one scale for the three channels, so an albedo that leaves the face's colour to the
+    shading is not forgiven either).  ``reduction="none"`` returns ``[B]``, ``"mean"`` their mean as a float.
     """
-    return _reduce(_masked_mean_square(*_aligned_error(pred, target, mask, per_image)), reduction)
+    return _reduce(_masked_mean_square(*_aligned_error(pred, target, mask, per_image, per_channel)), reduction)
 
 
 BAND_SIGMA = 2.0  # px at 64x64: the coarse band keeps what varies over more than a few pixels (shading-like)
