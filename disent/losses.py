@@ -76,18 +76,24 @@ def recon_N(out, batch):
     return masked_mean((out["normal"] - batch["normal_pseudo"]).pow(2), batch["mask_pseudo"])
 
 
-def recon_L(out, batch, c: float | None = 0.75, space: str = "shading"):
+def recon_L(out, batch, c: float | None = 0.75, space: str = "shading", gray: bool = False):
     """E_recon-L = ||Z_L - L-hat||^2.
 
     L-hat (constant albedo) is defined up to that constant; with ``c`` set, the constant is chosen
     per channel so that L-hat's own shading obeys BWS on the batch (mean c over the face), so
     E_recon-L and BWS ask for the same shading scale (``c=None``: L-hat as given).
+    The constant albedo leaves each face's skin colour in L-hat, and E_recon-L teaches it to the light;
+    ``gray=True`` takes it out first: each face's three channels are scaled to one shading mean over the face
+    (their average), so the target keeps the light's pattern and brightness but no colour of its own.
     ``space="coefficients"`` is the plain L2 over the 27 numbers; ``space="shading"`` measures the
     same difference through the face's pseudo normals, ||S(N-hat, Z_L) - S(N-hat, L-hat)||^2 under
     M-hat, which ignores the SH directions a face's normal cone cannot tell apart (there the
     least-squares L-hat is noise).
     """
     target, mask, normal = batch["sh_pseudo"], batch["mask_pseudo"], batch["normal_pseudo"]
+    if gray:
+        face = (sh_shading(normal, target) * mask).sum((2, 3)) / mask.sum((2, 3)).clamp_min(1e-8)  # [B, C]
+        target = target * (face.mean(1, keepdim=True) / face.clamp_min(1e-3))[:, :, None]
     if c is not None:
         mean = (sh_shading(normal, target) * mask).sum((0, 2, 3)) / mask.sum().clamp_min(1e-8)  # [C]
         target = target * (c / mean.clamp_min(1e-3))[None, :, None]
@@ -177,6 +183,7 @@ NEEDS = {
 TERM_SETTINGS = {
     "recon_fg_p": ("recon_fg",),
     "lhat_white": ("recon_L",),
+    "lhat_gray": ("recon_L",),
     "recon_L_space": ("recon_L",),
     "bws_c": ("BWS", "recon_L"),
 }
@@ -197,6 +204,7 @@ def generator_losses(
     energy_fake=None,
     bws_c: float = 0.75,
     lhat_white: bool = True,
+    lhat_gray: bool = False,
     recon_L_space: str = "shading",
     recon_p: int = 2,
     recon_fg_p: int = 2,
@@ -204,7 +212,7 @@ def generator_losses(
     """Unweighted value of every active term, plus ``total`` = sum of weight x term (E_o and the priors).
 
     ``energy_fake`` is D's energy of ``out['recon']`` (``[B]``), needed when ``adv`` is active;
-    ``lhat_white`` and ``recon_L_space`` choose E_recon-L's target and metric (see :func:`recon_L`);
+    ``lhat_white``, ``lhat_gray`` and ``recon_L_space`` choose E_recon-L's target and metric (see :func:`recon_L`);
     ``recon_p`` E_recon's norm (2: the paper, 1: the release); ``recon_fg_p`` the masked reconstruction's
     (2: the release, 1).
     """
@@ -221,7 +229,7 @@ def generator_losses(
             elif t in ("recon", "recon_fg"):
                 losses[t] = fn(out, batch, recon_p if t == "recon" else recon_fg_p)
             elif t == "recon_L":
-                losses[t] = fn(out, batch, bws_c if lhat_white else None, recon_L_space)
+                losses[t] = fn(out, batch, bws_c if lhat_white else None, recon_L_space, lhat_gray)
             else:
                 losses[t] = fn(out, batch)
     losses["total"] = sum(weights[t] * v for t, v in losses.items())

@@ -119,6 +119,7 @@ def train_step(model, disc, opt_g, opt_d, batch, cfg_loss) -> dict:
         energy_fake,
         cfg_loss.bws_c,
         cfg_loss.get("lhat_white", True),
+        cfg_loss.get("lhat_gray", False),
         cfg_loss.get("recon_L_space", "shading"),
         cfg_loss.get("recon_p", 2),
         cfg_loss.get("recon_fg_p", 2),

@@ -232,6 +232,27 @@ def test_bws_stats_closed_forms():
     assert m["albedo_shading_corr"] == pytest.approx(-1.0) and m["shading_cast"] == pytest.approx(0, abs=1e-6)
 
 
+def test_bws_stats_tell_where_each_skin_went():
+    """A shading that takes each face's skin tone (the true shading times the face's mean albedo colour) correlates
+    fully with the skin over faces; the same colour given back to a white shading carries none of it."""
+    ds = FakeFaces("test", size=12)
+    gt = default_collate([ds[i] for i in range(12)])
+    face = st.face_mask(gt["matte"])
+    skin = (gt["albedo"] * face).sum((2, 3), keepdim=True) / face.sum((2, 3), keepdim=True)  # [B,3,1,1]
+    assert skin.flatten(1).std(0).min() > 0  # the faces' skins differ in every channel
+    white = gt["shading"].mean(1, keepdim=True)  # one gray shading per face
+    s = st.bws_stats({"shading": white * skin, "albedo": gt["albedo"]}, gt)
+    assert s["shading_albedo_tone_corr"] == pytest.approx(1.0)
+    white_s = st.bws_stats({"shading": white, "albedo": gt["albedo"]}, gt)
+    assert white_s["shading_albedo_tone_corr"] == pytest.approx(0.0, abs=1e-6)  # gray: no chromaticity varies
+    luminance = lambda x: x.mean(1, keepdim=True)  # noqa: E731
+    face_mean = (white * face).sum((2, 3), keepdim=True) / face.sum((2, 3), keepdim=True)
+    brightness_only = white / face_mean * luminance(skin)  # its mean on the face: the skin's luminance
+    assert st.bws_stats({"shading": brightness_only, "albedo": gt["albedo"]}, gt)[
+        "shading_albedo_brightness_corr"
+    ] == pytest.approx(1.0)
+
+
 def test_metrics_from_outputs_baseline_has_only_recon():
     ds = FakeFaces("test", size=2)
     gt = default_collate([ds[i] for i in range(2)])

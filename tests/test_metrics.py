@@ -148,9 +148,10 @@ def test_scale_invariant_mse_one_scale_for_rgb_does_not_forgive_a_colourless_alb
     degenerate split without BWS (the albedo whitened, the skin's colour left to the shading) is not, though a
     scale per channel forgives it exactly; and the shading that takes the colour is not forgiven either."""
     g = torch.Generator().manual_seed(0)
-    albedo = torch.rand(4, 3, 8, 8, generator=g, dtype=torch.float64) * 0.3 + torch.tensor([0.8, 0.5, 0.4])[
-        None, :, None, None
-    ]  # skin-coloured
+    albedo = (
+        torch.rand(4, 3, 8, 8, generator=g, dtype=torch.float64) * 0.3
+        + torch.tensor([0.8, 0.5, 0.4])[None, :, None, None]
+    )  # skin-coloured
     shading = torch.rand(4, 1, 8, 8, generator=g, dtype=torch.float64) + 0.5  # white
     mask = torch.ones(4, 1, 8, 8)
     colour = albedo.mean((2, 3), keepdim=True)  # each face's skin colour

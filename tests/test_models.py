@@ -167,6 +167,18 @@ def test_loss_terms_closed_forms():
     s_hat = sh_shading(b["normal_pseudo"], b["sh_pseudo"]) * mask
     white = b["sh_pseudo"] * (0.75 / (s_hat.sum((0, 2, 3)) / mask.sum()))[None, :, None]
     assert L.recon_L({"sh": white}, b, c=0.75).item() == pytest.approx(0, abs=1e-10)
+    # gray: each face's own colour on L-hat (a skin tone left in the light, brightness kept) changes nothing, and
+    # the gray target's shading has one mean over each face for the three channels
+    face_mean = (s_hat.sum((2, 3)) / mask.sum((2, 3)))[:, :, None]  # [B, C, 1]: L-hat's shading mean per face
+    tint = 0.5 + torch.rand(len(mask), 3, 1, generator=torch.Generator().manual_seed(1))
+    tint = tint * face_mean.mean(1, keepdim=True) / (tint * face_mean).mean(1, keepdim=True)  # brightness kept
+    tinted = {**b, "sh_pseudo": b["sh_pseudo"] * tint}
+    assert L.recon_L(out, tinted, gray=True).item() == pytest.approx(L.recon_L(out, b, gray=True).item(), rel=1e-5)
+    assert L.recon_L(out, tinted).item() != pytest.approx(L.recon_L(out, b).item(), rel=1e-3)  # the paper's target
+    gray = b["sh_pseudo"] * face_mean.mean(1, keepdim=True) / face_mean
+    gray_s = (sh_shading(b["normal_pseudo"], gray) * mask).sum((2, 3))
+    assert torch.allclose(gray_s, gray_s.mean(1, keepdim=True), rtol=1e-5)
+    assert L.recon_L({"sh": gray}, b, c=None, gray=True).item() == pytest.approx(0, abs=1e-10)
     assert L.recon_fg({"foreground": b["image"] + 0.1 * mask + 0.3 * (1 - mask)}, b).item() == pytest.approx(
         0.01, rel=1e-5
     )

@@ -111,18 +111,45 @@ def normal_metrics(normal: torch.Tensor, gt: dict) -> dict:
     return m
 
 
-def bws_stats(out: dict, gt: dict) -> dict:
-    """Shading mean per channel over the true face, and corr(estimated albedo, true shading).
+def _corr_over_faces(x: torch.Tensor, y: torch.Tensor) -> float:
+    """Pearson's correlation over the batch of two per-face values ``[B, K]``, averaged over the K columns; 0 for
+    a column that does not vary (beyond float32 rounding, 1e-6 of its size)."""
+    x, y = x.double(), y.double()
+    flat = (x.std(0) <= 1e-6 * x.abs().mean(0)) | (y.std(0) <= 1e-6 * y.abs().mean(0))
+    x, y = x - x.mean(0), y - y.mean(0)
+    corr = (x * y).sum(0) / ((x**2).sum(0) * (y**2).sum(0)).sqrt().clamp_min(1e-300)
+    return torch.where(flat, torch.zeros_like(corr), corr).mean().item()
 
-    The correlation is Pearson's over face pixels of each image (luminance, i.e. the channel
+
+def bws_stats(out: dict, gt: dict) -> dict:
+    """Shading mean per channel over the true face, corr(estimated albedo, true shading), and where each face's
+    skin tone and brightness went.
+
+    ``albedo_shading_corr`` is Pearson's over face pixels of each image (luminance, i.e. the channel
     mean), averaged over images: near 0 when albedo is free of shading, towards 1 when it
-    absorbs it.  BWS pushes the shading mean to c = 0.75 per channel.
+    absorbs it.  BWS pushes the shading mean over the batch to c = 0.75 per channel, which leaves each face free
+    to put its own skin in the shading: ``shading_albedo_tone_corr`` is the correlation over faces of the
+    shading's mean chromaticity on the face (each channel over their sum, averaged over the channels) with the
+    true albedo's, ``shading_albedo_brightness_corr`` the same for the mean luminance; near 0 when the shading
+    carries only the light, towards 1 when it carries the skin.  ``true_shading_albedo_*`` are the same for the
+    true shading: what the scenes' lights give.
     """
     face = face_mask(gt["matte"])
     w = face.flatten(1)
     n = w.sum(1).clamp_min(1)
-    shading = out["shading"].expand(-1, 3, -1, -1)
-    mean_c = ((shading * face).flatten(2).sum(2) / n[:, None]).mean(0)  # [3]
+    face_rgb = {  # [B, 3]: each face's mean colour
+        name: (x.expand(-1, 3, -1, -1) * face).flatten(2).sum(2) / n[:, None]
+        for name, x in (("shading", out["shading"]), ("true_shading", gt["shading"]), ("albedo", gt["albedo"]))
+    }
+    skin = face_rgb["albedo"]
+    tone = {}
+    for prefix, key in (("", "shading"), ("true_", "true_shading")):
+        rgb = face_rgb[key]
+        tone[f"{prefix}shading_albedo_tone_corr"] = _corr_over_faces(
+            rgb / rgb.sum(1, keepdim=True).clamp_min(1e-12), skin / skin.sum(1, keepdim=True).clamp_min(1e-12)
+        )
+        tone[f"{prefix}shading_albedo_brightness_corr"] = _corr_over_faces(rgb.mean(1, True), skin.mean(1, True))
+    mean_c = face_rgb["shading"].mean(0)  # [3]
     a = out["albedo"].mean(1).flatten(1)
     s = gt["shading"].mean(1).flatten(1)
     am = (a * w).sum(1) / n
@@ -133,6 +160,7 @@ def bws_stats(out: dict, gt: dict) -> dict:
         "shading_mean_rgb": mean_c.tolist(),
         "shading_cast": (mean_c.max() - mean_c.min()).item(),
         "albedo_shading_corr": (cov / den).mean().item(),
+        **tone,
     }
 
 
@@ -145,8 +173,9 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     ``albedo_global_si_mse`` (a scale per channel for all images), ``albedo_colour_si_mse`` (one scale per image for
     the three channels: the skin's colour must be in the albedo, not in the shading), ``albedo_coarse_si_mse`` and
     ``albedo_fine_si_mse`` (``albedo_si_mse``'s error above and below a 2-px blur), ``albedo_detailed_si_mse`` (the
-    detailed albedo of Sec. 5.3, the image over the model's shading), ``shading_si_mse`` and ``shading_colour_si_mse``
-    (one scale per image for the three channels: the shading must have the light's colour, not the skin's).  For reference
+    detailed albedo of Sec. 5.3, the image over the model's shading), ``shading_si_mse`` and
+    ``shading_colour_si_mse`` (one scale per image for the three channels: the shading must have the light's colour,
+    not the skin's).  For reference
     ``albedo_face_si_mse``: the albedo over the whole true face mask, hair and neck included.
     ``sh_error`` after the per-image scale alignment, and ``sh_error_coefficients`` its share per coefficient;
     ``light_shading_si_mse``: the light's shading through the true normals against the true shading;
