@@ -510,6 +510,37 @@ def test_ablation_claims_pair_each_ablation_with_the_full_model_and_gate_on_the_
     assert "no finished ablation runs" in "\n".join(rep.lines)
 
 
+def test_skin_table_keeps_settings_apart_and_quotes_the_truth(tmp_path):
+    """Where each face's skin goes: one row per setting and model (the gray L-hat target is its own setting), mean
+    and spread over seeds, each floor beside its si-MSE and the true shading's correlations in the caption; runs
+    scored before the metrics existed are left out."""
+    truth = {"true_shading_albedo_tone_corr": -0.02, "true_shading_albedo_brightness_corr": 0.08}
+    floors = {"trivial_albedo_colour_si_mse": 0.013, "trivial_shading_colour_si_mse": 0.021}
+
+    def skin(tone):
+        return {"shading_albedo_tone_corr": tone, "shading_albedo_brightness_corr": 0.8, **truth, **floors}
+
+    skin_metrics = {"albedo_colour_si_mse": 0.008, "shading_colour_si_mse": 0.007}
+    for seed in range(2):
+        make_run(tmp_path, f"paper{seed}", seed=seed, eval_={**skin(0.7 + 0.1 * seed), **skin_metrics})
+        make_run(
+            tmp_path, f"gray{seed}", seed=seed, eval_={**skin(0.1), **skin_metrics}, extra=("loss.lhat_gray=true",)
+        )
+    make_run(tmp_path, "old", seed=2, eval_={"normal_mean": 12.0}, extra=("loss.lhat_gray=true",))
+    rep = report.Report(tmp_path, "")
+    report.claim_skin(rep, find_runs([tmp_path]))
+    rows = {line.split("|")[1].strip(): line for line in rep.lines if line.startswith("| `")}
+    assert set(rows) == {"`(defaults)`", "`loss.lhat_gray=true`"}, rows
+    assert (
+        "| explicit | 0.75 ± 0.0707 (n=2) | 0.8 ± 0 (n=2) | 0.008 ± 0 (n=2) (mean map 0.013) |" in rows["`(defaults)`"]
+    )
+    assert "| 0.1 ± 0 (n=2) |" in rows["`loss.lhat_gray=true`"]
+    assert "(the true shading: -0.02 and 0.08)" in "\n".join(rep.lines)
+    rep = report.Report(tmp_path / "none", "")
+    report.claim_skin(rep, [r for r in find_runs([tmp_path]) if r.path.name == "old"])
+    assert "no run scored for where the skin goes" in "\n".join(rep.lines)
+
+
 def test_ablation_runs_whose_normals_collapsed_flat_are_named(tmp_path):
     good = {"normal_mean": 12.0, "recon_face_psnr": 26.5, "albedo_si_mse": 0.005, "trivial_albedo_si_mse": 0.0127}
     spread = {"normal_spread": 37.0, "true_normal_spread": 39.0}
