@@ -676,3 +676,14 @@ def test_coarse_fit_made_true_renders_the_pseudo_maps_again():
                 normal_angular_error(maps["normal_pseudo"][None], item["normal"][None], both[None])["mean"]
             )
     assert np.mean(errors[("placement", "shape")]) < 0.8 * np.mean(errors[()]), errors
+
+
+def test_band2_share_closed_form():
+    """Band 2's energy over bands 0 and 1: none for a light of order 1, and sums of squares per band otherwise."""
+    from disent.lighting.order import band2_share
+
+    light = np.zeros((3, 9))
+    light[:, 0], light[:, 2] = 1.0, 0.5
+    assert band2_share(light) == 0.0
+    light[0, 4], light[2, 8] = 0.6, 0.8  # band 2: 0.36 + 0.64 = 1; bands 0-1: 3 x (1 + 0.25)
+    assert band2_share(light) == pytest.approx(1.0 / 3.75)

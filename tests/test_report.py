@@ -355,6 +355,7 @@ def test_lighting_section_is_generated_from_the_published_json(tmp_path):
         order[f"{split}/texture/oracle_normals"] = {"evidence": confusion(normals), "bic": confusion(normals)}
         placement = {"val": 0.7, "test": 0.83}[split]  # the largest gain of val and test together, short of 0.85
         order[f"{split}/texture/oracle_placement"] = {"evidence": confusion(placement), "bic": confusion(placement)}
+    order["test/known/normal"]["band2_share"] = {"fitted_by_true_order": [0.01, 0.02, 0.5], "true_order2": 0.48}
     (d / "calibration.json").write_text(
         json.dumps({"lambertian/gaussian": {"inside68": 0.674, "inside95": 0.94, "z_rms": 1.02}, "settings": {"n": 10}})
     )
@@ -367,7 +368,8 @@ def test_lighting_section_is_generated_from_the_published_json(tmp_path):
         report.sec_lighting(rep, tmp_path)
         text = "\n".join(rep.lines)
         row = "| test | texture | pseudo normals + mask, residual process | [[20, 0, 0], [0, 20, 0], [0, 0, 20]] |"
-        assert f"{row} {acc:.2f} |" in text
+        assert f"{row} {acc:.2f} |" in text and f"{row} {acc:.2f} | 0.50 | – |" in text  # measured before band 2
+        assert "| 1.00 | 0.90 | 0.01 / 0.02 / 0.50 (0.48) |" in text
         assert "rho 300, ell 1 px from 18 train scenes on pseudo normals + mask" in text
         # the residual process is best on val (0.55 > 0.47): its test figure decides, not the best test row (0.95)
         assert "(`texture/normal_pseudo+residual_process`, val 0.55)" in text

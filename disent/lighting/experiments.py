@@ -321,17 +321,26 @@ def order_confusion(
 
     Item ``i`` of ``ds`` is relit with its own light cut to each order (:func:`light_of_order`);
     ``noise_model``: keyword arguments of :func:`~disent.lighting.order.select_order` (``normal_sigma``,
-    ``residual``); default i.i.d. noise.
+    ``residual``); default i.i.d. noise.  ``band2_share``: the medians of :func:`~disent.lighting.order.band2_share`
+    of the largest candidate's light by true order, and of the true order-2 lights: where the fit puts as much in
+    band 2 for an order-1 scene as a true order-2 light has, no criterion built on the fit can tell them apart.
     """
+    from disent.lighting.order import band2_share
+
     conf = {"evidence": np.zeros((3, 3), int), "bic": np.zeros((3, 3), int)}
     colour = {"evidence": {}, "bic": {}}
+    band2 = {"fitted": [[], [], []], "true": []}  # the largest candidate's band-2 share by true order; the truth's
     for order in range(3):
         for i in range(n_per_order):
-            item = ds.sample(i, sh=light_of_order(ds[i]["sh"], order))
+            sh = light_of_order(ds[i]["sh"], order)
+            item = ds.sample(i, sh=sh)
             if GEOMETRY[normals].made_true:
                 item = coarse_fit_made_true(ds, i, item, GEOMETRY[normals].made_true)
             data, texture = order_data(item, noise, 1000 * order + i, albedo, normals, n_components)
             scores = select_order(data, texture=texture, **(noise_model or {}))["scores"]
+            band2["fitted"][order].append(band2_share(list(scores.values())[-1]["light"]))
+            if order == 2:
+                band2["true"].append(band2_share(sh))
             for crit in conf:
                 r = choose(scores, crit)
                 conf[crit][order, r["order"]] += 1
@@ -345,6 +354,10 @@ def order_confusion(
         }
         for crit, m in conf.items()
     } | {
+        "band2_share": {  # medians: what the largest candidate fits into band 2, by true order, and the truth's
+            "fitted_by_true_order": [float(np.median(v)) for v in band2["fitted"]],
+            "true_order2": float(np.median(band2["true"])) if band2["true"] else None,
+        },
         "settings": {
             "split": ds.split,
             "n_per_order": n_per_order,
@@ -353,7 +366,7 @@ def order_confusion(
             "normals": normals,
             "n_components": n_components if albedo == "texture" else 0,
             "noise_model": noise_model or {},
-        }
+        },
     }
 
 

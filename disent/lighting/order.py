@@ -320,6 +320,13 @@ def select_order(
     return choose(scores, criterion, threshold)
 
 
+def band2_share(light) -> float:
+    """The energy of a light's order-2 SH coefficients over that of its orders 0 and 1 (``light [C, 9]``):
+    what an order-2 fit puts in band 2, to set beside a true order-2 light's."""
+    light = np.asarray(light, dtype=float)
+    return float((light[:, 4:] ** 2).sum() / max((light[:, :4] ** 2).sum(), 1e-300))
+
+
 def choose(scores: dict, criterion: str = "evidence", threshold: float = DEFAULT_THRESHOLD) -> dict:
     """The smallest candidate of ``scores`` (small-to-large, as :func:`select_order` builds it)
     whose score is within ``threshold`` of the best."""
@@ -338,6 +345,7 @@ def choose(scores: dict, criterion: str = "evidence", threshold: float = DEFAULT
 
 
 __all__ = [
+    "band2_share",
     "candidates",
     "n_params",
     "score",
