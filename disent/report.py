@@ -28,6 +28,7 @@ import torch
 
 from disent.eval import ablation as _ablation
 from disent.eval.metrics import FLAT_SHARE, normals_collapsed
+from disent.eval.trivial import TEMPLATE_KEYS
 from disent.images import over_max, to_array
 from disent.runs import (
     RUN_ROOTS,
@@ -356,6 +357,9 @@ def verdict(a, b, better: str) -> str:
 LONG_NORMALS_SHARE_OF_PSEUDO = 0.85
 
 
+TEMPLATE_LABELS = ("albedo si-MSE", "one scale for RGB", "one scale per channel for all faces")  # of TEMPLATE_KEYS
+
+
 def sec_targets(rep: Report, runs: list[Run]) -> None:
     """At a glance: each model of the budget ladder against its rung's targets and its floors (mean ± std over seeds);
     a layer is learned only where it beats its floor, the dataset-mean map."""
@@ -404,6 +408,32 @@ def sec_targets(rep: Report, runs: list[Run]) -> None:
         *rep.rows_kept(head[0], rows, key=2),
         "",
     )
+    template_rows = [
+        f"| `{where}` | {model} | "
+        + " | ".join(
+            f"{_ms(_spread(rs, key), '.4f')} / {_spread(rs, f'template_{key}')['mean']:.4f} / "
+            f"{_spread(rs, f'trivial_{key}')['mean']:.4f}"
+            for key in TEMPLATE_KEYS
+        )
+        + " |"
+        for (where, model), rs in sorted(groups.items())
+        if all(_spread(rs, f"template_{key}") and _spread(rs, key) for key in TEMPLATE_KEYS)
+    ]
+    head = table_head(
+        "setting", "model", *(f"{label}: network / placed mean texture / mean map" for label in TEMPLATE_LABELS)
+    )
+    if template_rows := rep.rows_kept(head[0], template_rows, key=2):
+        rep.add(
+            "A stronger floor for the albedo: the *placed mean texture*, the mean train albedo in UV space put on each "
+            "test face through its true uv (`disent.eval.trivial.template_albedo`). It knows where the face's eyes, "
+            "brows and lips are and nothing of whose face it is, so an albedo that beats the mean map but not this "
+            "floor has learned where the face is, not what it looks like. Three scorings: a scale per image and "
+            "channel (the targets' measure), one scale per image for R, G and B (the skin's colour must be in the "
+            "albedo), one scale per channel for the whole test set (each face's brightness must be too).\n",
+            *head,
+            *template_rows,
+            "",
+        )
     if not any(where == "+experiment=long" for where, _ in groups):
         rep.add(
             "_No run of the long rung is among this build's inputs (runs from before `reports/runs/` kept records "

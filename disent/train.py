@@ -591,6 +591,9 @@ def print_eval(m: dict, run_dir) -> None:
                 line += f"   mean L-hat {m['trivial_lhat_sh_error']:.4g}"
             if net in learned:
                 line += "   learned" if learned[net] else "   NOT learned (no better than the dataset mean)"
+            if f"template_{net}" in m:  # the mean texture placed by the true uv: the face's placement, no identity
+                template = m[f"template_{net}"]
+                line += f"; placed mean texture {template:.4g}" + ("" if m[net] < template else " (NOT beaten)")
             print(line)
     if "normal_spread" in m:
         from disent.eval.metrics import normals_collapsed

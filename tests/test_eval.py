@@ -327,6 +327,25 @@ def test_trivial_baselines_are_dataset_means():
     assert same["normal_mean"] == pytest.approx(t["trivial_normal_mean"]) and "recon_mse" not in same
 
 
+def test_template_is_the_mean_uv_albedo_placed_by_the_true_uv():
+    """The template floor: a face's own UV-space albedo placed through its true uv is its albedo (SynthFaces
+    renders it so), so a template built from that face alone scores 0 on it, and not on another identity's."""
+    from disent.data import SynthFaces
+    from disent.eval.trivial import TEMPLATE_KEYS, dataset_means, trivial_metrics
+
+    ds = SynthFaces("train", 64, 0, size=8)
+    assert ds[0]["identity"] != ds[7]["identity"]
+    means = dataset_means(torch.utils.data.Subset(ds, [0, 0]))
+    assert means["albedo_uv"].shape == ds[0]["albedo_uv"].shape
+    own, other = (trivial_metrics(means, default_collate([ds[i]])) for i in (0, 7))
+    for key in TEMPLATE_KEYS:
+        assert own[f"template_{key}"] < 1e-12 < 1e-4 < other[f"template_{key}"]
+    fake = FakeFaces("test", size=2)  # no UV-space albedo: no template
+    plain = dataset_means(fake, n=2)
+    assert "albedo_uv" not in plain
+    assert not any(k.startswith("template_") for k in trivial_metrics(plain, default_collate([fake[0], fake[1]])))
+
+
 def test_pareto_front_keeps_the_points_nothing_beats_on_both_axes():
     from disent.eval.methods import pareto
 

@@ -485,6 +485,27 @@ def test_targets_section_reads_each_rung_against_its_own_targets(tmp_path):
     assert any("No run of the long rung" in line for line in rep.lines)
 
 
+def test_targets_section_sets_the_albedo_beside_the_placed_mean_texture(tmp_path):
+    """The template table: each albedo scoring beside the placed mean texture's and the mean map's, for the settings
+    whose runs were scored with the template; runs scored before it get no row."""
+    from disent.eval.trivial import TEMPLATE_KEYS
+
+    scored = {}
+    for i, key in enumerate(TEMPLATE_KEYS):
+        scored |= {key: 0.008 + i, f"template_{key}": 0.0083 + i, f"trivial_{key}": 0.0127 + i}
+    for seed in range(2):
+        make_run(tmp_path, f"d{seed}", seed=seed, eval_={"normal_mean": 12.0, **scored})
+    make_run(tmp_path, "old", model="implicit", eval_={"normal_mean": 12.0, "albedo_si_mse": 0.009})
+    rep = report.Report(tmp_path, "")
+    report.sec_targets(rep, find_runs([tmp_path]))
+    rows = [line for line in rep.lines if line.startswith("| `(defaults)` | explicit | 0.0080 ± 0.0000 (n=2)")]
+    assert rows == [
+        "| `(defaults)` | explicit | 0.0080 ± 0.0000 (n=2) / 0.0083 / 0.0127 | "
+        "1.0080 ± 0.0000 (n=2) / 1.0083 / 1.0127 | 2.0080 ± 0.0000 (n=2) / 2.0083 / 2.0127 |"
+    ], rows
+    assert not any(line.startswith("| `(defaults)` | implicit | 0.") for line in rep.lines)
+
+
 def test_ablation_claims_pair_each_ablation_with_the_full_model_and_gate_on_the_budget(tmp_path):
     """Claim 4: an ablation's runs meet the full model's runs of the same setting on the paper's metric; the
     difference is read by the claims' rule, and becomes a verdict only where the full model meets the targets."""

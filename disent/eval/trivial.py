@@ -8,6 +8,10 @@ A layer counts as learned only where the network beats its trivial baseline:
   scale-invariant MSEs as the network's albedo;
 * shading: the mean light through the mean normal map (scale-invariant, like the network's shading), and the
   detailed albedo it gives, the image over that shading;
+* albedo, a stronger floor where the data carry uv: the *template*, the mean train albedo in UV space (``albedo_uv``)
+  placed on each test face through its true uv.  It knows where the face's features are and nothing of whose face it
+  is; an albedo that beats the mean map but not the template has learned the face's placement, not its identity
+  (``template_albedo_si_mse``, ``template_albedo_colour_si_mse``, ``template_albedo_global_si_mse``);
 * light: the mean true SH light, scored by the same scale-aligned SH error; beside it, for context,
   ``trivial_lhat_sh_error``: the mean L-hat, the constant a network could learn from its supervision alone
   (L-hat's constant albedo carries skin tone and the face's dark features into the light, so its mean is
@@ -48,10 +52,11 @@ KEYS = (
 @torch.no_grad()
 def dataset_means(dataset, n: int = N_IMAGES, batch_size: int = 256) -> dict:
     """``normal [3,H,W]``, ``albedo [3,H,W]``, ``sh [C,9]``: the constant estimates, from the first
-    ``n`` items of ``dataset`` (which must carry ``normal``, ``albedo``, ``sh`` and ``matte``)."""
+    ``n`` items of ``dataset`` (which must carry ``normal``, ``albedo``, ``sh`` and ``matte``); ``sh_pseudo`` and the
+    template's ``albedo_uv [3,R,R]`` where the items carry them."""
     from disent.eval.evaluate import batches
 
-    sums = {"normal": 0.0, "albedo": 0.0, "weight": 0.0, "sh": 0.0, "sh_pseudo": 0.0}
+    sums = {"normal": 0.0, "albedo": 0.0, "weight": 0.0, "sh": 0.0, "sh_pseudo": 0.0, "albedo_uv": 0.0}
     count = 0
     for b in batches(dataset, batch_size, n):
         face = face_mask(b["matte"].double())
@@ -59,8 +64,9 @@ def dataset_means(dataset, n: int = N_IMAGES, batch_size: int = 256) -> dict:
         sums["albedo"] = sums["albedo"] + (b["albedo"].double() * face).sum(0)
         sums["weight"] = sums["weight"] + face.sum(0)
         sums["sh"] = sums["sh"] + b["sh"].double().sum(0)
-        if "sh_pseudo" in b:
-            sums["sh_pseudo"] = sums["sh_pseudo"] + b["sh_pseudo"].double().sum(0)
+        for k in ("sh_pseudo", "albedo_uv"):
+            if k in b:
+                sums[k] = sums[k] + b[k].double().sum(0)
         count += len(b["image"])
     if count == 0:
         raise ValueError("dataset_means: the data set is empty")
@@ -70,8 +76,9 @@ def dataset_means(dataset, n: int = N_IMAGES, batch_size: int = 256) -> dict:
     mean_albedo = sums["albedo"].sum((1, 2)) / sums["weight"].sum().clamp_min(1)  # [C], where no face ever is
     albedo = torch.where(covered, sums["albedo"] / sums["weight"].clamp_min(1), mean_albedo[:, None, None])
     means = {"normal": normal.float(), "albedo": albedo.float(), "sh": (sums["sh"] / count).float(), "n": count}
-    if torch.is_tensor(sums["sh_pseudo"]):
-        means["sh_pseudo"] = (sums["sh_pseudo"] / count).float()
+    for k in ("sh_pseudo", "albedo_uv"):
+        if torch.is_tensor(sums[k]):
+            means[k] = (sums[k] / count).float()
     return means
 
 
@@ -81,10 +88,30 @@ def trivial_outputs(means: dict, batch: int) -> dict:
     return {**out, "shading": sh_shading(out["normal"], out["sh"])}
 
 
+TEMPLATE_KEYS = ("albedo_si_mse", "albedo_colour_si_mse", "albedo_global_si_mse")
+
+
+def template_albedo(albedo_uv: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
+    """``[B,3,H,W]``: the UV-space albedo ``[3,R,R]`` placed on each face through its ``uv [B,2,H,W]`` in [0, 1]
+    (bilinear, as :meth:`disent.lighting.texture.TextureModel.at_pixels` reads a texture)."""
+    grid = (2 * uv.to(albedo_uv.dtype) - 1).permute(0, 2, 3, 1)
+    return torch.nn.functional.grid_sample(
+        albedo_uv.expand(len(uv), *albedo_uv.shape), grid, mode="bilinear", align_corners=True
+    )
+
+
 def trivial_metrics(means: dict, gt: dict) -> dict:
-    """``trivial_<key>`` for each key of ``KEYS``: the constant estimates scored against ``gt``."""
+    """``trivial_<key>`` for each key of ``KEYS``: the constant estimates scored against ``gt``; with a template and
+    the true uv, ``template_<key>`` for each key of ``TEMPLATE_KEYS``."""
+    from disent.eval.evaluate import decomposed_region
+    from disent.eval.metrics import scale_invariant_mse
+
     m = metrics_from_outputs(trivial_outputs(means, len(gt["image"])), gt)
     out = {f"trivial_{k}": m[k] for k in (*KEYS, "sh_error_coefficients") if k in m}  # what gt has truth for
+    if "albedo_uv" in means and {"uv", "albedo"} <= set(gt):
+        template, region = template_albedo(means["albedo_uv"], gt["uv"]), decomposed_region(gt)
+        for key, kw in zip(TEMPLATE_KEYS, ({}, {"per_channel": False}, {"per_image": False})):
+            out[f"template_{key}"] = scale_invariant_mse(template, gt["albedo"], region, **kw)
     if "sh_pseudo" in means:
         from disent.eval.metrics import sh_error
 
@@ -92,4 +119,4 @@ def trivial_metrics(means: dict, gt: dict) -> dict:
     return out
 
 
-__all__ = ["dataset_means", "trivial_outputs", "trivial_metrics", "N_IMAGES"]
+__all__ = ["dataset_means", "trivial_outputs", "trivial_metrics", "template_albedo", "N_IMAGES", "TEMPLATE_KEYS"]
