@@ -329,6 +329,21 @@ def test_bench_section_puts_gpu_figures_beside_the_cpu_ones(tmp_path):
     assert "figures/bench_fractions.png" in cpu and "figures/bench-cuda_fractions.png" in gpu
 
 
+def test_band2_reading_sets_each_geometry_beside_the_true_order2_lights():
+    from disent import report
+
+    def row(order1):
+        return {"band2_share": {"fitted_by_true_order": [0.0, order1, 0.6], "true_order2": 0.56}}
+
+    order = {"test/texture/normal": row(0.01), "test/known/normal_pseudo": row(0.44), "test/texture/x": row(0.71)}
+    text = report.band2_reading(order, "texture/x")
+    assert (
+        "0.01 on true normals (texture model), 0.44 on pseudo normals with the known albedo, 0.71 on the chosen" in text
+    )
+    assert "a true order-2 light holds 0.56." in text
+    assert report.band2_reading({**order, "test/texture/x": {}}, "texture/x") == ""  # a study from before band 2
+
+
 def test_lighting_section_is_generated_from_the_published_json(tmp_path):
     """The lighting section tabulates order choice and calibration from reports/lighting/*.json and states the
     order-choice verdict from the numbers: on test, for the noise model best on val, reached only at or above
