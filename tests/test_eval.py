@@ -10,7 +10,7 @@ from torch.utils.data import default_collate
 
 from disent.eval import protocols
 from disent.eval import stability as st
-from disent.eval.evaluate import evaluate_model, face_mask, metrics_from_outputs
+from disent.eval.evaluate import decomposed_region, evaluate_model, face_mask, metrics_from_outputs
 from disent.eval.protocols import sh_variance, sh_variance_protocol
 
 
@@ -237,7 +237,7 @@ def test_bws_stats_tell_where_each_skin_went():
     fully with the skin over faces; the same colour given back to a white shading carries none of it."""
     ds = FakeFaces("test", size=12)
     gt = default_collate([ds[i] for i in range(12)])
-    face = st.face_mask(gt["matte"])
+    face = decomposed_region(gt)  # where the skin is read
     skin = (gt["albedo"] * face).sum((2, 3), keepdim=True) / face.sum((2, 3), keepdim=True)  # [B,3,1,1]
     assert skin.flatten(1).std(0).min() > 0  # the faces' skins differ in every channel
     white = gt["shading"].mean(1, keepdim=True)  # one gray shading per face

@@ -129,16 +129,19 @@ def bws_stats(out: dict, gt: dict) -> dict:
     mean), averaged over images: near 0 when albedo is free of shading, towards 1 when it
     absorbs it.  BWS pushes the shading mean over the batch to c = 0.75 per channel, which leaves each face free
     to put its own skin in the shading: ``shading_albedo_tone_corr`` is the correlation over faces of the
-    shading's mean chromaticity on the face (each channel over their sum, averaged over the channels) with the
-    true albedo's, ``shading_albedo_brightness_corr`` the same for the mean luminance; near 0 when the shading
-    carries only the light, towards 1 when it carries the skin.  ``true_shading_albedo_*`` are the same for the
+    shading's mean chromaticity (each channel over their sum, averaged over the channels) with the true albedo's,
+    both on the pixels of :func:`decomposed_region` (where the albedo is scored), ``shading_albedo_brightness_corr``
+    the same for the mean luminance; near 0 when the shading carries only the light, towards 1 when it carries the
+    skin.  ``true_shading_albedo_*`` are the same for the
     true shading: what the scenes' lights give.
     """
     face = face_mask(gt["matte"])
     w = face.flatten(1)
     n = w.sum(1).clamp_min(1)
-    face_rgb = {  # [B, 3]: each face's mean colour
-        name: (x.expand(-1, 3, -1, -1) * face).flatten(2).sum(2) / n[:, None]
+    mean_c = ((out["shading"].expand(-1, 3, -1, -1) * face).flatten(2).sum(2) / n[:, None]).mean(0)  # [3]
+    skin_region = decomposed_region(gt)  # the face without hair and neck, as the albedo is scored
+    face_rgb = {  # [B, 3]: each face's mean colour there
+        name: (x.expand(-1, 3, -1, -1) * skin_region).sum((2, 3)) / skin_region.sum((2, 3)).clamp_min(1)
         for name, x in (("shading", out["shading"]), ("true_shading", gt["shading"]), ("albedo", gt["albedo"]))
     }
     skin = face_rgb["albedo"]
@@ -149,7 +152,6 @@ def bws_stats(out: dict, gt: dict) -> dict:
             rgb / rgb.sum(1, keepdim=True).clamp_min(1e-12), skin / skin.sum(1, keepdim=True).clamp_min(1e-12)
         )
         tone[f"{prefix}shading_albedo_brightness_corr"] = _corr_over_faces(rgb.mean(1, True), skin.mean(1, True))
-    mean_c = face_rgb["shading"].mean(0)  # [3]
     a = out["albedo"].mean(1).flatten(1)
     s = gt["shading"].mean(1).flatten(1)
     am = (a * w).sum(1) / n
