@@ -1304,7 +1304,8 @@ def claim_skin(rep: Report, runs: list[Run]) -> None:
     rows = [
         f"| `{where}` | {model} | "
         + " | ".join(
-            _ms(_spread(rs, key), ".3g") + (f" (mean map {_spread(rs, floor)['mean']:.3g})" if floor else "")
+            _ms(_spread(rs, key), ".3g")
+            + (f" (mean map {m['mean']:.3g})" if floor and (m := _spread(rs, floor)) else "")
             for key, _, floor in SKIN_METRICS
         )
         + " |"

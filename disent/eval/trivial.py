@@ -26,7 +26,8 @@ from __future__ import annotations
 
 import torch
 
-from disent.eval.evaluate import face_mask, metrics_from_outputs
+from disent.eval.evaluate import decomposed_region, face_mask, metrics_from_outputs
+from disent.eval.metrics import scale_invariant_mse, sh_error
 from disent.render import sh_shading
 
 N_IMAGES = 1024  # training images the means are taken over (fewer if the split is smaller)
@@ -103,9 +104,6 @@ def template_albedo(albedo_uv: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
 def trivial_metrics(means: dict, gt: dict) -> dict:
     """``trivial_<key>`` for each key of ``KEYS``: the constant estimates scored against ``gt``; with a template and
     the true uv, ``template_<key>`` for each key of ``TEMPLATE_KEYS``."""
-    from disent.eval.evaluate import decomposed_region
-    from disent.eval.metrics import scale_invariant_mse
-
     m = metrics_from_outputs(trivial_outputs(means, len(gt["image"])), gt)
     out = {f"trivial_{k}": m[k] for k in (*KEYS, "sh_error_coefficients") if k in m}  # what gt has truth for
     if "albedo_uv" in means and {"uv", "albedo"} <= set(gt):
@@ -113,8 +111,6 @@ def trivial_metrics(means: dict, gt: dict) -> dict:
         for key, kw in zip(TEMPLATE_KEYS, ({}, {"per_channel": False}, {"per_image": False})):
             out[f"template_{key}"] = scale_invariant_mse(template, gt["albedo"], region, **kw)
     if "sh_pseudo" in means:
-        from disent.eval.metrics import sh_error
-
         out["trivial_lhat_sh_error"] = sh_error(means["sh_pseudo"].expand_as(gt["sh"]), gt["sh"])
     return out
 
