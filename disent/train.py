@@ -268,7 +268,13 @@ RUN_DEFINING = (
 SETTING_KEYS = tuple(k for k in RUN_DEFINING if k != "seed") + ("train.max_steps", "train.epochs")
 NOT_DEFINING = ("data.test_size", "model.kernels")  # evaluation only; the same function computed another way
 # settings added after runs existed, each with the value that trains as those runs did
-ADDED_LATER = {"init": None, "loss.recon_p": 2, "loss.recon_fg_p": 2, **{f"loss.weights.{t}": 0.0 for t in L.TRUTH}}
+ADDED_LATER = {
+    "init": None,
+    "loss.recon_p": 2,
+    "loss.recon_fg_p": 2,
+    "loss.lhat_gray": False,
+    **{f"loss.weights.{t}": 0.0 for t in L.TRUTH},
+}
 
 
 class _Absent:

@@ -121,6 +121,11 @@ def test_a_setting_added_later_resumes_runs_from_before_it_only_at_its_old_behav
     before = {"seed": 0, "loss": {"recon_p": 2}}  # a checkpoint written before loss.recon_fg_p existed
     assert ADDED_LATER["loss.recon_fg_p"] == 2 and config_differences(before, new) == []
     assert config_differences(before, {**new, "loss": {"recon_p": 2, "recon_fg_p": 1}}) == ["loss.recon_fg_p: 2 -> 1"]
+    gray = {"seed": 0, "loss": {"recon_p": 2, "lhat_gray": False}}  # E_recon-L's gray target, off: as before it
+    assert config_differences(before, gray) == []
+    assert config_differences(before, {**gray, "loss": {"recon_p": 2, "lhat_gray": True}}) == [
+        "loss.lhat_gray: False -> True"
+    ]
 
 
 def test_a_damaged_checkpoint_falls_back_to_the_previous_one(tmp_path, capsys):
