@@ -113,9 +113,9 @@ def normal_metrics(normal: torch.Tensor, gt: dict) -> dict:
 
 def _corr_over_faces(x: torch.Tensor, y: torch.Tensor) -> float:
     """Pearson's correlation over the batch of two per-face values ``[B, K]``, averaged over the K columns; 0 for
-    a column that does not vary (beyond float32 rounding, 1e-6 of its size)."""
+    a column that does not vary (beyond float32 rounding, 1e-6 of its size; a batch of one face)."""
     x, y = x.double(), y.double()
-    flat = (x.std(0) <= 1e-6 * x.abs().mean(0)) | (y.std(0) <= 1e-6 * y.abs().mean(0))
+    flat = (x.std(0, correction=0) <= 1e-6 * x.abs().mean(0)) | (y.std(0, correction=0) <= 1e-6 * y.abs().mean(0))
     x, y = x - x.mean(0), y - y.mean(0)
     corr = (x * y).sum(0) / ((x**2).sum(0) * (y**2).sum(0)).sqrt().clamp_min(1e-300)
     return torch.where(flat, torch.zeros_like(corr), corr).mean().item()
