@@ -13,6 +13,7 @@ from torch.utils.data import DataLoader, Subset
 
 from disent.eval.metrics import (
     angular_error_deg,
+    light_shading_si_mse,
     normal_angular_error,
     normal_spread,
     reconstruction_metrics,
@@ -21,7 +22,6 @@ from disent.eval.metrics import (
     sh_error,
     sh_error_shown_hidden,
 )
-from disent.render import sh_shading
 
 FACE_THRESHOLD = 0.99  # matte above this is face without background mixing
 
@@ -216,9 +216,8 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
         m["sh_error_coefficients"] = sh_error(out["sh"], gt["sh"], reduction="coefficients")
         # the light as this face shows it: its shading through the true normals (Eq. 4), which leaves out
         # the SH directions a face's normals cannot reveal; per image and channel scale-invariant
-        true_shading = sh_shading(gt["normal"].double(), gt["sh"].double())
         for name, sh in (("light_shading_si_mse", out["sh"]), ("pseudo_light_shading_si_mse", gt["sh_pseudo"])):
-            m[name] = scale_invariant_mse(sh_shading(gt["normal"].double(), sh.double()), true_shading, region)
+            m[name] = light_shading_si_mse(sh, gt["sh"], gt["normal"], region)
         # the coefficients split by what the face shows: only the shown part is identifiable from an image
         for prefix, sh in (("", out["sh"]), ("pseudo_", gt["sh_pseudo"])):
             split = sh_error_shown_hidden(sh, gt["sh"], gt["normal"], region)

@@ -23,6 +23,8 @@ import torch
 import torch.nn.functional as F
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
+from disent.render import sh_shading
+
 ANGLE_THRESHOLDS = (20.0, 25.0, 30.0)
 
 
@@ -175,6 +177,15 @@ def scale_invariant_mse(
     return _reduce(_masked_mean_square(*_aligned_error(pred, target, mask, per_image, per_channel)), reduction)
 
 
+def light_shading_si_mse(
+    sh: torch.Tensor, reference_sh: torch.Tensor, normal: torch.Tensor, mask: torch.Tensor, reduction: str = "mean"
+):
+    """The light as the face shows it: ``sh``'s shading through ``normal`` against ``reference_sh``'s (Eq. 4),
+    :func:`scale_invariant_mse` inside ``mask``; blind to the SH directions the face's normals cannot reveal."""
+    n = normal.detach().double()
+    return scale_invariant_mse(sh_shading(n, sh.double()), sh_shading(n, reference_sh.double()), mask, reduction)
+
+
 BAND_SIGMA = 2.0  # px at 64x64: the coarse band keeps what varies over more than a few pixels (shading-like)
 
 
@@ -292,6 +303,7 @@ __all__ = [
     "FLAT_SHARE",
     "reconstruction_metrics",
     "scale_invariant_mse",
+    "light_shading_si_mse",
     "sh_error",
     "sh_error_shown_hidden",
     "sh_error_split",

@@ -111,8 +111,7 @@ def gap_metrics(model, batch: dict, trivial: dict | None = None) -> dict:
     """Reconstruction and agreement with the pseudo ground truth, for one domain.  With ``trivial``
     (:func:`disent.eval.trivial.dataset_means` of the training data) also ``trivial_*``: the training set's mean
     normal map and mean L-hat scored the same way, the constants a network must beat to have read the image."""
-    from disent.eval.metrics import normal_angular_error, reconstruction_metrics, scale_invariant_mse, sh_error
-    from disent.render import sh_shading
+    from disent.eval.metrics import light_shading_si_mse, normal_angular_error, reconstruction_metrics, sh_error
 
     out = model(batch["image"])
     rec = reconstruction_metrics(out["recon"].clamp(0, 1), batch["image"])
@@ -124,13 +123,11 @@ def gap_metrics(model, batch: dict, trivial: dict | None = None) -> dict:
         m["matte_covers_mask_pseudo"] = float((matte & mask).sum() / mask.sum())
         m["matte_iou_mask_pseudo"] = float((matte & mask).sum() / (matte | mask).sum())
         m["sh_vs_pseudo_mse"] = sh_error(out["sh"], batch["sh_pseudo"])
+
         # the light as the face shows it: its shading through normal_pseudo against L-hat's, which leaves out the
         # SH directions the face hides (there L-hat's least squares is arbitrary); per image and channel scale-free
-        normal_pseudo = batch["normal_pseudo"].double()
-        lhat_shading = sh_shading(normal_pseudo, batch["sh_pseudo"].double())
-
         def light_on_face(sh):
-            return scale_invariant_mse(sh_shading(normal_pseudo, sh.double()), lhat_shading, mask)
+            return light_shading_si_mse(sh, batch["sh_pseudo"], batch["normal_pseudo"], mask)
 
         m["light_vs_pseudo_shading_si_mse"] = light_on_face(out["sh"])
         if trivial is not None:
