@@ -618,6 +618,27 @@ def test_ood_table_reports_where_each_estimator_breaks(tmp_path):
     ]
 
 
+def test_bws_table_says_where_the_skin_went_and_keeps_older_studies_readable(tmp_path):
+    """Each (variant, batch) row averages its seeds' skin correlations; the truth's are quoted once; a row scored
+    before the skin metrics existed shows a dash instead of failing."""
+    from disent import report
+
+    base = {"variant": "explicit", "bws": True, "shading_mean_rgb": [0.75, 0.75, 0.75], "shading_cast": 0.01}
+    base |= {"albedo_shading_corr": 0.1, "steps": 400, "true_shading_albedo_tone_corr": -0.04}
+    base |= {"true_shading_albedo_brightness_corr": 0.06}
+    rows = [
+        {**base, "batch_size": 2, "seed": s, "shading_albedo_tone_corr": t, "shading_albedo_brightness_corr": b}
+        for s, t, b in ((0, 0.2, 0.7), (1, 0.4, 0.9))
+    ]
+    old = {k: v for k, v in base.items() if not k.startswith("true_")} | {"batch_size": 25, "seed": 0}
+    rep = report.Report(tmp_path)
+    report._stability_bws(rep, {"rows": rows + [old], "n": 8})
+    text = "\n".join(rep.lines)
+    assert "(the true shading: -0.04 and 0.06)" in text
+    assert "| explicit | 2 | 400 | 2 | 0.75, 0.75, 0.75 | 0.010 ± 0.000 | 0.100 ± 0.000 | 0.300 ± 0.141 | 0.800 ± 0.141 |" in text
+    assert "| explicit | 25 | 400 | 1 | 0.75, 0.75, 0.75 | 0.010 | 0.100 | – | – |" in text
+
+
 def test_ceiling_section_puts_the_trained_runs_between_floor_and_ceiling(tmp_path):
     def ev(normal, albedo):
         return {

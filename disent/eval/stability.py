@@ -430,7 +430,7 @@ def plot_ood(res: dict, path) -> None:
 
 def plot_bws(res: dict, path) -> None:
     plt = _plt()
-    fig, axes = plt.subplots(1, 3, figsize=(12, 3.8))
+    fig, axes = plt.subplots(1, 4, figsize=(16, 3.8))
     rows = res["rows"]
     arms = (
         (True, True, "o", "-", "with BWS"),
@@ -461,7 +461,12 @@ def plot_bws(res: dict, path) -> None:
             )
         axes[1].plot(bs, mean("shading_cast"), marker + ls, label=label)
         axes[2].plot(bs, mean("albedo_shading_corr"), marker + ls, label=label)
+        if all("shading_albedo_tone_corr" in r for b in bs for r in by_bs[b]):  # studies scored before it lack it
+            axes[3].plot(bs, mean("shading_albedo_tone_corr"), marker + ls, label=label)
     axes[0].axhline(0.75, color="k", lw=0.6, ls=":")
+    truth = [r["true_shading_albedo_tone_corr"] for r in rows if "true_shading_albedo_tone_corr" in r]
+    if truth:
+        axes[3].axhline(truth[0], color="k", lw=0.6, ls=":", label="true shading")
     steps = {r["batch_size"]: r.get("steps") for r in rows if r["batch_size"] is not None}
     steps_text = ", ".join(f"{b}:{steps[b]}" for b in sorted(steps) if steps[b] is not None)
     for ax, t in zip(
@@ -470,6 +475,7 @@ def plot_bws(res: dict, path) -> None:
             "shading mean per channel (BWS target 0.75)",
             "colour cast (max - min channel mean)",
             "corr(albedo, true shading)",
+            "corr over faces: shading's tone, skin's tone",
         ),
     ):
         ax.set_xscale("log")
@@ -479,7 +485,10 @@ def plot_bws(res: dict, path) -> None:
             fontsize=7,
         )
         ax.set_title(t, fontsize=8)
-        ax.legend(fontsize=6)
+        if ax.has_data():
+            ax.legend(fontsize=6)
+        else:
+            ax.set_axis_off()
     fig.suptitle(
         f"BWS against batch size, mean over seeds ({budget_text(res.get('budget'))}; {res.get('n', '?')} test images)",
         fontsize=8,
