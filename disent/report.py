@@ -1289,6 +1289,7 @@ SKIN_METRICS = (  # (key, label, its floor's key or None): where each face's ski
     ("shading_albedo_brightness_corr", "the same, brightness", None),
     ("albedo_colour_si_mse", "albedo si-MSE, one scale for RGB", "trivial_albedo_colour_si_mse"),
     ("shading_colour_si_mse", "shading si-MSE, one scale for RGB", "trivial_shading_colour_si_mse"),
+    ("albedo_si_mse", "albedo si-MSE, a scale per channel", "trivial_albedo_si_mse"),
 )
 
 
@@ -1330,7 +1331,9 @@ def claim_skin(rep: Report, runs: list[Run]) -> None:
             else ""
         )
         + ", towards 1 where it carries the skin. The si-MSEs with one scale shared by R, G and B forgive a face's "
-        "brightness but not its colour: the albedo must carry the skin's colour, the shading the light's. Test "
+        "brightness but not its colour: the albedo must carry the skin's colour, the shading the light's; the last "
+        "column, a scale per channel (the targets' measure), forgives both, what BWS decides, and scores the albedo's "
+        "pattern alone. Test "
         "split, 256 images; mean ± std over seeds (`python -m disent.eval.evaluate RUN` scores a finished run).\n",
         *head,
         *rows,
@@ -1491,11 +1494,14 @@ def _stability_bws(rep: Report, res: dict) -> None:
     keys = ("true_shading_albedo_tone_corr", "true_shading_albedo_brightness_corr")
     first = res["rows"][0] if res["rows"] else {}
     truth = f" (the true shading: {first[keys[0]]:.2f} and {first[keys[1]]:.2f})" if all(k in first for k in keys) else ""
+    floor = first.get("trivial_normal_mean")
+    mean_map = f" (the dataset-mean normal map: {floor:.2f} deg)" if floor is not None else ""
     rep.add(
         f"Mean ± std over seeds on {res['n']} test images. BWS pulls each channel's shading mean to 0.75; "
         "*cast* is the spread of the three channel means; the last column is the correlation of the "
-        "estimated albedo with the true shading (0: albedo free of shading). At a fixed number of "
-        "training images a larger batch takes fewer steps (*steps*). With BWS on, E_recon-L's target "
+        "estimated albedo with the true shading (0: albedo free of shading). A run saw *steps* x *batch* training "
+        "images, so where the steps are fixed a small batch also trains less: *normals* (test split) says "
+        f"whether a run learned its geometry at all{mean_map}. With BWS on, E_recon-L's target "
         "L-hat is itself scaled so that its shading has batch mean c (`loss.lhat_white`), a second "
         "whitening; `+ablation=no_bws` turns both off (the paper's ablation), and the rows marked "
         "*raw L-hat target* are those without it. The last two columns say where each face's skin went (the skin "
@@ -1511,6 +1517,7 @@ def _stability_bws(rep: Report, res: dict) -> None:
             "corr(albedo, true shading)",
             "corr over faces: shading's tone, skin's tone",
             "the same, brightness",
+            "normals (deg)",
         ),
     )
     groups = {}
@@ -1526,8 +1533,8 @@ def _stability_bws(rep: Report, res: dict) -> None:
         rgb = ", ".join(f"{float(np.mean([r['shading_mean_rgb'][c] for r in rs])):.2f}" for c in range(3))
         steps = "/".join(sorted({str(r.get("steps", "–")) for r in rs}))
         skin = " | ".join(
-            ms([r[k] for r in rs]) if all(k in r for r in rs) else "–"
-            for k in ("shading_albedo_tone_corr", "shading_albedo_brightness_corr")
+            ms([r[k] for r in rs]) if all(r.get(k) is not None for r in rs) else "–"
+            for k in ("shading_albedo_tone_corr", "shading_albedo_brightness_corr", "normal_mean")
         )
         rep.add(
             f"| {variant} | {bs} | {steps} | {len(rs)} | {rgb} | {ms([r['shading_cast'] for r in rs])} | "

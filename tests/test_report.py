@@ -625,18 +625,22 @@ def test_bws_table_says_where_the_skin_went_and_keeps_older_studies_readable(tmp
 
     base = {"variant": "explicit", "bws": True, "shading_mean_rgb": [0.75, 0.75, 0.75], "shading_cast": 0.01}
     base |= {"albedo_shading_corr": 0.1, "steps": 400, "true_shading_albedo_tone_corr": -0.04}
-    base |= {"true_shading_albedo_brightness_corr": 0.06}
+    base |= {"true_shading_albedo_brightness_corr": 0.06, "normal_mean": 15.0, "trivial_normal_mean": 17.07}
     rows = [
         {**base, "batch_size": 2, "seed": s, "shading_albedo_tone_corr": t, "shading_albedo_brightness_corr": b}
         for s, t, b in ((0, 0.2, 0.7), (1, 0.4, 0.9))
     ]
-    old = {k: v for k, v in base.items() if not k.startswith("true_")} | {"batch_size": 25, "seed": 0}
+    old = {k: v for k, v in base.items() if not k.startswith(("true_", "normal", "trivial"))}
+    old |= {"batch_size": 25, "seed": 0}
     rep = report.Report(tmp_path)
     report._stability_bws(rep, {"rows": rows + [old], "n": 8})
     text = "\n".join(rep.lines)
-    assert "(the true shading: -0.04 and 0.06)" in text
-    assert "| explicit | 2 | 400 | 2 | 0.75, 0.75, 0.75 | 0.010 ± 0.000 | 0.100 ± 0.000 | 0.300 ± 0.141 | 0.800 ± 0.141 |" in text
-    assert "| explicit | 25 | 400 | 1 | 0.75, 0.75, 0.75 | 0.010 | 0.100 | – | – |" in text
+    assert "(the true shading: -0.04 and 0.06)" in text and "(the dataset-mean normal map: 17.07 deg)" in text
+    assert (
+        "| explicit | 2 | 400 | 2 | 0.75, 0.75, 0.75 | 0.010 ± 0.000 | 0.100 ± 0.000 | 0.300 ± 0.141 | 0.800 ± 0.141 "
+        "| 15.000 ± 0.000 |" in text
+    )
+    assert "| explicit | 25 | 400 | 1 | 0.75, 0.75, 0.75 | 0.010 | 0.100 | – | – | – |" in text
 
 
 def test_ceiling_section_puts_the_trained_runs_between_floor_and_ceiling(tmp_path):

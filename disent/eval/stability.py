@@ -231,6 +231,8 @@ def bws_study(runs, dataset, n: int = 64) -> dict:
                 "lhat_white": bool(loss.get("lhat_white", True)),
                 "batch_size": bs,
                 "steps": steps,
+                "normal_mean": (r.eval or {}).get("normal_mean"),  # test split: is the model trained at all?
+                "trivial_normal_mean": (r.eval or {}).get("trivial_normal_mean"),
                 **bws_stats(out, batch),
             }
         )
