@@ -120,6 +120,28 @@ def test_missing_inputs_never_erase_published_sections(tmp_path):
     assert (out / "README.md").read_text() == third
 
 
+def test_teaser_needs_the_three_ladder_models_or_keeps_the_published_one(tmp_path, monkeypatch):
+    """The teaser sets the paper's three models side by side: runs with another override (a loss weight) or only
+    some of the models leave the published teaser in place instead of replacing it with a partial one."""
+    title = "Teaser: input, recon, albedo, normal, shading, matte"
+    out = tmp_path / "reports"
+    published = f"# disent report\n\n## {title}\n\n![teaser explicit](figures/teaser_explicit.png)\n"
+    ev = {"recon_mse": 0.02, "normal_mean": 20.0, "steps": 10}
+    for name, extra in (("ladder", ()), ("weighted", ("loss.weights.recon_L=0.6",))):
+        d = make_run(tmp_path / "runs", name, "explicit", eval_=ev, extra=extra)
+        (d / "checkpoints").mkdir()
+        (d / "checkpoints" / "last.pt").write_bytes(b"")
+        (d / "status.json").write_text('{"status": "ok"}')
+    loaded = []
+    monkeypatch.setattr(report, "_models", lambda chosen: loaded.append(chosen) or {})
+    rep = report.Report(out, published)
+    rep.section(title, report.sec_teaser, find_runs([tmp_path / "runs"]), 2)
+    assert loaded == []  # no partial teaser drawn
+    text = "\n".join(rep.lines)
+    assert "> **Kept:** as published before" in text and "`baseline`, `implicit`" in text
+    assert "![teaser explicit](figures/teaser_explicit.png)" in text and "weighted" not in text
+
+
 def test_records_outlive_the_run_folders(tmp_path):
     fake_suite(tmp_path / "runs")
     (tmp_path / "runs" / "1" / "checkpoints").mkdir()
