@@ -1494,7 +1494,9 @@ def _stability_bws(rep: Report, res: dict) -> None:
     """The BWS table: shading cast, albedo absorbing shading and where the skin went, per variant and batch size."""
     keys = ("true_shading_albedo_tone_corr", "true_shading_albedo_brightness_corr")
     first = res["rows"][0] if res["rows"] else {}
-    truth = f" (the true shading: {first[keys[0]]:.2f} and {first[keys[1]]:.2f})" if all(k in first for k in keys) else ""
+    truth = (
+        f" (the true shading: {first[keys[0]]:.2f} and {first[keys[1]]:.2f})" if all(k in first for k in keys) else ""
+    )
     floor = first.get("trivial_normal_mean")
     mean_map = f" (the dataset-mean normal map: {floor:.2f} deg)" if floor is not None else ""
     rep.add(
