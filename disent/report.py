@@ -1291,6 +1291,7 @@ SKIN_METRICS = (  # (key, label, its floor's key or None): where each face's ski
     ("albedo_colour_si_mse", "albedo si-MSE, one scale for RGB", "trivial_albedo_colour_si_mse"),
     ("shading_colour_si_mse", "shading si-MSE, one scale for RGB", "trivial_shading_colour_si_mse"),
     ("albedo_si_mse", "albedo si-MSE, a scale per channel", "trivial_albedo_si_mse"),
+    ("albedo_pattern_corr", "albedo pattern corr (higher: better)", None),
 )
 
 
@@ -1332,9 +1333,10 @@ def claim_skin(rep: Report, runs: list[Run]) -> None:
             else ""
         )
         + ", towards 1 where it carries the skin. The si-MSEs with one scale shared by R, G and B forgive a face's "
-        "brightness but not its colour: the albedo must carry the skin's colour, the shading the light's; the last "
-        "column, a scale per channel (the targets' measure), forgives both, what BWS decides, and scores the albedo's "
-        "pattern alone. Test "
+        "brightness but not its colour: the albedo must carry the skin's colour, the shading the light's; the last two "
+        "columns forgive both, what BWS decides: the si-MSE with a scale per channel (the targets' measure) and "
+        "Pearson's correlation with the true albedo per image and channel, which forgives contrast too "
+        "(`disent.eval.metrics.pattern_corr`; runs scored before it show –). Test "
         "split, 256 images; mean ± std over seeds (`python -m disent.eval.evaluate RUN` scores a finished run).\n",
         *head,
         *rows,

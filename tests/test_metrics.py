@@ -268,3 +268,24 @@ def test_sh_error_split_puts_an_invisible_light_in_hidden():
     split = sh_error_shown_hidden(true + 0.5 * vectors[:, 0], true, normal, mask)
     assert split["shown"] < 1e-3 * split["hidden"]
     assert split["hidden"] == pytest.approx(0.25, rel=0.05)  # the scale, read from shading, stays ~1
+
+
+def test_pattern_corr_forgives_scale_offset_and_contrast_but_not_the_pattern():
+    """Pearson's correlation per image and channel: an affine map of the truth scores 1, its negation -1, noise
+    independent of it about 0; a flattened map (less contrast) that a scale-invariant MSE scores better stays at 1."""
+    from disent.eval.metrics import pattern_corr
+
+    g = torch.Generator().manual_seed(0)
+    target = torch.rand(4, 3, 16, 16, generator=g) + 0.2
+    mask = torch.zeros(4, 1, 16, 16)
+    mask[:, :, 2:14, 3:13] = 1
+    assert pattern_corr(0.3 * target + 0.5, target, mask) == pytest.approx(1.0, abs=1e-5)
+    assert pattern_corr(-target, target, mask) == pytest.approx(-1.0, abs=1e-5)
+    noise = torch.rand(4, 3, 16, 16, generator=g)
+    assert abs(pattern_corr(noise, target, mask)) < 0.1
+    flat = target.mean() + 0.5 * (target - target.mean())
+    assert scale_invariant_mse(flat, target, mask) > 0 and pattern_corr(flat, target, mask) == pytest.approx(1.0, 1e-5)
+    outside = target.clone()
+    outside[:, :, 0] = -5  # pixels off the mask do not count
+    assert pattern_corr(outside, target, mask) == pytest.approx(1.0, abs=1e-5)
+    assert pattern_corr(noise, target, mask, reduction="none").shape == (4,)

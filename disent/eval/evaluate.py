@@ -16,6 +16,7 @@ from disent.eval.metrics import (
     light_shading_si_mse,
     normal_angular_error,
     normal_spread,
+    pattern_corr,
     reconstruction_metrics,
     scale_invariant_mse,
     scale_invariant_mse_bands,
@@ -152,16 +153,11 @@ def bws_stats(out: dict, gt: dict) -> dict:
             rgb / rgb.sum(1, keepdim=True).clamp_min(1e-12), skin / skin.sum(1, keepdim=True).clamp_min(1e-12)
         )
         tone[f"{prefix}shading_albedo_brightness_corr"] = _corr_over_faces(rgb.mean(1, True), skin.mean(1, True))
-    a = out["albedo"].mean(1).flatten(1)
-    s = gt["shading"].mean(1).flatten(1)
-    am = (a * w).sum(1) / n
-    sm = (s * w).sum(1) / n
-    cov = ((a - am[:, None]) * (s - sm[:, None]) * w).sum(1)
-    den = (((a - am[:, None]) ** 2 * w).sum(1) * ((s - sm[:, None]) ** 2 * w).sum(1)).sqrt().clamp_min(1e-12)
+    luminance = {k: x.mean(1, keepdim=True) for k, x in (("albedo", out["albedo"]), ("shading", gt["shading"]))}
     return {
         "shading_mean_rgb": mean_c.tolist(),
         "shading_cast": (mean_c.max() - mean_c.min()).item(),
-        "albedo_shading_corr": (cov / den).mean().item(),
+        "albedo_shading_corr": pattern_corr(luminance["albedo"], luminance["shading"], face),
         **tone,
     }
 
@@ -179,6 +175,8 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     ``shading_colour_si_mse`` (one scale per image for the three channels: the shading must have the light's colour,
     not the skin's).  For reference
     ``albedo_face_si_mse``: the albedo over the whole true face mask, hair and neck included.
+    ``albedo_pattern_corr``: Pearson's correlation with the true albedo per image and channel (higher is better;
+    forgives contrast too, :func:`~disent.eval.metrics.pattern_corr`).
     ``sh_error`` after the per-image scale alignment, and ``sh_error_coefficients`` its share per coefficient;
     ``light_shading_si_mse``: the light's shading through the true normals against the true shading;
     ``sh_error_shown`` and ``sh_error_hidden``: the coefficients' error split between the SH directions the face's
@@ -197,6 +195,7 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
         m["albedo_global_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], region, per_image=False)
         m["albedo_colour_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], region, per_channel=False)
         m["albedo_face_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], face)
+        m["albedo_pattern_corr"] = pattern_corr(out["albedo"], gt["albedo"], region)
         bands = scale_invariant_mse_bands(out["albedo"], gt["albedo"], region)
         m["albedo_coarse_si_mse"], m["albedo_fine_si_mse"] = bands["coarse"], bands["fine"]
     if {"albedo", "shading"} <= set(out) and {"albedo", "image"} <= set(gt):

@@ -177,6 +177,21 @@ def scale_invariant_mse(
     return _reduce(_masked_mean_square(*_aligned_error(pred, target, mask, per_image, per_channel)), reduction)
 
 
+def pattern_corr(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, reduction: str = "mean"):
+    """Pearson's correlation of ``pred`` with ``target`` ``[B,C,H,W]`` over each image's masked pixels, per
+    channel, averaged over the channels: how well the map's spatial pattern follows the truth's whatever its scale,
+    offset and contrast (which a scale-invariant MSE forgives only in part: a flatter map scores better there).
+    ``reduction="none"`` returns ``[B]``."""
+    _check_pair(pred, target)
+    w = _mask(mask, pred).to(pred.dtype)
+    n = w.sum((2, 3)).clamp_min(1)
+    p = pred - (pred * w).sum((2, 3), keepdim=True) / n[..., None, None]
+    t = target - (target * w).sum((2, 3), keepdim=True) / n[..., None, None]
+    cov = (p * t * w).sum((2, 3))
+    den = ((p**2 * w).sum((2, 3)) * (t**2 * w).sum((2, 3))).sqrt().clamp_min(1e-12)
+    return _reduce((cov / den).mean(1), reduction)
+
+
 def light_shading_si_mse(
     sh: torch.Tensor, reference_sh: torch.Tensor, normal: torch.Tensor, mask: torch.Tensor, reduction: str = "mean"
 ):
