@@ -1503,14 +1503,15 @@ def _stability_bws(rep: Report, res: dict) -> None:
     mean_map = f" (the dataset-mean normal map: {floor:.2f} deg)" if floor is not None else ""
     rep.add(
         f"Mean ± std over seeds on {res['n']} test images. BWS pulls each channel's shading mean to 0.75; "
-        "*cast* is the spread of the three channel means; the last column is the correlation of the "
-        "estimated albedo with the true shading (0: albedo free of shading). A run saw *steps* x *batch* training "
+        "*cast* is the spread of the three channel means; *corr(albedo, true shading)* is the correlation of "
+        "the estimated albedo with the true shading (0: albedo free of shading). A run saw *steps* x *batch* training "
         "images, so where the steps are fixed a small batch also trains less: *normals* (test split) says "
         f"whether a run learned its geometry at all{mean_map}. With BWS on, E_recon-L's target "
         "L-hat is itself scaled so that its shading has batch mean c (`loss.lhat_white`), a second "
-        "whitening; `+ablation=no_bws` turns both off (the paper's ablation), and the rows marked "
-        "*raw L-hat target* are those without it. The last two columns say where each face's skin went (the skin "
-        "table of claim 4): the correlation over faces of the shading's mean tone and brightness with the true "
+        "whitening; `+ablation=no_bws` turns both off (the paper's ablation: the rows marked *raw L-hat target*), "
+        "the rows marked *L-hat target still white* turn off only the BWS term. The two tone and brightness columns "
+        "say where each face's skin went (the skin table of claim 4): the correlation over faces of the shading's "
+        "mean tone and brightness with the true "
         f"albedo's{truth}; – where the study predates them.\n",
         *table_head(
             "variant",
@@ -1527,7 +1528,8 @@ def _stability_bws(rep: Report, res: dict) -> None:
     )
     groups = {}
     for r in res["rows"]:
-        variant = r["variant"] + ("" if r.get("lhat_white", True) else " (raw L-hat target)")
+        white = r.get("lhat_white", True)
+        variant = r["variant"] + ("" if r["bws"] else " (L-hat target still white)" if white else " (raw L-hat target)")
         groups.setdefault((variant, r["batch_size"]), []).append(r)
     for (variant, bs), rs in sorted(groups.items(), key=lambda kv: (len(kv[0][0]), kv[0][0], kv[0][1] or 0)):
 
