@@ -5,7 +5,8 @@
 # off and E_recon-L's raw L-hat target); and with only the BWS term off (loss.lhat_white=true keeps L-hat's target
 # whitened, which keeps the shading white on its own). One job at a time, 1 thread each.
 #   ablations/bws.sh [ROOT] [overrides...]      # ROOT defaults to multirun; SEEDS=0,1,2 STEPS=400 BATCHES=1,5,25
-# Then: python -m disent.eval.stability bws --n 128 --bws-roots ROOT/bws ROOT/bws_off ROOT/bws_off_raw
+# Then (the published study, 128 test images; --n is half the images):
+#   python -m disent.eval.stability bws --n 64 --bws-roots ROOT/bws ROOT/bws_off ROOT/bws_off_raw
 set -euo pipefail
 ROOT=${1:-multirun}; shift || true
 SEEDS=${SEEDS:-0,1,2}; STEPS=${STEPS:-400}; BATCHES=${BATCHES:-1,5,25}
