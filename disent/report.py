@@ -1530,15 +1530,17 @@ def _stability_bws(rep: Report, res: dict) -> None:
     for r in res["rows"]:
         white = r.get("lhat_white", True)
         variant = r["variant"] + ("" if r["bws"] else " (L-hat target still white)" if white else " (raw L-hat target)")
-        groups.setdefault((variant, r["batch_size"]), []).append(r)
-    for (variant, bs), rs in sorted(groups.items(), key=lambda kv: (len(kv[0][0]), kv[0][0], kv[0][1] or 0)):
+        groups.setdefault((variant, r["batch_size"], r.get("steps")), []).append(r)
+    for (variant, bs, steps), rs in sorted(
+        groups.items(), key=lambda kv: (len(kv[0][0]), kv[0][0], kv[0][1] or 0, kv[0][2] or 0)
+    ):
 
         def ms(vals):
             m = float(np.mean(vals))
             return f"{m:.3f} ± {float(np.std(vals, ddof=1)):.3f}" if len(vals) > 1 else f"{m:.3f}"
 
         rgb = ", ".join(f"{float(np.mean([r['shading_mean_rgb'][c] for r in rs])):.2f}" for c in range(3))
-        steps = "/".join(sorted({str(r.get("steps", "–")) for r in rs}))
+        steps = "–" if steps is None else steps
         skin = " | ".join(
             ms([r[k] for r in rs]) if all(r.get(k) is not None for r in rs) else "–"
             for k in ("shading_albedo_tone_corr", "shading_albedo_brightness_corr", "normal_mean")

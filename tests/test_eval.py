@@ -277,6 +277,17 @@ def test_plots_write_pngs(tmp_path):
     assert all((tmp_path / f).stat().st_size > 5000 for f in ("c.png", "o.png", "b.png", "v.png"))
 
 
+def test_bws_budgets_split_fixed_steps_from_fixed_images():
+    rows = [{"batch_size": b, "steps": 400} for b in (1, 5, 25)]
+    assert [label for label, _ in st.bws_budgets(rows)] == ["400 steps"]
+    rows += [{"batch_size": 1, "steps": 10000}, {"batch_size": 5, "steps": 2000}]
+    (steps_label, same_steps), (images_label, same_images) = st.bws_budgets(rows)
+    assert (steps_label, images_label) == ("400 steps", "10,000 images")
+    assert [(r["batch_size"], r["steps"]) for r in rows if same_steps(r)] == [(1, 400), (5, 400), (25, 400)]
+    # batch 25's 400 steps are on both lines: it is where the two budgets meet
+    assert [(r["batch_size"], r["steps"]) for r in rows if same_images(r)] == [(25, 400), (1, 10000), (5, 2000)]
+
+
 def test_sh_variance_of_a_model_and_baseline_skipped():
     ds = FakeFaces("lightbank")
 

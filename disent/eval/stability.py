@@ -24,6 +24,7 @@ each result carries the budget read from its runs' configs.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
 from pathlib import Path
@@ -430,19 +431,34 @@ def plot_ood(res: dict, path) -> None:
     _save(fig, path)
 
 
+def bws_budgets(rows: list) -> list:
+    """The BWS study's training budgets, ``[(label, keep)]``: every batch size at the largest batch's steps (a
+    small batch then also sees fewer images) and, where the study has runs for it, every batch size on the
+    largest batch's images (``ablations/bws.sh`` with IMAGES)."""
+    sized = [r for r in rows if r["batch_size"] is not None and r.get("steps") is not None]
+    if not sized:
+        return [("", lambda r: r["batch_size"] is not None)]
+    top = max(sized, key=lambda r: r["batch_size"])
+    steps, images = top["steps"], top["steps"] * top["batch_size"]
+    budgets = [(f"{steps} steps", lambda r: r.get("steps") == steps)]
+    if any(r["steps"] != steps and r["steps"] * r["batch_size"] == images for r in sized):
+        budgets.append((f"{images:,} images", lambda r: (r.get("steps") or 0) * r["batch_size"] == images))
+    return budgets
+
+
 def plot_bws(res: dict, path) -> None:
     plt = _plt()
-    fig, axes = plt.subplots(1, 4, figsize=(16, 3.8))
+    fig, axes = plt.subplots(1, 5, figsize=(20, 3.8))
     rows = res["rows"]
-    arms = (
-        (True, True, "o", "-", "with BWS"),
-        (False, True, "x", "--", "without BWS (L-hat target still white)"),
-        (False, False, "^", ":", "without BWS, raw L-hat target"),
+    arms = (  # BWS on, L-hat target white, marker and colour (but in the first panel: a colour per channel)
+        (True, True, "o", "C0", "with BWS"),
+        (False, True, "x", "C1", "without BWS (L-hat target still white)"),
+        (False, False, "^", "C2", "without BWS, raw L-hat target"),
     )
-    for bws, white, marker, ls, label in arms:
+    for (bws, white, marker, color, arm), (budget, ls) in itertools.product(arms, zip(bws_budgets(rows), ("-", "--"))):
         by_bs = {}
         for r in rows:
-            if r["bws"] == bws and r.get("lhat_white", True) == white and r["batch_size"] is not None:
+            if r["bws"] == bws and r.get("lhat_white", True) == white and r["batch_size"] is not None and budget[1](r):
                 by_bs.setdefault(r["batch_size"], []).append(r)
         if not by_bs:
             continue
@@ -452,25 +468,30 @@ def plot_bws(res: dict, path) -> None:
             return [sum(r[key] if c is None else r[key][c] for r in by_bs[b]) / len(by_bs[b]) for b in bs]
 
         seeds = max(len(v) for v in by_bs.values())
-        label += f", {seeds} seed{'s' if seeds > 1 else ''}"
-        for c, color in enumerate(("r", "g", "b")):
+        label = f"{arm}{', ' + budget[0] if budget[0] else ''}, {seeds} seed{'s' if seeds > 1 else ''}"
+        for c, channel in enumerate(("r", "g", "b")):
             axes[0].plot(
                 bs,
                 mean("shading_mean_rgb", c),
                 marker + ls,
-                color=color,
-                label=f"{label} ({color})" if c == 0 else None,
+                color=channel,
+                label=f"{label} ({channel})" if c == 0 else None,
             )
-        axes[1].plot(bs, mean("shading_cast"), marker + ls, label=label)
-        axes[2].plot(bs, mean("albedo_shading_corr"), marker + ls, label=label)
+        axes[1].plot(bs, mean("shading_cast"), marker + ls, color=color, label=label)
+        axes[2].plot(bs, mean("albedo_shading_corr"), marker + ls, color=color, label=label)
         if all("shading_albedo_tone_corr" in r for b in bs for r in by_bs[b]):  # studies scored before it lack it
-            axes[3].plot(bs, mean("shading_albedo_tone_corr"), marker + ls, label=label)
+            axes[3].plot(bs, mean("shading_albedo_tone_corr"), marker + ls, color=color, label=label)
+        if all(r.get("normal_mean") is not None for b in bs for r in by_bs[b]):
+            axes[4].plot(bs, mean("normal_mean"), marker + ls, color=color, label=label)
     axes[0].axhline(0.75, color="k", lw=0.6, ls=":")
     truth = [r["true_shading_albedo_tone_corr"] for r in rows if "true_shading_albedo_tone_corr" in r]
     if truth:
         axes[3].axhline(truth[0], color="k", lw=0.6, ls=":", label="true shading")
-    steps = {r["batch_size"]: r.get("steps") for r in rows if r["batch_size"] is not None}
-    steps_text = ", ".join(f"{b}:{steps[b]}" for b in sorted(steps) if steps[b] is not None)
+    floor = [r["trivial_normal_mean"] for r in rows if r.get("trivial_normal_mean") is not None]
+    if floor:  # above it a run has not learned its geometry: its other panels describe an untrained model
+        axes[4].axhline(floor[0], color="k", lw=0.6, ls=":", label="dataset-mean normal map")
+    steps_text = " (solid) and ".join(label for label, _ in bws_budgets(rows) if label)
+    steps_text += " (dashed)" if " and " in steps_text else ""
     for ax, t in zip(
         axes,
         (
@@ -478,12 +499,13 @@ def plot_bws(res: dict, path) -> None:
             "colour cast (max - min channel mean)",
             "corr(albedo, true shading)",
             "corr over faces: shading's tone, skin's tone",
+            "normals, test (deg): did the run learn its geometry?",
         ),
     ):
         ax.set_xscale("log")
         ax.set_xlabel(
             "training batch size (BWS averages over it)"
-            + (f"\nsteps per batch size: {steps_text}" if steps_text else ""),
+            + (f"\nevery batch size trained for {steps_text}" if steps_text else ""),
             fontsize=7,
         )
         ax.set_title(t, fontsize=8)
