@@ -15,7 +15,10 @@ ROOT=${1:-multirun}; shift || true
 SEEDS=${SEEDS:-0,1,2}; STEPS=${STEPS:-400}; BATCHES=${BATCHES:-1,5,25}; ARMS=${ARMS:-bws,bws_off_raw,bws_off}
 IMAGES=${IMAGES:-}
 declare -A ARM=([bws]="" [bws_off_raw]="+ablation=no_bws" [bws_off]="+ablation=no_bws loss.lhat_white=true")
-B=(model=explicit seed=$SEEDS train.threads=1 train.time_limit_min=null train.progress=false)
+# a job's folder names its batch size and seed, so that a later sweep of more seeds adds folders beside the first's
+# shellcheck disable=SC2016  # ${...} is Hydra's interpolation, not the shell's
+B=(model=explicit seed=$SEEDS train.threads=1 train.time_limit_min=null train.progress=false
+   'hydra.sweep.subdir=b${train.batch_size}-s${seed}')
 
 sweep() {  # sweep SUBDIR OVERRIDES...: every arm of ARMS
     local sub=$1; shift
