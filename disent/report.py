@@ -1506,7 +1506,10 @@ def _stability_bws(rep: Report, res: dict) -> None:
         "*cast* is the spread of the three channel means; *corr(albedo, true shading)* is the correlation of "
         "the estimated albedo with the true shading (0: albedo free of shading). A run saw *steps* x *batch* training "
         "images, so where the steps are fixed a small batch also trains less: *normals* (test split) says "
-        f"whether a run learned its geometry at all{mean_map}. With BWS on, E_recon-L's target "
+        f"whether a run learned its geometry at all{mean_map}; rows whose *steps* x *batch* equal the largest "
+        "batch's images trained every batch size on the same images (`IMAGES=N ablations/bws.sh`; dashed in the "
+        "figure), which separates a small batch's per-face whitening from its shorter training. With BWS on, "
+        "E_recon-L's target "
         "L-hat is itself scaled so that its shading has batch mean c (`loss.lhat_white`), a second "
         "whitening; `+ablation=no_bws` turns both off (the paper's ablation: the rows marked *raw L-hat target*), "
         "the rows marked *L-hat target still white* turn off only the BWS term. The two tone and brightness columns "
@@ -1550,10 +1553,43 @@ def _stability_bws(rep: Report, res: dict) -> None:
             f"{ms([r['albedo_shading_corr'] for r in rs])} | {skin} |"
         )
     rep.add("")
+    _bws_same_images(rep, res["rows"])
     if len({r["batch_size"] for r in res["rows"]}) < 2:
         rep.note(
             "the BWS batch-size sweep (one batch size only in these runs); run the `multirun/bws` sweeps of "
             "`ablations/README.md` for the curve against batch size."
+        )
+
+
+def _bws_same_images(rep: Report, rows: list) -> None:
+    """The shading's tone against the skin's per batch size on the fixed-images budget, with BWS and without it."""
+    from disent.eval.stability import bws_budgets
+
+    budgets = bws_budgets(rows)
+    if len(budgets) < 2 or not all("shading_albedo_tone_corr" in r for r in rows):
+        return
+    label, same_images = budgets[1]
+    arms = {"with BWS": (True, True), "without it (raw L-hat target)": (False, False)}
+    parts = []
+    for bs in sorted({r["batch_size"] for r in rows if same_images(r)}):
+        tones = {
+            arm: [
+                r["shading_albedo_tone_corr"]
+                for r in rows
+                if same_images(r) and r["batch_size"] == bs and (r["bws"], r.get("lhat_white", True)) == key
+            ]
+            for arm, key in arms.items()
+        }
+        if all(tones.values()):
+            parts.append(f"batch {bs}: " + ", ".join(f"{_ms(_ablation.mean_std(v))} {arm}" for arm, v in tones.items()))
+    if parts:
+        rep.add(
+            f"BWS fixes the mean shading of a batch: at batch 1 that is each face's own, so the shading cannot keep "
+            f"a face's skin tone, while a larger batch fixes only the batch's mean. On the same {label} at every "
+            "batch size, the correlation over faces of the shading's tone with the skin's (the true shading's: "
+            f"{rows[0].get('true_shading_albedo_tone_corr', float('nan')):.2f}), mean ± std over seeds: "
+            + "; ".join(parts)
+            + ".\n"
         )
 
 

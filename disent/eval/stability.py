@@ -460,7 +460,7 @@ def plot_bws(res: dict, path) -> None:
         for r in rows:
             if r["bws"] == bws and r.get("lhat_white", True) == white and r["batch_size"] is not None and budget[1](r):
                 by_bs.setdefault(r["batch_size"], []).append(r)
-        if not by_bs:
+        if len(by_bs) < (1 if ls == "-" else 2):  # a fixed-images line needs a batch size besides the largest
             continue
         bs = sorted(by_bs)
 
