@@ -1084,3 +1084,32 @@ def test_published_rows_under_a_default_since_changed_match_todays_rows(tmp_path
     rep.subsections_kept(0)
     headings = [line.split("\n")[0] for line in rep.lines if line.startswith("### ")]
     assert headings == ["### `+experiment=long`", "### `train.max_steps=7` ‡"]
+
+
+def test_bws_section_reads_the_fixed_images_budget(tmp_path):
+    def row(bws, bs, steps, tone):
+        return {
+            "variant": "explicit",
+            "bws": bws,
+            "lhat_white": bws,
+            "batch_size": bs,
+            "steps": steps,
+            "shading_mean_rgb": [0.7, 0.7, 0.7],
+            "shading_cast": 0.01,
+            "albedo_shading_corr": 0.1,
+            "shading_albedo_tone_corr": tone,
+            "shading_albedo_brightness_corr": 0.5,
+            "true_shading_albedo_tone_corr": -0.04,
+        }
+
+    fixed_steps = [row(b, bs, 400, 0.5) for b in (True, False) for bs in (1, 25)]
+    rep = report.Report(tmp_path, "")
+    report._stability_bws(rep, {"rows": fixed_steps, "n": 8})
+    assert "On the same" not in "\n".join(rep.lines)  # one budget only: nothing to read
+    images = [row(True, 1, 10000, t) for t in (-0.1, 0.1)] + [row(False, 1, 10000, t) for t in (0.2, 0.3)]
+    rep = report.Report(tmp_path, "")
+    report._stability_bws(rep, {"rows": fixed_steps + images, "n": 8})
+    text = "\n".join(rep.lines)
+    assert "On the same 10,000 images" in text
+    assert "batch 1: 0.00 ± 0.14 (n=2) with BWS, 0.25 ± 0.07 (n=2) without it" in text
+    assert "batch 25: 0.50 (n=1) with BWS, 0.50 (n=1) without it" in text
