@@ -1581,15 +1581,19 @@ def _bws_same_images(rep: Report, rows: list) -> None:
             for arm, key in arms.items()
         }
         if all(tones.values()):
-            parts.append(f"batch {bs}: " + ", ".join(f"{_ms(_ablation.mean_std(v))} {arm}" for arm, v in tones.items()))
+            spreads = [_ablation.mean_std(v) for v in tones.values()]
+            parts.append(
+                f"batch {bs}: "
+                + ", ".join(f"{_ms(st)} {arm}" for st, arm in zip(spreads, tones))
+                + f", lower with BWS: {verdict(*spreads, 'lower')}"
+            )
     if parts:
         rep.add(
-            f"BWS fixes the mean shading of a batch: at batch 1 that is each face's own, so the shading cannot keep "
-            f"a face's skin tone, while a larger batch fixes only the batch's mean. On the same {label} at every "
-            "batch size, the correlation over faces of the shading's tone with the skin's (the true shading's: "
-            f"{rows[0].get('true_shading_albedo_tone_corr', float('nan')):.2f}), mean ± std over seeds: "
-            + "; ".join(parts)
-            + ".\n"
+            "BWS fixes the mean shading of a batch: at batch 1 that is each face's own mean, which should keep the "
+            "skin's tone out of each face's shading, while a larger batch fixes only the batch's mean. On the same "
+            f"{label} at every batch size, the correlation over faces of the shading's tone with the skin's (the "
+            f"true shading's: {rows[0].get('true_shading_albedo_tone_corr', float('nan')):.2f}), mean ± std over "
+            "seeds: " + "; ".join(parts) + ".\n"
         )
 
 
