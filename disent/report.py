@@ -1494,6 +1494,8 @@ def _stability_ood(rep: Report, res: dict) -> None:
 
 def _stability_bws(rep: Report, res: dict) -> None:
     """The BWS table: shading cast, albedo absorbing shading and where the skin went, per variant and batch size."""
+    from disent.eval.stability import bws_arm
+
     keys = ("true_shading_albedo_tone_corr", "true_shading_albedo_brightness_corr")
     first = res["rows"][0] if res["rows"] else {}
     truth = (
@@ -1531,8 +1533,8 @@ def _stability_bws(rep: Report, res: dict) -> None:
     )
     groups = {}
     for r in res["rows"]:
-        white = r.get("lhat_white", True)
-        variant = r["variant"] + ("" if r["bws"] else " (L-hat target still white)" if white else " (raw L-hat target)")
+        bws, white = bws_arm(r)
+        variant = r["variant"] + ("" if bws else " (L-hat target still white)" if white else " (raw L-hat target)")
         groups.setdefault((variant, r["batch_size"], r.get("steps")), []).append(r)
     for (variant, bs, steps), rs in sorted(
         groups.items(), key=lambda kv: (len(kv[0][0]), kv[0][0], kv[0][1] or 0, kv[0][2] or 0)
@@ -1563,7 +1565,7 @@ def _stability_bws(rep: Report, res: dict) -> None:
 
 def _bws_same_images(rep: Report, rows: list) -> None:
     """The shading's tone against the skin's per batch size on the fixed-images budget, with BWS and without it."""
-    from disent.eval.stability import bws_budgets
+    from disent.eval.stability import bws_arm, bws_budgets
 
     budgets = bws_budgets(rows)
     if len(budgets) < 2 or not all("shading_albedo_tone_corr" in r for r in rows):
@@ -1576,7 +1578,7 @@ def _bws_same_images(rep: Report, rows: list) -> None:
             arm: [
                 r["shading_albedo_tone_corr"]
                 for r in rows
-                if same_images(r) and r["batch_size"] == bs and (r["bws"], r.get("lhat_white", True)) == key
+                if same_images(r) and r["batch_size"] == bs and bws_arm(r) == key
             ]
             for arm, key in arms.items()
         }

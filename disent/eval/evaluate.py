@@ -153,11 +153,10 @@ def bws_stats(out: dict, gt: dict) -> dict:
             rgb / rgb.sum(1, keepdim=True).clamp_min(1e-12), skin / skin.sum(1, keepdim=True).clamp_min(1e-12)
         )
         tone[f"{prefix}shading_albedo_brightness_corr"] = _corr_over_faces(rgb.mean(1, True), skin.mean(1, True))
-    luminance = {k: x.mean(1, keepdim=True) for k, x in (("albedo", out["albedo"]), ("shading", gt["shading"]))}
     return {
         "shading_mean_rgb": mean_c.tolist(),
         "shading_cast": (mean_c.max() - mean_c.min()).item(),
-        "albedo_shading_corr": pattern_corr(luminance["albedo"], luminance["shading"], face),
+        "albedo_shading_corr": pattern_corr(out["albedo"].mean(1, True), gt["shading"].mean(1, True), face),
         **tone,
     }
 

@@ -431,6 +431,11 @@ def plot_ood(res: dict, path) -> None:
     _save(fig, path)
 
 
+def bws_arm(row: dict) -> tuple:
+    """A BWS study row's arm (``ablations/bws.sh``): (BWS term on, E_recon-L's L-hat target whitened)."""
+    return row["bws"], row.get("lhat_white", True)
+
+
 def bws_budgets(rows: list) -> list:
     """The BWS study's training budgets, ``[(label, keep)]``: every batch size at the largest batch's steps (a
     small batch then also sees fewer images) and, where the study has runs for it, every batch size on the
@@ -455,13 +460,14 @@ def plot_bws(res: dict, path) -> None:
         (False, True, "x", "C1", "without BWS (L-hat target still white)"),
         (False, False, "^", "C2", "without BWS, raw L-hat target"),
     )
-    for (bws, white, marker, color, arm), (budget, ls) in itertools.product(arms, zip(bws_budgets(rows), ("-", "--"))):
+    for (bws, white, marker, color, arm), (k, budget) in itertools.product(arms, enumerate(bws_budgets(rows))):
         by_bs = {}
         for r in rows:
-            if r["bws"] == bws and r.get("lhat_white", True) == white and r["batch_size"] is not None and budget[1](r):
+            if bws_arm(r) == (bws, white) and r["batch_size"] is not None and budget[1](r):
                 by_bs.setdefault(r["batch_size"], []).append(r)
-        if len(by_bs) < (1 if ls == "-" else 2):  # a fixed-images line needs a batch size besides the largest
+        if len(by_bs) < 1 + k:  # the fixed-images line (k = 1) needs a batch size besides the largest
             continue
+        ls = ("-", "--")[k]
         bs = sorted(by_bs)
 
         def mean(key, c=None):  # over seeds
