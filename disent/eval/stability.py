@@ -431,6 +431,14 @@ def plot_ood(res: dict, path) -> None:
     _save(fig, path)
 
 
+# the BWS study's arms by (BWS term on, E_recon-L's L-hat target whitened), as the figure and the report name them
+BWS_ARMS = {
+    (True, True): "with BWS",
+    (False, True): "without BWS (L-hat target still white)",
+    (False, False): "without BWS, raw L-hat target",
+}
+
+
 def bws_arm(row: dict) -> tuple:
     """A BWS study row's arm (``ablations/bws.sh``): (BWS term on, E_recon-L's L-hat target whitened)."""
     return row["bws"], row.get("lhat_white", True)
@@ -455,15 +463,13 @@ def plot_bws(res: dict, path) -> None:
     plt = _plt()
     fig, axes = plt.subplots(1, 5, figsize=(20, 3.8))
     rows = res["rows"]
-    arms = (  # BWS on, L-hat target white, marker and colour (but in the first panel: a colour per channel)
-        (True, True, "o", "C0", "with BWS"),
-        (False, True, "x", "C1", "without BWS (L-hat target still white)"),
-        (False, False, "^", "C2", "without BWS, raw L-hat target"),
-    )
-    for (bws, white, marker, color, arm), (k, budget) in itertools.product(arms, enumerate(bws_budgets(rows))):
+    style = {(True, True): ("o", "C0"), (False, True): ("x", "C1"), (False, False): ("^", "C2")}  # marker, colour
+    # (but in the first panel: a colour per channel)
+    for (key, arm), (k, budget) in itertools.product(BWS_ARMS.items(), enumerate(bws_budgets(rows))):
+        marker, color = style[key]
         by_bs = {}
         for r in rows:
-            if bws_arm(r) == (bws, white) and r["batch_size"] is not None and budget[1](r):
+            if bws_arm(r) == key and r["batch_size"] is not None and budget[1](r):
                 by_bs.setdefault(r["batch_size"], []).append(r)
         if len(by_bs) < 1 + k:  # the fixed-images line (k = 1) needs a batch size besides the largest
             continue
