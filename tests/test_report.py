@@ -1117,6 +1117,5 @@ def test_bws_section_reads_the_fixed_images_budget(tmp_path):
     assert "On the same 10,000 images" in text
     assert "batch 1: 0.00 ± 0.14 (n=2) with BWS, 0.25 ± 0.07 (n=2) without BWS, raw L-hat target" in text
     assert (
-        "batch 25: 0.50 (n=1) with BWS, 0.50 (n=1) without BWS, raw L-hat target, lower with BWS: not testable"
-        in text
+        "batch 25: 0.50 (n=1) with BWS, 0.50 (n=1) without BWS, raw L-hat target, lower with BWS: not testable" in text
     )
