@@ -1498,7 +1498,7 @@ def _stability_ood(rep: Report, res: dict) -> None:
 
 
 def _stability_bws(rep: Report, res: dict) -> None:
-    """The BWS table: shading cast, albedo absorbing shading and where the skin went, per variant and batch size."""
+    """The BWS table: shading cast, albedo absorbing shading and where the skin went, per arm and batch size."""
     from disent.eval.stability import BWS_ARMS, bws_arm
 
     keys = ("true_shading_albedo_tone_corr", "true_shading_albedo_brightness_corr")
@@ -1539,7 +1539,7 @@ def _stability_bws(rep: Report, res: dict) -> None:
     groups = {}
     for r in res["rows"]:
         groups.setdefault((BWS_ARMS[bws_arm(r)], r["batch_size"], r.get("steps")), []).append(r)
-    for (variant, bs, steps), rs in sorted(
+    for (arm, bs, steps), rs in sorted(
         groups.items(), key=lambda kv: (len(kv[0][0]), kv[0][0], kv[0][1] or 0, kv[0][2] or 0)
     ):
 
@@ -1553,7 +1553,7 @@ def _stability_bws(rep: Report, res: dict) -> None:
             for k in ("shading_albedo_tone_corr", "shading_albedo_brightness_corr", "normal_mean")
         )
         rep.add(
-            f"| {variant} | {bs} | {steps} | {len(rs)} | {rgb} | {ms([r['shading_cast'] for r in rs])} | "
+            f"| {arm} | {bs} | {steps} | {len(rs)} | {rgb} | {ms([r['shading_cast'] for r in rs])} | "
             f"{ms([r['albedo_shading_corr'] for r in rs])} | {skin} |"
         )
     rep.add("")
