@@ -1536,16 +1536,16 @@ def _stability_bws(rep: Report, res: dict) -> None:
             "normals (deg)",
         ),
     )
+
+    def ms(vals):  # the table has a seeds column
+        return _ms(_ablation.mean_std(vals), ".3f", count=False)
+
     groups = {}
     for r in res["rows"]:
         groups.setdefault((BWS_ARMS[bws_arm(r)], r["batch_size"], r.get("steps")), []).append(r)
     for (arm, bs, steps), rs in sorted(
         groups.items(), key=lambda kv: (len(kv[0][0]), kv[0][0], kv[0][1] or 0, kv[0][2] or 0)
     ):
-
-        def ms(vals):  # the table has a seeds column
-            return _ms(_ablation.mean_std(vals), ".3f", count=False)
-
         rgb = ", ".join(f"{float(np.mean([r['shading_mean_rgb'][c] for r in rs])):.2f}" for c in range(3))
         steps = "–" if steps is None else steps
         skin = " | ".join(
