@@ -1542,10 +1542,12 @@ def _stability_bws(rep: Report, res: dict) -> None:
 
     groups = {}
     for r in res["rows"]:
-        groups.setdefault((BWS_ARMS[bws_arm(r)], r["batch_size"], r.get("steps")), []).append(r)
-    for (arm, bs, steps), rs in sorted(
-        groups.items(), key=lambda kv: (len(kv[0][0]), kv[0][0], kv[0][1] or 0, kv[0][2] or 0)
+        groups.setdefault((bws_arm(r), r["batch_size"], r.get("steps")), []).append(r)
+    order = list(BWS_ARMS)  # the figure's legend order, then by batch size and steps
+    for (key, bs, steps), rs in sorted(
+        groups.items(), key=lambda kv: (order.index(kv[0][0]), kv[0][1] or 0, kv[0][2] or 0)
     ):
+        arm = BWS_ARMS[key]
         rgb = ", ".join(f"{float(np.mean([r['shading_mean_rgb'][c] for r in rs])):.2f}" for c in range(3))
         steps = "–" if steps is None else steps
         skin = " | ".join(
