@@ -1297,12 +1297,15 @@ SKIN_METRICS = (  # (key, label, its floor's key or None): where each face's ski
     ("shading_colour_si_mse", "shading si-MSE, one scale for RGB", "trivial_shading_colour_si_mse"),
     ("albedo_si_mse", "albedo si-MSE, a scale per channel", "trivial_albedo_si_mse"),
     ("albedo_pattern_corr", "albedo pattern corr (higher: better)", None),
+    ("albedo_ceiling_share", "albedo at its ceiling (share)", None),
 )
 
 
 def claim_skin(rep: Report, runs: list[Run]) -> None:
     """Where each face's skin went: BWS fixes the batch's mean shading colour, so a model can still put each face's
     skin tone and brightness in its shading (the degenerate split per face); one row per setting and model."""
+    from disent.eval.evaluate import ALBEDO_CEILING
+
     done = [r for r in runs if r.status == "ok" and r.eval and r.model in ("explicit", "implicit") and not r.ceiling]
     groups: dict = {}
     for r in done:
@@ -1320,6 +1323,9 @@ def claim_skin(rep: Report, runs: list[Run]) -> None:
         for (where, model), rs in sorted(groups.items())
     ]
     truth = next((r.eval for rs in groups.values() for r in rs), {})  # one test split: the same for every run
+    true_ceiling = next(
+        (v for rs in groups.values() for r in rs if (v := r.value("true_albedo_ceiling_share")) is not None), None
+    )
     if not (rows := rep.rows_kept(head[0], rows, key=2)):
         rep.note(
             "no run scored for where the skin goes; rescore finished runs with `python -m disent.eval.evaluate RUN`."
@@ -1341,7 +1347,11 @@ def claim_skin(rep: Report, runs: list[Run]) -> None:
         "brightness but not its colour: the albedo must carry the skin's colour, the shading the light's; the last two "
         "columns forgive both, what BWS decides: the si-MSE with a scale per channel (the targets' measure) and "
         "Pearson's correlation with the true albedo per image and channel, which forgives contrast too "
-        "(`disent.eval.metrics.pattern_corr`; runs scored before it show –). Test "
+        "(`disent.eval.metrics.pattern_corr`; runs scored before it show –). The last column is the share of the "
+        f"albedo's values (pixels and channels) at or above {ALBEDO_CEILING} of its sigmoid's 1"
+        + (f" (the true albedo's: {true_ceiling:.3f})" if true_ceiling is not None else "")
+        + ": where the shading takes a face's brightness, the albedo is pinned at 1 over the skin and flat there, "
+        "whatever the skin does (`disent.eval.evaluate.ceiling_share`; runs scored before it show –). Test "
         "split, 256 images; mean ± std over seeds (`python -m disent.eval.evaluate RUN` scores a finished run).\n",
         *head,
         *rows,

@@ -10,7 +10,7 @@ from torch.utils.data import default_collate
 
 from disent.eval import protocols
 from disent.eval import stability as st
-from disent.eval.evaluate import decomposed_region, evaluate_model, face_mask, metrics_from_outputs
+from disent.eval.evaluate import ceiling_share, decomposed_region, evaluate_model, face_mask, metrics_from_outputs
 from disent.eval.protocols import sh_variance, sh_variance_protocol
 
 
@@ -251,6 +251,24 @@ def test_bws_stats_tell_where_each_skin_went():
     assert st.bws_stats({"shading": brightness_only, "albedo": gt["albedo"]}, gt)[
         "shading_albedo_brightness_corr"
     ] == pytest.approx(1.0)
+
+
+def test_albedo_ceiling_share_counts_pinned_values_inside_the_region():
+    """Values at or above the ceiling, counted per pixel and channel, only inside the region; the metrics carry
+    the model's share and the truth's."""
+    albedo = torch.full((2, 3, 4, 4), 0.5)
+    albedo[0, 0] = 0.99  # one channel of the first image pinned everywhere
+    albedo[1, :, :2] = 1.0  # every channel of the second image's top half
+    region = torch.zeros(2, 1, 4, 4)
+    region[:, :, :, :2] = 1  # the left half of each image
+    assert ceiling_share(albedo, region) == pytest.approx((8 + 3 * 4) / (2 * 3 * 8))
+    assert ceiling_share(albedo, torch.zeros_like(region)) == 0.0
+    assert ceiling_share(albedo, region, ceiling=1.0) == pytest.approx(12 / 48)  # >= : the exact 1s count
+    ds = FakeFaces("test", size=2)
+    gt = default_collate([ds[i] for i in range(2)])
+    m = metrics_from_outputs({"albedo": torch.ones_like(gt["albedo"])}, gt)
+    assert m["albedo_ceiling_share"] == 1.0
+    assert m["true_albedo_ceiling_share"] == pytest.approx(ceiling_share(gt["albedo"], decomposed_region(gt)))
 
 
 def test_metrics_from_outputs_baseline_has_only_recon():

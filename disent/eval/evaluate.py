@@ -122,6 +122,17 @@ def _corr_over_faces(x: torch.Tensor, y: torch.Tensor) -> float:
     return torch.where(flat, torch.zeros_like(corr), corr).mean().item()
 
 
+ALBEDO_CEILING = 0.95  # an albedo value this close to the sigmoid's 1 is pinned there: its pattern is clipped
+
+
+def ceiling_share(albedo: torch.Tensor, region: torch.Tensor, ceiling: float = ALBEDO_CEILING) -> float:
+    """The share of an albedo's values ``[B,C,H,W]`` inside ``region [B,1,H,W]`` (pixels and channels) at or above
+    ``ceiling``: where a model puts the face's brightness in the shading, its albedo is pinned at the sigmoid's 1
+    there and is flat whatever the skin does."""
+    w = (region > 0.5).expand_as(albedo)
+    return ((albedo >= ceiling) & w).sum().item() / max(w.sum().item(), 1)
+
+
 def bws_stats(out: dict, gt: dict) -> dict:
     """Shading mean per channel over the true face, corr(estimated albedo, true shading), and where each face's
     skin tone and brightness went.
@@ -175,7 +186,9 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     not the skin's).  For reference
     ``albedo_face_si_mse``: the albedo over the whole true face mask, hair and neck included.
     ``albedo_pattern_corr``: Pearson's correlation with the true albedo per image and channel (higher is better;
-    forgives contrast too, :func:`~disent.eval.metrics.pattern_corr`).
+    forgives contrast too, :func:`~disent.eval.metrics.pattern_corr`).  ``albedo_ceiling_share`` (and the truth's,
+    ``true_albedo_ceiling_share``): the share of the scored values at the albedo sigmoid's ceiling
+    (:func:`ceiling_share`).
     ``sh_error`` after the per-image scale alignment, and ``sh_error_coefficients`` its share per coefficient;
     ``light_shading_si_mse``: the light's shading through the true normals against the true shading;
     ``sh_error_shown`` and ``sh_error_hidden``: the coefficients' error split between the SH directions the face's
@@ -197,6 +210,8 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
         m["albedo_pattern_corr"] = pattern_corr(out["albedo"], gt["albedo"], region)
         bands = scale_invariant_mse_bands(out["albedo"], gt["albedo"], region)
         m["albedo_coarse_si_mse"], m["albedo_fine_si_mse"] = bands["coarse"], bands["fine"]
+        for prefix, albedo in (("", out["albedo"]), ("true_", gt["albedo"])):
+            m[f"{prefix}albedo_ceiling_share"] = ceiling_share(albedo, region)
     if {"albedo", "shading"} <= set(out) and {"albedo", "image"} <= set(gt):
         # Sec. 5.3's "detailed" albedo, Eq. 2 solved for A with the model's own shading: I / S_e keeps every detail
         # of the image, and every error of S_e (the relighting transfer renders with it)
