@@ -189,6 +189,12 @@ TERM_SETTINGS = {
 }
 
 
+def term_settings(lhat_white: bool = True) -> dict:
+    """:data:`TERM_SETTINGS` for a loss config: E_recon-L's target uses c only when it is whitened (``lhat_white``,
+    :func:`recon_L`), so without it c acts through BWS alone."""
+    return TERM_SETTINGS if lhat_white else {**TERM_SETTINGS, "bws_c": ("BWS",)}
+
+
 def active_terms(weights: dict, out: dict) -> list[str]:
     """Terms with a nonzero weight whose model output exists."""
     unknown = set(weights) - set(TERMS + TRUTH)

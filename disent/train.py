@@ -298,14 +298,17 @@ def _model_outputs(model_json: str) -> frozenset:
 def idle_settings(cfg: dict | None) -> frozenset:
     """``loss.weights.T`` of each term the config's model cannot compute (it lacks the output the term needs,
     :data:`disent.losses.NEEDS`: E_recon-N for the baseline), and the loss settings that act only through such
-    terms (:data:`disent.losses.TERM_SETTINGS`): they never reach training, so they do not define the run."""
+    terms or terms weighted 0 (:func:`disent.losses.term_settings`: c without BWS and without the whitened L-hat
+    target, ``+ablation=no_bws``): they never reach training, so they do not define the run."""
     model = (cfg or {}).get("model")
     if not isinstance(model, dict) or "name" not in model:
         return frozenset()
     outputs = _model_outputs(json.dumps(model, sort_keys=True))
-    idle = {t for t, needed in L.NEEDS.items() if needed not in outputs}
-    by_term = {k: terms for k, terms in L.TERM_SETTINGS.items() if idle.issuperset(terms)}  # recon_fg_p, ...
-    return frozenset([f"loss.weights.{t}" for t in idle] + [f"loss.{k}" for k in by_term])
+    missing = {t for t, needed in L.NEEDS.items() if needed not in outputs}
+    loss = cfg.get("loss") or {}
+    off = missing | {t for t, w in (loss.get("weights") or {}).items() if w == 0}
+    by_term = {k: ts for k, ts in L.term_settings(loss.get("lhat_white", True)).items() if off.issuperset(ts)}
+    return frozenset([f"loss.weights.{t}" for t in missing] + [f"loss.{k}" for k in by_term])
 
 
 def config_changes(old: dict | None, new: dict, keys=RUN_DEFINING, ignore=frozenset()) -> dict:

@@ -891,6 +891,25 @@ def test_setting_is_what_one_types_today_to_train_the_run_again(tmp_path):
     assert report.measured_setting({"run": "explicit", "setting": "shipped"}) == "shipped"
 
 
+def test_bws_c_is_not_part_of_a_run_that_neither_uses_bws_nor_whitens_lhat(tmp_path):
+    """c acts through BWS and the whitened L-hat target: a run with both off (``+ablation=no_bws``) trains the same
+    under any c, and a run with either on does not (:func:`disent.train.idle_settings`)."""
+    from disent.runs import setting
+    from disent.train import idle_settings
+
+    for name, bws, white in (("no_bws", 0.0, False), ("bws_off_white", 0.0, True), ("raw", 1.0, False)):
+        d = make_run(tmp_path, name, "explicit")
+        cfg = yaml.safe_load((d / ".hydra" / "config.yaml").read_text())
+        cfg["loss"]["weights"]["BWS"], cfg["loss"]["lhat_white"] = bws, white
+        cfg["loss"]["bws_c"] = 0.3
+        (d / ".hydra" / "config.yaml").write_text(yaml.safe_dump(cfg))
+    runs = {r.path.name: r for r in find_runs([tmp_path])}
+    assert "loss.bws_c" in idle_settings(runs["no_bws"].cfg)
+    assert "loss.bws_c=" not in setting(runs["no_bws"])
+    for name in ("bws_off_white", "raw"):
+        assert "loss.bws_c" not in idle_settings(runs[name].cfg) and "loss.bws_c=0.3" in setting(runs[name])
+
+
 def test_a_loss_weight_the_model_has_no_term_for_is_not_part_of_its_setting(tmp_path):
     """The baseline has no normals: a run of it trained under another E_recon-N weight (or the masked
     reconstruction's norm) is the same setting as today's; the explicit model's is not."""
