@@ -491,6 +491,9 @@ def test_budget_check_names_each_missed_target(tmp_path):
     text = budget_check([r for r in run if r.path.name == "b"])
     assert "normals 13.00 deg" in text and "albedo 0.79" in text and "face PSNR" not in text and "not testable" in text
     assert "no finished full explicit run" in budget_check([])
+    near = {**good, "albedo_si_mse": 0.5016 * 0.0127}  # a hair past the target: more digits, never "0.50"
+    run = find_runs([make_run(tmp_path, "c", eval_=near).parent])
+    assert "albedo 0.502 of the mean map's" in budget_check([r for r in run if r.path.name == "c"])
 
 
 def test_targets_section_reads_each_rung_against_its_own_targets(tmp_path):
