@@ -1365,8 +1365,9 @@ def claim_skin(rep: Report, runs: list[Run]) -> None:
         "(`disent.eval.metrics.pattern_corr`; runs scored before it show –). The last column is the share of the "
         f"albedo's values (pixels and channels) at or above {ALBEDO_CEILING} of its sigmoid's 1"
         + (f" (the true albedo's: {true_ceiling:.3f})" if true_ceiling is not None else "")
-        + ": where the shading takes a face's brightness, the albedo is pinned at 1 over the skin and flat there, "
-        "whatever the skin does (`disent.eval.evaluate.ceiling_share`; runs scored before it show –). Test "
+        + ": where the split leaves the albedo near 1 (the shading takes the face's brightness: without BWS, or "
+        "with a low c), the albedo is pinned at 1 over the skin and flat there, whatever the skin does "
+        "(`disent.eval.evaluate.ceiling_share`; runs scored before it show –). Test "
         "split, 256 images; mean ± std over seeds (`python -m disent.eval.evaluate RUN` scores a finished run).\n",
         *head,
         *rows,
