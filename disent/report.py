@@ -1895,6 +1895,7 @@ def plot_learning_curves(runs: list[Run], path: Path, title: str = "", colour_by
         return curve_label(r) if colour_by_setting else r.variant.removesuffix("+ceiling")
 
     kinds = sorted({kind(r) for r, _ in curves})
+    palette = [f"C{i}" for i in range(10)] if len(kinds) <= 10 else list(plt.get_cmap("tab20").colors)
     for col, (key, trivial, pseudo, label) in enumerate(CURVE_PANELS):
         for row, x in enumerate(("images", "minutes")):
             ax = axes[row][col]
@@ -1907,7 +1908,7 @@ def plot_learning_curves(runs: list[Run], path: Path, title: str = "", colour_by
                 name = curve_label(r)
                 ax.plot(
                     *zip(*pts),
-                    color=f"C{kinds.index(kind(r)) % 10}",
+                    color=palette[kinds.index(kind(r)) % len(palette)],  # one colour each, up to 20
                     ls="-." if r.ceiling else "-",
                     lw=2.0 if trained_on_gpu(r) else 1.0,
                     label=None if name in seen else name,
@@ -1940,7 +1941,7 @@ def plot_learning_curves(runs: list[Run], path: Path, title: str = "", colour_by
         fig.suptitle(title, fontsize=9)
     fig.tight_layout(rect=(0, (0.2 * rows + 0.1) / (6.4 + 0.2 * rows), 1, 1))
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight")  # a legend wider than the panels (long settings) is not clipped
     plt.close(fig)
     return True
 
