@@ -1337,9 +1337,13 @@ def claim_skin(rep: Report, runs: list[Run]) -> None:
         + " |"
         for (where, model), rs in sorted(groups.items())
     ]
-    truth = next((r.eval for rs in groups.values() for r in rs), {})  # one test split: the same for every run
-    true_ceiling = next(
-        (v for rs in groups.values() for r in rs if (v := r.value("true_albedo_ceiling_share")) is not None), None
+
+    def truth(key):  # one test split, so the truth's value is the same in every run that has the key
+        return next((v for rs in groups.values() for r in rs if (v := r.value(key)) is not None), None)
+
+    tone, brightness, true_ceiling = (
+        truth(f"true_{key}")
+        for key in ("shading_albedo_tone_corr", "shading_albedo_brightness_corr", "albedo_ceiling_share")
     )
     if not (rows := rep.rows_kept(head[0], rows, key=2)):
         rep.note(
@@ -1353,9 +1357,8 @@ def claim_skin(rep: Report, runs: list[Run]) -> None:
         "correlate, over the test faces, the mean colour (chromaticity) and the mean brightness of the model's "
         "shading on each face with the true albedo's: 0 where the shading carries only the light"
         + (
-            f" (the true shading: {truth['true_shading_albedo_tone_corr']:.2f} and "
-            f"{truth['true_shading_albedo_brightness_corr']:.2f})"
-            if "true_shading_albedo_tone_corr" in truth
+            f" (the true shading: {tone:.2f} and {brightness:.2f})"
+            if tone is not None and brightness is not None
             else ""
         )
         + ", towards 1 where it carries the skin. The si-MSEs with one scale shared by R, G and B forgive a face's "

@@ -581,7 +581,11 @@ def test_skin_table_keeps_settings_apart_and_quotes_the_truth(tmp_path):
     """Where each face's skin goes: one row per setting and model (the gray L-hat target is its own setting), mean
     and spread over seeds, each floor beside its si-MSE and the true shading's correlations in the caption; runs
     scored before the metrics existed are left out."""
-    truth = {"true_shading_albedo_tone_corr": -0.02, "true_shading_albedo_brightness_corr": 0.08}
+    truth = {
+        "true_shading_albedo_tone_corr": -0.02,
+        "true_shading_albedo_brightness_corr": 0.08,
+        "true_albedo_ceiling_share": 0.0012,
+    }
     floors = {"trivial_albedo_colour_si_mse": 0.013, "trivial_shading_colour_si_mse": 0.021}
 
     def skin(tone):
@@ -603,6 +607,7 @@ def test_skin_table_keeps_settings_apart_and_quotes_the_truth(tmp_path):
     )
     assert "| 0.1 ± 0 (n=2) |" in rows["`loss.lhat_gray=true`"]
     assert "(the true shading: -0.02 and 0.08)" in "\n".join(rep.lines)
+    assert "(the true albedo's: 0.001)" in "\n".join(rep.lines)
     rep = report.Report(tmp_path / "none", "")
     report.claim_skin(rep, [r for r in find_runs([tmp_path]) if r.path.name == "old"])
     assert "no run scored for where the skin goes" in "\n".join(rep.lines)
