@@ -35,6 +35,7 @@ from disent.runs import (
     Run,
     find_runs,
     group_by_setting,
+    joins,
     machine_text,
     pick_runs,
     publish,
@@ -1241,6 +1242,9 @@ def claim_ablations(rep: Report, runs: list[Run]) -> None:
     for r in done:
         if r.plain and not is_recipe_run(r):
             full.setdefault(setting(r), []).append(r)
+    for (where, ablation), rs in list(ablated.items()):  # and against each full model it trains as (no c without BWS)
+        for label in full:
+            ablated.setdefault((label, ablation), []).extend(r for r in rs if joins(r, where, label))
     head = table_head(
         "setting",
         "ablation",

@@ -722,24 +722,26 @@ def idle_keys(run: Run) -> frozenset:
     return run.idle
 
 
+def joins(run: Run, mine: str, label: str) -> bool:
+    """Whether ``run``, of setting ``mine``, trains as the runs of setting ``label`` do: the two differ only in
+    settings ``run`` has no use for (:func:`idle_keys`: the baseline has no rendering terms, a run without BWS or
+    the whitened L-hat no c), so it trained the same under any value of them."""
+    idle = idle_keys(run)
+    kept = [o for o in label.split() if o != "(defaults)" and o.lstrip("+~").split("=", 1)[0] not in idle]
+    return label != mine and bool(idle) and (" ".join(kept) or "(defaults)") == mine
+
+
 def group_by_setting(runs, drop: tuple = ()) -> dict[str, list]:
-    """``{setting apart from the model (and drop): runs}``.  A run whose model ignores settings that another
-    model's runs were trained under (the baseline has no rendering terms, :func:`idle_keys`) trains the same
-    under any value of them, so it joins each group of other models' runs whose setting differs from its own only
-    there; a group left holding only runs that joined others (the baseline's own) is dropped."""
+    """``{setting apart from the model (and drop): runs}``.  A run joins each group of other models' runs that it
+    :func:`joins`; a group left holding only runs that joined others (the baseline's own) is dropped."""
     groups: dict[str, list] = {}
     for r in runs:
         groups.setdefault(setting(r, drop_model=True, drop=drop), []).append(r)
-
-    def without(label: str, idle) -> str:
-        kept = [o for o in label.split() if o != "(defaults)" and o.lstrip("+~").split("=", 1)[0] not in idle]
-        return " ".join(kept) or "(defaults)"
-
     joined, models = set(), {label: {r.model for r in rs} for label, rs in groups.items()}
     for r in runs:
-        idle, mine = idle_keys(r), setting(r, drop_model=True, drop=drop)
+        mine = setting(r, drop_model=True, drop=drop)
         for label, rs in groups.items():
-            if idle and label != mine and without(label, idle) == mine and r.model not in models[label]:
+            if r.model not in models[label] and joins(r, mine, label):
                 rs.append(r)
                 joined.add(id(r))
     return {label: rs for label, rs in groups.items() if not all(id(r) in joined for r in rs)}

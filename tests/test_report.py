@@ -577,6 +577,26 @@ def test_ablation_claims_pair_each_ablation_with_the_full_model_and_gate_on_the_
     assert "no finished ablation runs" in "\n".join(rep.lines)
 
 
+def test_an_ablation_stands_against_every_full_model_it_trains_as(tmp_path):
+    """``+ablation=no_bws`` uses neither BWS nor the whitened L-hat, so c is idle for it: its runs stand against the
+    full model at c = 0.3 as well as at the default c, and not against a full model that differs from them in a
+    setting they use (the smoothness weight)."""
+    good = {"normal_mean": 12.0, "recon_face_psnr": 26.5, "albedo_si_mse": 0.005, "trivial_albedo_si_mse": 0.0127}
+    for seed in range(3):
+        make_run(tmp_path, f"full{seed}", seed=seed, eval_={**good, "shading_cast": 0.125})
+        make_run(tmp_path, f"c{seed}", seed=seed, eval_={**good, "shading_cast": 0.25}, extra=("loss.bws_c=0.3",))
+        make_run(tmp_path, f"tv{seed}", seed=seed, eval_=good, extra=("loss.weights.smooth_A=0.5",))
+        make_run(
+            tmp_path, f"nobws{seed}", ablations=["no_bws"], seed=seed, eval_={**good, "shading_cast": 0.5}
+        )  # exact in binary
+    rep = report.Report(tmp_path, "")
+    report.claim_ablations(rep, find_runs([tmp_path]))
+    rows = {line.split("|")[1].strip(): line for line in rep.lines if "| shading cast |" in line}
+    assert set(rows) == {"`model=explicit`", "`loss.bws_c=0.3 model=explicit`"}, rows
+    assert "| 0.25 ± 0 (n=3) | 0.5 ± 0 (n=3) | **confirmed** |" in rows["`loss.bws_c=0.3 model=explicit`"]
+    assert "| 0.125 ± 0 (n=3) | 0.5 ± 0 (n=3) | **confirmed** |" in rows["`model=explicit`"]
+
+
 def test_skin_table_keeps_settings_apart_and_quotes_the_truth(tmp_path):
     """Where each face's skin goes: one row per setting and model (the gray L-hat target is its own setting), mean
     and spread over seeds, each floor beside its si-MSE and the true shading's correlations in the caption; runs
