@@ -351,6 +351,29 @@ def test_bench_section_puts_gpu_figures_beside_the_cpu_ones(tmp_path):
     assert "figures/bench_fractions.png" in cpu and "figures/bench-cuda_fractions.png" in gpu
 
 
+def test_known_albedo_reading_quotes_the_best_known_albedo_row_on_pseudo_geometry():
+    """The lighting verdict says what the pseudo geometry allows with the true albedo: the known-albedo row on
+    pseudo normals best on val, read on val and test, and whether that is under the target."""
+
+    def row(accuracy):
+        return {"evidence": {"accuracy": accuracy}}
+
+    order = {
+        "val/known/normal_pseudo": row(0.68),
+        "test/known/normal_pseudo": row(0.73),
+        "val/known/normal_pseudo+geometry_noise": row(0.82),
+        "test/known/normal_pseudo+geometry_noise": row(0.88),
+        "val/known/normal": row(1.0),
+        "test/known/normal": row(1.0),
+    }
+    text = report.known_albedo_reading(order)
+    assert "`known/normal_pseudo+geometry_noise`) the choice reaches 0.82 on val and 0.88 on test" in text, text
+    assert text.endswith("not expected to bring it to the target on both splits.")
+    both = {k: row(0.9) if "geometry_noise" in k else v for k, v in order.items()}
+    assert report.known_albedo_reading(both).endswith("is enough.")
+    assert report.known_albedo_reading({"val/texture/normal_pseudo": row(0.7)}) == ""
+
+
 def test_band2_reading_sets_each_geometry_beside_the_true_order2_lights():
     from disent import report
 
