@@ -1242,7 +1242,9 @@ def claim_ablations(rep: Report, runs: list[Run]) -> None:
     for r in done:
         if r.plain and not is_recipe_run(r):
             full.setdefault(setting(r), []).append(r)
-    for (where, ablation), rs in list(ablated.items()):  # and against each full model it trains as (no c without BWS)
+    # an ablated run also stands against each full model whose setting differs from its own only in settings it
+    # leaves idle (:func:`joins`: without BWS and the whitened L-hat, c does nothing)
+    for (where, ablation), rs in list(ablated.items()):
         for label in full:
             ablated.setdefault((label, ablation), []).extend(r for r in rs if joins(r, where, label))
     head = table_head(
