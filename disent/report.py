@@ -268,12 +268,13 @@ def _test_batch(n: int, resolution: int = 64):
     return next(iter(batches(SynthFaces(split="test", resolution=resolution, seed=0), n, n)))
 
 
-def _models(chosen: dict[str, Run]) -> dict:
+def _models(chosen: dict) -> dict:
+    """``{name: model}`` of ``{name: run or shipped name}`` (:func:`disent.models.load_run`)."""
     from disent.models import load_run
 
     out = {}
     for name, r in chosen.items():
-        model, _ = load_run(r.path)
+        model, _ = load_run(r.path if isinstance(r, Run) else r)
         out[name] = model.eval()
     return out
 
@@ -1382,6 +1383,59 @@ def claim_skin(rep: Report, runs: list[Run]) -> None:
         *rows,
         "",
     )
+    plot_skin_albedos(rep, groups)
+
+
+SKIN_FACES = 6  # test faces in the albedo-by-setting figure
+
+
+def plot_skin_albedos(rep: Report, groups: dict) -> None:
+    """The albedo of one explicit run per setting of the skin table (:func:`pick_runs`; the shipped model for a
+    setting whose runs left no checkpoint but include the shipped one) on the same test faces, beside the input and
+    the true albedo, each where its matte is above 0.5: how BWS and its c set the albedo's brightness and where it
+    is pinned at 1.  Drawn where two settings or more have a model."""
+    import textwrap
+
+    from disent.eval.evaluate import predict
+    from disent.models.shipped import manifest
+
+    shipped_run = str(manifest().get("explicit", {}).get("run", ""))
+    sources = {}
+    for (where, model), rs in sorted(groups.items()):
+        if model != "explicit":
+            continue
+        if picked := pick_runs(rs, {r.variant for r in rs}):
+            sources[where] = next(iter(picked.values()))
+        elif shipped_run and any(str(r.origin) == shipped_run for r in rs):
+            sources[where] = "explicit"  # the shipped weights
+    if len(sources) < 2:
+        return
+    try:
+        models, batch = _models(sources), _test_batch(SKIN_FACES)
+    except (ImportError, FileNotFoundError) as e:
+        rep.note(f"cannot render the albedo by setting from checkpoints ({e}).")
+        return
+    columns = [("input", batch["image"]), ("true albedo", batch["albedo"] * (batch["matte"] > 0.5))]
+    for where, model in models.items():
+        out = predict(model, batch["image"])
+        shipped = " (shipped weights)" if isinstance(sources[where], str) else f" ({sources[where].path.name})"
+        columns.append((where + shipped, out["albedo"] * (out["matte"] > 0.5)))
+    plt = _plt()
+    fig, axes = plt.subplots(SKIN_FACES, len(columns), figsize=(1.15 * len(columns), 1.15 * SKIN_FACES + 0.9))
+    for j, (name, t) in enumerate(columns):
+        axes[0, j].set_title(textwrap.fill(name, 22), fontsize=5)
+        for i in range(SKIN_FACES):
+            axes[i, j].imshow(to_array(t[i]), interpolation="nearest")
+            axes[i, j].set_xticks([]), axes[i, j].set_yticks([])
+    fig.tight_layout()
+    path = rep.fig / "skin_albedo.png"
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+    rep.add(
+        "The albedo of one run per setting (explicit; the run's folder in parentheses) on the first "
+        f"{SKIN_FACES} test faces, where its own matte is above 0.5, beside the true albedo:\n"
+    )
+    rep.image(path, "albedo by setting")
 
 
 def sec_ablation(rep: Report, runs: list[Run]) -> None:

@@ -656,6 +656,45 @@ def test_skin_table_keeps_settings_apart_and_quotes_the_truth(tmp_path):
     assert "no run scored for where the skin goes" in "\n".join(rep.lines)
 
 
+def test_skin_albedos_set_one_model_per_setting_beside_the_truth(tmp_path, monkeypatch):
+    """The skin table's figure: one checkpointed explicit run per setting (the longest trained), each model's albedo
+    on the same test faces; a single setting draws nothing (there is nothing to set it beside)."""
+    import torch
+
+    skin = {"shading_albedo_tone_corr": 0.5, "shading_albedo_brightness_corr": 0.5, "steps": 10}
+    for name, extra in (("paper", ()), ("low_c", ("loss.bws_c=0.3",)), ("nockpt", ("loss.bws_c=0.5",))):
+        d = make_run(tmp_path / "runs", name, eval_=skin, extra=extra)
+        (d / "status.json").write_text('{"status": "ok"}')
+        if name != "nockpt":
+            (d / "checkpoints").mkdir()
+            (d / "checkpoints" / "last.pt").write_bytes(b"")
+
+    class Constant(torch.nn.Module):  # an albedo of one grey level, its matte everywhere
+        def __init__(self, level):
+            super().__init__()
+            self.level = level
+
+        def forward(self, image):
+            return {"albedo": torch.full_like(image, self.level), "matte": torch.ones_like(image[:, :1])}
+
+    loaded = []
+
+    def models(chosen):
+        loaded.append({k: v.path.name for k, v in chosen.items()})
+        return {k: Constant(0.2 + 0.1 * i) for i, k in enumerate(chosen)}
+
+    monkeypatch.setattr(report, "_models", models)
+    runs = find_runs([tmp_path / "runs"])
+    rep = report.Report(tmp_path / "out", "")
+    report.claim_skin(rep, runs)
+    assert loaded == [{"(defaults)": "paper", "loss.bws_c=0.3": "low_c"}]  # the setting without a checkpoint: none
+    assert any("![albedo by setting](figures/skin_albedo.png)" in line for line in rep.lines)
+    assert (tmp_path / "out" / "figures" / "skin_albedo.png").stat().st_size > 0
+    rep = report.Report(tmp_path / "one", "")
+    report.claim_skin(rep, [r for r in runs if r.path.name != "low_c"])
+    assert len(loaded) == 1 and not any("albedo by setting" in line for line in rep.lines)
+
+
 def test_ablation_runs_whose_normals_collapsed_flat_are_named(tmp_path):
     good = {"normal_mean": 12.0, "recon_face_psnr": 26.5, "albedo_si_mse": 0.005, "trivial_albedo_si_mse": 0.0127}
     spread = {"normal_spread": 37.0, "true_normal_spread": 39.0}
