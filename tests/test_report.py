@@ -693,6 +693,12 @@ def test_skin_albedos_set_one_model_per_setting_beside_the_truth(tmp_path, monke
     rep = report.Report(tmp_path / "one", "")
     report.claim_skin(rep, [r for r in runs if r.path.name != "low_c"])
     assert len(loaded) == 1 and not any("albedo by setting" in line for line in rep.lines)
+    published = "\n".join(["# disent report", "", "## claims", "", "![albedo by setting](figures/skin_albedo.png)", ""])
+    rep = report.Report(tmp_path / "out", published)  # a figure already published stays, with a note
+    rep.title = "claims"
+    report.claim_skin(rep, [r for r in runs if r.path.name != "low_c"])
+    assert len(loaded) == 1 and "![albedo by setting](figures/skin_albedo.png)\n" in rep.lines
+    assert any("kept from an earlier build" in line for line in rep.lines)
 
 
 def test_ablation_runs_whose_normals_collapsed_flat_are_named(tmp_path):
