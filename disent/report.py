@@ -1247,7 +1247,8 @@ def claim_ablations(rep: Report, runs: list[Run]) -> None:
     # leaves idle (:func:`joins`: without BWS and the whitened L-hat, c does nothing)
     for (where, ablation), rs in list(ablated.items()):
         for label in full:
-            ablated.setdefault((label, ablation), []).extend(r for r in rs if joins(r, where, label))
+            if joined := [r for r in rs if joins(r, where, label)]:
+                ablated.setdefault((label, ablation), []).extend(joined)
     head = table_head(
         "setting",
         "ablation",
