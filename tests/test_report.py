@@ -10,6 +10,7 @@ import yaml
 from disent import report
 from disent.eval.ablation import ablation_table, to_markdown
 from disent.eval.stability import training_stability
+from disent.report import ablations, benchmarks, claims, document, lighting, tables, tools, training
 from disent.runs import Run, composed_config, find_runs, group_by_setting, pick_runs, record_run
 
 
@@ -105,16 +106,16 @@ def test_missing_inputs_never_erase_published_sections(tmp_path):
     fake_suite(tmp_path / "runs")
     out = tmp_path / "reports"
     first = report.build(out, roots=[tmp_path / "runs"], n_vis=2).read_text()
-    runs_before = report.published_sections(first)["Runs"]
+    runs_before = document.published_sections(first)["Runs"]
     assert any("explicit+no_bws" in line for line in runs_before)
     (tmp_path / "empty").mkdir()
     shutil.rmtree(out / "runs")  # no records of the runs either (test_records_outlive_the_run_folders)
     second = report.build(out, roots=[tmp_path / "empty"], n_vis=2).read_text()
-    runs_after = report.published_sections(second)["Runs"]
+    runs_after = document.published_sections(second)["Runs"]
     assert runs_after[0].startswith("> **Kept:** as published before") and "no run folders" in runs_after[0]
     assert runs_after[1:] == runs_before  # the published table, unchanged
     third = report.build(out, roots=[tmp_path / "empty"], n_vis=2).read_text()
-    assert report.published_sections(third)["Runs"] == runs_after  # kept again, not nested
+    assert document.published_sections(third)["Runs"] == runs_after  # kept again, not nested
     with pytest.raises(SystemExit):
         report.main(["--out", str(out), "--roots", str(tmp_path / "nonexistent")])
     assert (out / "README.md").read_text() == third
@@ -133,7 +134,7 @@ def test_teaser_needs_the_three_ladder_models_or_keeps_the_published_one(tmp_pat
         (d / "checkpoints" / "last.pt").write_bytes(b"")
         (d / "status.json").write_text('{"status": "ok"}')
     loaded = []
-    monkeypatch.setattr(report, "_models", lambda chosen: loaded.append(chosen) or {})
+    monkeypatch.setattr(training, "chosen_models", lambda chosen: loaded.append(chosen) or {})
     rep = report.Report(out, published)
     rep.section(title, report.sec_teaser, find_runs([tmp_path / "runs"]), 2)
     assert loaded == []  # no partial teaser drawn
@@ -159,7 +160,7 @@ def test_records_outlive_the_run_folders(tmp_path):
     (tmp_path / "empty").mkdir()
     second = report.build(out, roots=[tmp_path / "empty"], n_vis=2).read_text()
     rows_before, rows_after = (
-        {line for block in report.published_sections(md)["Runs"] for line in block.splitlines() if line[:3] == "| `"}
+        {line for block in document.published_sections(md)["Runs"] for line in block.splitlines() if line[:3] == "| `"}
         for md in (first, second)
     )
     running = {line for line in rows_before if line.startswith(f"| `{(tmp_path / 'runs' / '6').resolve()}`")}
@@ -176,10 +177,10 @@ def test_records_outlive_the_run_folders(tmp_path):
 def test_sections_builds_only_the_named_sections(tmp_path):
     fake_suite(tmp_path / "runs")
     out = tmp_path / "reports"
-    first = report.published_sections(report.build(out, roots=[tmp_path / "runs"], n_vis=2).read_text())
+    first = document.published_sections(report.build(out, roots=[tmp_path / "runs"], n_vis=2).read_text())
     make_run(tmp_path / "runs", "7", "baseline", seed=1, eval_={"recon_mse": 0.02})
     md = report.build(out, roots=[tmp_path / "runs"], n_vis=2, sections=["claims"]).read_text()
-    second = report.published_sections(md)
+    second = document.published_sections(md)
     assert (
         second["Runs"][0].startswith("> **Kept:** as published before; not rebuilt")
         and second["Runs"][1:] == (first["Runs"])
@@ -366,27 +367,26 @@ def test_known_albedo_reading_quotes_the_best_known_albedo_row_on_pseudo_geometr
         "val/known/normal": row(1.0),
         "test/known/normal": row(1.0),
     }
-    text = report.known_albedo_reading(order)
+    text = lighting.known_albedo_reading(order)
     assert "`known/normal_pseudo+geometry_noise`) the choice reaches 0.82 on val and 0.88 on test" in text, text
     assert text.endswith("not expected to bring it to the target on both splits.")
     both = {k: row(0.9) if "geometry_noise" in k else v for k, v in order.items()}
-    assert report.known_albedo_reading(both).endswith("is enough.")
-    assert report.known_albedo_reading({"val/texture/normal_pseudo": row(0.7)}) == ""
+    assert lighting.known_albedo_reading(both).endswith("is enough.")
+    assert lighting.known_albedo_reading({"val/texture/normal_pseudo": row(0.7)}) == ""
 
 
 def test_band2_reading_sets_each_geometry_beside_the_true_order2_lights():
-    from disent import report
 
     def row(order1):
         return {"band2_share": {"fitted_by_true_order": [0.0, order1, 0.6], "true_order2": 0.56}}
 
     order = {"test/texture/normal": row(0.01), "test/known/normal_pseudo": row(0.44), "test/texture/x": row(0.71)}
-    text = report.band2_reading(order, "texture/x")
+    text = lighting.band2_reading(order, "texture/x")
     assert (
         "0.01 on true normals (texture model), 0.44 on pseudo normals with the known albedo, 0.71 on the chosen" in text
     )
     assert "a true order-2 light holds 0.56." in text
-    assert report.band2_reading({**order, "test/texture/x": {}}, "texture/x") == ""  # a study from before band 2
+    assert lighting.band2_reading({**order, "test/texture/x": {}}, "texture/x") == ""  # a study from before band 2
 
 
 def test_lighting_section_is_generated_from_the_published_json(tmp_path):
@@ -433,9 +433,9 @@ def test_lighting_section_is_generated_from_the_published_json(tmp_path):
         assert "rho 300, ell 1 px from 18 train scenes on pseudo normals + mask" in text
         # the residual process is best on val (0.55 > 0.47): its test figure decides, not the best test row (0.95)
         assert "(`texture/normal_pseudo+residual_process`, val 0.55)" in text
-        lo, hi = report.wilson_interval(acc, 60)
+        lo, hi = lighting.wilson_interval(acc, 60)
         assert f"on test: {acc:.2f} (95 % interval {lo:.2f}-{hi:.2f} over its 60 scenes)" in text
-        assert f"against the target {report.ORDER_TARGET:.2f}: **{verdict}**." in text
+        assert f"against the target {lighting.ORDER_TARGET:.2f}: **{verdict}**." in text
         assert "| lambertian / gaussian | 0.67 / 0.94 (1.0) | – |" in text and "settings" not in text
         # an oracle row (val 0.68, above every noise model) is a diagnosis, never the chosen method
         assert "| val | texture | pseudo normals + mask eroded 1 px, true uv (oracle) |" in text
@@ -447,7 +447,7 @@ def test_lighting_section_is_generated_from_the_published_json(tmp_path):
         )
     rep = report.Report(tmp_path / "empty")
     report.sec_lighting(rep, tmp_path / "empty")
-    assert rep.lines[0].startswith(report.MISSING)
+    assert rep.lines[0].startswith(document.MISSING)
 
 
 def test_beyond_the_fit_reads_each_bin_against_the_seed_spread():
@@ -464,21 +464,21 @@ def test_beyond_the_fit_reads_each_bin_against_the_seed_spread():
         return SimpleNamespace(value=values.get)
 
     runs = [run([5, 10.2, 15, 20]), run([5, 9.8, 15, 21])]  # loses, ties, loses... beats, beats
-    lines = report.beyond_the_fit({("long", "explicit"): runs, ("long", "baseline"): runs})
+    lines = claims.beyond_the_fit({("long", "explicit"): runs, ("long", "baseline"): runs})
     assert sum(line.startswith("| `long`") for line in lines) == 1  # no row for a model without normals
     beaten, lost = ", ".join(b.replace("_", "-") for b in bins[2:]), bins[0].replace("_", "-")
     assert lines[-1] == (
         f"- `long`: the network beats the pseudo-GT where that errs by {beaten} deg; it loses to the pseudo-GT where "
         f"that errs by {lost} deg."
     )
-    assert report.beyond_the_fit({("long", "explicit"): [SimpleNamespace(value=lambda k: None)]}) == []
+    assert claims.beyond_the_fit({("long", "explicit"): [SimpleNamespace(value=lambda k: None)]}) == []
 
 
 def test_claim_verdicts_need_seeds_and_a_difference_beyond_the_spread():
-    from disent.report import MIN_SEEDS, verdict
+    from disent.report.tables import MIN_SEEDS, verdict
 
     n = MIN_SEEDS
-    arm = lambda mean, std, k=n: {"mean": mean, "std": std, "n": k}  # noqa: E731  (what report._spread returns)
+    arm = lambda mean, std, k=n: {"mean": mean, "std": std, "n": k}  # noqa: E731  (what tables.seed_spread returns)
     assert verdict(arm(10.0, 0.2), arm(11.5, 0.0), "lower") == "**confirmed**"
     assert verdict(arm(12.0, 0.2), arm(11.5, 0.0), "lower") == "**refuted**"
     assert verdict(arm(11.4, 0.3), arm(11.5, 0.0), "lower").startswith("not resolved")
@@ -504,7 +504,7 @@ def test_ablation_section_keeps_runs_of_other_settings_apart(tmp_path):
 
 
 def test_budget_check_names_each_missed_target(tmp_path):
-    from disent.report import budget_check
+    from disent.report.ablations import budget_check
 
     good = {"normal_mean": 12.0, "recon_face_psnr": 26.5, "albedo_si_mse": 0.005, "trivial_albedo_si_mse": 0.0127}
     run = find_runs([make_run(tmp_path, "a", eval_=good).parent])[0]
@@ -584,7 +584,7 @@ def test_ablation_claims_pair_each_ablation_with_the_full_model_and_gate_on_the_
         )
     runs = find_runs([tmp_path])
     rep = report.Report(tmp_path, "")
-    report.claim_ablations(rep, runs)
+    ablations.claim_ablations(rep, runs)
     row = next(line for line in rep.lines if "| no_pseudo_normal |" in line)
     assert "| 12.1 ± 0.1 (n=3) | 15 ± 0 (n=3) | **confirmed** | **confirmed** |" in row, row
     assert sum("| no_pseudo_normal |" in line for line in rep.lines) == 1  # one claim on this ablation's metric
@@ -592,11 +592,11 @@ def test_ablation_claims_pair_each_ablation_with_the_full_model_and_gate_on_the_
         if r.path.name.startswith("full"):
             r.eval["normal_mean"] += 1.0
     rep = report.Report(tmp_path, "")
-    report.claim_ablations(rep, runs)
+    ablations.claim_ablations(rep, runs)
     row = next(line for line in rep.lines if "| no_pseudo_normal |" in line)
     assert row.endswith("| **confirmed** | not testable (targets missed: 1 of 3) |"), row
     rep = report.Report(tmp_path, "")
-    report.claim_ablations(rep, [r for r in runs if r.path.name.startswith("full")])
+    ablations.claim_ablations(rep, [r for r in runs if r.path.name.startswith("full")])
     assert "no finished ablation runs" in "\n".join(rep.lines)
 
 
@@ -611,7 +611,7 @@ def test_an_ablation_stands_against_every_full_model_it_trains_as(tmp_path):
         make_run(tmp_path, f"tv{seed}", seed=seed, eval_=good, extra=("loss.weights.smooth_A=0.5",))
         make_run(tmp_path, f"nobws{seed}", ablations=["no_bws"], seed=seed, eval_={**good, "shading_cast": 0.5})
     rep = report.Report(tmp_path, "")
-    report.claim_ablations(rep, find_runs([tmp_path]))
+    ablations.claim_ablations(rep, find_runs([tmp_path]))
     rows = {line.split("|")[1].strip(): line for line in rep.lines if "| shading cast |" in line}
     assert set(rows) == {"`model=explicit`", "`loss.bws_c=0.3 model=explicit`"}, rows
     assert "| 0.25 ± 0 (n=3) | 0.5 ± 0 (n=3) | **confirmed** |" in rows["`loss.bws_c=0.3 model=explicit`"]
@@ -640,7 +640,7 @@ def test_skin_table_keeps_settings_apart_and_quotes_the_truth(tmp_path):
         )
     make_run(tmp_path, "old", seed=2, eval_={"normal_mean": 12.0}, extra=("loss.lhat_gray=true",))
     rep = report.Report(tmp_path, "")
-    report.claim_skin(rep, find_runs([tmp_path]))
+    ablations.claim_skin(rep, find_runs([tmp_path]))
     rows = {line.split("|")[1].strip(): line for line in rep.lines if line.startswith("| `")}
     assert set(rows) == {"`(defaults)`", "`loss.lhat_gray=true`"}, rows
     assert (
@@ -650,7 +650,7 @@ def test_skin_table_keeps_settings_apart_and_quotes_the_truth(tmp_path):
     assert "(the true shading: -0.02 and 0.08)" in "\n".join(rep.lines)
     assert "(the true albedo's: 0.001)" in "\n".join(rep.lines)
     rep = report.Report(tmp_path / "none", "")
-    report.claim_skin(rep, [r for r in find_runs([tmp_path]) if r.path.name == "old"])
+    ablations.claim_skin(rep, [r for r in find_runs([tmp_path]) if r.path.name == "old"])
     assert "no run scored for where the skin goes" in "\n".join(rep.lines)
 
 
@@ -681,20 +681,20 @@ def test_skin_albedos_set_one_model_per_setting_beside_the_truth(tmp_path, monke
         loaded.append({k: v.path.name for k, v in chosen.items()})
         return {k: Constant(0.2 + 0.1 * i) for i, k in enumerate(chosen)}
 
-    monkeypatch.setattr(report, "_models", models)
+    monkeypatch.setattr(ablations, "chosen_models", models)
     runs = find_runs([tmp_path / "runs"])
     rep = report.Report(tmp_path / "out", "")
-    report.claim_skin(rep, runs)
+    ablations.claim_skin(rep, runs)
     assert loaded == [{"(defaults)": "paper", "loss.bws_c=0.3": "low_c"}]  # the setting without a checkpoint: none
     assert any("![albedo by setting](figures/skin_albedo.png)" in line for line in rep.lines)
     assert (tmp_path / "out" / "figures" / "skin_albedo.png").stat().st_size > 0
     rep = report.Report(tmp_path / "one", "")
-    report.claim_skin(rep, [r for r in runs if r.path.name != "low_c"])
+    ablations.claim_skin(rep, [r for r in runs if r.path.name != "low_c"])
     assert len(loaded) == 1 and not any("albedo by setting" in line for line in rep.lines)
     published = "\n".join(["# disent report", "", "## claims", "", "![albedo by setting](figures/skin_albedo.png)", ""])
     rep = report.Report(tmp_path / "out", published)  # a figure already published stays, with a note
     rep.title = "claims"
-    report.claim_skin(rep, [r for r in runs if r.path.name != "low_c"])
+    ablations.claim_skin(rep, [r for r in runs if r.path.name != "low_c"])
     assert len(loaded) == 1 and "![albedo by setting](figures/skin_albedo.png)\n" in rep.lines
     assert any("kept from an earlier build" in line for line in rep.lines)
 
@@ -708,7 +708,7 @@ def test_ablation_runs_whose_normals_collapsed_flat_are_named(tmp_path):
     make_run(tmp_path, "flat", ablations=["no_pseudo_normal"], seed=1, eval_=flat)
     make_run(tmp_path, "old", ablations=["no_bws"], eval_=good)  # evaluated before the spread was measured
     rep = report.Report(tmp_path, "")
-    report.claim_ablations(rep, find_runs([tmp_path]))
+    ablations.claim_ablations(rep, find_runs([tmp_path]))
     listed = [line for line in rep.lines if line.startswith("- `")]
     assert len(listed) == 1 and "flat`" in listed[0] and "spread 1.5 deg against 39.0" in listed[0], listed
 
@@ -730,7 +730,7 @@ def test_ood_table_reports_where_each_estimator_breaks(tmp_path):
         },
     }
     rep = report.Report(tmp_path)
-    report._stability_ood(rep, res)
+    tools._stability_ood(rep, res)
     rows = [line for line in rep.lines if line.startswith("| yaw |")]
     assert rows == [
         "| yaw | explicit | 10 -> 16 | 1 | 0.6 -> 0.7 | – |",  # 16 > 1.5 x 10 only at severity 1
@@ -753,7 +753,7 @@ def test_bws_table_says_where_the_skin_went_and_keeps_older_studies_readable(tmp
     old = {k: v for k, v in base.items() if not k.startswith(("true_", "normal", "trivial"))}
     old |= {"batch_size": 25, "seed": 0}
     rep = report.Report(tmp_path)
-    report._stability_bws(rep, {"rows": rows + [old], "n": 8})
+    tools._stability_bws(rep, {"rows": rows + [old], "n": 8})
     text = "\n".join(rep.lines)
     assert "(the true shading: -0.04 and 0.06)" in text and "(the dataset-mean normal map: 17.07 deg)" in text
     assert (
@@ -947,10 +947,10 @@ def test_captions_name_the_machines_the_runs_trained_on(tmp_path):
     info = {"processor": "x86_64", "cpus": 2, "torch": "2.13.0+cpu", "device": "cpu", "threads": 1}
     (a / "machine.json").write_text(json.dumps(info))
     runs = find_runs([tmp_path])
-    assert report.machines(runs) == (
+    assert tables.machines(runs) == (
         "x86_64, 2 CPUs, torch 2.13.0+cpu, device cpu, 1 thread(s) (1 run(s) from before machines were recorded)"
     )
-    assert report.machines([r for r in runs if r.path == b]) == "not recorded"
+    assert tables.machines([r for r in runs if r.path == b]) == "not recorded"
 
 
 def test_setting_is_what_one_types_today_to_train_the_run_again(tmp_path):
@@ -980,9 +980,9 @@ def test_setting_is_what_one_types_today_to_train_the_run_again(tmp_path):
     assert setting(runs["c"], drop_model=True, drop=("ablation=",)) == "+experiment=smoke"
     # a tool's record of a run (edit.json, sh_variance.json) is read with the setting of today's conf/
     stale = {"run": str(b), "setting": "(defaults)"}
-    assert report.measured_setting(stale) == setting(runs["b"], drop_model=True) != "(defaults)"
-    assert report.measured_setting({"run": str(tmp_path / "gone"), "setting": "(defaults)"}) is None  # stale
-    assert report.measured_setting({"run": "explicit", "setting": "shipped"}) == "shipped"
+    assert tables.measured_setting(stale) == setting(runs["b"], drop_model=True) != "(defaults)"
+    assert tables.measured_setting({"run": str(tmp_path / "gone"), "setting": "(defaults)"}) is None  # stale
+    assert tables.measured_setting({"run": "explicit", "setting": "shipped"}) == "shipped"
 
 
 def test_bws_c_is_not_part_of_a_run_that_neither_uses_bws_nor_whitens_lhat(tmp_path):
@@ -1034,7 +1034,7 @@ def test_time_to_accuracy_is_read_out_in_the_bench_section():
         "best_normal_mean": 12.48,
         "best_minutes": 9.33,
     }
-    text = report.time_to_accuracy_text(tta)
+    text = benchmarks.time_to_accuracy_text(tta)
     assert "mean map after **1.1 training minutes** (step 150, 3,750 images; 17.20 against 17.50" in text
     assert "the pseudo-GT never (its 11.46 deg)" in text and "best 12.48 deg after 9.3 minutes" in text
 
@@ -1053,12 +1053,12 @@ def test_rows_of_runs_that_left_no_record_are_kept_marked(tmp_path):
     for folder in (tmp_path / "runs" / "3", out / "runs" / "runs-3", tmp_path / "other", out / "runs" / "other-7"):
         shutil.rmtree(folder)
     second = report.build(out, roots=[tmp_path / "runs"], n_vis=2).read_text()
-    runs = "\n".join(report.published_sections(second)["Runs"])
+    runs = "\n".join(document.published_sections(second)["Runs"])
     assert f"| `{gone}` ‡ | explicit+no_bws |" in runs and "_‡: as an earlier build published it" in runs
-    ablation = "\n".join(report.published_sections(second)["Ablations"])
+    ablation = "\n".join(document.published_sections(second)["Ablations"])
     assert "### `+experiment=smoke train.lr=0.01` ‡" in ablation and ablation.count("### ") == 2
     third = report.build(out, roots=[tmp_path / "runs"], n_vis=2).read_text()
-    assert report.published_sections(third)["Runs"] == report.published_sections(second)["Runs"]  # kept, not nested
+    assert document.published_sections(third)["Runs"] == document.published_sections(second)["Runs"]  # kept, not nested
     make_run(
         tmp_path / "runs",
         "3",
@@ -1068,12 +1068,12 @@ def test_rows_of_runs_that_left_no_record_are_kept_marked(tmp_path):
         ips=700,
         extra=("+experiment=smoke",),
     )
-    fourth = "\n".join(report.published_sections(report.build(out, roots=[tmp_path / "runs"]).read_text())["Runs"])
+    fourth = "\n".join(document.published_sections(report.build(out, roots=[tmp_path / "runs"]).read_text())["Runs"])
     assert f"`{gone}` |" in fourth and "‡ | explicit+no_bws" not in fourth  # measured again: one row, unmarked
 
 
 def test_curve_label_shares_a_setting_across_seeds_and_names_a_gpu(tmp_path):
-    from disent.report import curve_label
+    from disent.report.training import curve_label
 
     cpu0, cpu1, gpu = (
         Run.load(make_run(tmp_path, name, seed=seed, extra=("+experiment=long",)))
@@ -1102,7 +1102,7 @@ def test_ood_section_says_where_a_uv_model_breaks(tmp_path):
         },
     }
     rep = report.Report(tmp_path)
-    report._stability_ood(rep, res)
+    tools._stability_ood(rep, res)
     text = "\n".join(rep.lines)
     assert "| yaw | implicit | 10 -> 30 | 1 |" in text and "| light | implicit | 10 -> 12 | – |" in text
     assert "| yaw | implicit | 0.02 -> 0.2 | 9 -> 11 | the UV map (at 1: uv error 0.2, normals 30 deg, 11 at" in text
@@ -1116,7 +1116,7 @@ def test_ood_section_says_where_a_uv_model_breaks(tmp_path):
 def test_wilson_interval_matches_the_closed_form():
     """Wilson's 95 % score interval: 50 of 100 gives 0.404-0.596 (the textbook value); it stays inside [0, 1] at
     0 and n successes, where the normal approximation would not."""
-    from disent.report import wilson_interval
+    from disent.report.lighting import wilson_interval
 
     lo, hi = wilson_interval(0.5, 100)
     assert lo == pytest.approx(0.4038, abs=1e-4) and hi == pytest.approx(0.5962, abs=1e-4)
@@ -1127,7 +1127,7 @@ def test_wilson_interval_matches_the_closed_form():
 def test_background_diagnostic_sets_edits_through_the_background_against_the_face_codes():
     """``edit measure --background`` results: per attribute and method, the best success of the sets holding the
     background code beside the best of the face codes alone; none measured, no lines."""
-    from disent.report import background_lines
+    from disent.report.claims import background_lines
 
     claims = [
         {"attribute": "senior", "method": "dmt", "manifolds": "paper:Ae+Ne", "best_success": 0.0},
@@ -1143,7 +1143,7 @@ def test_background_diagnostic_sets_edits_through_the_background_against_the_fac
 def test_claim_two_reads_the_light_as_learned_only_where_the_face_shows_it(tmp_path):
     """The shown/hidden line: each model's shown SH error over its seeds against the mean light's; confirmed only
     with three seeds beyond the spread, and no line for runs scored before the split existed."""
-    from disent.report import shown_hidden_lines
+    from disent.report.claims import shown_hidden_lines
 
     light = {"trivial_sh_error_shown": 0.25, "trivial_sh_error_hidden": 0.14}
     light |= {"pseudo_sh_error_shown": 0.19, "pseudo_sh_error_hidden": 19.0}
@@ -1221,11 +1221,11 @@ def test_bws_section_reads_the_fixed_images_budget(tmp_path):
 
     fixed_steps = [row(b, bs, 400, 0.5) for b in (True, False) for bs in (1, 25)]
     rep = report.Report(tmp_path, "")
-    report._stability_bws(rep, {"rows": fixed_steps, "n": 8})
+    tools._stability_bws(rep, {"rows": fixed_steps, "n": 8})
     assert "On the same" not in "\n".join(rep.lines)  # one budget only: nothing to read
     images = [row(True, 1, 10000, t) for t in (-0.1, 0.1)] + [row(False, 1, 10000, t) for t in (0.2, 0.3)]
     rep = report.Report(tmp_path, "")
-    report._stability_bws(rep, {"rows": fixed_steps + images, "n": 8})
+    tools._stability_bws(rep, {"rows": fixed_steps + images, "n": 8})
     text = "\n".join(rep.lines)
     assert "On the same 10,000 images" in text
     assert "batch 1: 0.00 ± 0.14 (n=2) with BWS, 0.25 ± 0.07 (n=2) without BWS, raw L-hat target" in text

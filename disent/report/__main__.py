@@ -1,0 +1,3 @@
+from disent.report import main
+
+main()

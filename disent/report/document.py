@@ -1,0 +1,195 @@
+"""The report as a Markdown document: sections that survive one another's failures, and what a build keeps of
+the published report (sections, rows and subsections whose inputs it lacks, the provenance table)."""
+
+from __future__ import annotations
+
+import json
+import re
+import traceback
+from pathlib import Path
+
+from disent.runs import retyped_label
+
+
+def pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def load_json(path: Path):
+    try:
+        return json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def rel_path(path: Path, out: Path) -> str:
+    try:
+        return str(Path(path).resolve().relative_to(out.resolve()))
+    except ValueError:
+        return str(path)
+
+
+class Report:
+    """Markdown assembled section by section; each section survives the others' failures."""
+
+    def __init__(self, out: Path, previous: str = "", only=None):
+        self.out = Path(out)
+        self.only = set(only) if only else None  # section names (sec_NAME) to build; the others are kept
+        self.fig = self.out / "figures"
+        self.fig.mkdir(parents=True, exist_ok=True)
+        self.lines: list[str] = []
+        self.previous = published_sections(previous)  # what is published now, by section title
+        self.title = ""  # the section being built
+        self.kept_rows = 0  # rows of the published section kept by rows_kept in the section being built
+
+    def add(self, *lines: str) -> None:
+        self.lines.extend(lines)
+
+    def note(self, text: str) -> None:
+        self.lines.append(f"{MISSING} {text}\n")
+
+    def image(self, path: Path, alt: str) -> None:
+        self.lines.append(f"![{alt}]({rel_path(path, self.out)})\n")
+
+    def figure(self, fig, name: str, alt: str) -> None:
+        """Lay out ``fig``, save it as ``figures/<name>``, close it and show it here."""
+        fig.tight_layout()
+        path = self.fig / name
+        fig.savefig(path, dpi=120)
+        pyplot().close(fig)
+        self.image(path, alt)
+
+    def section(self, title: str, fn, *args) -> None:
+        """``## title`` and what ``fn`` adds.  Where ``fn`` finds only missing inputs (or fails) but the
+        published report has content for the section, that content is kept, marked as such."""
+        self.add(f"## {title}\n")
+        self.title, self.kept_rows = title, 0
+        start = len(self.lines)
+        old = self.previous.get(title, [])
+        if self.only is not None and section_name(fn) not in self.only and old:
+            self.lines += [f"{KEPT} as published before; not rebuilt in this build (`--sections`)\n"]
+            self.lines += [line for line in old if not line.startswith(KEPT)]
+            return
+        try:
+            fn(self, *args)
+        except Exception as e:  # a broken section is reported, the rest of the report still builds
+            self.note(f"this section failed: `{type(e).__name__}: {e}`")
+            traceback.print_exc()
+        if self.kept_rows:
+            self.add(f"_{KEPT_ROW}: {KEPT_ROW_TEXT}_\n")
+        new = self.lines[start:]
+        if all(line.startswith(MISSING) for line in new) and any(not line.startswith((MISSING, KEPT)) for line in old):
+            why = " ".join(line[len(MISSING) :].strip() for line in new)
+            self.lines[start:] = [f"{KEPT} as published before; its inputs are missing in this build ({why})\n"] + [
+                line for line in old if not line.startswith(KEPT)
+            ]
+
+    def rows_kept(self, head: str, rows: list[str], key: int = 1, unless: str | None = None) -> list[str]:
+        """``rows`` of a table with header line ``head``, then the rows of the published table under the same
+        header in this section whose first ``key`` cells match none of ``rows`` (and that do not contain
+        ``unless``): an earlier build measured them on runs this build does not have.  Those are marked
+        :data:`KEPT_ROW` (a note under the section says why)."""
+
+        def key_of(line):
+            return tuple(retyped_cell(c.replace(KEPT_ROW, "")) for c in line.strip().strip("|").split("|")[:key])
+
+        have = {key_of(r) for r in rows}
+        kept = []
+        for block in self.previous.get(self.title, []):
+            lines = block.rstrip("\n").split("\n")
+            if lines[0] == head:
+                kept += [
+                    line
+                    for line in lines[2:]
+                    if line.startswith("|") and key_of(line) not in have and not (unless and unless in line)
+                ]
+        for i, line in enumerate(kept):
+            cells = [f" {retyped_cell(c)} " if c.strip().startswith("`") else c for c in line.split("|")]
+            if KEPT_ROW not in cells[1]:
+                cells[1] = f"{cells[1].rstrip()} {KEPT_ROW} "
+            kept[i] = "|".join(cells)
+        self.kept_rows += len(kept)
+        return [*rows, *kept]
+
+    def subsections_kept(self, start: int) -> None:
+        """Append the published ``###`` subsections of this section whose headings ``self.lines[start:]`` lack
+        (an earlier build measured them on runs this build does not have), their headings marked :data:`KEPT_ROW`."""
+
+        def heading(block):
+            head = block.split("\n")[0].replace(KEPT_ROW, "").strip()
+            return f"### {retyped_cell(head[4:])}" if head.startswith("### `") else head
+
+        have = {heading(line) for line in self.lines[start:] if line.startswith("### ")}
+        groups: list[list[str]] = []
+        for block in self.previous.get(self.title, []):
+            if block.startswith("### "):
+                groups.append([block])
+            elif groups and not block.startswith(f"_{KEPT_ROW}:"):
+                groups[-1].append(block)
+        for head, *body in groups:
+            if heading(head) not in have:
+                self.add(f"{heading(head)} {KEPT_ROW}\n", *body)
+                self.kept_rows += 1
+
+
+def retyped_cell(cell: str) -> str:
+    """A table cell or heading that names a setting (```+experiment=long train.max_steps=10000```), read against
+    today's ``conf/`` (:func:`disent.runs.retyped_label`): a row an earlier build published under a default since
+    changed then matches the row this build writes for the same runs.  Any other cell, stripped."""
+    text = cell.strip()
+    inner = text[1:-1] if len(text) > 2 and text[0] == text[-1] == "`" else None
+    if inner is None or not all("=" in w or w == "(defaults)" for w in inner.split()):
+        return text
+    return f"`{retyped_label(inner)}`"
+
+
+MISSING, KEPT = "> **Missing:**", "> **Kept:**"
+
+
+KEPT_ROW = "‡"
+KEPT_ROW_TEXT = (
+    "as an earlier build published it; its runs are not among this build's inputs (their folders are gone and "
+    "they left no record in `reports/runs/`)"
+)
+PROVENANCE = ("sections", "built", "from", "regenerate")  # the header's table: one row per build still shown
+
+
+def provenance_row(sections: list[str], built: str, source: str, command: str) -> str:
+    """One build's row of the header's table (``sections``: what it built that no later build rebuilt)."""
+    return f"| {', '.join(sections)} | {built} | {source} | `{command}` |"
+
+
+def kept_provenance(previous: str, rebuilt: list[str]) -> list[str]:
+    """The rows of ``previous``'s provenance table that still describe a section after a ``--sections rebuilt``
+    build: each row less the sections rebuilt now, its command rewritten to build only what it has left; a row
+    goes once none is left."""
+    kept = []
+    for line in previous.split("\n## ")[0].splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split(" | ")]
+        if not line.startswith("| ") or len(cells) != len(PROVENANCE) or cells[0] == PROVENANCE[0]:
+            continue
+        left = [s for s in cells[0].split(", ") if s not in rebuilt]
+        if left:
+            command = re.sub(r" --compute| --sections [\w ]+", "", cells[3].strip("`"))
+            kept.append(provenance_row(left, cells[1], cells[2], f"{command} --sections {' '.join(left)}"))
+    return kept
+
+
+def section_name(fn) -> str:
+    """A section's name for ``--sections``: its function's, less ``sec_`` (``sec_claims``: ``claims``)."""
+    return fn.__name__.removeprefix("sec_")
+
+
+def published_sections(markdown: str) -> dict[str, list[str]]:
+    """``{title: lines}`` of a report written by :class:`Report` (each ``## title`` up to the next)."""
+    sections, title = {}, None
+    for block in markdown.split("\n## ")[1:]:
+        head, _, body = block.partition("\n")
+        title = head.strip()
+        sections[title] = [b + "\n" for b in body.strip("\n").split("\n\n") if b.strip()]
+    return sections

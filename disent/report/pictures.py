@@ -1,0 +1,50 @@
+"""Pictures from models: the runs' or shipped models, a test batch, image grids."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+from disent.images import to_array
+from disent.report.document import pyplot
+from disent.runs import Run
+
+
+def image_grid(rows: list[tuple[str, torch.Tensor]], path: Path, title: str) -> None:
+    """One row per named ``[N,C,H,W]`` tensor, N columns."""
+    plt = pyplot()
+    n = rows[0][1].shape[0]
+    fig, axes = plt.subplots(len(rows), n, figsize=(1.2 * n + 1, 1.2 * len(rows)), squeeze=False)
+    for i, (name, t) in enumerate(rows):
+        for j in range(n):
+            ax = axes[i, j]
+            ax.imshow(to_array(t[j], "normal" if name.startswith("normal") else "rgb"), interpolation="nearest")
+            ax.set_xticks([]), ax.set_yticks([])
+            if j == 0:
+                ax.set_ylabel(name, fontsize=7)
+    fig.suptitle(title, fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def test_batch(n: int, resolution: int = 64):
+    from disent.data import SynthFaces
+    from disent.eval.evaluate import batches
+
+    return next(iter(batches(SynthFaces(split="test", resolution=resolution, seed=0), n, n)))
+
+
+def chosen_models(chosen: dict) -> dict:
+    """``{name: model}`` of ``{name: run or shipped name}`` (:func:`disent.models.load_run`)."""
+    from disent.models import load_run
+
+    out = {}
+    for name, r in chosen.items():
+        model, _ = load_run(r.path if isinstance(r, Run) else r)
+        out[name] = model.eval()
+    return out
+
+
+ERROR_WHITE = 40.0  # degrees of angular error drawn white in the normals figure

@@ -1,0 +1,102 @@
+"""What every section shares: seed spreads and verdicts, table cells, which runs a table reads."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from disent.eval import ablation as _ablation
+from disent.runs import Run, defining_overrides, machine_text, setting
+
+MODELS = ("baseline", "explicit", "implicit")
+TRAIN_SPEED_KEY = "images_per_s"  # logged by every training step (metrics.jsonl)
+INFER_SPEED_KEY = "infer_images_per_s"  # eval.json
+
+
+def run_speed(run: Run, key: str) -> float | None:
+    """Median of the values logged under ``key`` (training speed is logged per step), else eval.json's."""
+    logged = sorted(r[key] for r in run.metrics if isinstance(r.get(key), (int, float)))
+    if logged:
+        return float(logged[len(logged) // 2])
+    v = run.value(key)
+    return None if v is None else float(v)
+
+
+RUNG = ("model=", "+experiment=", "experiment=")  # a run of the budget ladder sets only these
+MIN_SEEDS = 3  # a verdict needs at least this many seeds per arm
+EDIT_WORKS = 0.5  # an edit works where at least this share of the edited faces reads as having the attribute
+
+
+def seed_spread(runs: list[Run], key: str) -> dict | None:
+    """Mean, std and count over ``runs`` of one metric (:func:`disent.eval.ablation.mean_std`)."""
+    return _ablation.mean_std([r.value(key) for r in runs])
+
+
+def table_head(*columns: str) -> tuple[str, str]:
+    """A Markdown table's header line and its separator, one column each."""
+    return "| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)
+
+
+def fmt_value(value, fmt: str) -> str:
+    return "–" if value is None else f"{value:{fmt}}"
+
+
+def spread_text(st, fmt=".2f", count: bool = True) -> str:
+    """``mean ± std (n=N)`` of a :func:`seed_spread`; without the count where the table has a seeds column."""
+    if st is None:
+        return "–"
+    n = f" (n={st['n']})" if count else ""
+    if st["n"] == 1:
+        return f"{st['mean']:{fmt}}{n}"
+    return f"{st['mean']:{fmt}} ± {st['std']:{fmt}}{n}"
+
+
+def measured_setting(info: dict, loaded: dict | None = None) -> str | None:
+    """The setting of a run that a tool measured (its ``run`` folder and ``setting``), read against today's
+    ``conf/`` from the run's folder or record (``loaded``: the report's runs by origin, so none is read twice);
+    ``shipped`` for a shipped model.  None where neither is left: the setting the tool wrote was read against
+    the ``conf/`` of its day, which may have changed since (its published rows are kept instead)."""
+    folder = Path(str(info.get("run", "")))
+    if info.get("setting") in (None, "shipped"):
+        return info.get("setting", "shipped")
+    run = (loaded or {}).get(folder.resolve())
+    if run is None and (folder / ".hydra" / "config.yaml").is_file():
+        run = Run.load(folder)
+    return setting(run, drop_model=True) if run is not None else None
+
+
+def on_the_ladder(run: Run) -> bool:
+    """A plain run of a budget rung (``smoke``, the defaults, ``long``): no override beyond model and experiment."""
+    return all(o.startswith(RUNG) for o in defining_overrides(run))
+
+
+def ladder_runs(runs: list[Run]) -> list[Run]:
+    """The finished plain runs of the budget ladder (no ablation, no override beyond model and experiment)."""
+    return [r for r in runs if r.status == "ok" and r.eval and not r.ablations and on_the_ladder(r)]
+
+
+def machines(runs: list[Run]) -> str:
+    """The machines ``runs`` trained on (their ``machine.json``), for a caption."""
+    seen = sorted({machine_text(r.machine) for r in runs if r.machine})
+    older = sum(1 for r in runs if not r.machine)
+    text = "; ".join(seen) if seen else "not recorded"
+    return text + (f" ({older} run(s) from before machines were recorded)" if seen and older else "")
+
+
+def verdict(a, b, better: str) -> str:
+    """Whether arm ``a`` beats arm ``b`` (``better``: "lower" or "higher"; each a :func:`seed_spread`): confirmed
+    or refuted where the difference exceeds both arms' seed spread, else not resolved; not testable with fewer
+    than ``MIN_SEEDS`` seeds in an arm."""
+    if a is None or b is None:
+        return "not testable (no runs)"
+    if min(a["n"], b["n"]) < MIN_SEEDS:
+        return f"not testable ({min(a['n'], b['n'])} seed(s); {MIN_SEEDS} needed)"
+    diff = (b["mean"] - a["mean"]) if better == "lower" else (a["mean"] - b["mean"])
+    if abs(diff) <= max(a["std"], b["std"]):
+        return "not resolved (difference within the seed spread)"
+    return "**confirmed**" if diff > 0 else "**refuted**"
+
+
+def is_recipe_run(run: Run) -> bool:
+    """A run of the training recipe's leave-one-out (ablations/recipe.sh): a folder under a ``recipe/`` folder.
+    Each changes a setting without an ``+ablation``, so it belongs in the recipe table, not among a model's seeds."""
+    return "recipe" in run.origin.parts[:-1]

@@ -1,0 +1,497 @@
+"""Sections on the trained runs: the runs, floor and ceiling, the teaser, the training recipe, learning curves."""
+
+from __future__ import annotations
+
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from disent.images import over_max
+from disent.report.document import Report, pyplot
+from disent.report.pictures import ERROR_WHITE, chosen_models, image_grid, test_batch
+from disent.report.tables import (
+    INFER_SPEED_KEY,
+    MODELS,
+    TRAIN_SPEED_KEY,
+    fmt_value,
+    is_recipe_run,
+    ladder_runs,
+    on_the_ladder,
+    run_speed,
+    seed_spread,
+    spread_text,
+    table_head,
+)
+from disent.runs import Run, pick_runs, setting
+
+
+def sec_runs(rep: Report, runs: list[Run]) -> None:
+    if not runs:
+        rep.note(
+            "no run folders under `outputs/` or `multirun/`. Train with `python -m disent` or run the "
+            "suite (`ablations/README.md`), then run `python -m disent.report` again."
+        )
+        return
+    cols = (
+        "recon_mse",
+        "recon_face_psnr",
+        "normal_mean",
+        "trivial_normal_mean",
+        "pseudo_normal_mean",
+        "albedo_si_mse",
+        "trivial_albedo_si_mse",
+        "sh_error",
+        "trivial_sh_error",
+        "light_shading_si_mse",
+        "trivial_light_shading_si_mse",
+    )
+
+    def f(v):
+        return "–" if v is None else f"{v:.4g}"
+
+    head = table_head("run", "variant", "seed", "status", "train img/s", "infer img/s", *cols)
+    rows = [
+        f"| `{r.origin}` | {r.variant} | {r.seed} | {r.status} | {f(run_speed(r, TRAIN_SPEED_KEY))} | "
+        f"{f(run_speed(r, INFER_SPEED_KEY))} | " + " | ".join(f(r.value(c)) for c in cols) + " |"
+        for r in runs
+    ]
+    rep.add(*head, *rep.rows_kept(head[0], rows, unless="| incomplete |"))  # a running job's row is not kept
+    rep.add(
+        "",
+        "_`trivial_*`: the dataset-mean normal map, albedo map and light on the same test images "
+        "(`disent/eval/trivial.py`); a layer counts as learned only where it beats them. Normals, albedo and "
+        "`light_shading_si_mse` (the light's shading through the true normals) are scored on the face inside "
+        "the pseudo mask, the model's own foreground; `sh_error` on the 27 SH coefficients, including the "
+        "directions a face's normals cannot reveal._\n",
+    )
+
+
+CEILING_COLUMNS = (
+    ("normal_mean", "normals (deg)", ".2f"),
+    ("shading_si_mse", "shading si-MSE", ".4f"),
+    ("albedo_si_mse", "albedo si-MSE", ".4f"),
+    ("albedo_coarse_si_mse", "albedo: coarse", ".4f"),
+    ("albedo_fine_si_mse", "albedo: detail", ".4f"),
+    ("light_shading_si_mse", "light on the face", ".4f"),
+    ("sh_error", "SH error", ".3f"),
+)
+
+
+def sec_ceiling(rep: Report, runs: list[Run]) -> None:
+    """Each layer between its floor (the dataset mean) and its ceiling (the same network trained on the truth)."""
+    ceiling = [r for r in runs if r.status == "ok" and r.eval and r.ceiling]
+    if not ceiling:
+        rep.note(
+            "no finished ceiling run; train one with `python -m disent loss=ceiling` (and `+experiment=long "
+            "loss=ceiling`) and point the report at its folder."
+        )
+        return
+    with_ceiling = {setting(r, drop_model=True, drop=("loss=",)) for r in ceiling}  # trained settings with a ceiling
+    trained = [
+        r
+        for r in runs
+        if r.status == "ok" and r.eval and r.plain and (on_the_ladder(r) or setting(r, drop_model=True) in with_ceiling)
+    ]
+    rep.add(
+        "Where a trained model's layer lies between its **floor**, the dataset-mean map or light "
+        "(`disent.eval.trivial`), and its **ceiling**: the same network, optimiser, schedule, batch and data "
+        "order trained on SynthFaces' true albedo, normals and light in place of the paper's objective "
+        "(`python -m disent loss=ceiling`, `conf/loss/ceiling.yaml`). The paper's models see no albedo and only "
+        "the pseudo-GT's normals and L-hat, so the gap to the ceiling is what the missing supervision costs at "
+        "that budget, and the ceiling is what the architecture reaches there at all. The rendered face A (.) S "
+        "matches the image closely, so the albedo's error follows the shading's (compare the two columns): "
+        "an albedo can only be as right as the normals and light that shade it. The albedo's error is split by "
+        "scale: *coarse*, its Gaussian blur (2 px, inside the scored region), and *detail*, what the blur leaves "
+        "(eyes, brows, lips, pores; the two add up to the total but for twice their inner product; "
+        "`disent.eval.metrics.scale_invariant_mse_bands`). Test split, 256 images; "
+        "mean ± std over seeds.\n",
+        *table_head("model", "row", "setting", "steps", *(label for _, label, _ in CEILING_COLUMNS)),
+    )
+    gaps, reach = [], []
+    for model in ("explicit", "implicit"):
+        rows = [("ceiling", r) for r in ceiling if r.model == model] + [
+            ("trained", r) for r in trained if r.model == model
+        ]
+        if not any(kind == "ceiling" for kind, _ in rows):
+            continue
+        floor = next(r for kind, r in rows if kind == "ceiling")  # any run scores the same dataset means
+        rep.add(
+            f"| {model} | floor (dataset mean) | – | – | "
+            + " | ".join(fmt_value(floor.value("trivial_" + k), fmt) for k, _, fmt in CEILING_COLUMNS)
+            + " |"
+        )
+        groups: dict = {}
+        for kind, r in rows:
+            groups.setdefault((kind, setting(r, drop_model=True)), []).append(r)
+        steps = {g: (seed_spread(rs, "steps") or {"mean": math.nan})["mean"] for g, rs in groups.items()}
+        order = sorted(groups.items(), key=lambda g: (steps[g[0]], g[0][0] == "ceiling"))
+        for (kind, where), rs in order:
+            rep.add(
+                f"| {model} | {kind} | `{where}` | {steps[kind, where]:,.0f} | "
+                + " | ".join(spread_text(seed_spread(rs, k), fmt) for k, _, fmt in CEILING_COLUMNS)
+                + " |"
+            )
+        tops: dict = {}  # each ceiling by the setting of the trained runs at its budget: its overrides but loss=ceiling
+        for kind, r in rows:
+            if kind == "ceiling":
+                tops.setdefault(setting(r, drop_model=True, drop=("loss=",)), []).append(r)
+        for (kind, where), rs in order:  # what the ceiling itself removes of the floor's albedo error, by scale
+            if kind != "ceiling":
+                continue
+            shares = []
+            for k, band in (("albedo_coarse_si_mse", "coarse part"), ("albedo_fine_si_mse", "detail")):
+                lo, got = floor.value("trivial_" + k), seed_spread(rs, k)
+                if lo and got:
+                    shares.append(f"{100 * (1 - got['mean'] / lo):.0f} % of its {band}")
+            if shares:
+                reach.append(f"- {model}, `{where}` ({steps[kind, where]:,.0f} steps): {' and '.join(shares)}")
+        for (kind, where), rs in order:
+            top = tops.get(where)
+            if kind != "trained" or not top:
+                continue
+            closed = []
+            for k, label, _ in CEILING_COLUMNS:
+                lo, got, hi = floor.value("trivial_" + k), seed_spread(rs, k), seed_spread(top, k)
+                if None in (lo, got, hi) or lo == hi["mean"]:
+                    closed.append(f"{label} –")
+                else:
+                    closed.append(f"{label} {100 * (lo - got['mean']) / (lo - hi['mean']):.0f} %")
+            top_steps = (seed_spread(top, "steps") or {"mean": math.nan})["mean"]
+            unequal = f" (trained {steps[kind, where]:,.0f} steps, ceiling {top_steps:,.0f})"
+            gaps.append(
+                f"- {model}, `{where}`: {', '.join(closed)}" + (unequal if steps[kind, where] != top_steps else "")
+            )
+    if gaps:
+        rep.add(
+            "",
+            "Share of the floor-to-ceiling gap the trained models close, against the ceiling of their setting:\n",
+            *gaps,
+        )
+    if reach:
+        rep.add(
+            "",
+            "What each ceiling removes of the dataset-mean map's albedo error, by scale (detail the ceiling keeps is "
+            "out of reach of the paper's objective at that budget too):\n",
+            *reach,
+        )
+    rep.add(
+        "",
+        "_Regenerate: `python -m disent model=MODEL loss=ceiling` and `python -m disent model=MODEL "
+        "+experiment=long loss=ceiling`, then `python -m disent.report --roots ...` with their folders._\n",
+    )
+
+
+def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
+    from disent.eval.evaluate import decomposed_region
+    from disent.eval.metrics import angular_error_deg
+
+    chosen = pick_runs(ladder_runs(runs))  # the paper's models as configured, side by side from the same runs
+    missing = [m for m in MODELS if m not in chosen]
+    if missing:  # only notes: the published teaser stays
+        rep.note(
+            f"no finished run with a checkpoint of {', '.join(f'`{m}`' for m in missing)} on the budget ladder "
+            "(defaults or `+experiment=long`, no other override); the teaser sets the three models side by side."
+        )
+        return
+    try:
+        models, batch = chosen_models(chosen), test_batch(n_vis)
+    except (ImportError, FileNotFoundError) as e:  # fall back to the grids the runs saved
+        rep.note(f"cannot render from checkpoints ({e}); showing the runs' own sample grids.")
+        for name, r in chosen.items():
+            pngs = sorted((r.path / "samples").glob("*.png"))
+            if pngs:
+                dst = rep.fig / f"teaser_{name}.png"
+                shutil.copyfile(pngs[-1], dst)
+                rep.image(dst, f"samples of {name}")
+        return
+    from disent.eval.evaluate import predict
+
+    outs = {name: predict(model, batch["image"]) for name, model in models.items()}
+
+    def foreground(out, k):  # the intrinsic layers where the model's own matte claims the face
+        return out[k] * (out["matte"] > 0.5) if k in ("albedo", "normal", "shading") and "matte" in out else out[k]
+
+    def shown(out, k):  # shading (mean 0.75 by BWS, peaks above 1) divided by each image's maximum
+        x = foreground(out, k)
+        return over_max(x) if k == "shading" else x
+
+    for name, out in outs.items():
+        rows = [("input", batch["image"])] + [
+            (k + (" / max" if k == "shading" else ""), shown(out, k))
+            for k in ("recon", "albedo", "normal", "shading", "matte")
+            if k in out
+        ]
+        path = rep.fig / f"teaser_{name}.png"
+        image_grid(
+            rows,
+            path,
+            f"{name} ({chosen[name].path}) on SynthFaces test images; albedo, normal and shading where its matte > 0.5",
+        )
+        rep.add(f"**{name}** (`{chosen[name].path}`)\n")
+        rep.image(path, f"teaser {name}")
+    rec = [("input", batch["image"])] + [(f"{k} recon", outs[k]["recon"]) for k in MODELS if k in outs]
+    path = rep.fig / "baseline_vs_ours.png"
+    image_grid(rec, path, "Baseline autoencoder against the rendering models (paper Fig. 3)")
+    rep.add("### Baseline against ours (paper Fig. 3)\n")
+    rep.image(path, "baseline vs ours")
+    nrm = [
+        ("input", batch["image"]),
+        ("normal true", batch["normal"] * batch["matte"]),
+        ("normal pseudo-GT", batch["normal_pseudo"] * batch["mask_pseudo"]),
+    ]
+    with_normals = [k for k in MODELS if k in outs and "normal" in outs[k]]
+    nrm += [(f"normal {k}", foreground(outs[k], "normal")) for k in with_normals]
+    scored = decomposed_region(batch)  # the angular error where it is scored, black 0 to white ERROR_WHITE degrees
+
+    def error(normal):
+        return (angular_error_deg(normal, batch["normal"])[:, None] / ERROR_WHITE).clamp(0, 1) * scored
+
+    nrm += [("error pseudo-GT", error(batch["normal_pseudo"]))]
+    nrm += [(f"error {k}", error(outs[k]["normal"])) for k in with_normals]
+    path = rep.fig / "normals.png"
+    image_grid(
+        nrm,
+        path,
+        "Our normals against the pseudo-GT they were trained on and the true normals; their angular error on the "
+        f"scored pixels (black 0, white >= {ERROR_WHITE:g} deg)",
+    )
+    rep.add("### Our normals against the pseudo-GT and the truth\n")
+    rep.image(path, "normals")
+    rows = [(n, r) for n, r in chosen.items() if r.value("normal_mean") is not None]
+    if rows:
+        rep.add(
+            *table_head(
+                "run",
+                "normal error (deg)",
+                "dataset-mean map (deg)",
+                "pseudo-GT error, same pixels (deg)",
+                "under 25° ours / pseudo",
+            ),
+        )
+        for n, r in rows:
+            rep.add(
+                f"| {n} | {r.value('normal_mean'):.2f} | {r.value('trivial_normal_mean') or float('nan'):.2f} | "
+                f"{r.value('pseudo_normal_mean') or float('nan'):.2f} | "
+                f"{r.value('normal_under_25') or float('nan'):.3f} / "
+                f"{r.value('pseudo_normal_under_25') or float('nan'):.3f} |"
+            )
+        rep.add(
+            "",
+            '_The paper\'s claim "beyond the 3DMM subspace" holds for a run when its error is below the '
+            "pseudo-GT's on the same pixels._\n",
+        )
+
+
+RECIPE_COLUMNS = (
+    ("normal_mean", "normals (deg)", ".2f"),
+    ("recon_face_psnr", "face PSNR (dB)", ".2f"),
+    ("albedo_si_mse", "albedo si-MSE", ".4f"),
+    ("sh_error", "SH error", ".3f"),
+)
+
+
+def sec_recipe(rep: Report, runs: list[Run]) -> None:
+    """The training recipe's leave-one-out table: run folders under a ``recipe/`` folder, one per variant
+    (folder name), ``recipe/recipe`` the full recipe; each row changes one setting back (overrides column)."""
+    rows = {r.origin.name: r for r in runs if is_recipe_run(r) and r.eval}
+    ref = rows.get("recipe")
+    if ref is None:
+        rep.note("no `recipe/recipe` run (ablations/recipe.sh writes the leave-one-out runs).")
+        return
+    steps, batch = ref.eval.get("steps"), (ref.cfg.get("train") or {}).get("batch_size")
+    rep.add(
+        f"Each row trains the explicit model for the same {steps} steps of batch {batch} with one setting of the "
+        "recipe changed back (the override column), and scores it on the same 256 test images. "
+        "Lower is better except for PSNR. The trivial and pseudo-GT rows score the dataset-mean map or light and the "
+        "morphable-model fit on the same images.\n"
+    )
+    rep.add(
+        *table_head("variant", "override", "steps", *(c[1] for c in RECIPE_COLUMNS), "train min"),
+    )
+
+    def cell(r, key, fmt):
+        v, base = r.eval.get(key), ref.eval.get(key)
+        if v is None:
+            return "–"
+        old = key.startswith("albedo") and "albedo_face_si_mse" not in r.eval  # scored before the region change
+        return f"{v:{fmt}}" + ("†" if old else "") + ("" if r is ref or base is None else f" ({v - base:+{fmt}})")
+
+    for name in ["recipe", *sorted(n for n in rows if n != "recipe")]:
+        r = rows[name]
+        changed = [o for o in map(str, r.overrides) if o not in map(str, ref.overrides)]
+        rep.add(
+            f"| {name} | {' '.join(f'`{o}`' for o in changed) or '–'} | {r.eval.get('steps')} | "
+            + " | ".join(cell(r, k, f) for k, _, f in RECIPE_COLUMNS)
+            + f" | {(r.eval.get('train_seconds') or 0) / 60:.1f} |"
+        )
+    e = ref.eval
+    rep.add(
+        f"| trivial (dataset mean) | – | – | {e.get('trivial_normal_mean', float('nan')):.2f} | – | "
+        f"{e.get('trivial_albedo_si_mse', float('nan')):.4f} | {e.get('trivial_sh_error', float('nan')):.3f} | – |",
+        f"| pseudo-GT | – | – | {e.get('pseudo_normal_mean', float('nan')):.2f} | – | – | "
+        f"{e.get('pseudo_sh_error', float('nan')):.3f} | – |",
+        "",
+    )
+    if any("albedo_face_si_mse" not in r.eval for r in rows.values()):
+        rep.add(
+            "† scored over the whole true face mask (hair and neck included) by an earlier version; today's "
+            "`albedo_si_mse` covers the face inside the pseudo mask (`python -m disent.eval.evaluate RUN` "
+            "scores a run again where its checkpoint still loads).\n"
+        )
+
+
+CURVE_PANELS = (  # (val key, trivial key, pseudo-GT key, label); every panel: lower is better except PSNR
+    ("normal_mean", "trivial_normal_mean", "pseudo_normal_mean", "normal error (deg)"),
+    ("albedo_si_mse", "trivial_albedo_si_mse", None, "albedo scale-inv. MSE"),
+    ("sh_error", "trivial_sh_error", "pseudo_sh_error", "SH error"),
+    (
+        "light_shading_si_mse",
+        "trivial_light_shading_si_mse",
+        "pseudo_light_shading_si_mse",
+        "light on the face (si-MSE)",
+    ),
+    ("recon_face_psnr", None, None, "face PSNR (dB)"),
+)
+
+
+def val_curves(run: Run) -> list[dict]:
+    """The run's periodic ``val`` records, each with ``images`` (step x batch) and ``minutes`` (training wall).
+    Albedo values written before the albedo was scored inside the pseudo mask (records without
+    ``albedo_face_si_mse``) are left out, so that one line never mixes two definitions."""
+    batch = (run.cfg.get("train") or {}).get("batch_size") or 1
+    albedo = ("albedo_si_mse", "albedo_global_si_mse", "trivial_albedo_si_mse", "trivial_albedo_global_si_mse")
+    out = []
+    for r in run.metrics:
+        if isinstance(r.get("val"), dict):
+            v = {**r["val"], "images": r["step"] * batch, "minutes": r["wall"] / 60}
+            if "albedo_face_si_mse" not in v:
+                v = {k: x for k, x in v.items() if k not in albedo}
+            out.append(v)
+    return out
+
+
+def trained_on_gpu(run: Run) -> str | None:
+    """The GPU ``run`` trained on (its ``machine.json``), or None for a CPU run or one that recorded no machine."""
+    return (run.machine or {}).get("gpu")
+
+
+def curve_label(run: Run) -> str:
+    """A learning curve's legend label: the seeds of a setting share it; a GPU run names its GPU (its wall minutes
+    are not the CPU's)."""
+    gpu = trained_on_gpu(run)
+    return f"{run.variant}: {setting(run, drop_model=True)}" + (f" ({gpu})" if gpu else "")
+
+
+def plot_learning_curves(runs: list[Run], path: Path, title: str = "", colour_by_setting: bool = False) -> bool:
+    """Each accuracy of the ``val`` records against training images (top) and wall minutes (bottom), one
+    line per run (a colour per model, or per model and setting; dash-dotted for a ceiling run), with the trivial
+    (dataset-mean) baseline dashed and the pseudo-GT dotted."""
+    curves = [(r, val_curves(r)) for r in runs]
+    curves = [(r, c) for r, c in curves if c]
+    if not curves:
+        return False
+    plt = pyplot()
+    fig, axes = plt.subplots(2, len(CURVE_PANELS), figsize=(4 * len(CURVE_PANELS), 6.4), squeeze=False)
+
+    def kind(r):  # what shares a colour: the model (and ablation), or each labelled line
+        return curve_label(r) if colour_by_setting else r.variant.removesuffix("+ceiling")
+
+    kinds = sorted({kind(r) for r, _ in curves})
+    palette = [f"C{i}" for i in range(10)] if len(kinds) <= 10 else list(plt.get_cmap("tab20").colors)
+    for col, (key, trivial, pseudo, label) in enumerate(CURVE_PANELS):
+        for row, x in enumerate(("images", "minutes")):
+            ax = axes[row][col]
+            seen, finals = set(), []
+            for r, c in curves:
+                pts = [(v[x], v[key]) for v in c if v.get(key) is not None]
+                if not pts or (r.ceiling and key == "recon_face_psnr"):  # a ceiling does not train the reconstruction
+                    continue
+                finals.append(pts[-1][1])
+                name = curve_label(r)
+                ax.plot(
+                    *zip(*pts),
+                    color=palette[kinds.index(kind(r)) % len(palette)],  # one colour each, up to 20
+                    ls="-." if r.ceiling else "-",
+                    lw=2.0 if trained_on_gpu(r) else 1.0,
+                    label=None if name in seen else name,
+                )
+                seen.add(name)
+            lines = []
+            for ref, style, name in ((trivial, "--", "dataset mean"), (pseudo, ":", "pseudo-GT")):
+                vals = [
+                    c[-1][ref] for _, c in curves if ref and c[-1].get(ref) is not None and c[-1].get(key) is not None
+                ]
+                if vals:
+                    lines.append(float(np.mean(vals)))
+                    ax.axhline(lines[-1], color="k", ls=style, lw=1, label=name)
+            if lines and key != "recon_face_psnr":  # the first steps' errors would squash the curves that matter;
+                top = max(lines)  # a run that ends far above the reference lines (it broke) stays in view, up to 3x
+                ax.set_ylim(top=max(1.5 * top, min(1.1 * max(finals, default=0), 3 * top)))
+            ax.set_xlabel("training images" if x == "images" else "training wall minutes")
+            if x == "images":  # 250000 runs into its neighbours: 250k
+                ax.xaxis.set_major_formatter(lambda v, _: f"{v / 1000:g}k" if v else "0")
+            ax.set_ylabel(label)
+            ax.grid(alpha=0.3)
+    legend = {}  # one legend under the panels: every line's label (the baseline has a curve in the PSNR panels only)
+    for ax in axes[0]:
+        for handle, label in zip(*ax.get_legend_handles_labels()):
+            legend.setdefault(label, handle)
+    rows = (len(legend) + 3) // 4
+    fig.set_figheight(6.4 + 0.2 * rows)  # the panels keep their height; the legend adds its rows
+    fig.legend(legend.values(), legend.keys(), loc="lower center", ncol=4, fontsize=7, frameon=False)
+    if title:
+        fig.suptitle(title, fontsize=9)
+    fig.tight_layout(rect=(0, (0.2 * rows + 0.1) / (6.4 + 0.2 * rows), 1, 1))
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110, bbox_inches="tight")  # a legend wider than the panels (long settings) is not clipped
+    plt.close(fig)
+    return True
+
+
+def sec_learning_curves(rep: Report, runs: list[Run]) -> None:
+    drawn = False
+    ablated = {setting(r, drop=("ablation=",)) for r in runs if r.ablations and not is_recipe_run(r)}
+    ladder = [r for r in runs if r.plain and on_the_ladder(r)]
+    ceilings = {setting(r, drop_model=True) for r in ladder}
+    ladder += [r for r in runs if r.ceiling and setting(r, drop_model=True, drop=("loss=",)) in ceilings]
+    others = [r for r in runs if r.plain and not on_the_ladder(r) and not is_recipe_run(r)]
+    defaults = [r for r in ladder if r.plain and r.model == "explicit" and setting(r, drop_model=True) == "(defaults)"]
+    for name, subset, title, by_setting in (
+        ("learning_curves.png", ladder, "the budget ladder and its ceilings: validation accuracy in training", True),
+        (
+            "learning_curves_settings.png",
+            others + (defaults if others else []),
+            "every other setting (A/B runs, earlier recipes) beside the explicit defaults",
+            True,
+        ),
+        (  # each ablation beside the full model of the setting it ablates
+            "learning_curves_ablations.png",
+            [
+                r
+                for r in runs
+                if not is_recipe_run(r)
+                and (r.ablations or (r.model == "explicit" and r.plain and setting(r) in ablated))
+            ],
+            "the ablations beside the full explicit model",
+            False,
+        ),
+        (
+            "learning_curves_recipe.png",
+            [r for r in runs if is_recipe_run(r)],
+            "the training recipe's leave-one-out",
+            True,
+        ),
+    ):
+        path = rep.fig / name
+        if plot_learning_curves(subset, path, f"{title} (64 val images)", by_setting):
+            rep.image(path, title)
+            drawn = True
+    if not drawn:
+        rep.note("no run logged `val` records (`train.val_every`).")
+        return
+    rep.add(
+        "_A layer counts as learned only below its dashed line (the dataset-mean map or light, "
+        "`disent.eval.trivial`); the dotted line is the pseudo ground truth that supervised it._\n"
+    )
