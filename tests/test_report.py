@@ -573,6 +573,26 @@ def test_targets_section_sets_the_albedo_beside_the_placed_mean_texture(tmp_path
     assert not any(line.startswith("| `(defaults)` | implicit | 0.") for line in rep.lines)
 
 
+def test_targets_section_sets_the_light_beside_the_constant_light_part_by_part(tmp_path):
+    """The light's glance rows: each light error beside the constant light's, and which of them the network beats;
+    a light that wins on the face but loses in its hidden coefficients is said to lose there."""
+    light = {"light_shading_si_mse": 0.004, "sh_error": 0.5, "sh_error_shown": 0.1, "sh_error_hidden": 1.2}
+    floor = {"trivial_light_shading_si_mse": 0.016, "trivial_sh_error": 0.37, "trivial_sh_error_shown": 0.25}
+    floor["trivial_sh_error_hidden"] = 0.14
+    for seed in range(2):
+        make_run(tmp_path, f"d{seed}", seed=seed, eval_={"normal_mean": 12.0, **light, **floor})
+    make_run(tmp_path, "old", model="implicit", eval_={"normal_mean": 12.0, "sh_error": 0.5})  # scored before the split
+    rep = report.Report(tmp_path, "")
+    report.sec_targets(rep, find_runs([tmp_path]))
+    rows = [line for line in rep.lines if line.startswith("| `(defaults)` | explicit | 0.0040")]
+    assert rows == [
+        "| `(defaults)` | explicit | 0.0040 ± 0.0000 (n=2) / 0.0160 | 0.500 ± 0.000 (n=2) / 0.370 | "
+        "0.100 ± 0.000 (n=2) / 0.250 | 1.200 ± 0.000 (n=2) / 0.140 | "
+        "light on the face, its shown part; not SH error, its hidden part |"
+    ], rows
+    assert not any(line.startswith("| `(defaults)` | implicit | 0.") for line in rep.lines)
+
+
 def test_ablation_claims_pair_each_ablation_with_the_full_model_and_gate_on_the_budget(tmp_path):
     """Claim 4: an ablation's runs meet the full model's runs of the same setting on the paper's metric; the
     difference is read by the claims' rule, and becomes a verdict only where the full model meets the targets."""
@@ -1232,3 +1252,21 @@ def test_bws_section_reads_the_fixed_images_budget(tmp_path):
     assert (
         "batch 25: 0.50 (n=1) with BWS, 0.50 (n=1) without BWS, raw L-hat target, lower with BWS: not testable" in text
     )
+
+
+def test_wrapped_titles_break_only_between_name_parts_and_keep_every_character():
+    """A figure title's lines stay within the width wherever a break is allowed, never split a name between its
+    ``_``/``-``/``.``/space-separated parts, and lose nothing but the spaces at the breaks."""
+    from disent.report.pictures import wrapped
+
+    text = "+experiment=long loss.bws_c=0.3 (explicit_long_gpu_s12-explicit_s0)"
+    lines = wrapped(text, 22).split("\n")
+    assert len(lines) > 1 and all(len(line) <= 22 for line in lines), lines
+    assert "".join(lines).replace(" ", "") == text.replace(" ", "")
+    at = 0
+    for line in lines[:-1]:  # each break follows a separator of the original text
+        at = text.index(line, at) + len(line)
+        at += text[at] == " "
+        assert text[at - 1] in " _-.", (line, text[at - 1])
+    assert wrapped("supercalifragilistic", 5) == "supercalifragilistic"  # no break inside a part
+    assert wrapped("a b", 22) == "a b"

@@ -9,7 +9,7 @@ from disent.eval import ablation as _ablation
 from disent.eval.metrics import FLAT_SHARE, normals_collapsed
 from disent.images import to_array
 from disent.report.document import Report, pyplot
-from disent.report.pictures import chosen_models, test_batch
+from disent.report.pictures import chosen_models, test_batch, wrapped
 from disent.report.tables import fmt_value, is_recipe_run, machines, seed_spread, spread_text, table_head, verdict
 from disent.runs import Run, group_by_setting, joins, pick_runs, setting
 
@@ -274,8 +274,6 @@ def plot_skin_albedos(rep: Report, groups: dict) -> None:
     setting whose runs left no checkpoint but include the shipped one) on the same test faces, beside the input and
     the true albedo, each where its matte is above 0.5: how BWS and its c set the albedo's brightness and where it
     is pinned at 1.  Drawn where two settings or more have a model."""
-    import textwrap
-
     from disent.eval.evaluate import predict
     from disent.models.shipped import manifest
 
@@ -306,7 +304,7 @@ def plot_skin_albedos(rep: Report, groups: dict) -> None:
     plt = pyplot()
     fig, axes = plt.subplots(SKIN_FACES, len(columns), figsize=(1.15 * len(columns), 1.15 * SKIN_FACES + 0.9))
     for j, (name, t) in enumerate(columns):
-        axes[0, j].set_title(textwrap.fill(name, 22), fontsize=5)
+        axes[0, j].set_title(wrapped(name, 22), fontsize=5)
         for i in range(SKIN_FACES):
             axes[i, j].imshow(to_array(t[i]), interpolation="nearest")
             axes[i, j].set_xticks([]), axes[i, j].set_yticks([])

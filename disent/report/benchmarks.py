@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from disent.report.document import Report, load_json, pyplot
+from disent.report.pictures import wrapped
 from disent.report.tables import fmt_value, table_head
 
 FRACTION_TARGETS = {
@@ -42,8 +43,6 @@ def _bench_models(models: dict) -> tuple[dict, list]:
 
 def plot_fractions(rep: Report, models: dict, device: str, threads, name: str = "bench_fractions.png") -> None:
     """Bar chart: each model's achieved FLOP/s as a fraction of the matmul peak of its run."""
-    import textwrap
-
     plt = pyplot()
     models, rates = _bench_models(models)
     keys = [k for k, _ in rates]
@@ -62,7 +61,7 @@ def plot_fractions(rep: Report, models: dict, device: str, threads, name: str = 
             ax.hlines(target, i - width / 2, i + width * (len(models) - 0.5), colors="k", linestyles="--", lw=1)
     ax.set_xticks(
         [i + width * (len(models) - 1) / 2 for i in range(len(rates))],
-        [textwrap.fill(label, 14) for _, label in rates],
+        [wrapped(label, 14) for _, label in rates],
         fontsize=7,
     )
     ax.set_ylabel("fraction of matmul peak")

@@ -107,11 +107,54 @@ def sec_targets(rep: Report, runs: list[Run]) -> None:
             *template_rows,
             "",
         )
+    if light_rows := rep.rows_kept(LIGHT_HEAD[0], light_table(groups), key=2):
+        rep.add(
+            "The light against its floor, the *constant light* (the mean train SH, the same for every face): on the "
+            "face (the light's shading through the true normals, si-MSE against the true light's) and in its nine "
+            "coefficients (`sh_error`, relative to the true light), split between the SH directions the face's "
+            "normals show and those they hide (`disent.eval.metrics.sh_error_shown_hidden`; claim 2 reads it).\n",
+            *LIGHT_HEAD,
+            *light_rows,
+            "",
+        )
     if not any(where == "+experiment=long" for where, _ in groups):
         rep.add(
             "_No run of the long rung is among this build's inputs (runs from before `reports/runs/` kept records "
             "left none): its numbers are the kept rows of claims 1 and 3._\n"
         )
+
+
+LIGHT_KEYS = (  # (key, label, format): each scored beside its floor, trivial_<key>
+    ("light_shading_si_mse", "light on the face", ".4f"),
+    ("sh_error", "SH error", ".3f"),
+    ("sh_error_shown", "its shown part", ".3f"),
+    ("sh_error_hidden", "its hidden part", ".3f"),
+)
+LIGHT_HEAD = table_head(
+    "setting",
+    "model",
+    *(f"{label}: network / constant light" for _, label, _ in LIGHT_KEYS),
+    "beats the constant light",
+)
+
+
+def light_table(groups: dict) -> list[str]:
+    """The glance rows of the light (``groups``: ``{(setting, model): runs}``): each of :data:`LIGHT_KEYS` beside the
+    constant light's, and where the network's mean beats it; models without a light (or runs scored before the
+    split) have none."""
+    rows = []
+    for (where, model), rs in sorted(groups.items()):
+        pairs = [(seed_spread(rs, key), seed_spread(rs, f"trivial_{key}")) for key, _, _ in LIGHT_KEYS]
+        if not all(net and floor for net, floor in pairs):
+            continue
+        beats = {label: net["mean"] < floor["mean"] for (_, label, _), (net, floor) in zip(LIGHT_KEYS, pairs)}
+        cells = [f"{spread_text(net, f)} / {floor['mean']:{f}}" for (_, _, f), (net, floor) in zip(LIGHT_KEYS, pairs)]
+        yes, no = ([label for label, b in beats.items() if b is want] for want in (True, False))
+        rows.append(
+            f"| `{where}` | {model} | {' | '.join(cells)} | "
+            f"{'; '.join(filter(None, [', '.join(yes), no and 'not ' + ', '.join(no)]))} |"
+        )
+    return rows
 
 
 def beyond_the_fit(groups: dict) -> list[str]:

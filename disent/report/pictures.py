@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import torch
@@ -48,3 +49,14 @@ def chosen_models(chosen: dict) -> dict:
 
 
 ERROR_WHITE = 40.0  # degrees of angular error drawn white in the normals figure
+
+
+def wrapped(text: str, width: int) -> str:
+    """``text`` in lines of at most ``width`` characters where it can, broken only after a space, ``_``, ``-`` or
+    ``.`` (a run folder's or a setting's name stays whole between those)."""
+    lines = [""]
+    for piece in re.split(r"(?<=[ _.\-])", text):
+        if lines[-1] and len(lines[-1].rstrip()) + len(piece.rstrip()) > width:
+            lines.append("")
+        lines[-1] += piece
+    return "\n".join(line.rstrip() for line in lines)
