@@ -770,14 +770,17 @@ def pick_runs(runs, variants=None) -> dict[str, Run]:
     return chosen
 
 
+def load_chosen(chosen: dict) -> dict:
+    """``{name: model}`` in eval mode of ``{name: run or shipped model name}`` (:func:`disent.models.load_run`)."""
+    from disent.models import load_run
+
+    return {name: load_run(r.path if isinstance(r, Run) else r)[0].eval() for name, r in chosen.items()}
+
+
 def load_models(runs, variants=None) -> dict:
     """``{variant: model}`` for :func:`pick_runs`; empty when ``disent.models`` is not available."""
     try:
-        from disent.models import load_run
+        import disent.models  # noqa: F401
     except ImportError:
         return {}
-    models = {}
-    for name, r in pick_runs(runs, variants).items():
-        model, _ = load_run(r.path)
-        models[name] = model.eval()
-    return models
+    return load_chosen(pick_runs(runs, variants))

@@ -134,7 +134,7 @@ def test_teaser_needs_the_three_ladder_models_or_keeps_the_published_one(tmp_pat
         (d / "checkpoints" / "last.pt").write_bytes(b"")
         (d / "status.json").write_text('{"status": "ok"}')
     loaded = []
-    monkeypatch.setattr(training, "chosen_models", lambda chosen: loaded.append(chosen) or {})
+    monkeypatch.setattr(training, "load_chosen", lambda chosen: loaded.append(chosen) or {})
     rep = report.Report(out, published)
     rep.section(title, report.sec_teaser, find_runs([tmp_path / "runs"]), 2)
     assert loaded == []  # no partial teaser drawn
@@ -701,7 +701,7 @@ def test_skin_albedos_set_one_model_per_setting_beside_the_truth(tmp_path, monke
         loaded.append({k: v.path.name for k, v in chosen.items()})
         return {k: Constant(0.2 + 0.1 * i) for i, k in enumerate(chosen)}
 
-    monkeypatch.setattr(ablations, "chosen_models", models)
+    monkeypatch.setattr(ablations, "load_chosen", models)
     runs = find_runs([tmp_path / "runs"])
     rep = report.Report(tmp_path / "out", "")
     ablations.claim_skin(rep, runs)

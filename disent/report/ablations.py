@@ -9,9 +9,9 @@ from disent.eval import ablation as _ablation
 from disent.eval.metrics import FLAT_SHARE, normals_collapsed
 from disent.images import to_array
 from disent.report.document import Report, pyplot
-from disent.report.pictures import chosen_models, test_batch, wrapped
+from disent.report.pictures import test_batch, wrapped
 from disent.report.tables import fmt_value, is_recipe_run, machines, seed_spread, spread_text, table_head, verdict
-from disent.runs import Run, group_by_setting, joins, pick_runs, setting
+from disent.runs import Run, group_by_setting, joins, load_chosen, pick_runs, setting
 
 # What the full explicit model must reach at a budget before ablations there can give verdicts: normal error
 # (deg, at most), face PSNR (dB, at least), albedo scale-invariant error (at most this share of the mean map's)
@@ -292,7 +292,7 @@ def plot_skin_albedos(rep: Report, groups: dict) -> None:
             rep.image(rep.fig / "skin_albedo.png", "albedo by setting")
         return
     try:
-        models, batch = chosen_models(sources), test_batch(SKIN_FACES)
+        models, batch = load_chosen(sources), test_batch(SKIN_FACES)
     except (ImportError, FileNotFoundError) as e:
         rep.note(f"cannot render the albedo by setting from checkpoints ({e}).")
         return

@@ -9,7 +9,6 @@ import torch
 
 from disent.images import to_array
 from disent.report.document import pyplot
-from disent.runs import Run
 
 
 def image_grid(rows: list[tuple[str, torch.Tensor]], path: Path, title: str) -> None:
@@ -35,20 +34,6 @@ def test_batch(n: int, resolution: int = 64):
     from disent.eval.evaluate import batches
 
     return next(iter(batches(SynthFaces(split="test", resolution=resolution, seed=0), n, n)))
-
-
-def chosen_models(chosen: dict) -> dict:
-    """``{name: model}`` of ``{name: run or shipped name}`` (:func:`disent.models.load_run`)."""
-    from disent.models import load_run
-
-    out = {}
-    for name, r in chosen.items():
-        model, _ = load_run(r.path if isinstance(r, Run) else r)
-        out[name] = model.eval()
-    return out
-
-
-ERROR_WHITE = 40.0  # degrees of angular error drawn white in the normals figure
 
 
 def wrapped(text: str, width: int) -> str:

@@ -10,7 +10,7 @@ import numpy as np
 
 from disent.images import over_max
 from disent.report.document import Report, pyplot
-from disent.report.pictures import ERROR_WHITE, chosen_models, image_grid, test_batch
+from disent.report.pictures import image_grid, test_batch
 from disent.report.tables import (
     INFER_SPEED_KEY,
     MODELS,
@@ -24,7 +24,9 @@ from disent.report.tables import (
     spread_text,
     table_head,
 )
-from disent.runs import Run, pick_runs, setting
+from disent.runs import Run, load_chosen, pick_runs, setting
+
+ERROR_WHITE = 40.0  # degrees of angular error drawn white in the normals figure
 
 
 def sec_runs(rep: Report, runs: list[Run]) -> None:
@@ -196,7 +198,7 @@ def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
         )
         return
     try:
-        models, batch = chosen_models(chosen), test_batch(n_vis)
+        models, batch = load_chosen(chosen), test_batch(n_vis)
     except (ImportError, FileNotFoundError) as e:  # fall back to the grids the runs saved
         rep.note(f"cannot render from checkpoints ({e}); showing the runs' own sample grids.")
         for name, r in chosen.items():
