@@ -270,6 +270,56 @@ def test_sh_error_split_puts_an_invisible_light_in_hidden():
     assert split["hidden"] == pytest.approx(0.25, rel=0.05)  # the scale, read from shading, stays ~1
 
 
+def test_completed_sh_keeps_what_the_face_shows_and_takes_what_it_hides_from_the_prior():
+    """On a frontal cap: a light wrong only along the hidden directions comes back as the truth when the prior is the
+    truth at another scale (the prior is scaled to the light over the shown directions); the shown part is the
+    estimator's whatever the prior; the completion scales with the light; on normals over the whole sphere nothing
+    is hidden and the light comes back unchanged."""
+    from disent.eval.metrics import completed_sh, hidden_directions, sh_gram
+    from disent.render import sample_sphere
+
+    normal, mask = frontal_normals(B=2)
+    gram = sh_gram(normal, mask)
+    vectors, hidden = hidden_directions(gram)
+    assert hidden.any() and not hidden.all()
+    g = torch.Generator().manual_seed(0)
+    true = torch.randn(2, 3, 9, generator=g, dtype=torch.float64)
+    in_basis = lambda x: torch.einsum("nck,nkj->ncj", x, vectors)  # noqa: E731
+    junk = torch.einsum("ncj,nkj->nck", torch.randn(2, 3, 9, generator=g, dtype=torch.float64) * hidden, vectors)
+    wrong = true + 5 * junk  # wrong where the face cannot tell
+    assert sh_error(wrong, true) > 0.5
+    assert torch.allclose(completed_sh(wrong, 0.3 * true, gram), true, atol=1e-9)
+    other = completed_sh(wrong, torch.randn(3, 9, generator=g, dtype=torch.float64), gram)
+    assert torch.allclose(in_basis(other) * ~hidden, in_basis(wrong) * ~hidden, atol=1e-9)
+    assert torch.allclose(completed_sh(2.5 * wrong, true[0], gram), 2.5 * completed_sh(wrong, true[0], gram))
+    sphere = sample_sphere(4096, torch.Generator().manual_seed(1)).T.reshape(1, 3, 64, 64).float()
+    whole = sh_gram(sphere.expand(2, -1, -1, -1), torch.ones(2, 1, 64, 64))
+    assert not hidden_directions(whole)[1].any()
+    assert torch.allclose(completed_sh(wrong, true, whole), wrong, atol=1e-9)
+
+
+def test_completed_light_metrics_read_each_estimator_on_its_own_normals():
+    """The network's light is completed along what its own normals hide, L-hat's along what the pseudo normals
+    hide: a network light right where its normals show and wild where they hide scores ~0 once completed by the
+    true light, against a raw error above 0.5; L-hat's entry is left out where the data carry no pseudo-GT."""
+    from disent.eval.evaluate import completed_light_metrics
+    from disent.eval.metrics import hidden_directions, sh_gram
+
+    normal, mask = frontal_normals(B=2)
+    vectors, hidden = hidden_directions(sh_gram(normal, mask))
+    g = torch.Generator().manual_seed(1)
+    true = torch.randn(2, 3, 9, generator=g, dtype=torch.float64)
+    wild = true + 5 * torch.einsum(
+        "ncj,nkj->nck", torch.randn(2, 3, 9, generator=g, dtype=torch.float64) * hidden, vectors
+    )
+    out = {"sh": wild, "normal": normal, "matte": mask.expand(2, 1, *mask.shape[2:]).double()}
+    gt = {"sh": true}
+    m = completed_light_metrics(out, gt, true)  # a per-image prior: the truth itself
+    assert sh_error(wild, true) > 0.5 and m["sh_error_completed"] < 1e-12 and set(m) == {"sh_error_completed"}
+    pseudo = {"sh_pseudo": wild, "normal_pseudo": normal, "mask_pseudo": out["matte"]}
+    assert completed_light_metrics(out, {**gt, **pseudo}, true)["pseudo_sh_error_completed"] < 1e-12
+
+
 def test_pattern_corr_forgives_scale_offset_and_contrast_but_not_the_pattern():
     """Pearson's correlation per image and channel: an affine map of the truth scores 1, its negation -1, noise
     independent of it about 0; a flattened map (less contrast) that a scale-invariant MSE scores better stays at 1."""

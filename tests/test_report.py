@@ -591,6 +591,16 @@ def test_targets_section_sets_the_light_beside_the_constant_light_part_by_part(t
         "light on the face, its shown part; not SH error, its hidden part |"
     ], rows
     assert not any(line.startswith("| `(defaults)` | implicit | 0.") for line in rep.lines)
+    assert not any("completed by the mean light" in line for line in rep.lines)  # no run scored with it
+    completed = {"sh_error_completed": 0.27, "pseudo_sh_error": 0.83, "pseudo_sh_error_completed": 0.29}
+    make_run(tmp_path, "c", seed=5, extra=("loss.bws_c=0.3",), eval_={**light, **floor, **completed})
+    rep = report.Report(tmp_path, "")
+    report.sec_targets(rep, find_runs([tmp_path]))
+    line = next(line for line in rep.lines if line.startswith("- explicit `loss.bws_c=0.3`"))
+    assert line == (
+        "- explicit `loss.bws_c=0.3`: 0.270 (n=1) completed against 0.500 (n=1) raw; L-hat 0.830 raw, 0.290 completed; "
+        "constant light 0.370 (**beats it**)\n"
+    ), line
 
 
 def test_ablation_claims_pair_each_ablation_with_the_full_model_and_gate_on_the_budget(tmp_path):

@@ -13,6 +13,7 @@ from torch.utils.data import DataLoader, Subset
 
 from disent.eval.metrics import (
     angular_error_deg,
+    completed_sh,
     light_shading_si_mse,
     normal_angular_error,
     normal_spread,
@@ -22,6 +23,7 @@ from disent.eval.metrics import (
     scale_invariant_mse_bands,
     sh_error,
     sh_error_shown_hidden,
+    sh_gram,
 )
 
 FACE_THRESHOLD = 0.99  # matte above this is face without background mixing
@@ -266,7 +268,26 @@ def evaluate_model(model, dataset, limit: int = 256, batch_size: int = 64, trivi
 
     out, gt, ips = model_outputs(model, dataset, limit, batch_size)
     m = {**metrics_from_outputs(out, gt), "infer_images_per_s": ips, "n_eval": len(gt["image"])}
-    return {**m, **trivial_metrics(trivial, gt)} if trivial is not None else m
+    if trivial is None:
+        return m
+    return {
+        **m,
+        **trivial_metrics(trivial, gt),
+        **(completed_light_metrics(out, gt, trivial["sh"]) if "sh" in out else {}),
+    }
+
+
+def completed_light_metrics(out: dict, gt: dict, prior: torch.Tensor) -> dict:
+    """``sh_error_completed``: the SH error of the network's light completed by ``prior`` (the mean train light,
+    :func:`disent.eval.trivial.dataset_means`) along the SH directions its *own* normals and matte hide
+    (:func:`~disent.eval.metrics.completed_sh`); ``pseudo_sh_error_completed``: L-hat's, completed along what the
+    pseudo normals hide.  No truth enters the estimate: both are estimators, scored like ``sh_error``."""
+    own = face_mask(out["matte"]) if "matte" in out else torch.ones_like(out["normal"][:, :1])
+    m = {"sh_error_completed": sh_error(completed_sh(out["sh"], prior, sh_gram(out["normal"], own)), gt["sh"])}
+    if {"sh_pseudo", "normal_pseudo", "mask_pseudo"} <= set(gt):
+        pseudo = sh_gram(gt["normal_pseudo"], gt["mask_pseudo"])
+        m["pseudo_sh_error_completed"] = sh_error(completed_sh(gt["sh_pseudo"], prior, pseudo), gt["sh"])
+    return m
 
 
 __all__ = [
@@ -280,6 +301,7 @@ __all__ = [
     "bws_stats",
     "uv_metrics",
     "evaluate_model",
+    "completed_light_metrics",
 ]
 
 

@@ -11,7 +11,7 @@ Scale conventions (intrinsic images are defined only up to scale, Grosse et al. 
   per image (one scalar for all 3 x 9 coefficients; ``per_channel=True`` uses one per channel,
   matching the albedo convention), then divides the squared error by the truth's squared norm;
   :func:`sh_error_shown_hidden` splits it between the SH directions a face's normals show and those
-  they hide.
+  they hide; :func:`completed_sh` fills what a face hides from a prior (the mean train light).
 """
 
 from __future__ import annotations
@@ -273,14 +273,33 @@ def scale_in_shading(pred_sh: torch.Tensor, true_sh: torch.Tensor, gram: torch.T
     return s[..., None] * p
 
 
+def hidden_directions(gram: torch.Tensor, fraction: float = 0.01) -> tuple:
+    """``(vectors [B,9,9], hidden [B,1,9])``: ``gram``'s eigenvectors (columns) and which are *hidden*, eigenvalue
+    below ``fraction`` of the largest: SH directions whose shading over the face no image of it can pin down."""
+    values, vectors = torch.linalg.eigh(gram)  # ascending, per image
+    return vectors, (values < fraction * values[:, -1:])[:, None, :]
+
+
 def shown_hidden_energy(x: torch.Tensor, gram: torch.Tensor, fraction: float = 0.01) -> tuple:
     """``(shown [B], hidden [B])``: the squared norm of SH vectors ``x [B,C,9]`` (summed over channels) split over
-    ``gram``'s eigenvectors into the *hidden* directions, eigenvalue below ``fraction`` of the largest, which no
-    image of the face can pin down, and the *shown* rest."""
-    values, vectors = torch.linalg.eigh(gram)  # ascending, per image
-    hidden = (values < fraction * values[:, -1:])[:, None, :]  # [B, 1, 9]
+    ``gram``'s eigenvectors into the hidden directions (:func:`hidden_directions`) and the *shown* rest."""
+    vectors, hidden = hidden_directions(gram, fraction)
     energy = torch.einsum("nck,nkj->ncj", x, vectors) ** 2
     return (energy * ~hidden).sum((1, 2)), (energy * hidden).sum((1, 2))
+
+
+def completed_sh(sh: torch.Tensor, prior: torch.Tensor, gram: torch.Tensor, fraction: float = 0.01) -> torch.Tensor:
+    """The light a face shows, completed by a prior where it hides: ``sh [B,C,9]`` along the directions ``gram``
+    (:func:`sh_gram` at the estimator's *own* normals and mask) shows, ``prior [C,9]`` (or ``[B,C,9]``, e.g. the
+    mean train light) along those it hides (:func:`hidden_directions`), the prior scaled per image and channel to
+    ``sh`` over the shown directions.  An image says nothing of the hidden part, so an estimator that fills it from
+    the prior models no more of the light than the face reveals."""
+    s, g = sh.detach().double(), gram.double()
+    vectors, hidden = hidden_directions(g, fraction)
+    own = torch.einsum("nck,nkj->ncj", s, vectors)
+    pri = torch.einsum("nck,nkj->ncj", prior.detach().double().expand_as(s), vectors)
+    scale = (own * pri * ~hidden).sum(2, keepdim=True) / (pri.pow(2) * ~hidden).sum(2, keepdim=True).clamp_min(1e-300)
+    return torch.einsum("ncj,nkj->nck", torch.where(hidden, scale * pri, own), vectors).to(sh.dtype)
 
 
 def sh_error_shown_hidden(
@@ -325,6 +344,8 @@ __all__ = [
     "sh_gram",
     "scale_in_shading",
     "shown_hidden_energy",
+    "hidden_directions",
+    "completed_sh",
     "optimal_scale",
     "ANGLE_THRESHOLDS",
 ]

@@ -116,6 +116,7 @@ def sec_targets(rep: Report, runs: list[Run]) -> None:
             *LIGHT_HEAD,
             *light_rows,
             "",
+            *completed_light_lines(runs),
         )
     if not any(where == "+experiment=long" for where, _ in groups):
         rep.add(
@@ -155,6 +156,38 @@ def light_table(groups: dict) -> list[str]:
             f"{'; '.join(filter(None, [', '.join(yes), no and 'not ' + ', '.join(no)]))} |"
         )
     return rows
+
+
+def completed_light_lines(runs: list[Run]) -> list[str]:
+    """The light completed by the mean light where a face hides it (``sh_error_completed``,
+    :func:`disent.eval.evaluate.completed_light_metrics`), per setting and model of the runs scored with it, beside
+    the raw light, L-hat raw and completed, and the constant light."""
+    groups: dict = {}
+    for r in runs:
+        if r.status == "ok" and r.eval and r.value("sh_error_completed") is not None:
+            groups.setdefault((setting(r, drop_model=True), r.model), []).append(r)
+    lines = []
+    for (where, model), rs in sorted(groups.items()):
+        completed, raw = seed_spread(rs, "sh_error_completed"), seed_spread(rs, "sh_error")
+        mean = {k: (st := seed_spread(rs, k)) and st["mean"] for k in ("pseudo_sh_error", "pseudo_sh_error_completed")}
+        floor = seed_spread(rs, "trivial_sh_error")
+        lines.append(
+            f"- {model} `{where}`: {spread_text(completed, '.3f')} completed against {spread_text(raw, '.3f')} raw; "
+            f"L-hat {fmt_value(mean['pseudo_sh_error'], '.3f')} raw, "
+            f"{fmt_value(mean['pseudo_sh_error_completed'], '.3f')} completed; constant light "
+            f"{fmt_value(floor and floor['mean'], '.3f')}"
+            + (" (**beats it**)" if floor and completed["mean"] < floor["mean"] else " (does not beat it)")
+        )
+    if not lines:
+        return []
+    return [
+        "The SH error of the light *completed by the mean light*: the estimate along the SH directions its own "
+        "normals and matte show, the mean train light (scaled to it there) along those they hide "
+        "(`disent.eval.metrics.completed_sh`; for L-hat, the pseudo normals'). No truth enters it; it models no more "
+        "of the light than the face reveals. Runs scored with it (`python -m disent.eval.evaluate RUN` scores a "
+        "finished run again), test split, all nine coefficients:\n",
+        "\n".join(lines) + "\n",
+    ]
 
 
 def beyond_the_fit(groups: dict) -> list[str]:
