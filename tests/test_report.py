@@ -596,11 +596,11 @@ def test_targets_section_sets_the_light_beside_the_constant_light_part_by_part(t
     make_run(tmp_path, "c", seed=5, extra=("loss.bws_c=0.3",), eval_={**light, **floor, **completed})
     rep = report.Report(tmp_path, "")
     report.sec_targets(rep, find_runs([tmp_path]))
-    line = next(line for line in rep.lines if line.startswith("- explicit `loss.bws_c=0.3`"))
-    assert line == (
-        "- explicit `loss.bws_c=0.3`: 0.270 (n=1) completed against 0.500 (n=1) raw; L-hat 0.830 raw, 0.290 completed; "
-        "constant light 0.370 (**beats it**)\n"
-    ), line
+    row = next(line for line in rep.lines if line.startswith("| `loss.bws_c=0.3` | explicit |"))
+    assert row == (
+        "| `loss.bws_c=0.3` | explicit | 0.270 (n=1) | 0.500 (n=1) | 0.290 / 0.830 | 0.370 | "
+        "the constant light, L-hat completed |"
+    ), row
 
 
 def test_ablation_claims_pair_each_ablation_with_the_full_model_and_gate_on_the_budget(tmp_path):

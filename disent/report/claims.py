@@ -158,35 +158,45 @@ def light_table(groups: dict) -> list[str]:
     return rows
 
 
+COMPLETED_HEAD = table_head(
+    "setting", "model", "SH error completed", "raw", "L-hat completed / raw", "constant light", "completed beats"
+)
+
+
 def completed_light_lines(runs: list[Run]) -> list[str]:
     """The light completed by the mean light where a face hides it (``sh_error_completed``,
     :func:`disent.eval.evaluate.completed_light_metrics`), per setting and model of the runs scored with it, beside
-    the raw light, L-hat raw and completed, and the constant light."""
+    the raw light, L-hat completed and raw, and the constant light; empty without such runs."""
     groups: dict = {}
     for r in runs:
         if r.status == "ok" and r.eval and r.value("sh_error_completed") is not None:
             groups.setdefault((setting(r, drop_model=True), r.model), []).append(r)
-    lines = []
+    rows = []
     for (where, model), rs in sorted(groups.items()):
-        completed, raw = seed_spread(rs, "sh_error_completed"), seed_spread(rs, "sh_error")
-        mean = {k: (st := seed_spread(rs, k)) and st["mean"] for k in ("pseudo_sh_error", "pseudo_sh_error_completed")}
-        floor = seed_spread(rs, "trivial_sh_error")
-        lines.append(
-            f"- {model} `{where}`: {spread_text(completed, '.3f')} completed against {spread_text(raw, '.3f')} raw; "
-            f"L-hat {fmt_value(mean['pseudo_sh_error'], '.3f')} raw, "
-            f"{fmt_value(mean['pseudo_sh_error_completed'], '.3f')} completed; constant light "
-            f"{fmt_value(floor and floor['mean'], '.3f')}"
-            + (" (**beats it**)" if floor and completed["mean"] < floor["mean"] else " (does not beat it)")
+        keys = ("sh_error_completed", "sh_error", "pseudo_sh_error_completed", "pseudo_sh_error", "trivial_sh_error")
+        completed, raw, lhat_completed, lhat, floor = (seed_spread(rs, k) for k in keys)
+        mean = {k: st and st["mean"] for k, st in zip(keys, (completed, raw, lhat_completed, lhat, floor))}
+        beats = [
+            name
+            for name, k in (("the constant light", "trivial_sh_error"), ("L-hat completed", keys[2]))
+            if mean[k] is not None and completed["mean"] < mean[k]
+        ]
+        rows.append(
+            f"| `{where}` | {model} | {spread_text(completed, '.3f')} | {spread_text(raw, '.3f')} | "
+            f"{fmt_value(mean[keys[2]], '.3f')} / {fmt_value(mean['pseudo_sh_error'], '.3f')} | "
+            f"{fmt_value(mean['trivial_sh_error'], '.3f')} | {', '.join(beats) or 'neither'} |"
         )
-    if not lines:
+    if not rows:
         return []
     return [
-        "The SH error of the light *completed by the mean light*: the estimate along the SH directions its own "
-        "normals and matte show, the mean train light (scaled to it there) along those they hide "
-        "(`disent.eval.metrics.completed_sh`; for L-hat, the pseudo normals'). No truth enters it; it models no more "
-        "of the light than the face reveals. Runs scored with it (`python -m disent.eval.evaluate RUN` scores a "
-        "finished run again), test split, all nine coefficients:\n",
-        "\n".join(lines) + "\n",
+        "The light *completed by the mean light*: the estimate along the SH directions its own normals and matte "
+        "show, the mean train light (scaled to it there) along those they hide (`disent.eval.metrics.completed_sh`; "
+        "L-hat along what the pseudo normals show). No truth enters it, and it models no more of the light than the "
+        "face reveals. SH error on all nine coefficients, test split, for the runs scored with it (`python -m "
+        "disent.eval.evaluate RUN` scores a finished run again):\n",
+        *COMPLETED_HEAD,
+        *rows,
+        "",
     ]
 
 
