@@ -894,6 +894,32 @@ def test_edit_claims_are_read_over_the_seeds_of_a_setting(tmp_path):
     assert any(r.startswith("| explicit | `shipped` | dmt | beard |") and "not testable (1 seed(s)" in r for r in rows)
 
 
+def test_an_edit_the_model_cannot_draw_gets_no_verdict_however_the_reader_reads_it(tmp_path):
+    """An edit that reads as the attribute on every face of a model whose reconstructions of faces that have it
+    never read as it fools the reader: listed as not testable beside that share, not tabled; a model with one code
+    (the baseline) is a reference row without a verdict."""
+    out = tmp_path / "reports"
+    d = out / "edit" / "baseline"
+    d.mkdir(parents=True)
+    claims = [
+        {"attribute": a, "method": "dmt", "manifolds": "paper:z", "gain_per_leak": 1.5, "best_success": 1.0}
+        for a in ("eyeglasses", "beard")
+    ]
+    drawn = [
+        {"attribute": a, "method": m, "success": v}
+        for a, rates in (("eyeglasses", (0.0, 0.7)), ("beard", (0.7, 0.75)))
+        for m, v in zip(("truth reconstructed", "truth"), rates)
+    ]
+    res = {"model": "baseline", "setting": "shipped", "claims": claims, "relight": [], "traversal": drawn}
+    (d / "edit.json").write_text(json.dumps(res))
+    make_run(tmp_path / "runs", "a", eval_={"normal_mean": 12.0, "pseudo_normal_mean": 11.5})
+    rep = report.Report(out, "")
+    report.sec_claims(rep, find_runs([tmp_path / "runs"]), out / "eval")
+    assert "| baseline | `shipped` | eyeglasses by dmt 1.00 | eyeglasses 0.00 (truth 0.70) |" in rep.lines
+    rows = [line for line in rep.lines if line.startswith("| baseline | `shipped` | dmt |")]
+    assert rows == ["| baseline | `shipped` | dmt | beard | z: 1.5 (n=1) | – | 1.00 | – (one code: a reference) |"]
+
+
 def test_light_claim_is_read_over_the_seeds_the_protocol_scored(tmp_path):
     """Claim 2 groups the protocol's network rows by model and setting; three seeds lower than L-hat on both
     numbers beyond their spread confirm it, one seed is not testable."""

@@ -200,6 +200,23 @@ def completed_light_lines(runs: list[Run]) -> list[str]:
     ]
 
 
+def edit_rates(results: list[dict], attribute: str) -> dict:
+    """``{"truth reconstructed": spread, "truth": spread}`` over the edit results of a setting's models: how often
+    the reader calls ``attribute`` on the model's reconstructions of faces that have it, and on those faces; a key
+    is missing where no result measured it."""
+    rates = {}
+    for m in ("truth reconstructed", "truth"):
+        found = [
+            r["success"]
+            for res in results
+            for r in res.get("traversal") or []
+            if r["attribute"] == attribute and r["method"] == m
+        ]
+        if found:
+            rates[m] = _ablation.mean_std(found)
+    return rates
+
+
 def beyond_the_fit(groups: dict) -> list[str]:
     """Claim 1 pixel by pixel: the network's and the pseudo-GT's normal error where the pseudo-GT errs by each
     range of :data:`disent.eval.evaluate.PSEUDO_ERROR_BINS` (``groups``: ``{(setting, model): runs}``; runs
@@ -479,7 +496,8 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
                 cells.setdefault((c["method"], c["attribute"]), {}).setdefault(c["manifolds"], []).append(
                     (c["gain_per_leak"], c["best_success"])
                 )
-        cannot = []  # the edits no manifold set makes: (attribute, method, best success)
+        drawn = {a: edit_rates(results, a) for _, a in cells}  # what the model draws of faces that have it
+        cannot = []  # the edits no manifold set makes, or that the model cannot draw: (attribute, method, success)
         for (method, attribute), sets in cells.items():
             stats = {m: _ablation.mean_std([g for g, _ in v]) for m, v in sets.items()}
             paper = next((m for m in sets if str(m).startswith("paper:")), None)
@@ -488,32 +506,22 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
             others = [m for m in sets if m != paper]
             rival = max(others, key=lambda m: stats[m]["mean"]) if others else None
             success = max(_ablation.mean_std([s for _, s in v])["mean"] for v in sets.values())
-            if success < EDIT_WORKS:  # listed under the table: no verdict to read
+            drawable = drawn[attribute].get("truth reconstructed")
+            if success < EDIT_WORKS or (drawable and drawable["mean"] < EDIT_WORKS):  # under the table: no verdict
                 cannot.append((attribute, method, success))
                 continue
             rows.append(
                 f"| {model} | `{where}` | {method} | {attribute} | {paper[6:]}: {spread_text(stats[paper], '.3g')} | "
-                f"{rival}: {spread_text(stats[rival], '.3g') if rival else '–'} | {success:.2f} | "
-                f"{verdict(stats[paper], stats[rival] if rival else None, 'higher')} |"
+                f"{f'{rival}: ' + spread_text(stats[rival], '.3g') if rival else '–'} | {success:.2f} | "
+                + (verdict(stats[paper], stats[rival], "higher") if rival else "– (one code: a reference)")
+                + " |"
             )
         if cannot:
-            ceiling = []  # how often the model's reconstruction of faces that have the attribute reads as it
-            for attribute in dict.fromkeys(a for a, _, _ in cannot):
-                rates = {
-                    m: _ablation.mean_std(
-                        [
-                            r["success"]
-                            for res in results
-                            for r in res.get("traversal") or []
-                            if r["attribute"] == attribute and r["method"] == m
-                        ]
-                    )
-                    for m in ("truth reconstructed", "truth")
-                }
-                if all(rates.values()):
-                    ceiling.append(
-                        f"{attribute} {rates['truth reconstructed']['mean']:.2f} (truth {rates['truth']['mean']:.2f})"
-                    )
+            ceiling = [
+                f"{a} {rates['truth reconstructed']['mean']:.2f} (truth {rates['truth']['mean']:.2f})"
+                for a in dict.fromkeys(a for a, _, _ in cannot)
+                if all((rates := drawn[a]).get(m) for m in ("truth reconstructed", "truth"))
+            ]
             idle.append(
                 f"| {model} | `{where}` | {', '.join(f'{a} by {m} {v:.2f}' for a, m, v in cannot)} | "
                 f"{', '.join(ceiling) or '–'} |"
@@ -561,11 +569,13 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
     )
     if idle:
         rep.add(
-            f"Not testable, no manifold set makes the edit (best success < {EDIT_WORKS}). Last column: the share of "
-            "the model's reconstructions of the same faces with the attribute truly on that the reader calls "
-            "positive (beside the true images' share, the reader's recall): an edit reads as the attribute no "
-            "more often than the model can draw it, so a low share says the decoder cannot draw the attribute, "
-            "and a high one that the traversal, not the decoder, fails.\n",
+            f"Not testable: no manifold set makes the edit (best success < {EDIT_WORKS}), or the model cannot draw "
+            f"the attribute (last column < {EDIT_WORKS}). Last column: the share of the model's reconstructions of "
+            "the same faces with the attribute truly on that the reader calls positive (beside the true images' "
+            "share, the reader's recall). A model draws an edit no more often than it draws the faces that have "
+            "the attribute, so a low share says the decoder cannot draw it, and an edit that reads as it anyway "
+            "(a best success above the last column) fools the reader rather than drawing the attribute; a high "
+            "share says the traversal, not the decoder, fails.\n",
             *idle_head,
             *idle,
             "",
