@@ -383,3 +383,34 @@ def test_layer_choices_are_checked_and_shared_with_the_discriminator():
     assert D.encoder.layers == model.layers and isinstance(D.decoder.norms[0], torch.nn.GroupNorm)
     z, _ = model.encoder(torch.rand(2, 3, R, R))
     assert ((z > 0) & (z < 1)).all()  # the release's sigmoid on Z_I
+
+
+def test_a_deeper_decoder_adds_convolutions_without_skips_and_keeps_the_papers_weights():
+    """``model.decoder_convs``: at 1 (the paper) the decoders hold the same weights under the same names as before
+    it existed (shipped checkpoints load), and compute what the speed kernels compute; at 2 each decoder without
+    skips gains one 3x3 convolution a stage (the last before its output convolution), the skip-connected
+    background and matte decoders none, gradients reach every new weight, and the speed kernels step aside."""
+    from disent.models.networks import CHANNELS, Layers
+    from disent.train import build_discriminator
+
+    with pytest.raises(ValueError, match="model.decoder_convs=0"):
+        build_model(model_cfg("baseline", decoder_convs=0))
+    paper = build_model(model_cfg("explicit"))
+    assert not any("extra" in k for k in paper.state_dict())
+    torch.manual_seed(0)
+    deep = build_model(model_cfg("explicit", decoder_convs=2))
+    assert deep.layers == Layers(decoder_convs=2)
+    widths = [[m.in_channels for m in stage] for stage in deep.dec_A.extra]
+    assert widths == [[CHANNELS[1]], [CHANNELS[0]], [CHANNELS[0]]]  # 64, 32, then 32 before the 3-channel output
+    assert not any(deep.dec_bg.extra) and not any(deep.dec_m.extra)
+    assert any(build_discriminator(deep).decoder.extra)
+    x = torch.rand(2, 3, R, R)
+    out = deep(x)
+    assert out["albedo"].shape == (2, 3, R, R)
+    out["albedo"].sum().backward()
+    assert all(c.weight.grad is not None and c.weight.grad.abs().sum() > 0 for s in deep.dec_A.extra for c in s)
+    with torch.no_grad():  # the kernels path and the plain path agree at the paper's depth
+        plain = build_model(model_cfg("baseline", kernels=False)).eval()
+        fast = build_model(model_cfg("baseline", kernels=True)).eval()
+        fast.load_state_dict(plain.state_dict())
+        assert torch.allclose(plain(x)["recon"], fast(x)["recon"], atol=1e-5)

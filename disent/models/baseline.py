@@ -21,12 +21,15 @@ class Baseline(nn.Module):
         centre_input: bool = False,
         z_act: str = "relu",
         kernels: bool = True,
+        decoder_convs: int = 1,
     ):
         super().__init__()
         if matting:
             raise ValueError("the baseline autoencoder has no matting layer (model.matting must be false)")
         self.resolution = resolution
-        self.layers = layers = Layers(norm, centre_input, z_act, kernels)  # the same layers as the rendering models
+        self.layers = layers = Layers(
+            norm, centre_input, z_act, kernels, decoder_convs
+        )  # the same layers as the rendering models
         self.encoder = Encoder(resolution, code_dim, layers=layers)
         self.decoder = Decoder(3, resolution, code_dim, layers=layers)
 

@@ -40,12 +40,13 @@ class Explicit(nn.Module):
         centre_input: bool = False,
         z_act: str = "relu",
         kernels: bool = True,
+        decoder_convs: int = 1,
     ):
         super().__init__()
         if normal not in NORMAL_PARAMS:
             raise ValueError(f"model.normal={normal!r}; choose from {', '.join(NORMAL_PARAMS)}")
         self.resolution, self.matting, self.normal_param = resolution, matting, normal
-        self.layers = layers = Layers(norm, centre_input, z_act, kernels)
+        self.layers = layers = Layers(norm, centre_input, z_act, kernels, decoder_convs)
         self.encoder = Encoder(resolution, code_dim, layers=layers)
         self.codes = CodeHeads(self.CODE_NAMES, code_dim)
         self.dec_bg = Decoder(3, resolution, code_dim, skips=True, layers=layers)  # Sec. 3.3: skips for bg, matte only

@@ -35,18 +35,23 @@ class Layers:
 
     ``norm``: normalisation after each hidden convolution ("none" as in the paper and the release,
     "batch" or "group"); ``centre_input``: feed the encoder ``2 * image - 1`` instead of [0, 1];
-    ``z_act``: the nonlinearity on Z_I ("relu", "sigmoid" as in the release, or "none").  ``kernels`` is not a
-    modelling choice: the same layers computed by the CPU speed kernels of :mod:`disent.models.kernels`."""
+    ``z_act``: the nonlinearity on Z_I ("relu", "sigmoid" as in the release, or "none"); ``decoder_convs``: 3x3
+    convolutions per upsampling stage of a decoder without skips (1: the paper; more: a deeper decoder, beyond
+    the paper, for the detail a face passes through the bottleneck with).  ``kernels`` is not a modelling choice:
+    the same layers computed by the CPU speed kernels of :mod:`disent.models.kernels`."""
 
     norm: str = "none"
     centre_input: bool = False
     z_act: str = "relu"
     kernels: bool = True
+    decoder_convs: int = 1
 
     def __post_init__(self):
         for key, value, allowed in (("norm", self.norm, NORMS), ("z_act", self.z_act, Z_ACTS)):
             if value not in allowed:
                 raise ValueError(f"model.{key}={value!r}; choose from {', '.join(allowed)}")
+        if not (isinstance(self.decoder_convs, int) and self.decoder_convs >= 1):
+            raise ValueError(f"model.decoder_convs={self.decoder_convs!r}; a whole number >= 1 (1: the paper)")
 
 
 NORMS = ("none", "batch", "group")
@@ -108,22 +113,35 @@ class Decoder(nn.Module):
             for i, (a, b) in enumerate(zip(chans[:-1], chans[1:]))
         )
         self.norms = nn.ModuleList(norm_layer(layers.norm, b) for b in chans[1:-1])  # hidden maps only
+        # beyond the paper (Layers.decoder_convs): more 3x3 convolutions a stage, each with its norm and ReLU, after
+        # a hidden stage's convolution and before the output convolution; none with skips or at the paper's 1
+        extra = 0 if skips else layers.decoder_convs - 1
+        width = [*chans[1:-1], chans[-2]]  # each stage's hidden width: its output's, the last stage's input's
+        self.extra = nn.ModuleList(
+            nn.ModuleList(nn.Conv2d(w, w, 3, padding=1, bias=layers.norm == "none") for _ in range(extra))
+            for w in width
+        )
+        self.extra_norms = nn.ModuleList(nn.ModuleList(norm_layer(layers.norm, w) for _ in range(extra)) for w in width)
 
     def forward(self, code: torch.Tensor, switches=None) -> torch.Tensor:
         if self.skips and switches is None:
             raise ValueError("this decoder unpools with the encoder's switches; pass codes['switches']")
         x = F.relu(self.fc(code)).view(code.shape[0], CHANNELS[-1], self.side, self.side)
-        if self.layers.kernels:
+        if self.layers.kernels and not any(self.extra):  # the speed kernels compute the paper's decoder
             return kernels.decoder_stages(self, x, switches)
+        last = len(self.convs) - 1
         for i, conv in enumerate(self.convs):
             x = (
                 F.max_unpool2d(x, switches[-1 - i], 2)
                 if self.skips
                 else F.interpolate(x, scale_factor=2, mode="nearest")
             )
-            x = conv(x)
-            if i < len(self.convs) - 1:  # hidden maps: normalisation, ReLU; the output map has no nonlinearity
-                x = F.relu(self.norms[i](x))
+            if i < last:  # hidden maps: normalisation, ReLU; the output map has no nonlinearity
+                x = F.relu(self.norms[i](conv(x)))
+            for more, norm in zip(self.extra[i], self.extra_norms[i]):
+                x = F.relu(norm(more(x)))
+            if i == last:
+                x = conv(x)
         return x
 
 
