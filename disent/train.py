@@ -273,6 +273,7 @@ ADDED_LATER = {
     "loss.recon_p": 2,
     "loss.recon_fg_p": 2,
     "loss.lhat_gray": False,
+    "model.decoder_convs": 1,
     **{f"loss.weights.{t}": 0.0 for t in L.TRUTH},
 }
 
@@ -343,7 +344,9 @@ def warm_start(model, cfg) -> None:
 
     path = checkpoint_path(cfg.init)
     ck = load_checkpoint(path)
-    theirs, ours = dict((ck.get("cfg") or {}).get("model") or {}), OmegaConf.to_container(cfg.model, resolve=True)
+    before = {k.removeprefix("model."): v for k, v in ADDED_LATER.items() if k.startswith("model.")}
+    theirs = {**before, **((ck.get("cfg") or {}).get("model") or {})}  # a setting added since: as they trained
+    ours = {**before, **OmegaConf.to_container(cfg.model, resolve=True)}
     differ = sorted(k for k in {*theirs, *ours} if f"model.{k}" not in NOT_DEFINING and theirs.get(k) != ours.get(k))
     if differ:
         raise ConfigError(

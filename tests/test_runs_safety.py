@@ -123,6 +123,9 @@ def test_a_setting_added_later_resumes_runs_from_before_it_only_at_its_old_behav
     assert config_differences(before, {**new, "loss": {"recon_p": 2, "recon_fg_p": 1}}) == ["loss.recon_fg_p: 2 -> 1"]
     gray = {"seed": 0, "loss": {"recon_p": 2, "lhat_gray": False}}  # E_recon-L's gray target, off: as before it
     assert config_differences(before, gray) == []
+    paper = {**before, "model": {"decoder_convs": 1}}  # the paper's decoder depth: what every earlier run trained
+    assert config_differences(before, paper) == []
+    assert config_differences(before, {**before, "model": {"decoder_convs": 2}}) == ["model.decoder_convs: 1 -> 2"]
     assert config_differences(before, {**gray, "loss": {"recon_p": 2, "lhat_gray": True}}) == [
         "loss.lhat_gray: False -> True"
     ]
