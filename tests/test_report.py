@@ -1212,7 +1212,12 @@ def test_claim_two_reads_the_light_as_learned_only_where_the_face_shows_it(tmp_p
     assert "explicit 0.115 ± 0.005 (n=3) shown / 1.100 ± 0.000 (n=3) hidden" in line
     assert "the mean light 0.250 ± 0.000 (n=4) shown" in line and "L-hat 0.190 ± 0.000 (n=4) shown" in line
     assert "explicit **confirmed**, implicit not testable (1 seed(s); 3 needed)" in line
+    assert "Filled from the mean light" not in line  # no run scored with the completed light
     assert shown_hidden_lines(find_runs([tmp_path / "old"])) == []
+    filled = {"sh_error_completed": 0.27, "pseudo_sh_error_completed": 0.29, "trivial_sh_error": 0.37}
+    make_run(tmp_path, "c", "explicit", seed=4, eval_={"sh_error_shown": 0.1} | light | filled)
+    (line,) = shown_hidden_lines(find_runs([tmp_path]))
+    assert line.endswith("explicit 0.270 (n=1), against L-hat filled the same way 0.290 and the constant light 0.370.")
 
 
 def test_published_rows_under_a_default_since_changed_match_todays_rows(tmp_path):

@@ -315,6 +315,19 @@ def shown_hidden_lines(runs: list[Run]) -> list[str]:
             parts.append(f"{label} {spread_text(shown, '.3f')} shown / {spread_text(hidden, '.3f')} hidden")
             if not prefix:
                 learned.append(f"{label} {verdict(shown, mean_light, 'lower')}")
+    completed = [r for r in scored if r.value("sh_error_completed") is not None]
+    filled = ", ".join(
+        f"{model} {spread_text(seed_spread(rs, 'sh_error_completed'), '.3f')}"
+        for model in ("explicit", "implicit")
+        if (rs := [r for r in completed if r.model == model])
+    )
+    if filled:
+        filled = (
+            f" Filled from the mean light (`sh_error_completed`, every setting scored with it; section *At a glance*): "
+            f"{filled}, against L-hat filled the same way "
+            f"{spread_text(seed_spread(completed, 'pseudo_sh_error_completed'), '.3f', count=False)} and the "
+            f"constant light {spread_text(seed_spread(completed, 'trivial_sh_error'), '.3f', count=False)}."
+        )
     return [
         "- The SH error split by what the face shows (`sh_error_shown` / `sh_error_hidden`, test split, relative to "
         "the true light; `disent.eval.metrics.sh_error_shown_hidden`): a face's normals cover part of the sphere, "
@@ -326,6 +339,7 @@ def shown_hidden_lines(runs: list[Run]) -> list[str]:
         "spread): "
         + ", ".join(learned)
         + "; the hidden part is a guess that only a prior (the mean light's) can make well."
+        + filled
     ]
 
 
