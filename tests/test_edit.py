@@ -495,6 +495,22 @@ def test_what_a_perfect_autoencoder_draws_reads_as_the_truth_does():
     truth, drawn = rows[1], rows[2]
     assert drawn["method"] == "truth reconstructed"
     assert drawn["success"] == truth["success"] and drawn["gain"] == pytest.approx(truth["gain"])
+    assert drawn["drawn_share"] == pytest.approx(1.0)  # it draws all of the generator's change
+
+
+def test_drawn_share_is_the_part_of_the_true_change_a_model_reproduces():
+    """No change drawn: 0; half of it (and any change orthogonal to it besides): 0.5; all of it: 1; the same
+    reconstruction shifted by a constant in both images changes nothing."""
+    from disent.edit.measure import drawn_share
+
+    g = torch.Generator().manual_seed(0)
+    off, change = torch.rand(4, 3, 8, 8, generator=g), 0.2 * torch.randn(4, 3, 8, 8, generator=g)
+    on = off + change
+    other = torch.randn(4, 3, 8, 8, generator=g)
+    other -= (other * change).sum() / (change * change).sum() * change  # orthogonal to the true change
+    assert drawn_share(off, off, off, on) == 0.0
+    assert drawn_share(off, off + 0.5 * change + other, off, on) == pytest.approx(0.5, abs=1e-5)
+    assert drawn_share(off + 0.3, on + 0.3, off, on) == pytest.approx(1.0, abs=1e-5)
 
 
 # ----------------------------------------------------------------------------- command line

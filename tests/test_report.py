@@ -910,12 +910,16 @@ def test_an_edit_the_model_cannot_draw_gets_no_verdict_however_the_reader_reads_
         for a, rates in (("eyeglasses", (0.0, 0.7)), ("beard", (0.7, 0.75)))
         for m, v in zip(("truth reconstructed", "truth"), rates)
     ]
+    drawn[0]["drawn_share"] = 0.3  # the generator's change its reconstructions reproduce, whatever the reader says
     res = {"model": "baseline", "setting": "shipped", "claims": claims, "relight": [], "traversal": drawn}
     (d / "edit.json").write_text(json.dumps(res))
     make_run(tmp_path / "runs", "a", eval_={"normal_mean": 12.0, "pseudo_normal_mean": 11.5})
     rep = report.Report(out, "")
     report.sec_claims(rep, find_runs([tmp_path / "runs"]), out / "eval")
-    assert "| baseline | `shipped` | eyeglasses by dmt 1.00 | eyeglasses 0.00 (truth 0.70) |" in rep.lines
+    assert (
+        "| baseline | `shipped` | eyeglasses by dmt 1.00 | eyeglasses 0.00 (truth 0.70; 30% of the change drawn) |"
+        in (rep.lines)
+    )
     rows = [line for line in rep.lines if line.startswith("| baseline | `shipped` | dmt |")]
     assert rows == ["| baseline | `shipped` | dmt | beard | z: 1.5 (n=1) | – | 1.00 | – (one code: a reference) |"]
 

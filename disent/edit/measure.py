@@ -137,6 +137,14 @@ def step_along_attribute(codes0: dict, codes: dict, pool, manifolds) -> float:
     return torch.stack(steps).mean().item()
 
 
+def drawn_share(recon_off, recon_on, image_off, image_on) -> float:
+    """How much of an attribute's true change a model draws, with no reader: ``<D_m, D_t> / <D_t, D_t>`` over the
+    batch, ``D_t`` the generator's change (the same faces, lights and poses with the attribute on, less off) and
+    ``D_m`` the change between the model's reconstructions of the two (1: all of it; 0: none)."""
+    true_change = image_on - image_off
+    return float(((recon_on - recon_off) * true_change).sum() / (true_change * true_change).sum().clamp_min(1e-12))
+
+
 def summarize(attribute, manifolds, method, strength, p0, r, leaks) -> dict:
     i = ATTRIBUTES.index(attribute)
     row = {
@@ -230,7 +238,8 @@ def edit_table(
         drawn = model.decode(model.encode(true_edit["image"]))["recon"]
         rd = read(net, drawn)
         leak = leakage(r_in, rd, src["image"], drawn, src["matte"], attribute, spread)
-        rows.append(summarize(attribute, "-", "truth reconstructed", 1.0, r_in["p"][:, i_attr], rd, leak))
+        row = summarize(attribute, "-", "truth reconstructed", 1.0, r_in["p"][:, i_attr], rd, leak)
+        rows.append({**row, "drawn_share": drawn_share(recon0, drawn, src["image"], true_edit["image"])})
     for label, manifolds in choices.items():
         for method, strengths in (("dmt", lambdas), ("barycenter", alphas)):
             for s in strengths:

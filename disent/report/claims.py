@@ -201,19 +201,24 @@ def completed_light_lines(runs: list[Run]) -> list[str]:
 
 
 def edit_rates(results: list[dict], attribute: str) -> dict:
-    """``{"truth reconstructed": spread, "truth": spread}`` over the edit results of a setting's models: how often
-    the reader calls ``attribute`` on the model's reconstructions of faces that have it, and on those faces; a key
-    is missing where no result measured it."""
+    """``{"truth reconstructed": spread, "truth": spread, "drawn share": spread}`` over the edit results of a
+    setting's models: how often the reader calls ``attribute`` on the model's reconstructions of faces that have it,
+    and on those faces, and the share of the generator's change the reconstructions draw
+    (:func:`disent.edit.measure.drawn_share`, no reader); a key is missing where no result measured it."""
     rates = {}
-    for m in ("truth reconstructed", "truth"):
+    for name, m, key in (
+        ("truth reconstructed", "truth reconstructed", "success"),
+        ("truth", "truth", "success"),
+        ("drawn share", "truth reconstructed", "drawn_share"),
+    ):
         found = [
-            r["success"]
+            r[key]
             for res in results
             for r in res.get("traversal") or []
-            if r["attribute"] == attribute and r["method"] == m
+            if r["attribute"] == attribute and r["method"] == m and key in r
         ]
         if found:
-            rates[m] = _ablation.mean_std(found)
+            rates[name] = _ablation.mean_std(found)
     return rates
 
 
@@ -532,7 +537,8 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
             )
         if cannot:
             ceiling = [
-                f"{a} {rates['truth reconstructed']['mean']:.2f} (truth {rates['truth']['mean']:.2f})"
+                f"{a} {rates['truth reconstructed']['mean']:.2f} (truth {rates['truth']['mean']:.2f}"
+                + (f"; {rates['drawn share']['mean']:.0%} of the change drawn)" if "drawn share" in rates else ")")
                 for a in dict.fromkeys(a for a, _, _ in cannot)
                 if all((rates := drawn[a]).get(m) for m in ("truth reconstructed", "truth"))
             ]
@@ -589,7 +595,10 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
             "share, the reader's recall). A model draws an edit no more often than it draws the faces that have "
             "the attribute, so a low share says the decoder cannot draw it, and an edit that reads as it anyway "
             "(a best success above the last column) fools the reader rather than drawing the attribute; a high "
-            "share says the traversal, not the decoder, fails.\n",
+            "share says the traversal, not the decoder, fails. Where measured, the share of the generator's change "
+            "(the same faces with the attribute on, less off) that the model's reconstructions reproduce "
+            "(`disent.edit.measure.drawn_share`, no reader: 100% draws all of it) says how much of it the decoder "
+            "draws, however faint for the reader.\n",
             *idle_head,
             *idle,
             "",
