@@ -573,13 +573,7 @@ LAYERS = (  # (label, network key, trivial key, pseudo-GT key, unit): lower is b
     ("light, SH error", "sh_error", "trivial_sh_error", "pseudo_sh_error", ""),
     ("  shown by the face", "sh_error_shown", "trivial_sh_error_shown", "pseudo_sh_error_shown", ""),  # scale from
     ("  hidden from it", "sh_error_hidden", "trivial_sh_error_hidden", "pseudo_sh_error_hidden", ""),  # shading
-    (
-        "  completed by the mean",
-        "sh_error_completed",
-        "trivial_sh_error",
-        "pseudo_sh_error_completed",
-        "",
-    ),  # metrics.completed_sh
+    ("  completed by the mean", "sh_error_completed", "trivial_sh_error", "pseudo_sh_error_completed", ""),
     ("light, on the face", "light_shading_si_mse", "trivial_light_shading_si_mse", "pseudo_light_shading_si_mse", ""),
 )
 
