@@ -10,7 +10,16 @@ from disent.eval.metrics import FLAT_SHARE, normals_collapsed
 from disent.images import to_array
 from disent.report.document import Report, pyplot
 from disent.report.pictures import test_batch, wrapped
-from disent.report.tables import fmt_value, is_recipe_run, machines, seed_spread, spread_text, table_head, verdict
+from disent.report.tables import (
+    by_setting_and_model,
+    fmt_value,
+    is_recipe_run,
+    machines,
+    seed_spread,
+    spread_text,
+    table_head,
+    verdict,
+)
 from disent.runs import Run, group_by_setting, joins, load_chosen, pick_runs, setting
 
 # What the full explicit model must reach at a budget before ablations there can give verdicts: normal error
@@ -209,10 +218,9 @@ def claim_skin(rep: Report, runs: list[Run]) -> None:
     from disent.eval.evaluate import ALBEDO_CEILING
 
     done = [r for r in runs if r.status == "ok" and r.eval and r.model in ("explicit", "implicit") and not r.ceiling]
-    groups: dict = {}
-    for r in done:
-        if r.eval.get(SKIN_METRICS[0][0]) is not None and not is_recipe_run(r):
-            groups.setdefault((setting(r, drop_model=True), r.model), []).append(r)
+    groups = by_setting_and_model(
+        r for r in done if r.eval.get(SKIN_METRICS[0][0]) is not None and not is_recipe_run(r)
+    )
     head = table_head("setting", "model", *(label for _, label, _ in SKIN_METRICS))
     rows = [
         f"| `{where}` | {model} | "

@@ -11,6 +11,7 @@ from disent.report.document import Report, load_json
 from disent.report.tables import (
     EDIT_WORKS,
     MIN_SEEDS,
+    by_setting_and_model,
     fmt_value,
     ladder_runs,
     machines,
@@ -31,9 +32,7 @@ TEMPLATE_LABELS = ("albedo si-MSE", "one scale for RGB", "one scale per channel 
 def sec_targets(rep: Report, runs: list[Run]) -> None:
     """At a glance: each model of the budget ladder against its rung's targets and its floors (mean ± std over seeds);
     a layer is learned only where it beats its floor, the dataset-mean map."""
-    groups: dict = {}
-    for r in ladder_runs(runs):
-        groups.setdefault((setting(r, drop_model=True), r.model), []).append(r)
+    groups = by_setting_and_model(ladder_runs(runs))
     head = table_head(
         "setting",
         "model",
@@ -148,9 +147,11 @@ def light_table(groups: dict) -> list[str]:
         pairs = [(seed_spread(rs, key), seed_spread(rs, f"trivial_{key}")) for key, _, _ in LIGHT_KEYS]
         if not all(net and floor for net, floor in pairs):
             continue
-        beats = {label: net["mean"] < floor["mean"] for (_, label, _), (net, floor) in zip(LIGHT_KEYS, pairs)}
         cells = [f"{spread_text(net, f)} / {floor['mean']:{f}}" for (_, _, f), (net, floor) in zip(LIGHT_KEYS, pairs)]
-        yes, no = ([label for label, b in beats.items() if b is want] for want in (True, False))
+        yes, no = (
+            [label for (_, label, _), (net, floor) in zip(LIGHT_KEYS, pairs) if (net["mean"] < floor["mean"]) is want]
+            for want in (True, False)
+        )
         rows.append(
             f"| `{where}` | {model} | {' | '.join(cells)} | "
             f"{'; '.join(filter(None, [', '.join(yes), no and 'not ' + ', '.join(no)]))} |"
@@ -167,23 +168,27 @@ def completed_light_lines(runs: list[Run]) -> list[str]:
     """The light completed by the mean light where a face hides it (``sh_error_completed``,
     :func:`disent.eval.evaluate.completed_light_metrics`), per setting and model of the runs scored with it, beside
     the raw light, L-hat completed and raw, and the constant light; empty without such runs."""
-    groups: dict = {}
-    for r in runs:
-        if r.status == "ok" and r.eval and r.value("sh_error_completed") is not None:
-            groups.setdefault((setting(r, drop_model=True), r.model), []).append(r)
+    groups = by_setting_and_model(
+        r for r in runs if r.status == "ok" and r.eval and r.value("sh_error_completed") is not None
+    )
     rows = []
     for (where, model), rs in sorted(groups.items()):
-        keys = ("sh_error_completed", "sh_error", "pseudo_sh_error_completed", "pseudo_sh_error", "trivial_sh_error")
-        completed, raw, lhat_completed, lhat, floor = (seed_spread(rs, k) for k in keys)
-        mean = {k: st and st["mean"] for k, st in zip(keys, (completed, raw, lhat_completed, lhat, floor))}
+        completed, raw = seed_spread(rs, "sh_error_completed"), seed_spread(rs, "sh_error")
+        mean = {
+            k: (st := seed_spread(rs, k)) and st["mean"]
+            for k in ("pseudo_sh_error_completed", "pseudo_sh_error", "trivial_sh_error")
+        }
         beats = [
             name
-            for name, k in (("the constant light", "trivial_sh_error"), ("L-hat completed", keys[2]))
+            for name, k in (
+                ("the constant light", "trivial_sh_error"),
+                ("L-hat completed", "pseudo_sh_error_completed"),
+            )
             if mean[k] is not None and completed["mean"] < mean[k]
         ]
         rows.append(
             f"| `{where}` | {model} | {spread_text(completed, '.3f')} | {spread_text(raw, '.3f')} | "
-            f"{fmt_value(mean[keys[2]], '.3f')} / {fmt_value(mean['pseudo_sh_error'], '.3f')} | "
+            f"{fmt_value(mean['pseudo_sh_error_completed'], '.3f')} / {fmt_value(mean['pseudo_sh_error'], '.3f')} | "
             f"{fmt_value(mean['trivial_sh_error'], '.3f')} | {', '.join(beats) or 'neither'} |"
         )
     if not rows:

@@ -100,3 +100,11 @@ def is_recipe_run(run: Run) -> bool:
     """A run of the training recipe's leave-one-out (ablations/recipe.sh): a folder under a ``recipe/`` folder.
     Each changes a setting without an ``+ablation``, so it belongs in the recipe table, not among a model's seeds."""
     return "recipe" in run.origin.parts[:-1]
+
+
+def by_setting_and_model(runs) -> dict:
+    """``{(setting apart from the model, model): runs}`` (:func:`disent.runs.setting`), in the order the runs come."""
+    groups: dict = {}
+    for r in runs:
+        groups.setdefault((setting(r, drop_model=True), r.model), []).append(r)
+    return groups
