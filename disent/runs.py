@@ -41,8 +41,8 @@ OmegaConf.register_new_resolver(
 )  # cached: jobs in worker processes reuse it
 
 
-def write_git_revision(run_dir: Path) -> None:
-    """``git.txt``: ``git rev-parse HEAD`` and ``git status --porcelain`` of the source tree."""
+def git_revision() -> str:
+    """``git rev-parse HEAD`` and ``git status --porcelain`` of the source tree, as ``git.txt`` holds them."""
     src = Path(__file__).resolve().parent
 
     def git(*args):
@@ -53,8 +53,12 @@ def write_git_revision(run_dir: Path) -> None:
 
     rev = git("rev-parse", "HEAD") or "unknown (not a git checkout)"
     dirty = git("status", "--porcelain", "--untracked-files=no")
-    text = f"revision: {rev}\n" + (f"uncommitted changes:\n{dirty}\n" if dirty else "clean\n")
-    (run_dir / "git.txt").write_text(text)
+    return f"revision: {rev}\n" + (f"uncommitted changes:\n{dirty}\n" if dirty else "clean\n")
+
+
+def write_git_revision(run_dir: Path) -> None:
+    """``git.txt``: :func:`git_revision`."""
+    (run_dir / "git.txt").write_text(git_revision())
 
 
 def cpu_name() -> str:

@@ -559,7 +559,7 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
     return metrics
 
 
-LAYERS = (  # (label, network key, trivial key, pseudo-GT key, unit): lower is better for each
+LAYERS = (  # (label, network key, trivial key, pseudo-GT key, unit): lower is better but for HIGHER_BETTER
     ("normals, angular error", "normal_mean", "trivial_normal_mean", "pseudo_normal_mean", "deg"),
     ("albedo, scale-inv. MSE", "albedo_si_mse", "trivial_albedo_si_mse", None, ""),
     ("  its coarse part", "albedo_coarse_si_mse", "trivial_albedo_coarse_si_mse", None, ""),  # 2-px blur of the error
@@ -575,12 +575,15 @@ LAYERS = (  # (label, network key, trivial key, pseudo-GT key, unit): lower is b
     ("  hidden from it", "sh_error_hidden", "trivial_sh_error_hidden", "pseudo_sh_error_hidden", ""),  # shading
     ("  completed by the mean", "sh_error_completed", "trivial_sh_error", "pseudo_sh_error_completed", ""),
     ("light, on the face", "light_shading_si_mse", "trivial_light_shading_si_mse", "pseudo_light_shading_si_mse", ""),
+    ("matte, IoU with the face", "matte_iou", "trivial_matte_iou", "pseudo_matte_iou", ""),  # Sec. 3.3
 )
+HIGHER_BETTER = {"matte_iou"}
 
 
 def learned_layers(m: dict) -> dict:
     """``{network key: True/False}``: whether each layer beats its trivial (dataset-mean) baseline."""
-    return {net: m[net] < m[triv] for _, net, triv, _, _ in LAYERS if net in m and triv in m}
+    beats = lambda net, triv: m[net] > m[triv] if net in HIGHER_BETTER else m[net] < m[triv]
+    return {net: beats(net, triv) for _, net, triv, _, _ in LAYERS if net in m and triv in m}
 
 
 def print_eval(m: dict, run_dir) -> None:

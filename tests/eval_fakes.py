@@ -80,6 +80,7 @@ class FakeFaces(torch.utils.data.Dataset):
             "sh": sh.float(),
             "normal_pseudo": bent,
             "mask_pseudo": matte.clone(),
+            "mask_face": matte * (r2 < 0.6),  # the skin a 3DMM covers: the head less its rim
             "sh_pseudo": sh.float(),
             "light_id": torch.tensor(light),
             "identity": torch.tensor(ident),

@@ -78,6 +78,7 @@ def test_item_keys_shapes_and_ranges(train, batch):
         "albedo_uv": (3, H, H),
         "normal_pseudo": (3, H, H),
         "mask_pseudo": (1, H, H),
+        "mask_face": (1, H, H),
         "uv_pseudo": (2, H, H),
         "normal_uv_pseudo": (3, H, H),
         "sh_pseudo": (3, 9),
@@ -153,6 +154,20 @@ def test_pseudo_gt_error_in_the_stated_band():
     assert 8.0 <= err <= 25.0, err
     # The coarse fit covers the face, not the hair: its mask lies mostly inside the true matte.
     assert (b["mask_pseudo"] * b["matte"]).sum() / b["mask_pseudo"].sum() > 0.9
+
+
+def test_mask_face_is_the_skin_that_mask_pseudo_estimates():
+    """``mask_face``, the face region through the true mesh, is binary, lies inside the head (the true matte) and
+    leaves out hair, ears and neck; M-hat (mask_pseudo, the coarse fit's face region) estimates it far better than
+    it estimates the whole head."""
+    from disent.eval.metrics import mask_iou
+
+    b = SynthFaces("test", seed=1).get_batch(range(32))
+    face, head = b["mask_face"], b["matte"]
+    assert set(face.unique().tolist()) == {0.0, 1.0}
+    assert ((face > 0.5) & (head < 0.5)).sum() == 0  # inside the head
+    assert face.sum() < 0.7 * (head > 0.99).sum()  # not the hair, ears and neck
+    assert mask_iou(b["mask_pseudo"], face) > 0.75 and mask_iou(b["mask_pseudo"], head) < 0.6
 
 
 def test_same_seed_same_bytes_any_batching():
@@ -526,3 +541,14 @@ def test_grid_vertex_normals_of_a_plane():
     assert torch.allclose(n, vertex_normals(verts, grid_faces(gv, gu)), atol=1e-12)
     plane = torch.tensor([-0.3, 0.2, 1.0], dtype=torch.float64)
     assert torch.allclose(n[0], (plane / plane.norm()).expand(gv * gu, 3), atol=1e-12)
+
+
+def test_contact_sheet_refuses_a_non_png_out_before_rendering(tmp_path, capsys, monkeypatch):
+    """``--out FOLDER`` (or another image type) stops at once with a clear error, before minutes of rendering."""
+    from disent.data.synth import sheet
+
+    monkeypatch.setattr(sheet, "contact_sheet", lambda *a: pytest.fail("rendered before checking --out"))
+    for out in (tmp_path, tmp_path / "sheet.jpg"):
+        with pytest.raises(SystemExit):
+            sheet.main(["--out", str(out)])
+        assert "give a .png file to write" in capsys.readouterr().err

@@ -398,6 +398,7 @@ class FakeSynth(torch.utils.data.Dataset):
             "image": composite(matte, albedo * shading, bg).clamp(0, 1),
             "background": bg,
             "matte": matte,
+            "mask_face": matte * (torch.arange(self.R) >= 5)[:, None],  # the head less its top rows: no hair
             "normal": normal,
             "albedo": albedo,
             "shading": shading,
@@ -456,6 +457,14 @@ def test_edit_and_relight_tables_run_end_to_end_on_a_toy_generator():
     claims = claim_summary(rows[3:])
     assert len(claims) == 2 * 5 and {c["method"] for c in claims} == {"dmt", "barycenter"}
     assert sorted(c["rank"] for c in claims if c["method"] == "dmt") == [1, 2, 3, 4, 5]
+    # every edit row says how much of the true change it draws; the claims sum it over the strengths per leakage
+    assert all(math.isfinite(r["drawn_share"]) for r in rows[2:])
+    for c in claims:
+        rs = [r for r in rows[3:] if r["method"] == c["method"] and r["manifolds"] == c["manifolds"]]
+        assert c["drawn_per_leak"] == pytest.approx(sum(r["drawn_share"] for r in rs) / sum(r["leakage"] for r in rs))
+        assert c["best_drawn"] == max(r["drawn_share"] for r in rs)
+    no_truth, _ = edit_table(model, net, FakeSynth, "smiling", pool_size=12, n_sources=3, lambdas=(0.1,), alphas=())
+    assert not any("drawn_share" in r for r in no_truth) and "drawn_per_leak" not in claim_summary(no_truth[1:])[0]
     bank = {
         "left": sh_from_directions(torch.tensor([[-1.0, 0, 1]]), torch.full((1, 3), 0.6), 0.2),
         "right": sh_from_directions(torch.tensor([[1.0, 0.2, 1]]), torch.full((1, 3), 0.6), 0.2),
@@ -464,6 +473,7 @@ def test_edit_and_relight_tables_run_end_to_end_on_a_toy_generator():
     by = {r["method"]: r for r in rel}
     assert set(by) == {"transfer", "ratio", "decode", "input", "oracle"}
     assert by["oracle"]["psnr"] == 100.0  # the transfer formulas on true intrinsics: exact up to float32
+    assert by["oracle"]["psnr_skin"] == 100.0 and 0 < by["input"]["psnr_skin"] < 100  # also inside the face region
     assert example["transfer"].shape == (2, 3, 16, 16)
 
 

@@ -113,6 +113,8 @@ def test_perfect_model_scores_perfectly():
     assert m["albedo_si_mse"] < 1e-12 and m["sh_error"] < 1e-12 and m["n_eval"] == 6
     assert m["light_shading_si_mse"] < 1e-12 and m["albedo_detailed_si_mse"] < 1e-10
     assert m["infer_images_per_s"] > 0
+    # the oracle's matte is the whole head: scored against the face region it covers, M-hat (the head here) alike
+    assert m["matte_iou"] == m["pseudo_matte_iou"] and 0.3 < m["matte_iou"] < 0.95
 
 
 def test_normal_error_binned_by_the_pseudo_gts_own_error():
@@ -331,6 +333,7 @@ def test_trivial_baselines_are_dataset_means():
     torch.testing.assert_close(means["sh"], gt["sh"][0])
     assert trivial_metrics(means, gt)["trivial_normal_mean"] == pytest.approx(0, abs=1e-3)
     assert trivial_metrics(means, gt)["trivial_sh_error"] == pytest.approx(0, abs=1e-10)
+    assert trivial_metrics(means, gt)["trivial_matte_iou"] == 1  # one face: the mean region is its region
     torch.testing.assert_close(means["sh_pseudo"], gt["sh_pseudo"][0])  # the mean L-hat, for context
     assert trivial_metrics(means, gt)["trivial_lhat_sh_error"] == pytest.approx(
         metrics_from_outputs({"sh": gt["sh_pseudo"]}, gt)["sh_error"]
@@ -354,6 +357,11 @@ def test_trivial_baselines_are_dataset_means():
     assert oracle["sh_error"] < 1e-12 < oracle["trivial_sh_error"]
     same = metrics_from_outputs(trivial_outputs(means, 12), batch)  # the constant scored as a model: the same numbers
     assert same["normal_mean"] == pytest.approx(t["trivial_normal_mean"]) and "recon_mse" not in same
+    # the mean face region: the share of faces covering each pixel; cut at 0.5 it is the majority region
+    f = batch["mask_face"]
+    torch.testing.assert_close(means["mask_face"], f.mean(0))
+    majority = (f.mean(0, keepdim=True) > 0.5).expand_as(f)
+    assert t["trivial_matte_iou"] == pytest.approx(((majority & (f > 0.5)).sum() / (majority | (f > 0.5)).sum()).item())
 
 
 def test_template_is_the_mean_uv_albedo_placed_by_the_true_uv():

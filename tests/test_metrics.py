@@ -339,3 +339,19 @@ def test_pattern_corr_forgives_scale_offset_and_contrast_but_not_the_pattern():
     outside[:, :, 0] = -5  # pixels off the mask do not count
     assert pattern_corr(outside, target, mask) == pytest.approx(1.0, abs=1e-5)
     assert pattern_corr(noise, target, mask, reduction="none").shape == (4,)
+
+
+def test_mask_iou_closed_forms():
+    """Two half-overlapping squares: IoU 1/3; identical masks 1, disjoint 0, both empty 1; pooled over the batch, so
+    a face counts by its size; soft masks are cut at the threshold; shapes must match."""
+    from disent.eval.metrics import mask_iou
+
+    a, b = torch.zeros(1, 1, 8, 8), torch.zeros(1, 1, 8, 8)
+    a[..., :4, :4], b[..., 2:6, :4] = 1, 1  # 16 pixels each, 8 shared: 8 / 24
+    assert mask_iou(a, b) == pytest.approx(1 / 3) and mask_iou(a, a) == 1 and mask_iou(a, 1 - a) == 0
+    assert mask_iou(torch.zeros_like(a), torch.zeros_like(a)) == 1
+    big = torch.ones(1, 1, 8, 8)  # identical: 64 of 64; with the first pair: (8 + 64) / (24 + 64)
+    assert mask_iou(torch.cat([a, big]), torch.cat([b, big])) == pytest.approx(72 / 88)
+    assert mask_iou(0.6 * a, b) == pytest.approx(1 / 3) and mask_iou(0.4 * a, b) == 0
+    with pytest.raises(ValueError):
+        mask_iou(a, b[..., :4])

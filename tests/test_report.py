@@ -1315,3 +1315,87 @@ def test_wrapped_titles_break_only_between_name_parts_and_keep_every_character()
         assert text[at - 1] in " _-.", (line, text[at - 1])
     assert wrapped("supercalifragilistic", 5) == "supercalifragilistic"  # no break inside a part
     assert wrapped("a b", 22) == "a b"
+
+
+def test_relight_rows_read_each_region_the_results_scored():
+    """The relighting tables: per setting, transfer less input and less ratio (mean ± std over models) for each
+    score key; results measured before a key existed are left out of that table, and with no result there is no
+    row."""
+    scores = ("psnr", "psnr_face", "psnr_skin")
+
+    def result(transfer, ratio, skin=True):
+        rows = [{"method": m, **{k: v + (k == "psnr") for k in scores}} for m, v in (("transfer", transfer),)]
+        rows += [{"method": m, **{k: v for k in scores}} for m, v in (("ratio", ratio), ("input", 18.0))]
+        return {"relight": [{k: v for k, v in r.items() if skin or k != "psnr_skin"} for r in rows]}
+
+    results = [result(21.0, 21.5), result(22.0, 21.5), result(30.0, 20.0, skin=False)]
+    (head,) = claims.relight_rows("explicit", "(defaults)", results, ("psnr_face",), all_methods=True)
+    assert head.startswith("| explicit | `(defaults)` | 24.33 ± 4.93 (n=3) | 21.00 ± 0.87 (n=3) | – | 18.00 ± 0.00")
+    (regions,) = claims.relight_rows("explicit", "(defaults)", results[:2] + results[2:], ("psnr_skin", "psnr"))
+    # the third result has no psnr_skin: two models; the whole image adds 1 dB to transfer's score
+    assert regions == (
+        "| explicit | `(defaults)` | 3.50 ± 0.71 (n=2) | 0.00 ± 0.71 (n=2) | 4.50 ± 0.71 (n=2) | 1.00 ± 0.71 (n=2) |"
+    )
+    assert claims.relight_rows("explicit", "x", [{"relight": []}], ("psnr",)) == []
+
+
+def test_matte_table_sets_the_matte_beside_m_hat_and_the_mean_region(tmp_path, monkeypatch):
+    """The matte's glance rows: runs scored with ``matte_iou`` by setting and model, and shipped models whose
+    manifest has it, each beside M-hat and the mean face region, saying which it beats (higher is better)."""
+    import disent.models.shipped as shipped
+
+    ev = {"pseudo_matte_iou": 0.86, "trivial_matte_iou": 0.70}
+    for seed, iou in enumerate((0.91, 0.93, 0.92)):
+        make_run(tmp_path / "runs", f"e{seed}", seed=seed, eval_={**ev, "matte_iou": iou})
+    make_run(tmp_path / "runs", "i0", "implicit", eval_={**ev, "matte_iou": 0.80})
+    make_run(tmp_path / "runs", "old", "implicit", seed=1, eval_={"normal_mean": 12.0})  # scored before the matte
+    monkeypatch.setattr(
+        shipped, "manifest", lambda: {"implicit": {"metrics": {**ev, "matte_iou": 0.5}}, "baseline": {"metrics": {}}}
+    )
+    lines = claims.matte_lines(find_runs([tmp_path / "runs"]))
+    rows = [line for line in lines if line.startswith("| `")]
+    assert rows == [
+        "| `(defaults)` | explicit | 0.920 ± 0.010 (n=3) | 0.860 | 0.700 | M-hat, the mean region |",
+        "| `(defaults)` | implicit | 0.800 (n=1) | 0.860 | 0.700 | the mean region |",
+        "| `shipped` | implicit | 0.500 (n=1) | 0.860 | 0.700 | neither |",
+    ]
+    monkeypatch.setattr(shipped, "manifest", lambda: {})
+    assert claims.matte_lines([]) == []
+
+
+def test_edit_claims_without_the_reader_read_the_drawn_share(tmp_path):
+    """Claim 5's reader-free table: the paper's manifolds against the best other set by drawn share per leakage over
+    three seeds, read where the best set draws at least half of what the model's reconstructions of the true faces
+    draw; an edit under that is listed as not testable, and results measured before the drawn share add no row."""
+    out = tmp_path / "reports"
+    for i in range(3):
+        d = out / "edit" / f"explicit_seed{i}_1200steps"
+        d.mkdir(parents=True)
+        run = make_run(tmp_path / "runs", f"s{i}", seed=i, eval_={"normal_mean": 12.0})
+        claims = [
+            {"attribute": a, "method": "dmt", "manifolds": m, "gain_per_leak": 1.0, "best_success": 0.2}
+            | {"drawn_per_leak": v + 0.1 * i, "best_drawn": drawn}
+            for a, drawn, paper, rival in (("beard", 0.8, 3.9, 3.3), ("smiling", 0.15, 1.0, 0.7))
+            for m, v in (("paper:Ae", paper), ("Ne", rival))
+        ]
+        ceiling = [
+            {"attribute": a, "method": "truth reconstructed", "success": 0.1, "drawn_share": share}
+            for a, share in (("beard", 0.9), ("smiling", 0.4))
+        ]
+        res = {"model": "explicit", "setting": "(defaults)", "claims": claims, "relight": [], "traversal": ceiling}
+        (d / "edit.json").write_text(json.dumps(res | {"run": str(run)}))
+    (out / "edit" / "explicit").mkdir()  # a shipped model measured before the drawn share: no row of its own
+    old = {"model": "explicit", "setting": "shipped", "claims": [dict(claims[0], gain_per_leak=2.0)], "relight": []}
+    for c in old["claims"]:
+        c.pop("drawn_per_leak"), c.pop("best_drawn")
+    (out / "edit" / "explicit" / "edit.json").write_text(json.dumps(old))
+    rep = report.Report(out, "")
+    report.sec_claims(rep, find_runs([tmp_path / "runs"]), out / "eval")
+    free = rep.lines[rep.lines.index(next(line for line in rep.lines if "drawn share per leakage" in line)) + 2 :]
+    free = free[: free.index("")]
+    assert free == [
+        "| explicit | `(defaults)` | dmt | beard | Ae: 4 ± 0.1 (n=3) | Ne: 3.4 ± 0.1 (n=3) | 80% of 90% | "
+        "**confirmed** |",
+        "| explicit | `(defaults)` | dmt | smiling | Ae: 1.1 ± 0.1 (n=3) | Ne: 0.8 ± 0.1 (n=3) | 15% of 40% | "
+        "not testable (draws under 50% of what the model draws) |",
+    ]

@@ -7,7 +7,16 @@ import pytest
 import torch
 
 from disent.models import build_model, load_run
-from disent.models.shipped import CHECK_IMAGES, WEIGHTS, check_metrics, load_weights, manifest, ship, shipped_names
+from disent.models.shipped import (
+    CHECK_IMAGES,
+    WEIGHTS,
+    add_metrics,
+    check_metrics,
+    load_weights,
+    manifest,
+    ship,
+    shipped_names,
+)
 
 # The recorded check ran on one CPU; another CPU or thread count changes float rounding, never more than this.
 TOLERANCE = {"recon_psnr": 0.02, "normal_mean": 0.02, "albedo_si_mse": 1e-4, "sh_error": 1e-3}
@@ -68,3 +77,16 @@ def test_ship_writes_half_weights_and_manifest(tmp_path):
 
     again = check_metrics(model.eval(), OmegaConf.create(saved["cfg"]), CHECK_IMAGES)
     assert again == pytest.approx(entry["check"])
+
+    # metrics added later: a key the run's eval.json lacks is scored from the shipped weights and added, with a note;
+    # the keys it has keep the run's values, and a second call adds nothing
+    listed["tiny"]["metrics"].pop("matte_iou")
+    listed["tiny"]["metrics"]["normal_mean"] = -1.0  # a marker: must survive
+    (tmp_path / "weights" / "manifest.json").write_text(json.dumps(listed))
+    assert add_metrics("tiny", tmp_path / "weights") == ["matte_iou"]
+    tiny = manifest(tmp_path / "weights")["tiny"]
+    assert 0 <= tiny["metrics"]["matte_iou"] <= 1 and tiny["metrics"]["normal_mean"] == -1.0
+    assert tiny["metrics_added"]["keys"] == ["matte_iou"] and tiny["metrics_added"]["weights"] == "float16"
+    assert add_metrics("tiny", tmp_path / "weights") == []
+    with pytest.raises(FileNotFoundError, match="shipped models: tiny"):
+        add_metrics("tinyy", tmp_path / "weights")

@@ -405,3 +405,15 @@ def test_ladder_gpu_script_trains_the_three_models_side_by_side_and_skips_finish
     stamps = {p: p.stat().st_mtime_ns for p in tmp_path.glob("*/eval.json")}
     subprocess.run(cmd, cwd=root, env=env, check=True, capture_output=True, timeout=60)
     assert {p: p.stat().st_mtime_ns for p in tmp_path.glob("*/eval.json")} == stamps
+
+
+def test_learned_layers_reads_the_matte_higher_is_better(capsys):
+    """A layer is learned where it beats its floor: a lower error, but a higher IoU for the matte; print_eval says
+    which, on the matte's line too."""
+    m = {"matte_iou": 0.9, "trivial_matte_iou": 0.7, "pseudo_matte_iou": 0.86, "normal_mean": 20.0}
+    m["trivial_normal_mean"] = 17.0
+    assert T.learned_layers(m) == {"matte_iou": True, "normal_mean": False}
+    assert T.learned_layers({**m, "matte_iou": 0.6}) == {"matte_iou": False, "normal_mean": False}
+    T.print_eval({**m, "n_eval": 4, "recon_mse": 0.01, "recon_psnr": 20.0, "recon_ssim": 0.5}, "run")
+    matte = next(line for line in capsys.readouterr().out.splitlines() if "matte" in line)
+    assert "0.9" in matte and "0.7" in matte and "pseudo-GT 0.86" in matte and matte.endswith("learned")

@@ -22,7 +22,8 @@ those faces: how often what the model can draw at all reads as the attribute, th
 
 **Relighting.**  Target faces re-rendered by the generator under a light of the bank are the
 ground truth; the light comes from the model's estimate on a *different* face under that light
-(the paper's setting).  PSNR/SSIM over the image and inside the true matte, for transfer with
+(the paper's setting).  PSNR/SSIM over the image, inside the true matte (the head) and inside the
+face region ``mask_face`` (the skin the model's matte is trained to cover), for transfer with
 detailed albedo, naive ratio, decoding with the swapped ``Z_L``, and the unrelit input.
 ``oracle`` applies the transfer formulas to the generator's true intrinsics and light.
 """
@@ -259,10 +260,18 @@ def edit_table(
                     )
                 )
                 rows[-1]["step"] = step_along_attribute(codes0, codes, pool, manifolds)
+                if truth_override is not None:  # how much of the true change the edit draws, with no reader
+                    rows[-1]["drawn_share"] = drawn_share(recon0, edited, src["image"], true_edit["image"])
     return rows, shown
 
 
 # ----------------------------------------------------------------------------- relighting
+# where each relit image is scored against the generator's render: the whole image, the head (the true matte: face,
+# hair, ears, neck) and the face region (``mask_face``: the skin a 3DMM covers, which the model's matte is trained
+# to cover; transfer relights only under that matte and leaves the rest of the head as it was)
+RELIGHT_SCORES = ("psnr", "ssim", "psnr_face", "ssim_face", "psnr_skin", "ssim_skin")
+
+
 @torch.no_grad()
 def relight_table(
     model, data_cls, light_bank: dict, n_faces: int = 8, n_lights: int = 6, resolution: int = 64, seed: int = 0
@@ -300,7 +309,10 @@ def relight_table(
             pred = pred.clamp(0, 1)
             whole = reconstruction_metrics(pred, truth["image"])
             face = reconstruction_metrics(pred, truth["image"], truth["matte"])
-            results.setdefault(method, []).append((whole["psnr"], whole["ssim"], face["psnr"], face["ssim"]))
+            skin = reconstruction_metrics(pred, truth["image"], truth["mask_face"])
+            results.setdefault(method, []).append(
+                (whole["psnr"], whole["ssim"], face["psnr"], face["ssim"], skin["psnr"], skin["ssim"])
+            )
         if example is None:
             example = {
                 "target": targets["image"],
@@ -314,14 +326,11 @@ def relight_table(
     rows = []
     for method, vals in results.items():
         t = torch.tensor(vals, dtype=torch.float64)
-        t[:, [0, 2]] = t[:, [0, 2]].clamp(max=PSNR_CAP)  # exact up to float error (or inf): the cap
+        t[:, [0, 2, 4]] = t[:, [0, 2, 4]].clamp(max=PSNR_CAP)  # exact up to float error (or inf): the cap
         rows.append(
             {
                 "method": method,
-                "psnr": t[:, 0].mean().item(),
-                "ssim": t[:, 1].mean().item(),
-                "psnr_face": t[:, 2].mean().item(),
-                "ssim_face": t[:, 3].mean().item(),
+                **{key: t[:, k].mean().item() for k, key in enumerate(RELIGHT_SCORES)},
                 "lights": len(names),
                 "faces": n_faces,
             }
@@ -339,7 +348,9 @@ def markdown_table(rows: list[dict], keys: list[str]) -> str:
 
 def claim_summary(rows: list[dict]) -> list[dict]:
     """Per attribute, method and manifold choice: total gain over total leakage across its
-    strengths, ranked within the attribute and method (``rank`` 1 = most success per leakage)."""
+    strengths, ranked within the attribute and method (``rank`` 1 = most success per leakage); where the rows
+    carry :func:`drawn_share`, the same without the reader: ``drawn_per_leak`` (the drawn shares summed over the
+    strengths, over the summed leakage) and ``best_drawn``."""
     out = []
     for attribute in dict.fromkeys(r["attribute"] for r in rows):
         for method in ("dmt", "barycenter"):
@@ -359,6 +370,10 @@ def claim_summary(rows: list[dict]) -> list[dict]:
                         "best_success": max(r["success"] for r in rs),
                     }
                 )
+                if all("drawn_share" in r for r in rs):
+                    drawn = sum(r["drawn_share"] for r in rs)
+                    group[-1]["drawn_per_leak"] = drawn / leak if leak > 0 else math.nan
+                    group[-1]["best_drawn"] = max(r["drawn_share"] for r in rs)
             order = sorted(group, key=lambda g: -g["gain_per_leak"] if math.isfinite(g["gain_per_leak"]) else math.inf)
             for g in group:
                 g["rank"] = order.index(g) + 1
@@ -555,7 +570,7 @@ def run_measurements(a) -> None:
             ["target", "source", "S target", "S transfer", "transfer", "ratio", "decode", "truth"],
             out / "fig_relight.png",
         )
-    rel_keys = ["method", "psnr", "ssim", "psnr_face", "ssim_face", "lights", "faces"]
+    rel_keys = ["method", *RELIGHT_SCORES, "lights", "faces"]
     (out / "edit.json").write_text(
         json.dumps(
             {

@@ -15,6 +15,7 @@ from disent.eval.metrics import (
     angular_error_deg,
     completed_sh,
     light_shading_si_mse,
+    mask_iou,
     normal_angular_error,
     normal_spread,
     pattern_corr,
@@ -195,6 +196,9 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     ``light_shading_si_mse``: the light's shading through the true normals against the true shading;
     ``sh_error_shown`` and ``sh_error_hidden``: the coefficients' error split between the SH directions the face's
     normals show and those they hide (:func:`~disent.eval.metrics.sh_error_shown_hidden`).
+    ``matte_iou``: the matte's IoU with the true face region ``mask_face`` (the skin a 3DMM covers: what the matte's
+    supervision M-hat estimates; not hair, ears or neck), and ``pseudo_matte_iou`` M-hat's own, both cut at 0.5
+    (:func:`~disent.eval.metrics.mask_iou`; higher is better).
     """
     m = {}
     face = face_mask(gt["matte"])
@@ -239,6 +243,9 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
             m[f"{prefix}sh_error_shown"], m[f"{prefix}sh_error_hidden"] = split["shown"], split["hidden"]
     if {"albedo", "shading"} <= set(out) and "shading" in gt:
         m.update(bws_stats(out, gt))
+    if "matte" in out and "mask_face" in gt:  # the matte against the face region M-hat estimates (Sec. 3.3)
+        m["matte_iou"] = mask_iou(out["matte"], gt["mask_face"])
+        m["pseudo_matte_iou"] = mask_iou(gt["mask_pseudo"], gt["mask_face"])
     if {"uv", "normal_uv"} <= set(out) and "uv" in gt:
         m.update(uv_metrics(out, gt, region))
     return m
@@ -305,6 +312,18 @@ __all__ = [
 ]
 
 
+def score(source) -> dict:
+    """The test metrics a finished run writes to ``eval.json`` (with the trivial baselines), for the model of
+    ``source``: a run folder, a checkpoint or a shipped name (:func:`disent.models.load_run`)."""
+    from disent.data import make_dataset
+    from disent.models import load_run
+    from disent.train import evaluate, trivial_baselines
+
+    model, cfg = load_run(source)
+    trivial = trivial_baselines(make_dataset(cfg.data, "train", cfg.data.get("train_size")))
+    return evaluate(model.eval(), cfg, cfg.train.eval_size, trivial)
+
+
 def rescore(run_dir) -> dict:
     """Score a finished run's final checkpoint again with this version's metrics: ``eval.json`` is rewritten
     (atomically), keeping its training bookkeeping (``steps``, ``stopped_by``, ``train_seconds``) and its measured
@@ -312,17 +331,12 @@ def rescore(run_dir) -> dict:
     import json
     from pathlib import Path
 
-    from disent.data import make_dataset
-    from disent.models import load_run
     from disent.runs import atomic_write
-    from disent.train import evaluate, trivial_baselines
 
     run_dir = Path(run_dir)
     old = json.loads((run_dir / "eval.json").read_text()) if (run_dir / "eval.json").exists() else {}
-    model, cfg = load_run(run_dir)
-    trivial = trivial_baselines(make_dataset(cfg.data, "train", cfg.data.get("train_size")))
     metrics = {
-        **evaluate(model.eval(), cfg, cfg.train.eval_size, trivial),
+        **score(run_dir),
         **{k: old[k] for k in ("steps", "stopped_by", "train_seconds", "infer_images_per_s") if k in old},
     }
     atomic_write(run_dir / "eval.json", lambda f: f.write(json.dumps(metrics, indent=2).encode()))

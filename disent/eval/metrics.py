@@ -321,6 +321,15 @@ def sh_error_split(pred_sh: torch.Tensor, true_sh: torch.Tensor, gram: torch.Ten
     return {"shown": (shown / norm).mean().item(), "hidden": (hidden / norm).mean().item()}
 
 
+def mask_iou(pred: torch.Tensor, target: torch.Tensor, threshold: float = 0.5) -> float:
+    """Intersection over union of two masks ``[B,1,H,W]``, each cut at ``threshold``, pooled over the batch (the
+    intersections' sum over the unions' sum: a face is weighted by its size); 1 where both are empty."""
+    _check_pair(pred, target, 1)
+    p, t = pred > threshold, target > threshold
+    union = (p | t).sum().item()
+    return (p & t).sum().item() / union if union else 1.0
+
+
 def _reduce(per_image: torch.Tensor, reduction: str):
     if reduction == "none":
         return per_image
@@ -338,6 +347,7 @@ __all__ = [
     "reconstruction_metrics",
     "scale_invariant_mse",
     "light_shading_si_mse",
+    "mask_iou",
     "sh_error",
     "sh_error_shown_hidden",
     "sh_error_split",

@@ -111,7 +111,13 @@ def gap_metrics(model, batch: dict, trivial: dict | None = None) -> dict:
     """Reconstruction and agreement with the pseudo ground truth, for one domain.  With ``trivial``
     (:func:`disent.eval.trivial.dataset_means` of the training data) also ``trivial_*``: the training set's mean
     normal map and mean L-hat scored the same way, the constants a network must beat to have read the image."""
-    from disent.eval.metrics import light_shading_si_mse, normal_angular_error, reconstruction_metrics, sh_error
+    from disent.eval.metrics import (
+        light_shading_si_mse,
+        mask_iou,
+        normal_angular_error,
+        reconstruction_metrics,
+        sh_error,
+    )
 
     out = model(batch["image"])
     rec = reconstruction_metrics(out["recon"].clamp(0, 1), batch["image"])
@@ -121,7 +127,7 @@ def gap_metrics(model, batch: dict, trivial: dict | None = None) -> dict:
         m["normal_vs_pseudo_deg"] = normal_angular_error(out["normal"], batch["normal_pseudo"], mask)["mean"]
         matte = out["matte"] > 0.5
         m["matte_covers_mask_pseudo"] = float((matte & mask).sum() / mask.sum())
-        m["matte_iou_mask_pseudo"] = float((matte & mask).sum() / (matte | mask).sum())
+        m["matte_iou_mask_pseudo"] = mask_iou(out["matte"], batch["mask_pseudo"])
         m["sh_vs_pseudo_mse"] = sh_error(out["sh"], batch["sh_pseudo"])
 
         # the light as the face shows it: its shading through normal_pseudo against L-hat's, which leaves out the

@@ -12,6 +12,8 @@ A layer counts as learned only where the network beats its trivial baseline:
   placed on each test face through its true uv.  It knows where the face's features are and nothing of whose face it
   is; an albedo that beats the mean map but not the template has learned the face's placement, not its identity
   (``template_albedo_si_mse``, ``template_albedo_colour_si_mse``, ``template_albedo_global_si_mse``);
+* matte: the mean train face region (``mask_face``, the share of training faces whose skin covers each pixel),
+  scored by the same IoU as the network's matte;
 * light: the mean true SH light, scored by the same scale-aligned SH error; beside it, for context,
   ``trivial_lhat_sh_error``: the mean L-hat, the constant a network could learn from its supervision alone
   (L-hat's constant albedo carries skin tone and the face's dark features into the light, so its mean is
@@ -47,17 +49,19 @@ KEYS = (
     "sh_error_shown",
     "sh_error_hidden",
     "light_shading_si_mse",
+    "matte_iou",
 )
 
 
 @torch.no_grad()
 def dataset_means(dataset, n: int = N_IMAGES, batch_size: int = 256) -> dict:
     """``normal [3,H,W]``, ``albedo [3,H,W]``, ``sh [C,9]``: the constant estimates, from the first
-    ``n`` items of ``dataset`` (which must carry ``normal``, ``albedo``, ``sh`` and ``matte``); ``sh_pseudo`` and the
-    template's ``albedo_uv [3,R,R]`` where the items carry them."""
+    ``n`` items of ``dataset`` (which must carry ``normal``, ``albedo``, ``sh`` and ``matte``); ``sh_pseudo``, the
+    template's ``albedo_uv [3,R,R]`` and the face region's mean ``mask_face [1,H,W]`` where the items carry them."""
     from disent.eval.evaluate import batches
 
-    sums = {"normal": 0.0, "albedo": 0.0, "weight": 0.0, "sh": 0.0, "sh_pseudo": 0.0, "albedo_uv": 0.0}
+    optional = ("sh_pseudo", "albedo_uv", "mask_face")
+    sums = {"normal": 0.0, "albedo": 0.0, "weight": 0.0, "sh": 0.0, **{k: 0.0 for k in optional}}
     count = 0
     for b in batches(dataset, batch_size, n):
         face = face_mask(b["matte"].double())
@@ -65,7 +69,7 @@ def dataset_means(dataset, n: int = N_IMAGES, batch_size: int = 256) -> dict:
         sums["albedo"] = sums["albedo"] + (b["albedo"].double() * face).sum(0)
         sums["weight"] = sums["weight"] + face.sum(0)
         sums["sh"] = sums["sh"] + b["sh"].double().sum(0)
-        for k in ("sh_pseudo", "albedo_uv"):
+        for k in optional:
             if k in b:
                 sums[k] = sums[k] + b[k].double().sum(0)
         count += len(b["image"])
@@ -77,15 +81,18 @@ def dataset_means(dataset, n: int = N_IMAGES, batch_size: int = 256) -> dict:
     mean_albedo = sums["albedo"].sum((1, 2)) / sums["weight"].sum().clamp_min(1)  # [C], where no face ever is
     albedo = torch.where(covered, sums["albedo"] / sums["weight"].clamp_min(1), mean_albedo[:, None, None])
     means = {"normal": normal.float(), "albedo": albedo.float(), "sh": (sums["sh"] / count).float(), "n": count}
-    for k in ("sh_pseudo", "albedo_uv"):
+    for k in optional:
         if torch.is_tensor(sums[k]):
             means[k] = (sums[k] / count).float()
     return means
 
 
 def trivial_outputs(means: dict, batch: int) -> dict:
-    """The constant estimates as a model's outputs for ``batch`` images, and the shading they make (Eq. 4)."""
+    """The constant estimates as a model's outputs for ``batch`` images, and the shading they make (Eq. 4); the
+    mean face region as the matte where ``means`` has it."""
     out = {k: means[k].expand(batch, *means[k].shape) for k in ("normal", "albedo", "sh")}
+    if "mask_face" in means:
+        out["matte"] = means["mask_face"].expand(batch, *means["mask_face"].shape)
     return {**out, "shading": sh_shading(out["normal"], out["sh"])}
 
 

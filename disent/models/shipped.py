@@ -7,6 +7,7 @@ revision, test metrics (its ``eval.json``), training steps and seconds, the mach
 ``tests/test_shipped.py`` recomputes.
 
     python -m disent.models.shipped RUN_DIR NAME     # ship a finished run as NAME
+    python -m disent.models.shipped NAME --add-metrics   # score it with this version's metrics, add what it lacks
     load_run("explicit")                             # disent.models.load_run takes a shipped name
 """
 
@@ -124,13 +125,44 @@ def ship(run_dir, name: str, folder: Path = WEIGHTS) -> dict:
     return entry
 
 
+def add_metrics(name: str, folder: Path = WEIGHTS) -> list[str]:
+    """Score shipped model ``name`` with this version's metrics (:func:`disent.eval.evaluate.score`) and add to its
+    manifest entry the metrics its run's ``eval.json`` lacks; those it has stay as the run scored them (float32
+    weights). The added ones come from the shipped float16 weights, and ``metrics_added`` says which and at what
+    revision. Returns the added keys."""
+    from disent.eval.evaluate import score
+    from disent.runs import git_revision
+
+    path = shipped_path(name, folder)  # an unknown name: the error that lists the shipped names
+    entries = manifest(folder)
+    metrics = entries[name]["metrics"]
+    new = score(path)
+    added = sorted(k for k in new if k not in metrics)
+    metrics.update({k: new[k] for k in added})
+    if added:
+        keys = sorted({*entries[name].get("metrics_added", {}).get("keys", []), *added})
+        entries[name]["metrics_added"] = {"keys": keys, "git": git_revision(), "weights": "float16"}
+        (Path(folder) / "manifest.json").write_text(json.dumps(entries, indent=1, sort_keys=True) + "\n")
+    return added
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description="Ship a finished run's weights inside the package (disent/weights/).")
-    p.add_argument("run", help="run folder with checkpoints/last.pt and eval.json")
-    p.add_argument("name", help="name to load it by: load_run(NAME), python -m disent.edit relight NAME ...")
+    p.add_argument("run", help="run folder with checkpoints/last.pt and eval.json (with --add-metrics: a shipped name)")
+    p.add_argument("name", nargs="?", help="name to load it by: load_run(NAME), python -m disent.edit relight NAME ...")
     p.add_argument("--folder", type=Path, default=WEIGHTS, help="where the weights and manifest.json go")
+    p.add_argument(
+        "--add-metrics",
+        action="store_true",
+        help="score the shipped model RUN with this version's metrics and add those its manifest lacks",
+    )
     a = p.parse_args(argv)
     torch.set_num_threads(1)
+    if a.add_metrics:
+        print(f"{a.run}: added {', '.join(add_metrics(a.run, a.folder)) or 'nothing (every metric was there)'}")
+        return
+    if a.name is None:
+        p.error("give the NAME to ship the run as")
     e = ship(a.run, a.name, a.folder)
     print(
         f"shipped {a.name}: {e['bytes'] / 1e6:.1f} MB, {e['steps']} steps, "

@@ -22,7 +22,18 @@ def contact_sheet(resolution: int = 64, seed: int = 0) -> tuple[torch.Tensor, li
     train = SynthFaces("train", resolution, seed)
     rows, labels = [], []
     b = train.get_batch(range(0, 64, 8))
-    layers = ("image", "background", "matte", "albedo", "shading", "normal", "uv", "albedo_uv", "normal_uv")
+    layers = (
+        "image",
+        "background",
+        "matte",
+        "mask_face",
+        "albedo",
+        "shading",
+        "normal",
+        "uv",
+        "albedo_uv",
+        "normal_uv",
+    )
     for k in range(6):  # samples and their GT layers, then the pseudo-GT beside
         tiles = []
         for name in layers:
@@ -35,7 +46,9 @@ def contact_sheet(resolution: int = 64, seed: int = 0) -> tuple[torch.Tensor, li
             display(b["normal_uv_pseudo"][k], "normal"),
         ]
         rows.append(strip(tiles))
-    labels.append("GT: image bg matte albedo shading normal uv albedo_uv normal_uv | pseudo: normal mask uv normal_uv")
+    labels.append(
+        "GT: image bg matte face-region albedo shading normal uv albedo_uv normal_uv | pseudo: normal mask uv normal_uv"
+    )
     tiles = []
     for a in ATTRIBUTES:  # each attribute off / on, everything else fixed
         for s in (0.0, 1.0):
@@ -72,6 +85,8 @@ def main(argv=None) -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--zoom", type=int, default=2)
     args = ap.parse_args(argv)
+    if args.out is not None and args.out.suffix.lower() != ".png":
+        ap.error(f"--out {args.out}: give a .png file to write")
     import matplotlib.pyplot as plt
 
     sheet, labels = contact_sheet(args.resolution, args.seed)
