@@ -573,14 +573,15 @@ class RunStatus(Callback):
 
 
 def find_runs(roots=RUN_ROOTS) -> list[Run]:
-    """Every run folder (one holding ``.hydra/config.yaml``) under ``roots``, sorted by path; a run found both
-    as its folder and as a record (:func:`record_run`) is read once, from its folder."""
+    """Every run folder (one holding ``.hydra/config.yaml``) under ``roots``, sorted by the folder each run came
+    from (a record's origin), so that a run keeps its place in tables and figures once only its record is left; a run
+    found both as its folder and as a record (:func:`record_run`) is read once, from its folder."""
     found = set()
     for root in roots:
         root = Path(root)
         if root.is_dir():
             found.update(c.parent.parent for c in root.rglob(".hydra/config.yaml"))
-    runs = [Run.load(p) for p in sorted(found)]
+    runs = sorted((Run.load(p) for p in found), key=lambda r: (str(r.origin), r.recorded_from is not None))
     folders = {r.origin for r in runs if r.recorded_from is None}
     return [r for r in runs if r.recorded_from is None or r.origin not in folders]
 

@@ -174,6 +174,17 @@ def test_records_outlive_the_run_folders(tmp_path):
     assert (out / "runs" / "runs-1" / "origin.txt").read_text().strip() == str((tmp_path / "runs" / "1").resolve())
 
 
+def test_runs_are_ordered_by_the_folder_they_came_from(tmp_path):
+    """A run keeps its place among the others when only its record is left: runs are sorted by their origin, not by
+    where their folder or record lies (here the record lies first by path, its origin last)."""
+    make_run(tmp_path / "b", "run1", eval_={"recon_mse": 0.1})
+    gone = make_run(tmp_path / "c", "run0", eval_={"recon_mse": 0.2})
+    record_run(find_runs([gone])[0], tmp_path / "a")
+    shutil.rmtree(gone)
+    runs = find_runs([tmp_path / "a", tmp_path / "b"])
+    assert [r.origin.name for r in runs] == ["run1", "run0"] and runs[1].recorded_from is not None
+
+
 def test_sections_builds_only_the_named_sections(tmp_path):
     fake_suite(tmp_path / "runs")
     out = tmp_path / "reports"
