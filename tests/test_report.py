@@ -1410,3 +1410,28 @@ def test_edit_claims_without_the_reader_read_the_drawn_share(tmp_path):
         "| explicit | `(defaults)` | dmt | smiling | Ae: 1.1 ± 0.1 (n=3) | Ne: 0.8 ± 0.1 (n=3) | 15% of 40% | "
         "not testable (draws under 50% of what the model draws) |",
     ]
+
+
+def test_claim_5_shows_the_shipped_models_progression_figures(tmp_path):
+    """Each shipped model's lambda progression figures are shown under claim 5; a seed's folder or the background
+    diagnostic adds none, and without any there is no caption."""
+    edit = tmp_path / "reports" / "edit"
+    for name, setting, background in (("explicit", "shipped", False), ("explicit_background", "shipped", True)):
+        (edit / name).mkdir(parents=True)
+        res = {"model": "explicit", "setting": setting, "background": background, "claims": []}
+        (edit / name / "edit.json").write_text(json.dumps(res))
+        for attribute in ("smiling", "beard"):
+            (edit / name / f"fig_{attribute}_progression.png").write_bytes(b"png")
+    (edit / "explicit_seed0_1200steps").mkdir()
+    (edit / "explicit_seed0_1200steps" / "edit.json").write_text(json.dumps({"model": "explicit", "setting": "x"}))
+    (edit / "explicit_seed0_1200steps" / "fig_beard_progression.png").write_bytes(b"png")
+    rep = report.Report(tmp_path / "reports", "")
+    claims.progression_figures(rep, edit)
+    images = [line for line in rep.lines if line.startswith("![")]
+    assert images == [
+        "![explicit: beard progression](edit/explicit/fig_beard_progression.png)\n",
+        "![explicit: smiling progression](edit/explicit/fig_smiling_progression.png)\n",
+    ]
+    empty = report.Report(tmp_path / "other", "")
+    claims.progression_figures(empty, tmp_path / "other" / "edit")
+    assert empty.lines == []

@@ -206,6 +206,26 @@ def completed_light_lines(runs: list[Run]) -> list[str]:
     ]
 
 
+def progression_figures(rep: Report, edit_dir: Path) -> None:
+    """The lambda progression of each attribute (``fig_<attribute>_progression.png`` of ``python -m disent.edit
+    measure``) for each shipped model whose measurement drew it, under one caption; nothing where none did."""
+    shown = [
+        (res.get("model", p.parent.name), fig)
+        for p in sorted(edit_dir.glob("*/edit.json"))
+        if (res := load_json(p)) and res.get("setting") == "shipped" and not res.get("background")
+        for fig in sorted(p.parent.glob("fig_*_progression.png"))
+    ]
+    if not shown:
+        return
+    rep.add(
+        "The edits themselves, on the shipped models (`python -m disent.edit measure NAME`): four test faces without "
+        "the attribute, their reconstruction, DMT along the paper's manifolds as lambda falls (a smaller lambda moves "
+        "further), the barycenter, and the generator's own face with the attribute on.\n"
+    )
+    for model, fig in shown:
+        rep.image(fig, f"{model}: {fig.stem[4:].replace('_', ' ')}")
+
+
 def manifold_rows(
     model: str, where: str, results: list[dict], score: str, best: str, works, reach=None, keep_gated: str = ""
 ) -> tuple[list[str], list[tuple]]:
@@ -725,6 +745,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
             "",
         )
     rep.add(*background_lines(outside))
+    progression_figures(rep, eval_dir.parent / "edit")
     rep.add(
         "### Relighting with detailed albedo (Sec. 5.3)\n",
         "PSNR (dB) on the face against the generator's own render of the face under the source light, "
