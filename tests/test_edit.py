@@ -474,6 +474,8 @@ def test_edit_and_relight_tables_run_end_to_end_on_a_toy_generator():
     assert set(by) == {"transfer", "ratio", "decode", "input", "oracle"}
     assert by["oracle"]["psnr"] == 100.0  # the transfer formulas on true intrinsics: exact up to float32
     assert by["oracle"]["psnr_skin"] == 100.0 and 0 < by["input"]["psnr_skin"] < 100  # also inside the face region
+    # one brightness scale per image (least squares, then clipped to the truth's range) can only bring it closer
+    assert all(r["psnr_skin_scaled"] >= r["psnr_skin"] - 1e-9 for r in rel) and by["oracle"]["psnr_skin_scaled"] == 100
     assert example["transfer"].shape == (2, 3, 16, 16)
 
 

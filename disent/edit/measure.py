@@ -23,7 +23,8 @@ those faces: how often what the model can draw at all reads as the attribute, th
 **Relighting.**  Target faces re-rendered by the generator under a light of the bank are the
 ground truth; the light comes from the model's estimate on a *different* face under that light
 (the paper's setting).  PSNR/SSIM over the image, inside the true matte (the head) and inside the
-face region ``mask_face`` (the skin the model's matte is trained to cover), for transfer with
+face region ``mask_face`` (the skin the model's matte is trained to cover; there also after one
+brightness scale per image), for transfer with
 detailed albedo, naive ratio, decoding with the swapped ``Z_L``, and the unrelit input.
 ``oracle`` applies the transfer formulas to the generator's true intrinsics and light.
 """
@@ -42,7 +43,7 @@ from disent.data import get_batch
 from disent.edit.classifier import MeasureNet
 from disent.edit.relight import ratio_relight, transfer_lighting, with_light
 from disent.edit.traversal import ATTRIBUTES, DEFAULT_MANIFOLDS, FACE_CODES, encode_pool, model_kind, traverse
-from disent.eval.metrics import reconstruction_metrics
+from disent.eval.metrics import optimal_scale, reconstruction_metrics
 from disent.images import to_array
 from disent.render import sh_shading
 
@@ -268,8 +269,9 @@ def edit_table(
 # ----------------------------------------------------------------------------- relighting
 # where each relit image is scored against the generator's render: the whole image, the head (the true matte: face,
 # hair, ears, neck) and the face region (``mask_face``: the skin a 3DMM covers, which the model's matte is trained
-# to cover; transfer relights only under that matte and leaves the rest of the head as it was)
-RELIGHT_SCORES = ("psnr", "ssim", "psnr_face", "ssim_face", "psnr_skin", "ssim_skin")
+# to cover; transfer relights only under that matte and leaves the rest of the head as it was), and there after one
+# brightness scale per image (``psnr_skin_scaled``)
+RELIGHT_SCORES = ("psnr", "ssim", "psnr_face", "ssim_face", "psnr_skin", "ssim_skin", "psnr_skin_scaled")
 
 
 @torch.no_grad()
@@ -310,8 +312,12 @@ def relight_table(
             whole = reconstruction_metrics(pred, truth["image"])
             face = reconstruction_metrics(pred, truth["image"], truth["matte"])
             skin = reconstruction_metrics(pred, truth["image"], truth["mask_face"])
+            # the same after one brightness scale per image: the light's intensity, read from another face, is
+            # confounded with that face's albedo; what is left is the light's direction and colour
+            scale = optimal_scale(pred, truth["image"], truth["mask_face"], (1, 2, 3))
+            aligned = reconstruction_metrics((scale * pred).clamp(0, 1), truth["image"], truth["mask_face"])
             results.setdefault(method, []).append(
-                (whole["psnr"], whole["ssim"], face["psnr"], face["ssim"], skin["psnr"], skin["ssim"])
+                (whole["psnr"], whole["ssim"], face["psnr"], face["ssim"], skin["psnr"], skin["ssim"], aligned["psnr"])
             )
         if example is None:
             example = {
@@ -326,7 +332,8 @@ def relight_table(
     rows = []
     for method, vals in results.items():
         t = torch.tensor(vals, dtype=torch.float64)
-        t[:, [0, 2, 4]] = t[:, [0, 2, 4]].clamp(max=PSNR_CAP)  # exact up to float error (or inf): the cap
+        psnr = [k for k, key in enumerate(RELIGHT_SCORES) if key.startswith("psnr")]
+        t[:, psnr] = t[:, psnr].clamp(max=PSNR_CAP)  # exact up to float error (or inf): the cap
         rows.append(
             {
                 "method": method,
