@@ -738,6 +738,7 @@ def test_skin_albedos_set_one_model_per_setting_beside_the_truth(tmp_path, monke
     ablations.claim_skin(rep, [r for r in runs if r.path.name != "low_c"])
     assert len(loaded) == 1 and "![albedo by setting](figures/skin_albedo.png)\n" in rep.lines
     assert any("kept from an earlier build" in line for line in rep.lines)
+    assert ablations.SKIN_CAPTION in rep.lines  # still says what it shows
 
 
 def test_ablation_runs_whose_normals_collapsed_flat_are_named(tmp_path):

@@ -275,6 +275,10 @@ def claim_skin(rep: Report, runs: list[Run]) -> None:
 
 
 SKIN_FACES = 6  # test faces in the albedo-by-setting figure
+SKIN_CAPTION = (
+    "The albedo of one run per setting (explicit; the run's folder in parentheses) on the first "
+    f"{SKIN_FACES} test faces, where its own matte is above 0.5, beside the true albedo:\n"
+)
 
 
 def plot_skin_albedos(rep: Report, groups: dict) -> None:
@@ -296,6 +300,7 @@ def plot_skin_albedos(rep: Report, groups: dict) -> None:
             sources[where] = "explicit"  # the shipped weights
     if len(sources) < 2:
         if any("figures/skin_albedo.png" in line for line in rep.previous.get(rep.title, [])):
+            rep.add(SKIN_CAPTION)
             rep.note("the albedo by setting is kept from an earlier build: here fewer than two settings have a model.")
             rep.image(rep.fig / "skin_albedo.png", "albedo by setting")
         return
@@ -316,10 +321,7 @@ def plot_skin_albedos(rep: Report, groups: dict) -> None:
         for i in range(SKIN_FACES):
             axes[i, j].imshow(to_array(t[i]), interpolation="nearest")
             axes[i, j].set_xticks([]), axes[i, j].set_yticks([])
-    rep.add(
-        "The albedo of one run per setting (explicit; the run's folder in parentheses) on the first "
-        f"{SKIN_FACES} test faces, where its own matte is above 0.5, beside the true albedo:\n"
-    )
+    rep.add(SKIN_CAPTION)
     rep.figure(fig, "skin_albedo.png", "albedo by setting")
 
 
