@@ -738,7 +738,22 @@ def test_skin_albedos_set_one_model_per_setting_beside_the_truth(tmp_path, monke
     ablations.claim_skin(rep, [r for r in runs if r.path.name != "low_c"])
     assert len(loaded) == 1 and "![albedo by setting](figures/skin_albedo.png)\n" in rep.lines
     assert any("kept from an earlier build" in line for line in rep.lines)
-    assert ablations.SKIN_CAPTION in rep.lines  # still says what it shows
+    assert ablations.SKIN_CAPTION + ":\n" in rep.lines  # still says what it shows
+
+    # a published figure of more settings than this build can draw stays; one of fewer is redrawn
+    def build(shown):
+        caption = f"{ablations.SKIN_CAPTION} ({shown} settings):"
+        md = "\n".join(["# disent report", "", "## claims", "", caption, "", "![albedo by setting](figures/x.png)", ""])
+        rep = report.Report(tmp_path / "out", md.replace("x.png", "skin_albedo.png"))
+        rep.title = "claims"
+        ablations.claim_skin(rep, runs)  # models for 2 of its 3 settings
+        return rep.lines
+
+    kept = build(3)
+    assert len(loaded) == 1 and f"{ablations.SKIN_CAPTION} (3 settings):\n" in kept
+    assert any("here 2 of the table's 3 settings have a model" in line for line in kept)
+    redrawn = build(1)
+    assert len(loaded) == 2 and f"{ablations.SKIN_CAPTION} (2 settings):\n" in redrawn
 
 
 def test_ablation_runs_whose_normals_collapsed_flat_are_named(tmp_path):
