@@ -639,11 +639,11 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
             drawable = drawn[attribute].get("truth reconstructed")
             return success >= EDIT_WORKS and not (drawable and drawable["mean"] < EDIT_WORKS)
 
-        def ceiling(attribute):  # the share of the true change the model's reconstructions draw
+        def drawn_ceiling(attribute):  # the share of the true change the model's reconstructions draw
             return (drawn[attribute].get("drawn share") or {}).get("mean")
 
         def draws_enough(attribute, share):
-            return ceiling(attribute) is not None and share >= EDIT_WORKS * ceiling(attribute)
+            return drawn_ceiling(attribute) is not None and share >= EDIT_WORKS * drawn_ceiling(attribute)
 
         found, cannot = manifold_rows(model, where, results, "gain_per_leak", "best_success", reader_works)
         rows += found
@@ -654,7 +654,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
             "drawn_per_leak",
             "best_drawn",
             draws_enough,
-            reach=lambda a, v: f"{v:.0%} of {ceiling(a):.0%}" if ceiling(a) is not None else f"{v:.0%}",
+            reach=lambda a, v: f"{v:.0%} of {drawn_ceiling(a):.0%}" if drawn_ceiling(a) is not None else f"{v:.0%}",
             keep_gated=f"not testable (draws under {EDIT_WORKS:.0%} of what the model draws)",
         )[0]
         if cannot:
