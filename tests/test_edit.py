@@ -247,6 +247,26 @@ def test_transfer_with_true_intrinsics_reproduces_the_relit_render(ambient):
     assert (naive - truth).abs()[(matte == 0).expand_as(truth)].max() > 0.05
 
 
+def test_transfer_is_the_ratio_image_under_a_full_matte_and_blends_the_input_in_elsewhere():
+    """Eq. 2's detailed albedo shaded anew is I S' / S: under a full matte transfer equals the ratio image exactly,
+    and where the matte is m < 1 it is m times the ratio image plus (1 - m) times the unrelit input (Eq. 6)."""
+    normal, matte, albedo, bg = ground_truth_scene()
+    sh_t, sh_s = two_lights(0.3)
+    target = render(normal, matte, albedo, bg, sh_t)
+    S_t = sh_shading(normal, sh_t)
+    soft = matte.clone()
+    soft[..., :8, :] *= 0.9  # the matte's upper half at 0.9
+    out = transfer_lighting(target, normal, S_t, soft, sh_s, albedo)
+    ratio = ratio_relight(target, normal, sh_t, sh_s)
+    lit = ((S_t >= 0.05) & (matte > 0)).expand_as(out)
+    full, partial = lit & (soft == 1).expand_as(out), lit & (soft < 1).expand_as(out)
+    assert full.any() and partial.any()
+    torch.testing.assert_close(out[full], ratio[full], rtol=0, atol=1e-12)
+    blend = 0.9 * ratio + 0.1 * target
+    torch.testing.assert_close(out[partial], blend[partial], rtol=0, atol=1e-12)
+    assert (out[partial] - ratio[partial]).abs().max() > 1e-3
+
+
 def test_transfer_without_fallback_is_exact_where_lit():
     normal, matte, albedo, bg = ground_truth_scene()
     sh_t, sh_s = two_lights(0.0)
@@ -476,6 +496,11 @@ def test_edit_and_relight_tables_run_end_to_end_on_a_toy_generator():
     assert by["oracle"]["psnr_skin"] == 100.0 and 0 < by["input"]["psnr_skin"] < 100  # also inside the face region
     # one brightness scale per image (least squares, then clipped to the truth's range) can only bring it closer
     assert all(r["psnr_skin_scaled"] >= r["psnr_skin"] - 1e-9 for r in rel) and by["oracle"]["psnr_skin_scaled"] == 100
+    # the face region split by the model's matte: one share for every method; a part with no pixel scores NaN
+    share = by["transfer"]["matte_full_share"]
+    assert 0 <= share <= 1 and all(r["matte_full_share"] == share for r in rel)
+    for key, empty in (("psnr_skin_full_scaled", share == 0), ("psnr_skin_soft_scaled", share == 1)):
+        assert all(math.isnan(r[key]) == empty for r in rel)
     assert example["transfer"].shape == (2, 3, 16, 16)
 
 

@@ -1364,6 +1364,17 @@ def test_relight_rows_read_each_region_the_results_scored():
         "| explicit | `(defaults)` | 3.50 ± 0.71 (n=2) | 0.00 ± 0.71 (n=2) | 4.50 ± 0.71 (n=2) | 1.00 ± 0.71 (n=2) |"
     )
     assert claims.relight_rows("explicit", "x", [{"relight": []}], ("psnr",)) == []
+    # against the ratio only, after transfer's own value of a method-independent key (a share, in percent)
+    share = [{**r, "share": 0.5 + 0.1 * k} for k, res in enumerate(results[:2]) for r in res["relight"]]
+    (split,) = claims.relight_rows(
+        "explicit",
+        "(defaults)",
+        [{"relight": share[:3]}, {"relight": share[3:]}],
+        ("psnr_face",),
+        against=("ratio",),
+        values=("share",),
+    )
+    assert split == "| explicit | `(defaults)` | 55% ± 7% (n=2) | 0.00 ± 0.71 (n=2) |"
 
 
 def test_matte_table_sets_the_matte_beside_m_hat_and_the_mean_region(tmp_path, monkeypatch):

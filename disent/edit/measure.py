@@ -270,8 +270,34 @@ def edit_table(
 # where each relit image is scored against the generator's render: the whole image, the head (the true matte: face,
 # hair, ears, neck) and the face region (``mask_face``: the skin a 3DMM covers, which the model's matte is trained
 # to cover; transfer relights only under that matte and leaves the rest of the head as it was), and there after one
-# brightness scale per image (``psnr_skin_scaled``)
-RELIGHT_SCORES = ("psnr", "ssim", "psnr_face", "ssim_face", "psnr_skin", "ssim_skin", "psnr_skin_scaled")
+# brightness scale per image (``psnr_skin_scaled``). Inside a full matte, transfer's detailed albedo makes it the ratio
+# image (A S' = I S' / S, Eqs. 2 and 4); the two differ only where the model's matte is under MATTE_FULL, where Eq. 6
+# blends the unrelit input in: the face region split there (``_full`` / ``_soft``, each scaled on its own pixels), and
+# ``matte_full_share``, the face region's share under a full matte
+MATTE_FULL = 0.99
+RELIGHT_SCORES = (
+    "psnr",
+    "ssim",
+    "psnr_face",
+    "ssim_face",
+    "psnr_skin",
+    "ssim_skin",
+    "psnr_skin_scaled",
+    "psnr_skin_full_scaled",
+    "psnr_skin_soft_scaled",
+    "matte_full_share",
+)
+
+
+def scaled_psnr(pred: torch.Tensor, target: torch.Tensor, region: torch.Tensor) -> float:
+    """PSNR (dB) inside ``region`` after one brightness scale per image fitted there, over the images with a pixel in
+    it (NaN where none has)."""
+    keep = region.flatten(1).any(1)
+    if not keep.any():
+        return math.nan
+    pred, target, region = pred[keep], target[keep], region[keep]
+    scale = optimal_scale(pred, target, region, (1, 2, 3))
+    return reconstruction_metrics((scale * pred).clamp(0, 1), target, region)["psnr"]
 
 
 @torch.no_grad()
@@ -283,6 +309,9 @@ def relight_table(
     names = sorted(light_bank)[:: max(1, len(light_bank) // n_lights)][:n_lights]
     targets = get_batch(test, range(n_faces))
     out_t = model(targets["image"])
+    face = targets["mask_face"]
+    full = (out_t["matte"] >= MATTE_FULL).to(face.dtype) * face
+    full_share = (full.sum() / face.sum().clamp_min(1)).item()
     results: dict[str, list] = {}
     example = None
     for k, name in enumerate(names):
@@ -310,14 +339,14 @@ def relight_table(
         for method, pred in preds.items():
             pred = pred.clamp(0, 1)
             whole = reconstruction_metrics(pred, truth["image"])
-            face = reconstruction_metrics(pred, truth["image"], truth["matte"])
-            skin = reconstruction_metrics(pred, truth["image"], truth["mask_face"])
+            head = reconstruction_metrics(pred, truth["image"], truth["matte"])
+            skin = reconstruction_metrics(pred, truth["image"], face)
             # the same after one brightness scale per image: the light's intensity, read from another face, is
             # confounded with that face's albedo; what is left is the light's direction and colour
-            scale = optimal_scale(pred, truth["image"], truth["mask_face"], (1, 2, 3))
-            aligned = reconstruction_metrics((scale * pred).clamp(0, 1), truth["image"], truth["mask_face"])
+            aligned = [scaled_psnr(pred, truth["image"], m) for m in (face, full, face - full)]
             results.setdefault(method, []).append(
-                (whole["psnr"], whole["ssim"], face["psnr"], face["ssim"], skin["psnr"], skin["ssim"], aligned["psnr"])
+                (whole["psnr"], whole["ssim"], head["psnr"], head["ssim"], skin["psnr"], skin["ssim"], *aligned)
+                + (full_share,)
             )
         if example is None:
             example = {
@@ -337,7 +366,7 @@ def relight_table(
         rows.append(
             {
                 "method": method,
-                **{key: t[:, k].mean().item() for k, key in enumerate(RELIGHT_SCORES)},
+                **{key: t[:, k].nanmean().item() for k, key in enumerate(RELIGHT_SCORES)},
                 "lights": len(names),
                 "faces": n_faces,
             }

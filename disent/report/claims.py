@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from disent.edit.measure import MATTE_FULL
 from disent.eval import ablation as _ablation
 from disent.eval.trivial import TEMPLATE_KEYS
 from disent.report.ablations import TARGETS, albedo_share, budget_misses, claim_ablations, claim_skin
@@ -264,24 +265,37 @@ def manifold_rows(
     return rows, cannot
 
 
-def relight_rows(model: str, where: str, results: list[dict], keys: tuple, all_methods: bool = False) -> list[str]:
+SOFT_SPLIT = ("psnr_skin_full_scaled", "psnr_skin_soft_scaled")  # the face region under a full / soft model matte
+
+
+def relight_rows(
+    model: str,
+    where: str,
+    results: list[dict],
+    keys: tuple,
+    all_methods: bool = False,
+    against: tuple = ("input", "ratio"),
+    values: tuple = (),
+) -> list[str]:
     """One row (a list of at most one) of a relighting table over the edit ``results`` of a setting's models that
-    scored each of ``keys`` (:data:`disent.edit.measure.RELIGHT_SCORES`): per key transfer - input and transfer -
-    ratio (mean ± std over the models); with ``all_methods`` first each method's own score of the one key."""
+    scored each of ``keys`` and ``values`` (:data:`disent.edit.measure.RELIGHT_SCORES`): first transfer's own value of
+    each of ``values``, then per key transfer less each method of ``against`` (mean ± std over the models); with
+    ``all_methods`` first each method's own score of the one key."""
     scores = [{r["method"]: r for r in res.get("relight") or []} for res in results]
-    scores = [s for s in scores if {"transfer", "ratio", "input"} <= set(s) and all(k in s["transfer"] for k in keys)]
+    need = {"transfer", *against}
+    scores = [s for s in scores if need <= set(s) and all(k in s["transfer"] for k in (*keys, *values))]
     if not scores:
         return []
 
-    def col(fn):
-        return spread_text(_ablation.mean_std([fn(s) for s in scores]))
+    def col(fn, fmt=".2f"):
+        return spread_text(_ablation.mean_std([fn(s) for s in scores]), fmt)
 
-    cells = []
+    cells = [col(lambda s, k=k: s["transfer"][k], ".0%") for k in values]
     for key in keys:
         if all_methods:
             nan = {key: float("nan")}
             cells += [col(lambda s, m=m: s.get(m, nan)[key]) for m in ("transfer", "ratio", "decode", "input")]
-        cells += [col(lambda s, m=m: s["transfer"][key] - s[m][key]) for m in ("input", "ratio")]
+        cells += [col(lambda s, m=m: s["transfer"][key] - s[m][key]) for m in against]
     return [f"| {model} | `{where}` | {' | '.join(cells)} |"]
 
 
@@ -631,7 +645,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
         "best success",
         "verdict",
     )
-    rows, idle, relit, relit_regions, free = [], [], [], [], []
+    rows, idle, relit, relit_regions, relit_matte, free = [], [], [], [], [], []
     for (model, where), results in sorted(groups.items()):
         drawn = {a: edit_rates(results, a) for a in {c["attribute"] for res in results for c in res["claims"]}}
 
@@ -670,6 +684,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
             )
         relit += relight_rows(model, where, results, ("psnr_face",), all_methods=True)
         relit_regions += relight_rows(model, where, results, ("psnr_skin", "psnr_skin_scaled", "psnr"))
+        relit_matte += relight_rows(model, where, results, SOFT_SPLIT, against=("ratio",), values=("matte_full_share",))
     idle_head = table_head(
         "model",
         "setting",
@@ -688,9 +703,22 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
             for d in ("input", "ratio")
         ),
     )
-    rows, idle, relit, relit_regions = (
+    matte_head = table_head(
+        "model",
+        "setting",
+        f"face region under a full matte (>= {MATTE_FULL:g})",
+        "transfer - ratio there, one scale per image",
+        "transfer - ratio under the soft rest, one scale per image",
+    )
+    rows, idle, relit, relit_regions, relit_matte = (
         rep.rows_kept(h[0], r, key=k)
-        for h, r, k in ((head, rows, 4), (idle_head, idle, 2), (relit_head, relit, 2), (regions_head, relit_regions, 2))
+        for h, r, k in (
+            (head, rows, 4),
+            (idle_head, idle, 2),
+            (relit_head, relit, 2),
+            (regions_head, relit_regions, 2),
+            (matte_head, relit_matte, 2),
+        )
     )
     if not (rows or idle or relit):
         rep.note(
@@ -771,5 +799,16 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
             "PSNR differences in dB:\n",
             *regions_head,
             *relit_regions,
+            "",
+        )
+    if relit_matte:
+        rep.add(
+            "Why the ratio image leads once the brightness is scaled out: where the model's matte is full, transfer "
+            "*is* the ratio image, since its detailed albedo A = I / S shaded anew gives I S' / S (Eqs. 2 and 4); "
+            "Eq. 6 then blends the unrelit input in by 1 - M wherever the matte is under 1. The face region split "
+            f"by the model's matte (`disent.edit.measure.MATTE_FULL`, {MATTE_FULL:g}), each part with its own "
+            "brightness scale per image, PSNR differences in dB:\n",
+            *matte_head,
+            *relit_matte,
             "",
         )
