@@ -159,6 +159,33 @@ def test_detailed_albedo_carries_the_shading_error():
     assert error(gt["shading"] * ramp) > 1e-3
 
 
+def test_detailed_albedo_with_one_shading_input_made_true_says_which_holds_it_back():
+    """I / S(N, L) with the model's normals under the true light, and the model's light on the true normals: a model
+    wrong only in its light is exact in the second and not in the first, and the other way round."""
+    from disent.render import sh_shading
+
+    ds = FakeFaces("test", size=4)
+    gt = default_collate([ds[i] for i in range(4)])
+    flat = torch.full_like(gt["albedo"], 0.5)
+    turned = gt["sh"].clone()
+    turned[:, :, 3] += 0.4  # the light turned sideways
+    tilted = torch.nn.functional.normalize(gt["normal"] + torch.tensor([0.0, 0.5, 0.0])[:, None, None], dim=1)
+    tilted = tilted * (gt["normal"].norm(dim=1, keepdim=True) > 0)
+
+    def scores(normal, sh):
+        out = {"albedo": flat, "normal": normal, "sh": sh, "shading": sh_shading(normal, sh)}
+        m = metrics_from_outputs(out, gt)
+        return m["albedo_detailed_true_light_si_mse"], m["albedo_detailed_true_normals_si_mse"]
+
+    assert max(scores(gt["normal"], gt["sh"])) < 1e-10
+    light_wrong, normals_wrong = scores(gt["normal"], turned), scores(tilted, gt["sh"])
+    assert light_wrong[0] < 1e-10 < 1e-4 < light_wrong[1]
+    assert normals_wrong[1] < 1e-10 < 1e-4 < normals_wrong[0]
+    assert "albedo_detailed_true_light_si_mse" not in metrics_from_outputs(
+        {"albedo": flat, "shading": gt["shading"]}, gt
+    )
+
+
 def test_intrinsic_layers_are_scored_where_the_model_renders_the_face():
     """albedo, shading and normals count on the true face inside the pseudo mask; hair and neck (outside
     M-hat, the model's background layer) only in ``albedo_face_si_mse``."""

@@ -1401,6 +1401,29 @@ def test_matte_table_sets_the_matte_beside_m_hat_and_the_mean_region(tmp_path, m
     assert claims.matte_lines([]) == []
 
 
+def test_albedo_cause_table_sets_the_detailed_albedo_with_each_input_made_true_beside_the_mean_map(
+    tmp_path, monkeypatch
+):
+    """What holds the albedo back: per setting and model of the runs scored with it (and shipped models whose manifest
+    has it) the network's albedo and the detailed albedo with its own, the true light and the true normals, each
+    with its share of the mean map's; runs scored before it add no row."""
+    import disent.models.shipped as shipped
+
+    ev = {"trivial_albedo_si_mse": 0.0125, "albedo_si_mse": 0.008, "albedo_detailed_si_mse": 0.009}
+    for seed, light in enumerate((0.005, 0.006, 0.007)):
+        scored = {"albedo_detailed_true_light_si_mse": light, "albedo_detailed_true_normals_si_mse": 0.0075}
+        make_run(tmp_path / "runs", f"e{seed}", seed=seed, eval_={**ev, **scored})
+    make_run(tmp_path / "runs", "old", "implicit", eval_=ev)  # scored before the split
+    monkeypatch.setattr(shipped, "manifest", lambda: {})
+    lines = claims.albedo_cause_lines(find_runs([tmp_path / "runs"]))
+    rows = [line for line in lines if line.startswith("| `")]
+    assert rows == [
+        "| `(defaults)` | explicit | 0.0080 ± 0.0000 (n=3) (0.64) | 0.0090 ± 0.0000 (n=3) (0.72) | "
+        "0.0060 ± 0.0010 (n=3) (0.48) | 0.0075 ± 0.0000 (n=3) (0.60) | 0.0125 |"
+    ]
+    assert claims.albedo_cause_lines([]) == []
+
+
 def test_edit_claims_without_the_reader_read_the_drawn_share(tmp_path):
     """Claim 5's reader-free table: the paper's manifolds against the best other set by drawn share per leakage over
     three seeds, read where the best set draws at least half of what the model's reconstructions of the true faces

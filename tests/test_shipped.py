@@ -88,5 +88,14 @@ def test_ship_writes_half_weights_and_manifest(tmp_path):
     assert 0 <= tiny["metrics"]["matte_iou"] <= 1 and tiny["metrics"]["normal_mean"] == -1.0
     assert tiny["metrics_added"]["keys"] == ["matte_iou"] and tiny["metrics_added"]["weights"] == "float16"
     assert add_metrics("tiny", tmp_path / "weights") == []
+    # a later addition keeps the revision of each one
+    listed = manifest(tmp_path / "weights")
+    listed["tiny"]["metrics"].pop("pseudo_matte_iou")
+    (tmp_path / "weights" / "manifest.json").write_text(json.dumps(listed))
+    assert add_metrics("tiny", tmp_path / "weights") == ["pseudo_matte_iou"]
+    added = manifest(tmp_path / "weights")["tiny"]["metrics_added"]
+    assert added["keys"] == ["matte_iou", "pseudo_matte_iou"]
+    assert [a["keys"] for a in added["additions"]] == [["matte_iou"], ["pseudo_matte_iou"]]
+    assert all(a["git"] for a in added["additions"])  # each addition says at what revision
     with pytest.raises(FileNotFoundError, match="shipped models: tiny"):
         add_metrics("tinyy", tmp_path / "weights")

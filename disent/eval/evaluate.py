@@ -26,6 +26,7 @@ from disent.eval.metrics import (
     sh_error_shown_hidden,
     sh_gram,
 )
+from disent.render import sh_shading
 
 FACE_THRESHOLD = 0.99  # matte above this is face without background mixing
 
@@ -184,9 +185,11 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     ``albedo_global_si_mse`` (a scale per channel for all images), ``albedo_colour_si_mse`` (one scale per image for
     the three channels: the skin's colour must be in the albedo, not in the shading), ``albedo_coarse_si_mse`` and
     ``albedo_fine_si_mse`` (``albedo_si_mse``'s error above and below a 2-px blur), ``albedo_detailed_si_mse`` (the
-    detailed albedo of Sec. 5.3, the image over the model's shading), ``shading_si_mse`` and
-    ``shading_colour_si_mse`` (one scale per image for the three channels: the shading must have the light's colour,
-    not the skin's).  For reference
+    detailed albedo of Sec. 5.3, the image over the model's shading), and the same with one input of that shading
+    made true, to say which holds the albedo back: ``albedo_detailed_true_light_si_mse`` (the model's normals under
+    the true light) and ``albedo_detailed_true_normals_si_mse`` (the model's light on the true normals),
+    ``shading_si_mse`` and ``shading_colour_si_mse`` (one scale per image for the three channels: the shading must
+    have the light's colour, not the skin's).  For reference
     ``albedo_face_si_mse``: the albedo over the whole true face mask, hair and neck included.
     ``albedo_pattern_corr``: Pearson's correlation with the true albedo per image and channel (higher is better;
     forgives contrast too, :func:`~disent.eval.metrics.pattern_corr`).  ``albedo_ceiling_share`` (and the truth's,
@@ -223,8 +226,18 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
         # of the image, and every error of S_e (the relighting transfer renders with it)
         from disent.edit.relight import detailed_albedo
 
-        detailed = detailed_albedo(gt["image"].to(out["shading"].dtype), out["shading"], out["albedo"])
-        m["albedo_detailed_si_mse"] = scale_invariant_mse(detailed, gt["albedo"], region)
+        image = gt["image"].to(out["shading"].dtype)
+        m["albedo_detailed_si_mse"] = scale_invariant_mse(
+            detailed_albedo(image, out["shading"], out["albedo"]), gt["albedo"], region
+        )
+        if {"normal", "sh"} <= set(out) and {"normal", "sh"} <= set(gt):  # S(N, L) of Eq. 4 with N or L made true
+            for name, normal, sh in (
+                ("true_light", out["normal"], gt["sh"]),
+                ("true_normals", gt["normal"], out["sh"]),
+            ):
+                shading = sh_shading(normal.to(image.dtype), sh.to(image.dtype))
+                detailed = detailed_albedo(image, shading, out["albedo"])
+                m[f"albedo_detailed_{name}_si_mse"] = scale_invariant_mse(detailed, gt["albedo"], region)
     if "shading" in out and "shading" in gt:  # (the validation batch carries no true shading)
         shading = out["shading"].expand_as(gt["shading"])
         m["shading_si_mse"] = scale_invariant_mse(shading, gt["shading"], region)

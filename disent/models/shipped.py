@@ -128,8 +128,8 @@ def ship(run_dir, name: str, folder: Path = WEIGHTS) -> dict:
 def add_metrics(name: str, folder: Path = WEIGHTS) -> list[str]:
     """Score shipped model ``name`` with this version's metrics (:func:`disent.eval.evaluate.score`) and add to its
     manifest entry the metrics its run's ``eval.json`` lacks; those it has stay as the run scored them (float32
-    weights). The added ones come from the shipped float16 weights, and ``metrics_added`` says which and at what
-    revision. Returns the added keys."""
+    weights). The added ones come from the shipped float16 weights, and ``metrics_added`` says which (``keys``) and,
+    per addition, at what revision (``additions``). Returns the added keys."""
     from disent.eval.evaluate import score
     from disent.runs import git_revision
 
@@ -140,8 +140,13 @@ def add_metrics(name: str, folder: Path = WEIGHTS) -> list[str]:
     added = sorted(k for k in new if k not in metrics)
     metrics.update({k: new[k] for k in added})
     if added:
-        keys = sorted({*entries[name].get("metrics_added", {}).get("keys", []), *added})
-        entries[name]["metrics_added"] = {"keys": keys, "git": git_revision(), "weights": "float16"}
+        before = entries[name].get("metrics_added", {})
+        additions = before.get("additions") or ([{"git": before["git"], "keys": before["keys"]}] if before else [])
+        entries[name]["metrics_added"] = {
+            "keys": sorted({*before.get("keys", []), *added}),
+            "additions": [*additions, {"git": git_revision(), "keys": added}],
+            "weights": "float16",
+        }
         (Path(folder) / "manifest.json").write_text(json.dumps(entries, indent=1, sort_keys=True) + "\n")
     return added
 

@@ -107,6 +107,7 @@ def sec_targets(rep: Report, runs: list[Run]) -> None:
             *template_rows,
             "",
         )
+    rep.add(*albedo_cause_lines(runs))
     if light_rows := rep.rows_kept(LIGHT_HEAD[0], light_table(groups), key=2):
         rep.add(
             "The light against its floor, the *constant light* (the mean train SH, the same for every face): on the "
@@ -303,18 +304,61 @@ MATTE_FLOORS = (("pseudo_matte_iou", "M-hat"), ("trivial_matte_iou", "the mean r
 MATTE_HEAD = table_head("setting", "model", "matte IoU", "M-hat (its supervision)", "mean face region", "beats")
 
 
+def scored_spreads(runs: list[Run], keys: tuple) -> dict:
+    """``{(setting, model): {key: mean ± std over seeds}}`` of the finished runs scored with ``keys[0]``, then
+    ``("shipped", name)`` for each shipped model whose manifest has it (its metrics, n=1); a key a run lacks is None."""
+    from disent.models.shipped import manifest
+
+    groups = by_setting_and_model(r for r in runs if r.status == "ok" and r.eval and r.value(keys[0]) is not None)
+    spreads = {group: {k: seed_spread(rs, k) for k in keys} for group, rs in sorted(groups.items())}
+    for name, entry in sorted(manifest().items()):
+        if keys[0] in entry["metrics"]:
+            spreads[("shipped", name)] = {k: _ablation.mean_std([entry["metrics"].get(k)]) for k in keys}
+    return spreads
+
+
+ALBEDO_CAUSES = (  # (key, label): the network's albedo, then the detailed albedo I / S(N, L) with N, L as labelled
+    ("albedo_si_mse", "network albedo"),
+    ("albedo_detailed_si_mse", "I / S(N, L), the network's N and L"),
+    ("albedo_detailed_true_light_si_mse", "its N, the true L"),
+    ("albedo_detailed_true_normals_si_mse", "the true N, its L"),
+)
+
+
+def albedo_cause_lines(runs: list[Run]) -> list[str]:
+    """What holds the albedo back: the network's albedo and the detailed albedo (Sec. 5.3, the image over the
+    shading of Eq. 4) with the network's normals and light, and with one of them made true, each as si-MSE and as a
+    share of the mean map's (the albedo target's measure), per setting and model of the runs scored with it and of
+    the shipped models; empty where none was."""
+    keys = (ALBEDO_CAUSES[-1][0], *(k for k, _ in ALBEDO_CAUSES[:-1]), "trivial_albedo_si_mse")
+    rows = []
+    for (where, model), st in scored_spreads(runs, keys).items():
+        floor = st["trivial_albedo_si_mse"] and st["trivial_albedo_si_mse"]["mean"]
+        cells = [
+            spread_text(st[k], ".4f") + (f" ({st[k]['mean'] / floor:.2f})" if floor and st[k] else "")
+            for k, _ in ALBEDO_CAUSES
+        ]
+        rows.append(f"| `{where}` | {model} | {' | '.join(cells)} | {fmt_value(floor, '.4f')} |")
+    if not rows:
+        return []
+    return [
+        "What holds the albedo back: the rendered face A (.) S matches the image, so the albedo can only be as right "
+        "as the shading S(N, L) (Eq. 4) beside it. The *detailed albedo* I / S (Sec. 5.3) with the network's normals "
+        "and light, and with one of the two made true, albedo si-MSE (in brackets: its share of the mean map's, "
+        f"the target <= {TARGETS['albedo_share_of_trivial']}), test split (`disent.eval.evaluate`; shipped models: "
+        "`python -m disent.models.shipped NAME --add-metrics`). The input whose truth brings the error down most is "
+        "the one to supervise better.\n",
+        *table_head("setting", "model", *(label for _, label in ALBEDO_CAUSES), "mean map"),
+        *rows,
+        "",
+    ]
+
+
 def matte_lines(runs: list[Run]) -> list[str]:
     """The matte against the true face region (``matte_iou``, :func:`disent.eval.evaluate.metrics_from_outputs`) per
     setting and model of the runs scored with it and of the shipped models (their manifest's metrics), beside M-hat's
     and the mean train face region's; empty where none was scored."""
-    from disent.models.shipped import manifest
-
-    keys = ("matte_iou", *(k for k, _ in MATTE_FLOORS))
-    groups = by_setting_and_model(r for r in runs if r.status == "ok" and r.eval and r.value("matte_iou") is not None)
-    spreads = {group: {k: seed_spread(rs, k) for k in keys} for group, rs in sorted(groups.items())}
-    for name, entry in sorted(manifest().items()):
-        if "matte_iou" in entry["metrics"]:
-            spreads[("shipped", name)] = {k: _ablation.mean_std([entry["metrics"].get(k)]) for k in keys}
+    spreads = scored_spreads(runs, ("matte_iou", *(k for k, _ in MATTE_FLOORS)))
     rows = []
     for (where, model), st in spreads.items():
         net, floors = st["matte_iou"], [(st[k] and st[k]["mean"], name) for k, name in MATTE_FLOORS]
