@@ -1418,8 +1418,8 @@ def test_albedo_cause_table_sets_the_detailed_albedo_with_each_input_made_true_b
     lines = claims.albedo_cause_lines(find_runs([tmp_path / "runs"]))
     rows = [line for line in lines if line.startswith("| `")]
     assert rows == [
-        "| `(defaults)` | explicit | 0.0080 ± 0.0000 (n=3) (0.64) | 0.0090 ± 0.0000 (n=3) (0.72) | "
-        "0.0060 ± 0.0010 (n=3) (0.48) | 0.0075 ± 0.0000 (n=3) (0.60) | 0.0125 |"
+        "| `(defaults)` | explicit | 0.0080 ± 0.0000 (0.64; n=3) | 0.0090 ± 0.0000 (0.72; n=3) | "
+        "0.0060 ± 0.0010 (0.48; n=3) | 0.0075 ± 0.0000 (0.60; n=3) | 0.0125 | its N, the true L |"
     ]
     assert claims.albedo_cause_lines([]) == []
 

@@ -335,10 +335,17 @@ def albedo_cause_lines(runs: list[Run]) -> list[str]:
     for (where, model), st in scored_spreads(runs, keys).items():
         floor = st["trivial_albedo_si_mse"] and st["trivial_albedo_si_mse"]["mean"]
         cells = [
-            spread_text(st[k], ".4f") + (f" ({st[k]['mean'] / floor:.2f})" if floor and st[k] else "")
+            f"{spread_text(st[k], '.4f', count=False)} ({st[k]['mean'] / floor:.2f}; n={st[k]['n']})"
+            if floor and st[k]
+            else spread_text(st[k], ".4f")
             for k, _ in ALBEDO_CAUSES
         ]
-        rows.append(f"| `{where}` | {model} | {' | '.join(cells)} | {fmt_value(floor, '.4f')} |")
+        goal = floor and TARGETS["albedo_share_of_trivial"] * floor
+        meets = [label for key, label in ALBEDO_CAUSES[2:] if goal and st[key] and st[key]["mean"] <= goal]
+        rows.append(
+            f"| `{where}` | {model} | {' | '.join(cells)} | {fmt_value(floor, '.4f')} | "
+            f"{'; '.join(meets) or ('neither' if goal else '–')} |"
+        )
     if not rows:
         return []
     return [
@@ -348,7 +355,13 @@ def albedo_cause_lines(runs: list[Run]) -> list[str]:
         f"the target <= {TARGETS['albedo_share_of_trivial']}), test split (`disent.eval.evaluate`; shipped models: "
         "`python -m disent.models.shipped NAME --add-metrics`). The input whose truth brings the error down most is "
         "the one to supervise better.\n",
-        *table_head("setting", "model", *(label for _, label in ALBEDO_CAUSES), "mean map"),
+        *table_head(
+            "setting",
+            "model",
+            *(label for _, label in ALBEDO_CAUSES),
+            "mean map",
+            "meets the target with one made true",
+        ),
         *rows,
         "",
     ]
