@@ -181,7 +181,8 @@ def claim_ablations(rep: Report, runs: list[Run]) -> None:
         "test metric where the paper's reason for the piece should show; *difference* applies the claims' rule "
         "(the full model better beyond both arms' seed spread: confirmed), *verdict* reads it only where the full "
         "model meets the default-run targets at that budget (`TARGETS`; the budget check under each ablation "
-        "table).\n",
+        "table; the glance section's *what holds the albedo back* says which of the shading's inputs keeps the "
+        "albedo from its target).\n",
         *head,
         *rows,
         "",

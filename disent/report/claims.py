@@ -330,6 +330,7 @@ def albedo_cause_lines(runs: list[Run]) -> list[str]:
     shading of Eq. 4) with the network's normals and light, and with one of them made true, each as si-MSE and as a
     share of the mean map's (the albedo target's measure), per setting and model of the runs scored with it and of
     the shipped models; empty where none was."""
+    # the newest key first: the runs scored with it
     keys = (ALBEDO_CAUSES[-1][0], *(k for k, _ in ALBEDO_CAUSES[:-1]), "trivial_albedo_si_mse")
     rows = []
     for (where, model), st in scored_spreads(runs, keys).items():
