@@ -510,3 +510,38 @@ def test_uv_metrics_score_the_uv_map_and_the_uv_space_normals_apart():
     assert shifted["uv_error"] == pytest.approx(0.05, rel=1e-5)
     assert shifted["normal_at_true_uv_mean"] == pytest.approx(exact["normal_at_true_uv_mean"], abs=1e-6)
     assert abs(shifted["normal_mean"] - exact["normal_mean"]) > 0.1
+
+
+def test_region_depth_counts_rings_from_the_edge_of_a_square():
+    """A 7x7 square's chessboard depth: 1 on its border ring, 2 on the next, 4 at its centre; 0 outside, and the
+    image border counts as outside."""
+    from disent.eval.metrics import region_depth
+
+    mask = torch.zeros(1, 1, 11, 11)
+    mask[..., 2:9, 2:9] = 1
+    depth = region_depth(mask, 10)
+    assert depth[0, 0, 5, 5] == 4 and depth[0, 0, 2, 2] == 1 and depth[0, 0, 3, 4] == 2 and depth[0, 0, 0, 0] == 0
+    assert region_depth(mask, 2).max() == 2  # capped
+    assert region_depth(torch.ones(1, 1, 5, 5), 10)[0, 0, 0].tolist() == [1, 1, 1, 1, 1]
+
+
+def test_matte_edge_metrics_say_where_the_matte_is_soft_and_compare_it_with_m_hat():
+    """A matte equal to M-hat has M-hat's mean on the edge band; a matte soft only on the region's outer ring is
+    soft on the whole edge band's first ring and nowhere inside."""
+    from disent.eval.evaluate import matte_edge_metrics
+
+    face = torch.zeros(2, 1, 16, 16)
+    face[..., 3:13, 3:13] = 1
+    m_hat = face.clone()
+    m_hat[0, :, 3] = 0  # M-hat misses one row of the first face's edge
+    gt = {"mask_face": face, "mask_pseudo": m_hat}
+    same = matte_edge_metrics(m_hat, gt)
+    assert same["matte_mean_edge"] == same["pseudo_matte_mean_edge"] < 1
+    assert same["matte_soft_inner"] == 0
+    soft_ring = face.clone()
+    soft_ring[..., 3:13, 3:13][..., [0, -1], :] = 0.5
+    soft_ring[..., 3:13, 3:13][..., :, [0, -1]] = 0.5
+    m = matte_edge_metrics(soft_ring, gt)
+    ring, band = 4 * 9, 4 * 9 + 4 * 7  # pixels of the outer ring and of the 2-px edge band of a 10x10 square
+    assert m["matte_soft_edge"] == pytest.approx(ring / band) and m["matte_soft_inner"] == 0
+    assert m["matte_mean_edge"] == pytest.approx(1 - 0.5 * ring / band)

@@ -1379,13 +1379,15 @@ def test_relight_rows_read_each_region_the_results_scored():
 
 def test_matte_table_sets_the_matte_beside_m_hat_and_the_mean_region(tmp_path, monkeypatch):
     """The matte's glance rows: runs scored with ``matte_iou`` by setting and model, and shipped models whose
-    manifest has it, each beside M-hat and the mean face region, saying which it beats (higher is better)."""
+    manifest has it, each beside M-hat and the mean face region, saying which it beats (higher is better), and where
+    it is soft (dashes for runs scored before that)."""
     import disent.models.shipped as shipped
 
     ev = {"pseudo_matte_iou": 0.86, "trivial_matte_iou": 0.70}
     for seed, iou in enumerate((0.91, 0.93, 0.92)):
         make_run(tmp_path / "runs", f"e{seed}", seed=seed, eval_={**ev, "matte_iou": iou})
-    make_run(tmp_path / "runs", "i0", "implicit", eval_={**ev, "matte_iou": 0.80})
+    edge = {"matte_soft_edge": 0.98, "matte_soft_inner": 0.06, "matte_mean_edge": 0.754, "pseudo_matte_mean_edge": 0.756}
+    make_run(tmp_path / "runs", "i0", "implicit", eval_={**ev, "matte_iou": 0.80, **edge})
     make_run(tmp_path / "runs", "old", "implicit", seed=1, eval_={"normal_mean": 12.0})  # scored before the matte
     monkeypatch.setattr(
         shipped, "manifest", lambda: {"implicit": {"metrics": {**ev, "matte_iou": 0.5}}, "baseline": {"metrics": {}}}
@@ -1393,9 +1395,9 @@ def test_matte_table_sets_the_matte_beside_m_hat_and_the_mean_region(tmp_path, m
     lines = claims.matte_lines(find_runs([tmp_path / "runs"]))
     rows = [line for line in lines if line.startswith("| `")]
     assert rows == [
-        "| `(defaults)` | explicit | 0.920 ± 0.010 (n=3) | 0.860 | 0.700 | M-hat, the mean region |",
-        "| `(defaults)` | implicit | 0.800 (n=1) | 0.860 | 0.700 | the mean region |",
-        "| `shipped` | implicit | 0.500 (n=1) | 0.860 | 0.700 | neither |",
+        "| `(defaults)` | explicit | 0.920 ± 0.010 (n=3) | 0.860 | 0.700 | M-hat, the mean region | – / – | – / – |",
+        "| `(defaults)` | implicit | 0.800 (n=1) | 0.860 | 0.700 | the mean region | 0.98 / 0.06 | 0.75 / 0.76 |",
+        "| `shipped` | implicit | 0.500 (n=1) | 0.860 | 0.700 | neither | – / – | – / – |",
     ]
     monkeypatch.setattr(shipped, "manifest", lambda: {})
     assert claims.matte_lines([]) == []

@@ -43,6 +43,7 @@ from disent.data import get_batch
 from disent.edit.classifier import MeasureNet
 from disent.edit.relight import ratio_relight, transfer_lighting, with_light
 from disent.edit.traversal import ATTRIBUTES, DEFAULT_MANIFOLDS, FACE_CODES, encode_pool, model_kind, traverse
+from disent.eval.evaluate import FACE_THRESHOLD, face_mask
 from disent.eval.metrics import optimal_scale, reconstruction_metrics
 from disent.images import to_array
 from disent.render import sh_shading
@@ -273,8 +274,8 @@ def edit_table(
 # brightness scale per image (``psnr_skin_scaled``). Inside a full matte, transfer's detailed albedo makes it the ratio
 # image (A S' = I S' / S, Eqs. 2 and 4); the two differ only where the model's matte is under MATTE_FULL, where Eq. 6
 # blends the unrelit input in: the face region split there (``_full`` / ``_soft``, each scaled on its own pixels), and
-# ``matte_full_share``, the face region's share under a full matte
-MATTE_FULL = 0.99
+# ``matte_full_share``, the face region's share under a full matte (disent.eval.evaluate.face_mask)
+MATTE_FULL = FACE_THRESHOLD
 RELIGHT_SCORES = (
     "psnr",
     "ssim",
@@ -310,7 +311,7 @@ def relight_table(
     targets = get_batch(test, range(n_faces))
     out_t = model(targets["image"])
     face = targets["mask_face"]
-    full = (out_t["matte"] >= MATTE_FULL).to(face.dtype) * face
+    full = face_mask(out_t["matte"]).to(face.dtype) * face
     full_share = (full.sum() / face.sum().clamp_min(1)).item()
     results: dict[str, list] = {}
     example = None

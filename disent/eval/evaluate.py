@@ -20,6 +20,7 @@ from disent.eval.metrics import (
     normal_spread,
     pattern_corr,
     reconstruction_metrics,
+    region_depth,
     scale_invariant_mse,
     scale_invariant_mse_bands,
     sh_error,
@@ -201,7 +202,8 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     normals show and those they hide (:func:`~disent.eval.metrics.sh_error_shown_hidden`).
     ``matte_iou``: the matte's IoU with the true face region ``mask_face`` (the skin a 3DMM covers: what the matte's
     supervision M-hat estimates; not hair, ears or neck), and ``pseudo_matte_iou`` M-hat's own, both cut at 0.5
-    (:func:`~disent.eval.metrics.mask_iou`; higher is better).
+    (:func:`~disent.eval.metrics.mask_iou`; higher is better); ``matte_soft_edge`` and the rest of
+    :func:`matte_edge_metrics`: where the matte is soft, and whether it is M-hat's expectation there.
     """
     m = {}
     face = face_mask(gt["matte"])
@@ -259,9 +261,32 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     if "matte" in out and "mask_face" in gt:  # the matte against the face region M-hat estimates (Sec. 3.3)
         m["matte_iou"] = mask_iou(out["matte"], gt["mask_face"])
         m["pseudo_matte_iou"] = mask_iou(gt["mask_pseudo"], gt["mask_face"])
+        m.update(matte_edge_metrics(out["matte"], gt))
     if {"uv", "normal_uv"} <= set(out) and "uv" in gt:
         m.update(uv_metrics(out, gt, region))
     return m
+
+
+MATTE_EDGE = 2  # px: the face region's edge band (depth <= MATTE_EDGE); its inside lies deeper than 2 * MATTE_EDGE
+
+
+def matte_edge_metrics(matte: torch.Tensor, gt: dict) -> dict:
+    """Where the matte is soft, and why, by depth inside the true face region ``mask_face``
+    (:func:`~disent.eval.metrics.region_depth`): ``matte_soft_edge`` and ``matte_soft_inner``, the share of its edge
+    band (depth <= :data:`MATTE_EDGE` px) and of its inside (deeper than twice that) where the matte is under
+    :data:`FACE_THRESHOLD`; ``matte_mean_edge`` and ``pseudo_matte_mean_edge``, the mean of the matte and of its L2
+    target M-hat (Sec. 4.2) on the edge band.  The two means agree where the matte has learned M-hat's expectation:
+    an L2 loss toward a binary target whose edge it cannot predict leaves a soft edge."""
+    depth = region_depth(gt["mask_face"], 2 * MATTE_EDGE + 1)
+    edge, inner = (depth > 0) & (depth <= MATTE_EDGE), depth > 2 * MATTE_EDGE
+    soft = matte < FACE_THRESHOLD
+    nan = float("nan")
+    return {
+        "matte_soft_edge": soft[edge].float().mean().item() if edge.any() else nan,
+        "matte_soft_inner": soft[inner].float().mean().item() if inner.any() else nan,
+        "matte_mean_edge": matte[edge].mean().item() if edge.any() else nan,
+        "pseudo_matte_mean_edge": gt["mask_pseudo"][edge].mean().item() if edge.any() else nan,
+    }
 
 
 def uv_metrics(out: dict, gt: dict, region: torch.Tensor) -> dict:

@@ -6,6 +6,7 @@ from pathlib import Path
 
 from disent.edit.measure import MATTE_FULL
 from disent.eval import ablation as _ablation
+from disent.eval.evaluate import FACE_THRESHOLD, MATTE_EDGE
 from disent.eval.trivial import TEMPLATE_KEYS
 from disent.report.ablations import TARGETS, albedo_share, budget_misses, claim_ablations, claim_skin
 from disent.report.document import Report, load_json
@@ -301,7 +302,17 @@ def relight_rows(
 
 
 MATTE_FLOORS = (("pseudo_matte_iou", "M-hat"), ("trivial_matte_iou", "the mean region"))  # (key, name)
-MATTE_HEAD = table_head("setting", "model", "matte IoU", "M-hat (its supervision)", "mean face region", "beats")
+MATTE_EDGE_KEYS = ("matte_soft_edge", "matte_soft_inner", "matte_mean_edge", "pseudo_matte_mean_edge")
+MATTE_HEAD = table_head(
+    "setting",
+    "model",
+    "matte IoU",
+    "M-hat (its supervision)",
+    "mean face region",
+    "beats",
+    "soft: edge band / inside",
+    "mean on the edge band: matte / M-hat",
+)
 
 
 def scored_spreads(runs: list[Run], keys: tuple) -> dict:
@@ -372,22 +383,28 @@ def matte_lines(runs: list[Run]) -> list[str]:
     """The matte against the true face region (``matte_iou``, :func:`disent.eval.evaluate.metrics_from_outputs`) per
     setting and model of the runs scored with it and of the shipped models (their manifest's metrics), beside M-hat's
     and the mean train face region's; empty where none was scored."""
-    spreads = scored_spreads(runs, ("matte_iou", *(k for k, _ in MATTE_FLOORS)))
+    spreads = scored_spreads(runs, ("matte_iou", *(k for k, _ in MATTE_FLOORS), *MATTE_EDGE_KEYS))
     rows = []
     for (where, model), st in spreads.items():
         net, floors = st["matte_iou"], [(st[k] and st[k]["mean"], name) for k, name in MATTE_FLOORS]
         beats = [name for floor, name in floors if floor is not None and net["mean"] > floor]
+        edge = [fmt_value(st[k] and st[k]["mean"], ".2f") for k in MATTE_EDGE_KEYS]
         rows.append(
             f"| `{where}` | {model} | {spread_text(net, '.3f')} | "
             + " | ".join(fmt_value(floor, ".3f") for floor, _ in floors)
-            + f" | {', '.join(beats) or 'neither'} |"
+            + f" | {', '.join(beats) or 'neither'} | {edge[0]} / {edge[1]} | {edge[2]} / {edge[3]} |"
         )
     if not rows:
         return []
     return [
         "The matte against the true face region (`mask_face`: the skin a 3DMM covers, not hair, ears or neck; the "
         "region the matte's supervision M-hat estimates, Sec. 3.3), IoU cut at 0.5 (higher is better), beside M-hat's "
-        "own and the mean train face region's, test split. `shipped`: the shipped weights, scored by "
+        "own and the mean train face region's, test split. *Soft*: the share of the face region's edge band (the "
+        f"pixels within {MATTE_EDGE} px of its edge) and of its inside (deeper than {2 * MATTE_EDGE} px) where the "
+        f"matte is under {FACE_THRESHOLD:g}; beside it the mean of the matte and of M-hat on the edge band. Where "
+        "the two means agree, the soft edge is what the matte's L2 loss toward a binary M-hat asks for: M-hat's "
+        "expectation where the image does not say where M-hat's edge falls "
+        "(`disent.eval.evaluate.matte_edge_metrics`). `shipped`: the shipped weights, scored by "
         "`python -m disent.models.shipped NAME --add-metrics`; runs score it themselves, and "
         "`python -m disent.eval.evaluate RUN` scores a finished run again.\n",
         *MATTE_HEAD,
@@ -764,7 +781,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
     matte_head = table_head(
         "model",
         "setting",
-        f"face region under a full matte (>= {MATTE_FULL:g})",
+        f"face region under a full matte (> {MATTE_FULL:g})",
         "transfer - ratio there, one scale per image",
         "transfer - ratio under the soft rest, one scale per image",
     )
