@@ -1386,7 +1386,8 @@ def test_matte_table_sets_the_matte_beside_m_hat_and_the_mean_region(tmp_path, m
     ev = {"pseudo_matte_iou": 0.86, "trivial_matte_iou": 0.70}
     for seed, iou in enumerate((0.91, 0.93, 0.92)):
         make_run(tmp_path / "runs", f"e{seed}", seed=seed, eval_={**ev, "matte_iou": iou})
-    edge = {"matte_soft_edge": 0.98, "matte_soft_inner": 0.06, "matte_mean_edge": 0.754, "pseudo_matte_mean_edge": 0.756}
+    edge = {"matte_soft_edge": 0.98, "matte_soft_inner": 0.06}
+    edge |= {"matte_mean_edge": 0.754, "pseudo_matte_mean_edge": 0.756}
     make_run(tmp_path / "runs", "i0", "implicit", eval_={**ev, "matte_iou": 0.80, **edge})
     make_run(tmp_path / "runs", "old", "implicit", seed=1, eval_={"normal_mean": 12.0})  # scored before the matte
     monkeypatch.setattr(

@@ -331,9 +331,9 @@ def mask_iou(pred: torch.Tensor, target: torch.Tensor, threshold: float = 0.5) -
 
 
 def region_depth(mask: torch.Tensor, max_depth: int) -> torch.Tensor:
-    """Each pixel's depth inside ``mask [B,1,H,W]`` (cut at 0.5): 1 on the pixels that touch its outside (8-neighbours or
-    the image border), 2 on the next ring, and so on up to ``max_depth``; 0 outside (chessboard distance, by repeated
-    3x3 erosion)."""
+    """Each pixel's depth inside ``mask [B,1,H,W]`` (cut at 0.5): 1 on the pixels that touch its outside
+    (8-neighbours or the image border), 2 on the next ring, and so on up to ``max_depth``; 0 outside (chessboard
+    distance, by repeated 3x3 erosion)."""
     inside = (mask > 0.5).to(torch.float32)
     depth = torch.zeros_like(inside)
     for _ in range(max_depth):
