@@ -131,8 +131,10 @@ def BWS(out, batch, c: float = 0.75):
     return (mean - c).pow(2).mean()
 
 
-def M(out, batch):
-    return F.mse_loss(out["matte"], batch["mask_pseudo"])
+def M(out, batch, p: int = 2):
+    """The matte toward M-hat: the paper's L2 (``p=2``, Sec. 4.2), whose minimiser is M-hat's expectation given
+    the image, soft where its edge is uncertain; or the release's L1 (``p=1``), whose minimiser is its median."""
+    return norm_p(out["matte"] - batch["mask_pseudo"], p).mean()
 
 
 def A_true(out, batch):
@@ -182,6 +184,7 @@ NEEDS = {
 # loss settings (conf/loss) that act only through these terms
 TERM_SETTINGS = {
     "recon_fg_p": ("recon_fg",),
+    "matte_p": ("M",),
     "lhat_white": ("recon_L",),
     "lhat_gray": ("recon_L",),
     "recon_L_space": ("recon_L",),
@@ -214,13 +217,14 @@ def generator_losses(
     recon_L_space: str = "shading",
     recon_p: int = 2,
     recon_fg_p: int = 2,
+    matte_p: int = 2,
 ) -> dict:
     """Unweighted value of every active term, plus ``total`` = sum of weight x term (E_o and the priors).
 
     ``energy_fake`` is D's energy of ``out['recon']`` (``[B]``), needed when ``adv`` is active;
     ``lhat_white``, ``lhat_gray`` and ``recon_L_space`` choose E_recon-L's target and metric (see :func:`recon_L`);
     ``recon_p`` E_recon's norm (2: the paper, 1: the release); ``recon_fg_p`` the masked reconstruction's
-    (2: the release, 1).
+    (2: the release, 1); ``matte_p`` the matte's (2: the paper, 1: the release).
     """
     losses = {}
     for t in active_terms(weights, out):
@@ -234,6 +238,8 @@ def generator_losses(
                 losses[t] = fn(out, batch, bws_c)
             elif t in ("recon", "recon_fg"):
                 losses[t] = fn(out, batch, recon_p if t == "recon" else recon_fg_p)
+            elif t == "M":
+                losses[t] = fn(out, batch, matte_p)
             elif t == "recon_L":
                 losses[t] = fn(out, batch, bws_c if lhat_white else None, recon_L_space, lhat_gray)
             else:

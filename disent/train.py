@@ -123,6 +123,7 @@ def train_step(model, disc, opt_g, opt_d, batch, cfg_loss) -> dict:
         cfg_loss.get("recon_L_space", "shading"),
         cfg_loss.get("recon_p", 2),
         cfg_loss.get("recon_fg_p", 2),
+        cfg_loss.get("matte_p", 2),
     )
     if disc is not None:
         energy_real = disc.energy(batch["image"])
@@ -231,7 +232,11 @@ def check_config(cfg) -> None:
             raise ConfigError(f"{key}={value!r}; choose from {', '.join(allowed)}")
     if any(cfg.loss.weights.get(k, 0) for k in L.TRUTH) and d.name != "synth":
         raise ConfigError(f"loss weights {', '.join(L.TRUTH)} train on the true layers: they need data=synth")
-    norms = (("recon_p", "1 (L1, the release), 2 (L2, the paper)"), ("recon_fg_p", "1 (L1), 2 (L2, the release)"))
+    norms = (
+        ("recon_p", "1 (L1, the release), 2 (L2, the paper)"),
+        ("recon_fg_p", "1 (L1), 2 (L2, the release)"),
+        ("matte_p", "1 (L1, the release), 2 (L2, the paper)"),
+    )
     for key, what in norms:
         if cfg.loss.get(key, 2) not in (1, 2):
             raise ConfigError(f"loss.{key}={cfg.loss[key]!r}; choose from {what}")
@@ -272,6 +277,7 @@ ADDED_LATER = {
     "init": None,
     "loss.recon_p": 2,
     "loss.recon_fg_p": 2,
+    "loss.matte_p": 2,
     "loss.lhat_gray": False,
     "model.decoder_convs": 1,
     **{f"loss.weights.{t}": 0.0 for t in L.TRUTH},

@@ -156,6 +156,11 @@ def test_loss_terms_closed_forms():
     fg = {"foreground": b["image"] + 0.1 * mask + 3 * (1 - mask)}
     assert L.recon_fg(fg, b).item() == pytest.approx(0.01, rel=1e-5)
     assert L.generator_losses(fg, b, {"recon_fg": 1}, recon_fg_p=1)["recon_fg"].item() == pytest.approx(0.1, rel=1e-5)
+    # the matte: a matte of 0.75 where M-hat is 1 costs 0.0625 under L2, 0.25 under L1, over every pixel
+    soft = {"matte": mask - 0.25 * mask}
+    share = mask.mean().item()
+    assert L.M(soft, b).item() == pytest.approx(0.0625 * share, rel=1e-5)
+    assert L.generator_losses(soft, b, {"M": 1}, matte_p=1)["M"].item() == pytest.approx(0.25 * share, rel=1e-5)
     assert L.recon_L(out, b, c=None, space="coefficients").item() == pytest.approx(0.25)
     # in shading space: 0.5 more on L1 alone shades every face pixel C4 * 0.5 brighter
     lift = {"sh": b["sh_pseudo"] + 0.5 * F.one_hot(torch.tensor(0), 9)}

@@ -312,6 +312,7 @@ def test_learning_rate_schedules():
         ("data.train_size=0", "data.train_size=0"),
         ("loss.recon_p=3", r"loss.recon_p=3; choose from 1 \(L1, the release\), 2"),
         ("loss.recon_fg_p=0", r"loss.recon_fg_p=0; choose from 1 \(L1\), 2"),
+        ("loss.matte_p=3", r"loss.matte_p=3; choose from 1 \(L1, the release\), 2"),
         ("device=tpu", "device='tpu'; choose from cpu, cuda, cuda:N"),
         ("device=cpu:1", "device='cpu:1'; choose from"),
     ],
