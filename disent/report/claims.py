@@ -404,7 +404,8 @@ def matte_lines(runs: list[Run]) -> list[str]:
         f"matte is under {FACE_THRESHOLD:g}; beside it the mean of the matte and of M-hat on the edge band. Where "
         "the two means agree, the soft edge is what the matte's L2 loss toward a binary M-hat asks for: M-hat's "
         "expectation where the image does not say where M-hat's edge falls "
-        "(`disent.eval.evaluate.matte_edge_metrics`). `shipped`: the shipped weights, scored by "
+        "(`disent.eval.evaluate.matte_edge_metrics`; `loss.matte_p=1`: the release's L1 toward M-hat instead, "
+        "whose minimiser is M-hat's median, not its expectation). `shipped`: the shipped weights, scored by "
         "`python -m disent.models.shipped NAME --add-metrics`; runs score it themselves, and "
         "`python -m disent.eval.evaluate RUN` scores a finished run again.\n",
         *MATTE_HEAD,
