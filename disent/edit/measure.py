@@ -43,7 +43,7 @@ from disent.data import get_batch
 from disent.edit.classifier import MeasureNet
 from disent.edit.relight import ratio_relight, transfer_lighting, with_light
 from disent.edit.traversal import ATTRIBUTES, DEFAULT_MANIFOLDS, FACE_CODES, encode_pool, model_kind, traverse
-from disent.eval.evaluate import FACE_THRESHOLD, face_mask
+from disent.eval.evaluate import face_mask
 from disent.eval.metrics import optimal_scale, reconstruction_metrics
 from disent.images import to_array
 from disent.render import sh_shading
@@ -272,10 +272,9 @@ def edit_table(
 # hair, ears, neck) and the face region (``mask_face``: the skin a 3DMM covers, which the model's matte is trained
 # to cover; transfer relights only under that matte and leaves the rest of the head as it was), and there after one
 # brightness scale per image (``psnr_skin_scaled``). Inside a full matte, transfer's detailed albedo makes it the ratio
-# image (A S' = I S' / S, Eqs. 2 and 4); the two differ only where the model's matte is under MATTE_FULL, where Eq. 6
+# image (A S' = I S' / S, Eqs. 2 and 4); the two differ only where the model's matte is not full (face_mask): Eq. 6
 # blends the unrelit input in: the face region split there (``_full`` / ``_soft``, each scaled on its own pixels), and
 # ``matte_full_share``, the face region's share under a full matte (disent.eval.evaluate.face_mask)
-MATTE_FULL = FACE_THRESHOLD
 RELIGHT_SCORES = (
     "psnr",
     "ssim",

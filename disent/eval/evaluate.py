@@ -280,12 +280,15 @@ def matte_edge_metrics(matte: torch.Tensor, gt: dict) -> dict:
     depth = region_depth(gt["mask_face"], 2 * MATTE_EDGE + 1)
     edge, inner = (depth > 0) & (depth <= MATTE_EDGE), depth > 2 * MATTE_EDGE
     soft = matte < FACE_THRESHOLD
-    nan = float("nan")
+
+    def mean_on(values, where):  # NaN where no pixel is there
+        return values[where].float().mean().item() if where.any() else float("nan")
+
     return {
-        "matte_soft_edge": soft[edge].float().mean().item() if edge.any() else nan,
-        "matte_soft_inner": soft[inner].float().mean().item() if inner.any() else nan,
-        "matte_mean_edge": matte[edge].mean().item() if edge.any() else nan,
-        "pseudo_matte_mean_edge": gt["mask_pseudo"][edge].mean().item() if edge.any() else nan,
+        "matte_soft_edge": mean_on(soft, edge),
+        "matte_soft_inner": mean_on(soft, inner),
+        "matte_mean_edge": mean_on(matte, edge),
+        "pseudo_matte_mean_edge": mean_on(gt["mask_pseudo"], edge),
     }
 
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from disent.edit.measure import MATTE_FULL
 from disent.eval import ablation as _ablation
 from disent.eval.evaluate import FACE_THRESHOLD, MATTE_EDGE
 from disent.eval.trivial import TEMPLATE_KEYS
@@ -782,7 +781,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
     matte_head = table_head(
         "model",
         "setting",
-        f"face region under a full matte (> {MATTE_FULL:g})",
+        f"face region under a full matte (> {FACE_THRESHOLD:g})",
         "transfer - ratio there, one scale per image",
         "transfer - ratio under the soft rest, one scale per image",
     )
@@ -882,7 +881,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
             "Why the ratio image leads once the brightness is scaled out: where the model's matte is full, transfer "
             "*is* the ratio image, since its detailed albedo A = I / S shaded anew gives I S' / S (Eqs. 2 and 4); "
             "Eq. 6 then blends the unrelit input in by 1 - M wherever the matte is under 1. The face region split "
-            f"by the model's matte (`disent.edit.measure.MATTE_FULL`, {MATTE_FULL:g}), each part with its own "
+            f"by the model's matte (`disent.eval.evaluate.FACE_THRESHOLD`, {FACE_THRESHOLD:g}), each part with its own "
             "brightness scale per image, PSNR differences in dB:\n",
             *matte_head,
             *relit_matte,
