@@ -477,14 +477,25 @@ def test_edit_and_relight_tables_run_end_to_end_on_a_toy_generator():
     claims = claim_summary(rows[3:])
     assert len(claims) == 2 * 5 and {c["method"] for c in claims} == {"dmt", "barycenter"}
     assert sorted(c["rank"] for c in claims if c["method"] == "dmt") == [1, 2, 3, 4, 5]
-    # every edit row says how much of the true change it draws; the claims sum it over the strengths per leakage
-    assert all(math.isfinite(r["drawn_share"]) for r in rows[2:])
-    for c in claims:
-        rs = [r for r in rows[3:] if r["method"] == c["method"] and r["manifolds"] == c["manifolds"]]
-        assert c["drawn_per_leak"] == pytest.approx(sum(r["drawn_share"] for r in rs) / sum(r["leakage"] for r in rs))
-        assert c["best_drawn"] == max(r["drawn_share"] for r in rs)
+    # every edit row says how much of the true change it draws, over the image and in the face region; the claims
+    # sum each over the strengths per leakage. FakeSynth's smile lies above its face region (the toy's "hair"): in
+    # the face it changes nothing to draw
+    assert all(math.isfinite(r["drawn_share"]) and math.isnan(r["drawn_share_face"]) for r in rows[2:])
+    beard, _ = edit_table(
+        model, net, FakeSynth, "beard", 12, 3, (0.1,), (1.0,), resolution=16, truth_override=lambda a: {a: 1.0}
+    )
+    for table in (rows, beard):
+        for key, suffix in (("drawn_share", ""), ("drawn_share_face", "_face")):
+            for c in claim_summary(table[3:]):
+                rs = [r for r in table[3:] if r["method"] == c["method"] and r["manifolds"] == c["manifolds"]]
+                per_leak = sum(r[key] for r in rs) / sum(r["leakage"] for r in rs)
+                assert c[f"drawn{suffix}_per_leak"] == pytest.approx(per_leak, nan_ok=True)
+                assert c[f"best_drawn{suffix}"] == pytest.approx(max(r[key] for r in rs), nan_ok=True)
+    # the beard's change lies inside the face region, so there the two readings agree
+    assert all(r["drawn_share_face"] == pytest.approx(r["drawn_share"], rel=1e-4) for r in beard[2:])
     no_truth, _ = edit_table(model, net, FakeSynth, "smiling", pool_size=12, n_sources=3, lambdas=(0.1,), alphas=())
-    assert not any("drawn_share" in r for r in no_truth) and "drawn_per_leak" not in claim_summary(no_truth[1:])[0]
+    assert not any("drawn_share" in r or "drawn_share_face" in r for r in no_truth)
+    assert not {"drawn_per_leak", "drawn_face_per_leak"} & set(claim_summary(no_truth[1:])[0])
     bank = {
         "left": sh_from_directions(torch.tensor([[-1.0, 0, 1]]), torch.full((1, 3), 0.6), 0.2),
         "right": sh_from_directions(torch.tensor([[1.0, 0.2, 1]]), torch.full((1, 3), 0.6), 0.2),
@@ -527,17 +538,19 @@ def test_what_a_perfect_autoencoder_draws_reads_as_the_truth_does():
     torch.manual_seed(0)
     net = MeasureNet(16, width=4, identity_dim=3).eval()
     rows, _ = edit_table(
-        Exact(), net, FakeSynth, "smiling", 12, 3, (0.1,), (1.0,), resolution=16, truth_override=lambda a: {a: 1.0}
+        Exact(), net, FakeSynth, "beard", 12, 3, (0.1,), (1.0,), resolution=16, truth_override=lambda a: {a: 1.0}
     )
     truth, drawn = rows[1], rows[2]
     assert drawn["method"] == "truth reconstructed"
     assert drawn["success"] == truth["success"] and drawn["gain"] == pytest.approx(truth["gain"])
     assert drawn["drawn_share"] == pytest.approx(1.0)  # it draws all of the generator's change
+    assert drawn["drawn_share_face"] == pytest.approx(1.0)  # and all of it in the face region
 
 
 def test_drawn_share_is_the_part_of_the_true_change_a_model_reproduces():
     """No change drawn: 0; half of it (and any change orthogonal to it besides): 0.5; all of it: 1; the same
-    reconstruction shifted by a constant in both images changes nothing."""
+    reconstruction shifted by a constant in both images changes nothing. Inside a region only the change there
+    counts: a model that draws the change in the region and none outside draws all of it there."""
     from disent.edit.measure import drawn_share
 
     g = torch.Generator().manual_seed(0)
@@ -548,6 +561,13 @@ def test_drawn_share_is_the_part_of_the_true_change_a_model_reproduces():
     assert drawn_share(off, off, off, on) == 0.0
     assert drawn_share(off, off + 0.5 * change + other, off, on) == pytest.approx(0.5, abs=1e-5)
     assert drawn_share(off + 0.3, on + 0.3, off, on) == pytest.approx(1.0, abs=1e-5)
+    region = torch.zeros(4, 1, 8, 8)
+    region[..., :3] = 1  # the three left columns: 3/8 of the pixels
+    inside_only = off + change * region
+    assert drawn_share(off, inside_only, off, on, region) == pytest.approx(1.0, abs=1e-5)
+    outside = (change * (1 - region)).pow(2).sum() / change.pow(2).sum()
+    assert drawn_share(off, inside_only, off, on) == pytest.approx(1 - outside.item(), abs=1e-5)
+    assert drawn_share(off, off + change * (1 - region), off, on, region) == 0.0
 
 
 # ----------------------------------------------------------------------------- command line

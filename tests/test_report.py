@@ -1428,40 +1428,61 @@ def test_albedo_cause_table_sets_the_detailed_albedo_with_each_input_made_true_b
 
 
 def test_edit_claims_without_the_reader_read_the_drawn_share(tmp_path):
-    """Claim 5's reader-free table: the paper's manifolds against the best other set by drawn share per leakage over
-    three seeds, read where the best set draws at least half of what the model's reconstructions of the true faces
-    draw; an edit under that is listed as not testable, and results measured before the drawn share add no row."""
+    """Claim 5's reader-free tables, over the image and inside the face region: the paper's manifolds against the
+    best other set by drawn share per leakage over three seeds, read where the best set draws at least half of what
+    the model's reconstructions of the true faces draw; an edit under that is listed as not testable, and results
+    measured before the drawn share add no row. An edit whose change lies mostly outside the face (a senior face's
+    grey hair) is testable in the face region alone."""
     out = tmp_path / "reports"
+    readings = (  # attribute, (best drawn, ceiling) over the image and in the face, paper's and rival's per leakage
+        ("beard", (0.8, 0.9), (0.8, 0.9), 3.9, 3.3),
+        ("smiling", (0.15, 0.4), (0.15, 0.4), 1.0, 0.7),
+        ("senior", (0.15, 0.95), (0.6, 0.88), 1.0, 1.4),
+    )
     for i in range(3):
         d = out / "edit" / f"explicit_seed{i}_1200steps"
         d.mkdir(parents=True)
         run = make_run(tmp_path / "runs", f"s{i}", seed=i, eval_={"normal_mean": 12.0})
         claims = [
             {"attribute": a, "method": "dmt", "manifolds": m, "gain_per_leak": 1.0, "best_success": 0.2}
-            | {"drawn_per_leak": v + 0.1 * i, "best_drawn": drawn}
-            for a, drawn, paper, rival in (("beard", 0.8, 3.9, 3.3), ("smiling", 0.15, 1.0, 0.7))
+            | {"drawn_per_leak": v + 0.1 * i, "best_drawn": image[0]}
+            | {"drawn_face_per_leak": 2 * v + 0.1 * i, "best_drawn_face": face[0]}
+            for a, image, face, paper, rival in readings
             for m, v in (("paper:Ae", paper), ("Ne", rival))
         ]
         ceiling = [
-            {"attribute": a, "method": "truth reconstructed", "success": 0.1, "drawn_share": share}
-            for a, share in (("beard", 0.9), ("smiling", 0.4))
+            {"attribute": a, "method": "truth reconstructed", "success": 0.1}
+            | {"drawn_share": image[1], "drawn_share_face": face[1]}
+            for a, image, face, _, _ in readings
         ]
         res = {"model": "explicit", "setting": "(defaults)", "claims": claims, "relight": [], "traversal": ceiling}
         (d / "edit.json").write_text(json.dumps(res | {"run": str(run)}))
     (out / "edit" / "explicit").mkdir()  # a shipped model measured before the drawn share: no row of its own
     old = {"model": "explicit", "setting": "shipped", "claims": [dict(claims[0], gain_per_leak=2.0)], "relight": []}
     for c in old["claims"]:
-        c.pop("drawn_per_leak"), c.pop("best_drawn")
+        for key in ("drawn_per_leak", "best_drawn", "drawn_face_per_leak", "best_drawn_face"):
+            c.pop(key)
     (out / "edit" / "explicit" / "edit.json").write_text(json.dumps(old))
     rep = report.Report(out, "")
     report.sec_claims(rep, find_runs([tmp_path / "runs"]), out / "eval")
-    free = rep.lines[rep.lines.index(next(line for line in rep.lines if "drawn share per leakage" in line)) + 2 :]
-    free = free[: free.index("")]
-    assert free == [
+
+    def table(column):
+        free = rep.lines[rep.lines.index(next(line for line in rep.lines if column in line)) + 2 :]
+        return free[: free.index("")]
+
+    gated = "not testable (draws under 50% of what the model draws) |"
+    assert table("paper's manifolds: drawn share per leakage") == [
         "| explicit | `(defaults)` | dmt | beard | Ae: 4 ± 0.1 (n=3) | Ne: 3.4 ± 0.1 (n=3) | 80% of 90% | "
         "**confirmed** |",
-        "| explicit | `(defaults)` | dmt | smiling | Ae: 1.1 ± 0.1 (n=3) | Ne: 0.8 ± 0.1 (n=3) | 15% of 40% | "
-        "not testable (draws under 50% of what the model draws) |",
+        f"| explicit | `(defaults)` | dmt | smiling | Ae: 1.1 ± 0.1 (n=3) | Ne: 0.8 ± 0.1 (n=3) | 15% of 40% | {gated}",
+        f"| explicit | `(defaults)` | dmt | senior | Ae: 1.1 ± 0.1 (n=3) | Ne: 1.5 ± 0.1 (n=3) | 15% of 95% | {gated}",
+    ]
+    assert table("paper's manifolds: drawn share in the face per leakage") == [
+        "| explicit | `(defaults)` | dmt | beard | Ae: 7.9 ± 0.1 (n=3) | Ne: 6.7 ± 0.1 (n=3) | 80% of 90% | "
+        "**confirmed** |",
+        f"| explicit | `(defaults)` | dmt | smiling | Ae: 2.1 ± 0.1 (n=3) | Ne: 1.5 ± 0.1 (n=3) | 15% of 40% | {gated}",
+        "| explicit | `(defaults)` | dmt | senior | Ae: 2.1 ± 0.1 (n=3) | Ne: 2.9 ± 0.1 (n=3) | 60% of 88% | "
+        "**refuted** |",
     ]
 
 
