@@ -422,11 +422,10 @@ def matte_lines(runs: list[Run]) -> list[str]:
 
 def edit_rates(results: list[dict], attribute: str) -> dict:
     """``{"truth reconstructed": spread, "truth": spread, "drawn share": spread, "drawn share in the face": spread}``
-    over the edit results of a
-    setting's models: how often the reader calls ``attribute`` on the model's reconstructions of faces that have it,
-    and on those faces, and the share of the generator's change the reconstructions draw
-    (:func:`disent.edit.measure.drawn_share`, no reader), over the image and inside the face region; a key is
-    missing where no result measured it."""
+    over the edit results of a setting's models: how often the reader calls ``attribute`` on the model's
+    reconstructions of faces that have it, and on those faces, and the share of the generator's change the
+    reconstructions draw (:func:`disent.edit.measure.drawn_share`, no reader), over the image and inside the face
+    region; a key is missing where no result measured it."""
     rates = {}
     for name, m, key in (
         ("truth reconstructed", "truth reconstructed", "success"),
