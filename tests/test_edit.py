@@ -491,6 +491,8 @@ def test_edit_and_relight_tables_run_end_to_end_on_a_toy_generator():
                 per_leak = sum(r[key] for r in rs) / sum(r["leakage"] for r in rs)
                 assert c[f"drawn{suffix}_per_leak"] == pytest.approx(per_leak, nan_ok=True)
                 assert c[f"best_drawn{suffix}"] == pytest.approx(max(r[key] for r in rs), nan_ok=True)
+    # the share of the true change inside the face region: none of the smile, all of the beard
+    assert rows[1]["change_in_face"] == 0.0 and beard[1]["change_in_face"] == pytest.approx(1.0)
     # the beard's change lies inside the face region, so there the two readings agree
     assert all(r["drawn_share_face"] == pytest.approx(r["drawn_share"], rel=1e-4) for r in beard[2:])
     no_truth, _ = edit_table(model, net, FakeSynth, "smiling", pool_size=12, n_sources=3, lambdas=(0.1,), alphas=())

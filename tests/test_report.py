@@ -1454,7 +1454,7 @@ def test_edit_claims_without_the_reader_read_the_drawn_share(tmp_path):
             {"attribute": a, "method": "truth reconstructed", "success": 0.1}
             | {"drawn_share": image[1], "drawn_share_face": face[1]}
             for a, image, face, _, _ in readings
-        ]
+        ] + [{"attribute": "senior", "method": "truth", "success": 1.0, "change_in_face": 0.14 + 0.01 * i}]
         res = {"model": "explicit", "setting": "(defaults)", "claims": claims, "relight": [], "traversal": ceiling}
         (d / "edit.json").write_text(json.dumps(res | {"run": str(run)}))
     (out / "edit" / "explicit").mkdir()  # a shipped model measured before the drawn share: no row of its own
@@ -1484,6 +1484,10 @@ def test_edit_claims_without_the_reader_read_the_drawn_share(tmp_path):
         "| explicit | `(defaults)` | dmt | senior | Ae: 2.1 ± 0.1 (n=3) | Ne: 2.9 ± 0.1 (n=3) | 60% of 88% | "
         "**refuted** |",
     ]
+    assert (
+        "The share of the generator's change inside the face region (`change_in_face`, the source faces): senior 15%."
+        in "\n".join(rep.lines)
+    )
 
 
 def test_claim_5_shows_the_shipped_models_progression_figures(tmp_path):

@@ -238,7 +238,12 @@ def edit_table(
             rt,
             leakage(r_in, rt, src["image"], true_edit["image"], src["matte"], attribute, spread),
         )
-        rows.append(row)
+        # the face region of the faces with and without it: the paper's face masks leave hair out (Sec. 5.2,
+        # Limitations), and SynthFaces greys a senior face's hair, which no face code reaches. change_in_face: the
+        # share of the true change there, what a model drawing all of it there and nothing outside draws
+        face = torch.maximum(src["mask_face"], true_edit["mask_face"])
+        off, on = src["image"], true_edit["image"]
+        rows.append({**row, "change_in_face": drawn_share(off, off + (on - off) * face, off, on)})
         shown["truth"] = true_edit["image"][:n_show]
         # what the model can draw at all: its reconstruction of the faces that truly have the attribute. An edit
         # cannot read as the attribute more often than this (beside the truth's own rate, the reader's recall)
@@ -246,12 +251,8 @@ def edit_table(
         rd = read(net, drawn)
         leak = leakage(r_in, rd, src["image"], drawn, src["matte"], attribute, spread)
         row = summarize(attribute, "-", "truth reconstructed", 1.0, r_in["p"][:, i_attr], rd, leak)
-        # the face region of the faces with and without it: the paper's face masks leave hair out (Sec. 5.2,
-        # Limitations), and SynthFaces greys a senior face's hair, which no face code reaches
-        face = torch.maximum(src["mask_face"], true_edit["mask_face"])
 
         def shares(edited) -> dict:
-            off, on = src["image"], true_edit["image"]
             return {
                 "drawn_share": drawn_share(recon0, edited, off, on),
                 "drawn_share_face": drawn_share(recon0, edited, off, on, face),

@@ -849,6 +849,11 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
             *idle,
             "",
         )
+    inside: dict = {}  # attribute -> the share of the generator's change in the face region, per result
+    for res in (res for results in groups.values() for res in results):
+        for r in res.get("traversal") or []:
+            if r["method"] == "truth" and "change_in_face" in r:
+                inside.setdefault(r["attribute"], []).append(r["change_in_face"])
     said = {
         "drawn share": "The same claim without the reader: how much of the generator's own change (the same faces "
         "with the attribute on, less off) each edit draws (`disent.edit.measure.drawn_share`: 100% draws all of it, "
@@ -860,7 +865,15 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
         "the attribute, the skin a 3DMM covers): the change the face codes are meant to draw. The paper's face "
         'masks "do not include hair. This results in less control over some edits, e.g. aging" (Sec. 5.2, '
         "Limitations), and SynthFaces greys a senior face's hair, which no face code reaches: over the whole image "
-        "the senior change is mostly hair. Leakage, ceiling and rule as above.\n",
+        "the senior change is mostly hair. Leakage, ceiling and rule as above."
+        + (
+            " The share of the generator's change inside the face region (`change_in_face`, the source faces): "
+            + ", ".join(f"{a} {sum(v) / len(v):.0%}" for a, v in inside.items())
+            + "."
+            if inside
+            else ""
+        )
+        + "\n",
     }
     for reading, text in said.items():
         head = table_head(
