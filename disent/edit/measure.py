@@ -54,6 +54,12 @@ SEMANTIC_SHAPE = 17  # the face model's named shape components (the rest are fin
 IDENTITY_READABLE = 0.7  # held-out identity RMSE (in std) below which d_identity is trusted
 PSNR_CAP = 100.0  # dB; float32 round-off of an exact answer lands above it
 LEAK_KEYS = ("d_light", "d_pose", "d_identity", "d_attrs", "d_bg")
+# the drawn shares an edit row carries (over the image, inside the face region), and the keys claim_summary gives
+# each over the strengths: its sum per unit of the summed leakage, and its best value
+DRAWN_READINGS = {
+    "drawn_share": ("drawn_per_leak", "best_drawn"),
+    "drawn_share_face": ("drawn_face_per_leak", "best_drawn_face"),
+}
 
 
 def manifold_choices(kind: str, attribute: str, background: bool = False) -> dict[str, tuple[str, ...]]:
@@ -403,7 +409,7 @@ def claim_summary(rows: list[dict]) -> list[dict]:
     strengths, ranked within the attribute and method (``rank`` 1 = most success per leakage); where the rows
     carry :func:`drawn_share`, the same without the reader: ``drawn_per_leak`` (the drawn shares summed over the
     strengths, over the summed leakage) and ``best_drawn``; ``drawn_face_per_leak`` and ``best_drawn_face``, the
-    same inside the face region."""
+    same inside the face region (:data:`DRAWN_READINGS`)."""
     out = []
     for attribute in dict.fromkeys(r["attribute"] for r in rows):
         for method in ("dmt", "barycenter"):
@@ -423,11 +429,11 @@ def claim_summary(rows: list[dict]) -> list[dict]:
                         "best_success": max(r["success"] for r in rs),
                     }
                 )
-                for key, suffix in (("drawn_share", ""), ("drawn_share_face", "_face")):
+                for key, (per_leak, best) in DRAWN_READINGS.items():
                     if all(key in r for r in rs):
                         drawn = sum(r[key] for r in rs)
-                        group[-1]["drawn" + suffix + "_per_leak"] = drawn / leak if leak > 0 else math.nan
-                        group[-1]["best_drawn" + suffix] = max(r[key] for r in rs)
+                        group[-1][per_leak] = drawn / leak if leak > 0 else math.nan
+                        group[-1][best] = max(r[key] for r in rs)
             order = sorted(group, key=lambda g: -g["gain_per_leak"] if math.isfinite(g["gain_per_leak"]) else math.inf)
             for g in group:
                 g["rank"] = order.index(g) + 1
