@@ -384,6 +384,11 @@ def test_known_albedo_reading_quotes_the_best_known_albedo_row_on_pseudo_geometr
     both = {k: row(0.9) if "geometry_noise" in k else v for k, v in order.items()}
     assert lighting.known_albedo_reading(both).endswith("is enough.")
     assert lighting.known_albedo_reading({"val/texture/normal_pseudo": row(0.7)}) == ""
+    # the same reading for another geometry: only its own known-albedo rows count
+    order |= {"val/known/network_a": row(0.86), "test/known/network_a": row(0.9), "val/known/network_b": row(0.8)}
+    text = lighting.known_albedo_reading(order, "network_", "networks' geometry")
+    assert "networks' geometry (the known-albedo row best on val, `known/network_a`) the choice reaches 0.86" in text
+    assert text.endswith("is enough.")
 
 
 def test_band2_reading_sets_each_geometry_beside_the_true_order2_lights():
@@ -398,6 +403,23 @@ def test_band2_reading_sets_each_geometry_beside_the_true_order2_lights():
     )
     assert "a true order-2 light holds 0.56." in text
     assert lighting.band2_reading({**order, "test/texture/x": {}}, "texture/x") == ""  # a study from before band 2
+
+
+def test_network_reading_sets_the_network_row_beside_the_pseudo_one():
+    from disent.report import lighting
+
+    def row(acc, order1=None):
+        band2 = {"band2_share": {"fitted_by_true_order": [0.1, order1, 0.6], "true_order2": 0.56}} if order1 else {}
+        return {"evidence": {"accuracy": acc}} | band2
+
+    order = {"test/texture/net": row(0.77, 0.71), "test/texture/pseudo": row(0.75, 0.68)}
+    text = lighting.network_reading(order, "texture/net", "texture/pseudo")
+    assert "scores +0.02 against the pseudo geometry's chosen row: within the sampling spread" in text
+    assert "holds 0.71 in band 2 (0.68 on the pseudo geometry's); a true order-2 light holds 0.56." in text
+    order["test/texture/pseudo"] = row(0.5)  # beyond the spread; a row from before the band-2 diagnostic
+    text = lighting.network_reading(order, "texture/net", "texture/pseudo")
+    assert "+0.27 against the pseudo geometry's chosen row: above the sampling spread." in text and "band 2" not in text
+    assert lighting.network_reading(order, "texture/net", None) == ""
 
 
 def test_lighting_section_is_generated_from_the_published_json(tmp_path):
@@ -427,6 +449,17 @@ def test_lighting_section_is_generated_from_the_published_json(tmp_path):
         placement = {"val": 0.7, "test": 0.83}[split]  # the largest gain of val and test together, short of 0.85
         order[f"{split}/texture/oracle_placement"] = {"evidence": confusion(placement), "bic": confusion(placement)}
     order["test/known/normal"]["band2_share"] = {"fitted_by_true_order": [0.01, 0.02, 0.5], "true_order2": 0.48}
+    # the network rows: the best on val of both (explicit, 0.9 > 0.7) has its own verdict, read on test (0.88, not
+    # the implicit row's 0.95); the pseudo verdict never picks a network row, though it is best on val
+    for split, explicit, implicit in (("val", 0.9, 0.7), ("test", 0.88, 0.95)):
+        order[f"{split}/texture/network_explicit+residual_process"] = {
+            "evidence": confusion(explicit),
+            "bic": confusion(0.8),
+        }
+        order[f"{split}/texture/network_implicit+residual_process"] = {
+            "evidence": confusion(implicit),
+            "bic": confusion(0.8),
+        }
     (d / "calibration.json").write_text(
         json.dumps({"lambertian/gaussian": {"inside68": 0.674, "inside95": 0.94, "z_rms": 1.02}, "settings": {"n": 10}})
     )
@@ -447,6 +480,14 @@ def test_lighting_section_is_generated_from_the_published_json(tmp_path):
         lo, hi = lighting.wilson_interval(acc, 60)
         assert f"on test: {acc:.2f} (95 % interval {lo:.2f}-{hi:.2f} over its 60 scenes)" in text
         assert f"against the target {lighting.ORDER_TARGET:.2f}: **{verdict}**." in text
+        assert "Verdict, the networks' geometry without the true albedo" in text
+        assert "(`texture/network_explicit+residual_process`, val 0.90), on test: 0.88" in text
+        lo, hi = lighting.wilson_interval(0.88, 60)
+        assert f"0.88 (95 % interval {lo:.2f}-{hi:.2f} over its 60 scenes) against the target 0.85: **reached**" in text
+        # beside the pseudo geometry's chosen row on test (0.62 or 0.9): beyond, then within the sampling spread
+        gap = {0.62: "+0.26 against the pseudo geometry's chosen row: above", 0.9: "-0.02 against the pseudo"}[acc]
+        assert gap in text and ("better normals alone do not bring the choice to the target" in text) == (acc == 0.9)
+        assert "| val | texture | explicit network's normals + matte eroded 1 px, pseudo uv registered, resid" in text
         assert "| lambertian / gaussian | 0.67 / 0.94 (1.0) | – |" in text and "settings" not in text
         # an oracle row (val 0.68, above every noise model) is a diagnosis, never the chosen method
         assert "| val | texture | pseudo normals + mask eroded 1 px, true uv (oracle) |" in text

@@ -11,7 +11,15 @@ import torch
 from omegaconf import DictConfig
 
 import disent.runs  # noqa: F401  (registers ${pid:}, used by the default run folder in conf/lighting.yaml)
-from disent.lighting.experiments import GEOMETRY, figures_for, noisy, order_data, order_report, run_all
+from disent.lighting.experiments import (
+    GEOMETRY,
+    figures_for,
+    noisy,
+    order_data,
+    order_report,
+    run_all,
+    scene_geometry,
+)
 from disent.lighting.order import select_order
 from disent.lighting.posterior import prepare, sample_posterior
 from disent.runs import tool_folder
@@ -58,8 +66,10 @@ def posterior_of(cfg: DictConfig, name: str, item: dict) -> dict:
     # the order choice: without a known albedo, the texture model on the geometry the order study chose
     geometry = cfg.order_geometry if normals == "normal_pseudo" else "normal"
     choice_data, texture = data, None
-    if albedo is None and cfg.texture_components > 0 and GEOMETRY[geometry].uv in item and not cfg.gray:
-        choice_data, texture = order_data(item, noise, cfg.seed, "texture", geometry, cfg.texture_components)
+    if albedo is None and cfg.texture_components > 0 and not cfg.gray:
+        item = scene_geometry(None, None, item, geometry, noise, cfg.seed)  # a network geometry's maps of the image
+        if GEOMETRY[geometry].uv in item:
+            choice_data, texture = order_data(item, noise, cfg.seed, "texture", geometry, cfg.texture_components)
     residual = tuple(cfg.order_residual) if cfg.order_residual else None
     choice = select_order(choice_data, texture=texture, residual=residual)
     result["order_choice"] = {k: v for k, v in choice.items() if k != "criterion"} | {"residual": residual}
@@ -85,8 +95,13 @@ def run(cfg: DictConfig) -> None:
     if cfg.task not in ("posterior", "report", "order"):
         raise ValueError(f"task must be 'posterior', 'report' or 'order', got {cfg.task!r}")
     out = tool_folder("lighting", hydra.utils.to_absolute_path(cfg.out))
+    if cfg.task == "report":
+        run_all(out, cfg.split, cfg.data.resolution, cfg.data.seed)
+    if cfg.task == "order":
+        keep = hydra.utils.to_absolute_path(cfg.order_keep) if cfg.order_keep else None
+        only = list(cfg.order_rows) if cfg.order_rows else None
+        order_report(out, cfg.split, cfg.data.resolution, cfg.data.seed, only=only, keep=keep)
     if cfg.task in ("report", "order"):
-        (run_all if cfg.task == "report" else order_report)(out, cfg.split, cfg.data.resolution, cfg.data.seed)
         log.info("wrote %s; publish it with: python -m disent.report --publish %s", out, out)
         return
     results = []

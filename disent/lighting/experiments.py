@@ -9,6 +9,7 @@ go to the run folder (JSON and PNG); ``python -m disent.report --publish FOLDER`
 
 from __future__ import annotations
 
+import functools
 import json
 import time
 from pathlib import Path
@@ -33,7 +34,9 @@ EDGE = 1
 # part of the coarse fit behind all three maps, which are then rendered again (made_true: its placement, i.e. pose,
 # scale and shift, or its shape, i.e. the identity components it fits and the expression;
 # coarse_fit_made_true). The registered row corrects the pseudo uv by the affine map that best registers the
-# texture model to the image (disent.lighting.texture.register).
+# texture model to the image (disent.lighting.texture.register). The network rows read the maps a shipped model
+# (disent.models.shipped), trained on the pseudo-GT alone, draws from the scene's (noisy) image: its normals and
+# matte, and the implicit model's uv (network_maps); no ground truth enters them either.
 class Geometry(NamedTuple):
     normals: str
     mask: str
@@ -42,6 +45,7 @@ class Geometry(NamedTuple):
     label: str
     register: bool = False  # the uv corrected by registering the texture model to the image (texture.register)
     made_true: tuple = ()  # parts of the coarse fit set to the scene's truth before its maps are rendered
+    network: str = ""  # the shipped model whose maps of the image (normal_net, matte_net, uv_net) the row reads
 
 
 GEOMETRY = {
@@ -80,6 +84,32 @@ GEOMETRY = {
         f"coarse fit with the true shape and expression, mask eroded {EDGE} px (oracle)",
         made_true=("shape",),
     ),
+    "network_explicit": Geometry(
+        "normal_net",
+        "matte_net",
+        "uv_pseudo",
+        EDGE,
+        f"explicit network's normals + matte eroded {EDGE} px, pseudo uv registered",
+        register=True,
+        network="explicit",
+    ),
+    "network_implicit": Geometry(
+        "normal_net",
+        "matte_net",
+        "uv_net",
+        EDGE,
+        f"implicit network's normals + matte eroded {EDGE} px + uv",
+        network="implicit",
+    ),
+    "network_implicit_registered": Geometry(
+        "normal_net",
+        "matte_net",
+        "uv_net",
+        EDGE,
+        f"implicit network's normals + matte eroded {EDGE} px + uv registered",
+        register=True,
+        network="implicit",
+    ),
 }
 # the scene parameters behind each part of the coarse fit (coarse_fit_made_true)
 COARSE_FIT_PARTS = {"placement": ("pose", "scale", "shift"), "shape": ("alpha", "expression")}
@@ -96,6 +126,38 @@ def coarse_fit_made_true(ds, index: int, item: dict, parts: tuple) -> dict:
         p[f"pseudo_{name}"] = p[name][:, : p["pseudo_alpha"].shape[1]] if name == "alpha" else p[name]
     maps = render_pseudo(item["image"][None], p, item["image"].shape[-1])
     return {**item, **{k: maps[k][0] for k in ("normal_pseudo", "mask_pseudo", "uv_pseudo")}}
+
+
+@functools.lru_cache(maxsize=2)
+def _network(name: str):
+    from disent.models import load_run
+
+    return load_run(name)[0]
+
+
+def network_maps(name: str, image: torch.Tensor) -> dict:
+    """The maps shipped model ``name`` draws from ``image [3,H,W]``: ``normal_net``, ``matte_net`` and, from a
+    model with a uv layer (implicit), ``uv_net``."""
+    with torch.no_grad():
+        out = _network(name)(image.float().clamp(0, 1)[None])
+    maps = {"normal_net": out["normal"][0].double(), "matte_net": out["matte"][0]}
+    return maps | ({"uv_net": out["uv"][0]} if "uv" in out else {})
+
+
+def scene_geometry(ds, index: int, item: dict, normals: str, noise: float, seed: int) -> dict:
+    """``item`` (scene ``index`` of ``ds``; None for a photo) with the maps geometry ``normals`` reads: the coarse
+    fit rendered again with its parts made true, or a network's maps of the image with noise ``noise`` of seed
+    ``seed`` (the pixels the fit then sees, :func:`item_data`)."""
+    if normals not in GEOMETRY:
+        raise ValueError(f"unknown geometry {normals!r}; choose from {', '.join(GEOMETRY)}")
+    geometry = GEOMETRY[normals]
+    if geometry.made_true:
+        if ds is None:
+            raise ValueError(f"geometry {normals!r} makes parts of a SynthFaces scene's coarse fit true: it needs one")
+        item = coarse_fit_made_true(ds, index, item, geometry.made_true)
+    if geometry.network:
+        item = item | network_maps(geometry.network, noisy(item["image"], noise, seed))
+    return item
 
 
 ALBEDO = ("known", "constant", "texture")
@@ -302,10 +364,15 @@ def order_data(
 def uv_of(item: dict, data, normals: str, n_components: int = 20) -> torch.Tensor:
     """The uv through which the texture model reaches ``data``'s pixels on geometry ``normals``: the item's,
     registered to the image first where the geometry says so (:func:`disent.lighting.texture.register`)."""
-    from disent.lighting.texture import register, texture_model
+    from disent.lighting.texture import register, registration_prior, texture_model
 
     geometry, uv = GEOMETRY[normals], item[GEOMETRY[normals].uv]
-    return register(data, uv, texture_model(uv.shape[-1], n_components)) if geometry.register else uv
+    if not geometry.register:
+        return uv
+    # the prior of the affine corrections: of the pseudo uv, or of the network's own uv where the row reads that
+    own = geometry.network if geometry.uv == "uv_net" else ""
+    prior = registration_prior(uv.shape[-1], network=own)
+    return register(data, uv, texture_model(uv.shape[-1], n_components), prior=prior)
 
 
 def order_confusion(
@@ -333,9 +400,7 @@ def order_confusion(
     for order in range(3):
         for i in range(n_per_order):
             sh = light_of_order(ds[i]["sh"], order)
-            item = ds.sample(i, sh=sh)
-            if GEOMETRY[normals].made_true:
-                item = coarse_fit_made_true(ds, i, item, GEOMETRY[normals].made_true)
+            item = scene_geometry(ds, i, ds.sample(i, sh=sh), normals, noise, 1000 * order + i)
             data, texture = order_data(item, noise, 1000 * order + i, albedo, normals, n_components)
             scores = select_order(data, texture=texture, **(noise_model or {}))["scores"]
             band2["fitted"][order].append(band2_share(list(scores.values())[-1]["light"]))
@@ -374,6 +439,21 @@ def order_confusion(
 # measured mean angular error on SynthFaces, 11.5 deg = 0.20 rad, as the per-axis std of an isotropic tangent
 # Gaussian (mean |delta n| = sigma sqrt(pi/2)); set from that measurement, not fitted to the order choice.
 GEOMETRY_NOISE = {"normal_sigma": 0.16}
+
+
+def geometry_noise(normals: str) -> dict:
+    """The geometry-error noise model of geometry ``normals``: :data:`GEOMETRY_NOISE` for the pseudo-GT's maps; for
+    a network row, the same reading of the shipped model's own measured mean normal error (its test metrics in
+    ``disent/weights/manifest.json``)."""
+    network = GEOMETRY[normals].network
+    if not network:
+        return GEOMETRY_NOISE
+    from disent.models.shipped import manifest
+
+    mean = np.radians(manifest()[network]["metrics"]["normal_mean"])
+    return {"normal_sigma": float(mean / np.sqrt(np.pi / 2))}
+
+
 # (albedo, normals[, noise model]); "residual_process": rho, ell by fit_residual_process on train scenes, on the
 # row's own geometry
 ORDER_ROWS = (
@@ -394,6 +474,15 @@ ORDER_ROWS = (
     ("texture", "oracle_normals"),
     ("texture", "oracle_placement"),
     ("texture", "oracle_shape"),
+    ("known", "network_explicit"),
+    ("known", "network_implicit"),
+    ("known", "network_explicit", "geometry_noise"),
+    ("known", "network_implicit", "geometry_noise"),
+    ("texture", "network_explicit", "geometry_noise"),
+    ("texture", "network_implicit", "geometry_noise"),
+    ("texture", "network_explicit", "residual_process"),
+    ("texture", "network_implicit", "residual_process"),
+    ("texture", "network_implicit_registered", "geometry_noise"),
 )
 RESIDUAL_GRID = {"rho": (1.0, 3.0, 10.0, 30.0, 100.0, 300.0, 1000.0), "ell": (0.5, 1.0, 2.0, 4.0)}
 
@@ -408,7 +497,7 @@ def true_light_residuals(ds, n_scenes: int, noise: float = 0.02, normals: str = 
     out = []
     for i in range(n_scenes):
         sh = light_of_order(ds[i]["sh"], i % 3)
-        item = ds.sample(i, sh=sh)
+        item = scene_geometry(ds, i, ds.sample(i, sh=sh), normals, noise, 7000 + i)
         data = item_data(item, noise, 7000 + i, known_albedo=False, normals=normals)
         tex, variance = texture_for(data, uv_of(item, data, normals))
         shading = data.basis @ sh.double().numpy().T  # [P, C]
@@ -448,6 +537,12 @@ def max_likelihood_residual(residuals: list, grid: dict = RESIDUAL_GRID) -> dict
     return {"rho": rho, "ell": ell, "log_likelihood": table}
 
 
+def row_key(row: tuple) -> str:
+    """``albedo/normals[+noise model]``: an order-study row's name (its key in ``order.json`` after ``split/``)."""
+    albedo, normals, *model = row
+    return f"{albedo}/{normals}" + (f"+{model[0]}" if model else "")
+
+
 def order_study(
     out: Path,
     splits=("val", "test"),
@@ -458,33 +553,55 @@ def order_study(
     seed: int = 0,
     name: str = "order",
     n_train_scenes: int = 18,
+    only=None,
+    keep: Path | None = None,
 ) -> dict:
     """The order-choice confusion matrices of every ``(albedo, normals[, noise model])`` row on each split
     (the residual process fitted first on ``n_train_scenes`` train scenes, per geometry of a row that uses it,
     ``out/residual_process.json``);
     written to ``out/<name>.json`` (the method and its constants are chosen on
-    ``val``; ``test`` only reports)."""
+    ``val``; ``test`` only reports).
+
+    ``only``: names of the rows (:func:`row_key`) to compute; every other row, and its residual fit, is copied from
+    the earlier study in folder ``keep`` (``<name>.json``, ``residual_process.json``) where it has one, so that a
+    new row joins a published study without running the others again.
+    """
     from disent.data import SynthFaces
 
-    result, fits = {}, {}
+    names = [row_key(row) for row in rows]
+    unknown = sorted(set(only or ()) - set(names))
+    if unknown:
+        raise ValueError(f"unknown order-study rows {unknown}; rows: {', '.join(names)}")
+    todo = [row for row in rows if only is None or row_key(row) in only]
+    earlier = {
+        f: json.loads((Path(keep) / f"{f}.json").read_text()) if keep and (Path(keep) / f"{f}.json").exists() else {}
+        for f in (name, "residual_process")
+    }
+    result, fits = {}, dict(earlier["residual_process"])
     train = SynthFaces("train", resolution, seed)
-    for normals in dict.fromkeys(row[1] for row in rows if row[2:] == ("residual_process",)):
+    for normals in dict.fromkeys(row[1] for row in todo if row[2:] == ("residual_process",)):
         fits[normals] = fit_residual_process(train, n_train_scenes, normals=normals)
         save_json("residual_process", fits, out)
 
     def noise_model(normals, model):
         if model == "residual_process":
             return {"residual": (fits[normals]["rho"], fits[normals]["ell"])}
-        return {"geometry_noise": GEOMETRY_NOISE}[model]
+        return {"geometry_noise": geometry_noise(normals)}[model]
 
     for split in splits:
         ds = SynthFaces(split, resolution, seed)
-        for albedo, normals, *model in rows:
-            key = f"{split}/{albedo}/{normals}" + (f"+{model[0]}" if model else "")
+        for row in rows:
+            key = f"{split}/{row_key(row)}"
+            if row not in todo:
+                if key in earlier[name]:
+                    result[key] = earlier[name][key]
+                continue
+            albedo, normals, *model = row
             result[key] = order_confusion(
                 ds, n_per_order, noise, albedo, normals, noise_model=noise_model(normals, model[0]) if model else None
             )
             save_json(name, result, out)
+    save_json(name, result, out)
     return result
 
 
@@ -647,14 +764,30 @@ def speed(ds=None, batch: int = 256, rounds: int = 3) -> dict:
 
 
 # ----------------------------------------------------------------------------- all of it
-def order_report(out: Path, split: str = "test", resolution: int = 64, seed: int = 0, quick: bool = False) -> dict:
+def order_report(
+    out: Path,
+    split: str = "test",
+    resolution: int = 64,
+    seed: int = 0,
+    quick: bool = False,
+    only=None,
+    keep: Path | None = None,
+) -> dict:
     """The report's order study on val and ``split`` with its confusion figures (``python -m disent.lighting
-    task=order``; also part of :func:`run_all`), and the registration figure (:func:`plot_registration`)."""
+    task=order``; also part of :func:`run_all`), and the registration figure (:func:`plot_registration`);
+    ``only``, ``keep``: compute only some rows and copy the rest (:func:`order_study`)."""
     from disent.data import SynthFaces
 
     n = 2 if quick else 1
     study = order_study(
-        out, ("val", split), n_per_order=20 // n, resolution=resolution, seed=seed, n_train_scenes=18 // n
+        out,
+        ("val", split),
+        n_per_order=20 // n,
+        resolution=resolution,
+        seed=seed,
+        n_train_scenes=18 // n,
+        only=only,
+        keep=keep,
     )
     for prefix, name in ((f"{split}/", "order_confusion"), ("val/", "order_confusion_val")):
         plot_order_study({k: v for k, v in study.items() if k.startswith(prefix)}, out / f"{name}.png")

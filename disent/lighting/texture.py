@@ -138,14 +138,22 @@ def affine(uv, W: np.ndarray) -> torch.Tensor:
     return (x @ torch.from_numpy(W)).T.reshape(uv.shape)
 
 
-@lru_cache(maxsize=2)
-def registration_prior(resolution: int = 64, n_images: int = 64, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+@lru_cache(maxsize=4)
+def registration_prior(
+    resolution: int = 64, n_images: int = 64, seed: int = 0, network: str = ""
+) -> tuple[np.ndarray, np.ndarray]:
     """Mean and std ``[3, 2]`` of ``W - I`` over SynthFaces train scenes, where ``W`` is the least-squares affine
     map of each scene's pseudo uv onto its true uv (over the pixels in both the matte and the pseudo mask): the
-    prior of :func:`register`."""
+    prior of :func:`register`. With ``network`` (a shipped model with a uv layer), the same of that model's uv and
+    matte of each scene's image (:func:`disent.lighting.experiments.network_maps`) in place of the pseudo ones."""
     from disent.data import SynthFaces
 
     batch = SynthFaces("train", resolution, seed).get_batch(range(n_images))
+    if network:
+        from disent.lighting.experiments import network_maps
+
+        maps = [network_maps(network, image) for image in batch["image"]]
+        batch["uv_pseudo"], batch["mask_pseudo"] = (torch.stack([m[k] for m in maps]) for k in ("uv_net", "matte_net"))
     Ws = []
     for uv_pseudo, uv, matte, mask in zip(batch["uv_pseudo"], batch["uv"], batch["matte"], batch["mask_pseudo"]):
         inside = (matte[0] > 0.5) & (mask[0] > 0.5)
