@@ -149,15 +149,16 @@ def registration_prior(
     from disent.data import SynthFaces
 
     batch = SynthFaces("train", resolution, seed).get_batch(range(n_images))
+    estimates, masks = batch["uv_pseudo"], batch["mask_pseudo"]  # the uv to correct, and the pixels it covers
     if network:
         from disent.lighting.experiments import network_maps
 
         maps = [network_maps(network, image) for image in batch["image"]]
-        batch["uv_pseudo"], batch["mask_pseudo"] = (torch.stack([m[k] for m in maps]) for k in ("uv_net", "matte_net"))
+        estimates, masks = (torch.stack([m[k] for m in maps]) for k in ("uv_net", "matte_net"))
     Ws = []
-    for uv_pseudo, uv, matte, mask in zip(batch["uv_pseudo"], batch["uv"], batch["matte"], batch["mask_pseudo"]):
+    for estimate, uv, matte, mask in zip(estimates, batch["uv"], batch["matte"], masks):
         inside = (matte[0] > 0.5) & (mask[0] > 0.5)
-        x = torch.cat([uv_pseudo[:, inside], torch.ones_like(uv_pseudo[:1, inside])]).double().T
+        x = torch.cat([estimate[:, inside], torch.ones_like(estimate[:1, inside])]).double().T
         Ws.append(torch.linalg.lstsq(x, uv[:, inside].double().T).solution.numpy() - AFFINE_IDENTITY)
     return np.mean(Ws, 0), np.std(Ws, 0)
 

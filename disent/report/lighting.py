@@ -63,17 +63,23 @@ def band2_reading(order: dict, chosen: str) -> str:
     )
 
 
+def best_on_val(order: dict, prefix: str) -> str | None:
+    """The name (after ``split/``) of the study's row best on val among those whose name starts with ``prefix``
+    and which were run on test too; None where there is none."""
+    rows = [k[4:] for k in order if k.startswith(f"val/{prefix}") and f"test/{k[4:]}" in order]
+    return max(rows, key=lambda k: order[f"val/{k}"]["evidence"]["accuracy"]) if rows else None
+
+
 def known_albedo_reading(order: dict, geometry: str = "normal_pseudo", what: str = "pseudo geometry") -> str:
     """One sentence on what a geometry allows with the albedo's error removed: the known-albedo row on the
     ``geometry`` (a prefix of the rows' geometry names; ``what``: in words) best on val, with its val and test
     accuracy ("" where the study has no such row)."""
-    rows = [k for k in order if k.startswith(f"val/known/{geometry}") and f"test/{k[4:]}" in order]
-    if not rows:
+    best = best_on_val(order, f"known/{geometry}")
+    if best is None:
         return ""
-    best = max(rows, key=lambda k: order[k]["evidence"]["accuracy"])
-    val, test = (order[f"{split}/{best[4:]}"]["evidence"]["accuracy"] for split in ("val", "test"))
+    val, test = (order[f"{split}/{best}"]["evidence"]["accuracy"] for split in ("val", "test"))
     return (
-        f" With the true albedo on the same {what} (the known-albedo row best on val, `{best[4:]}`) the "
+        f" With the true albedo on the same {what} (the known-albedo row best on val, `{best}`) the "
         f"choice reaches {val:.2f} on val and {test:.2f} on test: what the {what} allows once the albedo's "
         "error is gone, so a better albedo model alone is "
         + ("not expected to bring it to the target on both splits." if min(val, test) < ORDER_TARGET else "enough.")
@@ -84,15 +90,14 @@ def order_verdict(order: dict, prefix: str, what: str) -> tuple[str, str] | None
     """``(row, sentence)``: among the study's rows whose name starts with ``prefix`` (on both splits), the one best
     on val, and its test accuracy against :data:`ORDER_TARGET` with a 95 % interval; None where there is no such
     row. ``what``: the geometry, in words."""
-    rows = [k for k in order if k.startswith(f"val/{prefix}") and f"test/{k[4:]}" in order]
-    if not rows:
+    chosen = best_on_val(order, prefix)  # the row chosen on val ...
+    if chosen is None:
         return None
-    chosen = max(rows, key=lambda k: order[k]["evidence"]["accuracy"])  # the noise model chosen on val ...
-    test = order[f"test/{chosen[4:]}"]["evidence"]  # ... read on test
+    test = order[f"test/{chosen}"]["evidence"]  # ... read on test
     acc, n = test["accuracy"], int(np.sum(test["confusion"]))
     lo, hi = wilson_interval(acc, n)
-    return chosen[4:], (
-        f"Verdict, {what}, the row best on val (`{chosen[4:]}`, val {order[chosen]['evidence']['accuracy']:.2f}), "
+    return chosen, (
+        f"Verdict, {what}, the row best on val (`{chosen}`, val {order[f'val/{chosen}']['evidence']['accuracy']:.2f}), "
         f"on test: {acc:.2f} (95 % interval {lo:.2f}-{hi:.2f} over its {n} scenes) against the target "
         f"{ORDER_TARGET:.2f}: **{'reached' if acc >= ORDER_TARGET else 'not reached'}**. Over {n} scenes a split, "
         "accuracies less than about 0.1 apart are within each other's sampling spread."
