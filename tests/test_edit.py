@@ -491,6 +491,9 @@ def test_edit_and_relight_tables_run_end_to_end_on_a_toy_generator():
                 per_leak = sum(r[key] for r in rs) / sum(r["leakage"] for r in rs)
                 assert c[f"drawn{suffix}_per_leak"] == pytest.approx(per_leak, nan_ok=True)
                 assert c[f"best_drawn{suffix}"] == pytest.approx(max(r[key] for r in rs), nan_ok=True)
+                # and with no reader: per unit of the summed off-target change
+                per_off = sum(r[key] for r in rs) / sum(r[f"off_target{suffix}"] for r in rs)
+                assert c[f"drawn{suffix}_per_off_target"] == pytest.approx(per_off, nan_ok=True)
     # the share of the true change inside the face region: none of the smile, all of the beard
     assert rows[1]["change_in_face"] == 0.0 and beard[1]["change_in_face"] == pytest.approx(1.0)
     # the beard's change lies inside the face region, so there the two readings agree
@@ -570,6 +573,30 @@ def test_drawn_share_is_the_part_of_the_true_change_a_model_reproduces():
     outside = (change * (1 - region)).pow(2).sum() / change.pow(2).sum()
     assert drawn_share(off, inside_only, off, on) == pytest.approx(1 - outside.item(), abs=1e-5)
     assert drawn_share(off, off + change * (1 - region), off, on, region) == 0.0
+
+
+def test_off_target_share_is_the_change_not_along_the_true_change():
+    """No change, or any multiple of the true change: no off-target change; a change orthogonal to it: its energy
+    over the true change's; inside a region only the change there counts, and where the attribute changes nothing
+    there the reading is NaN."""
+    from disent.edit.measure import off_target_share
+
+    g = torch.Generator().manual_seed(1)
+    off, change = torch.rand(4, 3, 8, 8, generator=g), 0.2 * torch.randn(4, 3, 8, 8, generator=g)
+    on = off + change
+    other = torch.randn(4, 3, 8, 8, generator=g)
+    other -= (other * change).sum() / (change * change).sum() * change  # orthogonal to the true change
+    energy = (change * change).sum().item()
+    assert off_target_share(off, off, off, on) == 0.0
+    assert off_target_share(off, off + 2.5 * change, off, on) == pytest.approx(0.0, abs=1e-9)
+    expected = (other * other).sum().item() / energy
+    assert off_target_share(off, off + 0.5 * change + other, off, on) == pytest.approx(expected, rel=1e-4)
+    region = torch.zeros(4, 1, 8, 8)
+    region[..., :3] = 1
+    outside = other * (1 - region)  # a change only outside the region is off target only over the whole image
+    assert off_target_share(off, off + change + outside, off, on, region) == pytest.approx(0.0, abs=1e-9)
+    assert off_target_share(off, off + change + outside, off, on) > 0
+    assert math.isnan(off_target_share(off, off + other, off, off + change * (1 - region), region))
 
 
 # ----------------------------------------------------------------------------- command line

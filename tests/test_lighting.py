@@ -1,5 +1,6 @@
 """Lighting posterior and order choice against closed forms, on simple synthetic geometry."""
 
+import json
 import math
 
 import numpy as np
@@ -349,7 +350,12 @@ def test_cli_writes_intervals_and_diagnostics(tmp_path):
 
     out = tmp_path / "run"
     cmd = [sys.executable, "-m", "disent.lighting", "index=3", "max_steps=300", "figures=false", f"out={out}"]
-    cmd.append("order_residual=[1000,1]")  # the order choice with the residual process
+    study = tmp_path / "study"  # an order study whose row best on val for the known albedo on true normals has the
+    study.mkdir()  # residual process: the CLI's order choice takes that noise model, with the study's fit
+    rows = {"val/known/normal": 0.9, "val/known/normal+residual_process": 1.0, "val/texture/normal+geometry_noise": 1}
+    (study / "order.json").write_text(json.dumps({k: {"evidence": {"accuracy": v}} for k, v in rows.items()}))
+    (study / "residual_process.json").write_text(json.dumps({"normal": {"rho": 1000.0, "ell": 1.0}}))
+    cmd.append(f"order_study={study}")
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr[-2000:]
     result = json.loads((out / "posterior.json").read_text())
@@ -360,8 +366,36 @@ def test_cli_writes_intervals_and_diagnostics(tmp_path):
     d = result["diagnostics"]
     assert d["n_steps"] <= 300 and 0 < d["acceptance_fraction"] <= 1 and d["tau_max"] > 0 and d["ess_min"] > 0
     assert result["order_choice"]["choice"] in result["order_choice"]["scores"]
+    assert result["order_choice"]["noise_model"] == "residual_process"
     assert result["order_choice"]["residual"] == [1000, 1]
     assert 0 <= result["true_inside95"] <= 1  # the truth is known on SynthFaces
+
+
+def test_chosen_noise_model_reads_the_study(tmp_path):
+    """``auto`` takes the noise model of the study's row best on val for that albedo and geometry (only that geometry's
+    rows, not those of a geometry whose name it begins), i.i.d. without one; a named model takes its constants from
+    the study; an unknown model, or a residual process the study has no fit for, is refused by name."""
+    from disent.lighting.experiments import chosen_noise_model, geometry_noise
+
+    rows = {
+        "val/texture/normal_pseudo+residual_process": 0.6,
+        "val/texture/normal_pseudo+geometry_noise": 0.5,
+        "val/texture/normal_pseudo_registered+geometry_noise": 0.9,  # another geometry
+        "test/texture/normal_pseudo+geometry_noise": 1.0,  # test does not choose
+    }
+    (tmp_path / "order.json").write_text(json.dumps({k: {"evidence": {"accuracy": v}} for k, v in rows.items()}))
+    (tmp_path / "residual_process.json").write_text(json.dumps({"normal_pseudo": {"rho": 10.0, "ell": 1.0}}))
+    assert chosen_noise_model("texture", "normal_pseudo", tmp_path) == ("residual_process", {"residual": (10.0, 1.0)})
+    assert chosen_noise_model("known", "normal_pseudo", tmp_path) == ("iid", {})
+    assert chosen_noise_model("texture", "normal_pseudo", tmp_path / "none") == ("iid", {})
+    assert chosen_noise_model("texture", "normal_pseudo", tmp_path, "geometry_noise") == (
+        "geometry_noise",
+        geometry_noise("normal_pseudo"),
+    )
+    with pytest.raises(ValueError, match="unknown noise model 'gaussian'"):
+        chosen_noise_model("texture", "normal_pseudo", tmp_path, "gaussian")
+    with pytest.raises(ValueError, match="no residual fit 'normal_pseudo\\+geometry_noise'"):
+        chosen_noise_model("texture", "normal_pseudo", tmp_path, "geometry_noise+residual_process")
 
 
 def test_cli_order_choice_on_pseudo_geometry_uses_the_chosen_geometry(monkeypatch):
@@ -487,8 +521,8 @@ def test_geometry_variance_closed_form():
     assert np.all(geometry_variance(data, ambient, 0.2) == 0)
     along_x = np.zeros((3, 4))
     along_x[:, 3] = [0.5, 1.0, 2.0]  # per channel
-    v = geometry_variance(data, along_x, 0.2).reshape(3, 4)  # channel-major
-    np.testing.assert_allclose(v, (0.2 * 2 * C2 * np.array([0.5, 1.0, 2.0]))[:, None] ** 2 * np.ones((3, 4)))
+    v = geometry_variance(data, along_x, 0.2)  # [P, C]
+    np.testing.assert_allclose(v, (0.2 * 2 * C2 * np.array([0.5, 1.0, 2.0]))[None] ** 2 * np.ones((4, 3)))
     tilted = data.basis.copy()  # at a normal along x the x-gradient is radial: no tangent part, no variance
     from disent.render import sh_basis
 
@@ -525,19 +559,20 @@ def test_geometry_noise_keeps_the_order_when_normals_are_bent():
 
 
 def test_residual_whitener_closed_form():
-    """``whiten`` solves with the Cholesky factor of I + rho K (K(p, q) = exp(-|p - q| / ell)): the whitened
-    squared norm is the Mahalanobis norm, and ``log_det`` is log det(I + rho K)."""
+    """``whiten`` solves with the Cholesky factor of R = (I + rho K) / (1 + rho) (K(p, q) = exp(-|p - q| / ell)): the
+    whitened squared norm is the Mahalanobis norm, ``inverse`` applies R^-1 and ``log_det`` is log det R."""
     from disent.lighting.order import residual_whitener
 
     normal, mask = ellipsoid(12, 12)
     data = prepare(render(normal, directional_light([0.2, 0.3, 1.0]), 0.01), normal, mask)
     r, c = np.divmod(data.index, 12)
     dist = np.sqrt((r[:, None] - r[None]) ** 2 + (c[:, None] - c[None]) ** 2)
-    cov = np.eye(len(dist)) + 5.0 * np.exp(-dist / 2.0)
-    whiten, log_det = residual_whitener(data, 5.0, 2.0)
+    cov = (np.eye(len(dist)) + 5.0 * np.exp(-dist / 2.0)) / 6.0
+    whiten = residual_whitener(data, 5.0, 2.0)
     x = np.random.default_rng(0).normal(size=(data.n_pixels, 3))
     assert np.allclose((whiten(x) ** 2).sum(0), np.einsum("pc,pc->c", x, np.linalg.solve(cov, x)))
-    assert log_det == pytest.approx(np.linalg.slogdet(cov)[1])
+    assert np.allclose(whiten.inverse(x), np.linalg.solve(cov, x))
+    assert whiten.log_det == pytest.approx(np.linalg.slogdet(cov)[1])
 
 
 def test_residual_process_of_zero_strength_is_the_iid_model():
@@ -548,13 +583,45 @@ def test_residual_process_of_zero_strength_is_the_iid_model():
     for order, gray in ((0, False), (1, True), (2, False)):
         iid, zero = score(data, order, gray), score(data, order, gray, residual=(0.0, 1.0))
         assert zero["log_evidence"] == pytest.approx(iid["log_evidence"]) and zero["bic"] == pytest.approx(iid["bic"])
-    with pytest.raises(ValueError, match="one noise model"):
-        score(data, 1, residual=(1.0, 1.0), normal_sigma=0.1)
     # select_order factors the residual process once for all candidates: the same scores as one by one
     chosen = select_order(data, residual=(5.0, 2.0))["scores"]
     for name, order, gray in candidates(data.n_channels):
         alone = score(data, order, gray, residual=(5.0, 2.0))
         assert chosen[name]["log_evidence"] == pytest.approx(alone["log_evidence"], rel=1e-9)
+
+
+def test_geometry_noise_beside_the_residual_process():
+    """Both noise models together: with rho 0 it is the geometry noise alone; its log-likelihood is the Gaussian
+    density of the residual under the covariance V^1/2 R V^1/2 written out in full, at the sigma that maximises it."""
+    from scipy.stats import multivariate_normal
+
+    from disent.lighting.order import geometry_variance, score
+
+    normal, mask = ellipsoid(12, 12)
+    data = prepare(render(normal, directional_light([0.4, -0.2, 1.0]), 0.02), normal, mask)
+    for order, gray in ((1, True), (2, False)):
+        alone, beside = (
+            score(data, order, gray, normal_sigma=0.1),
+            score(data, order, gray, normal_sigma=0.1, residual=(0.0, 1.0)),
+        )
+        assert beside["log_evidence"] == pytest.approx(alone["log_evidence"], rel=1e-6)
+    rho, ell, normal_sigma = 3.0, 2.0, 0.03  # a geometry noise of the order of the image noise
+    both = score(data, 1, normal_sigma=normal_sigma, residual=(rho, ell))
+    light = np.array(both["light"])
+    r = data.y - data.basis[:, :4] @ light.T  # [P, C], the constant albedo absorbed into the light
+    extra = geometry_variance(data, light, normal_sigma)
+    rows, cols = np.divmod(data.index, data.shape[1])
+    dist = np.hypot(rows[:, None] - rows[None], cols[:, None] - cols[None])
+    R = (np.eye(len(dist)) + rho * np.exp(-dist / ell)) / (1 + rho)
+
+    def loglik(s2):  # channels independent, each N(0, V^1/2 R V^1/2)
+        v = np.sqrt(s2 + extra)
+        return sum(multivariate_normal(cov=v[:, c, None] * R * v[None, :, c]).logpdf(r[:, c]) for c in range(3))
+
+    s2 = np.exp(np.linspace(np.log(1e-6), np.log(1e-2), 401))
+    values = [loglik(x) for x in s2]
+    assert both["loglik"] == pytest.approx(max(values), abs=1e-3 * abs(max(values)))
+    assert both["loglik"] >= max(values) - 1e-6  # the profiled sigma is at least as good as the grid's best
 
 
 def test_residual_process_keeps_the_order_under_correlated_albedo_misfit():
@@ -597,10 +664,10 @@ def test_residual_process_maximum_likelihood_finds_the_generating_constants():
     root = np.linalg.cholesky(np.eye(len(dist)) + 3.0 * np.exp(-dist / 2.0))
     rng = np.random.default_rng(0)
     grid = {"rho": (0.0, 3.0, 30.0, 300.0), "ell": (0.5, 2.0, 8.0)}
-    correlated = [(data, 0.01 * root @ rng.normal(size=(data.n_pixels, 3))) for _ in range(4)]
+    correlated = [(data, 0.01 * root @ rng.normal(size=(data.n_pixels, 3)), None) for _ in range(4)]
     fit = max_likelihood_residual(correlated, grid)
     assert (fit["rho"], fit["ell"]) == (3.0, 2.0) and len(fit["log_likelihood"]) == 12
-    iid = [(data, 0.01 * rng.normal(size=(data.n_pixels, 3))) for _ in range(4)]
+    iid = [(data, 0.01 * rng.normal(size=(data.n_pixels, 3)), None) for _ in range(4)]
     assert max_likelihood_residual(iid, grid)["rho"] == 0.0
 
 
@@ -720,7 +787,8 @@ def test_band2_share_closed_form():
 def test_network_geometry_reads_the_shipped_models_maps_of_the_noisy_image():
     """The network rows' geometry: the shipped model's normals and matte (and the implicit model's uv) of the very
     noisy image the fit sees, eroded like the pseudo rows; on val scenes the network's normals lie nearer the truth
-    than the pseudo-GT's (claim 1, scene by scene), which is why the rows exist."""
+    than the pseudo-GT's (claim 1, scene by scene), which is why the rows exist. The oracle row reads the explicit
+    network's maps with the scene's true uv."""
     from disent.data import SynthFaces
     from disent.eval.metrics import normal_angular_error
     from disent.lighting.experiments import GEOMETRY, eroded, item_data, network_maps, noisy, scene_geometry, uv_of
@@ -743,10 +811,34 @@ def test_network_geometry_reads_the_shipped_models_maps_of_the_noisy_image():
             if normals == "network_implicit":
                 assert uv_of(geo, data, normals) is geo["uv_net"]  # its own uv, not registered
         maps = network_maps("explicit", noisy(item["image"], 0.02, 3))
+        oracle = scene_geometry(ds, i, item, "oracle_uv_network", 0.02, 3)  # the explicit network's maps, the true uv
+        torch.testing.assert_close(oracle["normal_net"], maps["normal_net"])
+        data = item_data(oracle, 0.02, 3, known_albedo=False, normals="oracle_uv_network")
+        assert uv_of(oracle, data, "oracle_uv_network") is item["uv"]
         both = (maps["matte_net"] > 0.5) & (item["matte"] > 0.5) & (item["mask_pseudo"] > 0.5)
         errors["net"].append(normal_angular_error(maps["normal_net"][None].float(), item["normal"][None], both[None]))
         errors["pseudo"].append(normal_angular_error(item["normal_pseudo"][None], item["normal"][None], both[None]))
     assert np.mean([e["mean"] for e in errors["net"]]) < np.mean([e["mean"] for e in errors["pseudo"]]), errors
+
+
+def test_texture_pixels_lie_where_the_uv_is_defined():
+    """The texture model reaches only pixels where the geometry's uv is defined: the pseudo uv (0 off the coarse
+    fit's mask) on the explicit network's matte keeps the pixels inside the pseudo mask, the true uv on the pseudo
+    mask those inside the matte; where the uv covers the mask already (the pseudo rows) nothing changes."""
+    from disent.data import SynthFaces
+    from disent.lighting.experiments import GEOMETRY, UV_DEFINED, item_data, scene_geometry
+
+    ds = SynthFaces("val", 64, 0)
+    for normals in ("network_explicit", "oracle_uv", "normal_pseudo_registered"):
+        item = scene_geometry(ds, 4, ds[4], normals, 0.02, 3)
+        every, textured = (item_data(item, 0.02, 3, known_albedo=False, normals=normals, texture=t) for t in (0, 1))
+        defined = (item[UV_DEFINED[GEOMETRY[normals].uv]] > 0.5).flatten()
+        assert set(textured.index.tolist()) == {p for p in every.index.tolist() if defined[p]}
+        assert (item[GEOMETRY[normals].uv].flatten(1)[:, textured.index] > 0).any(0).all()  # no uv of 0 left
+        if normals == "network_explicit":  # this face's coarse fit covers less than the network's matte
+            assert len(textured.index) < len(every.index)
+        if normals == "normal_pseudo_registered":
+            assert len(textured.index) == len(every.index)
 
 
 def test_order_study_computes_only_the_named_rows_and_keeps_the_rest(tmp_path, monkeypatch):
@@ -760,27 +852,49 @@ def test_order_study_computes_only_the_named_rows_and_keeps_the_rest(tmp_path, m
     monkeypatch.setattr(
         experiments, "order_confusion", lambda ds, *a, **k: calls.append((ds.split, a[3], k)) or {"new": ds.split}
     )
-    monkeypatch.setattr(experiments, "fit_residual_process", lambda ds, n, normals: {"rho": 3.0, "ell": 2.0})
-    rows = (("known", "normal"), ("texture", "network_explicit", "residual_process"))
+    monkeypatch.setattr(
+        experiments,
+        "fit_residual_process",
+        lambda ds, n, normals, normal_sigma: {"rho": 3.0, "ell": 2.0 + normal_sigma},
+    )
+    rows = (
+        ("known", "normal"),
+        ("texture", "network_explicit", "residual_process"),
+        ("texture", "network_explicit", "geometry_noise+residual_process"),
+    )
     earlier = {f"{s}/known/normal": {"old": s} for s in ("val", "test")} | {"val/texture/network_explicit": {"x": 1}}
     (tmp_path / "order.json").write_text(json.dumps(earlier))
     (tmp_path / "residual_process.json").write_text(json.dumps({"normal_pseudo": {"rho": 10.0, "ell": 1.0}}))
     out = tmp_path / "out"
-    result = experiments.order_study(
-        out, rows=rows, n_per_order=1, only=["texture/network_explicit+residual_process"], keep=tmp_path
-    )
+    new = ["texture/network_explicit+residual_process", "texture/network_explicit+geometry_noise+residual_process"]
+    result = experiments.order_study(out, rows=rows, n_per_order=1, only=new, keep=tmp_path)
     assert list(result) == [
         "val/known/normal",
-        "val/texture/network_explicit+residual_process",
+        *(f"val/{k}" for k in new),
         "test/known/normal",
-        "test/texture/network_explicit+residual_process",
+        *(f"test/{k}" for k in new),
     ]
     assert result["val/known/normal"] == {"old": "val"} and result["test/known/normal"] == {"old": "test"}
-    assert [c[:2] for c in calls] == [("val", "network_explicit"), ("test", "network_explicit")]
+    assert [c[:2] for c in calls] == [("val", "network_explicit")] * 2 + [("test", "network_explicit")] * 2
+    # each row's noise model: the residual process alone; the geometry noise beside a residual fitted with it
+    sigma = experiments.geometry_noise("network_explicit")["normal_sigma"]
     assert calls[0][2]["noise_model"] == {"residual": (3.0, 2.0)}
+    assert calls[1][2]["noise_model"] == {"normal_sigma": sigma, "residual": (3.0, 2.0 + sigma)}
     assert json.loads((out / "order.json").read_text()) == result
     fits = json.loads((out / "residual_process.json").read_text())
-    assert fits == {"normal_pseudo": {"rho": 10.0, "ell": 1.0}, "network_explicit": {"rho": 3.0, "ell": 2.0}}
+    assert fits == {
+        "normal_pseudo": {"rho": 10.0, "ell": 1.0},
+        "network_explicit": {"rho": 3.0, "ell": 2.0},
+        "network_explicit+geometry_noise": {"rho": 3.0, "ell": 2.0 + sigma},
+    }
+    # a row read again on test alone (more scenes): its val entry and every other row are kept, val first
+    calls.clear()
+    (tmp_path / "order.json").write_text(json.dumps(result))
+    again = experiments.order_study(
+        tmp_path / "again", ("test",), rows=rows, n_per_order=2, only=new[:1], keep=tmp_path
+    )
+    assert list(again) == list(result) and calls == [("test", "network_explicit", calls[0][2])]
+    assert again[f"val/{new[0]}"] == result[f"val/{new[0]}"] and again[f"test/{new[0]}"] == {"new": "test"}
     with pytest.raises(ValueError, match="unknown order-study rows.*known/normal"):
         experiments.order_study(out, rows=rows, only=["texture/nothing"], keep=tmp_path)
 
@@ -801,7 +915,8 @@ def test_geometry_noise_reads_each_geometrys_own_measured_error():
 
 
 def test_cli_order_task_passes_the_rows_to_compute_and_the_study_to_keep(tmp_path, monkeypatch):
-    """``task=order order_rows=[...] order_keep=DIR``: the order study computes those rows only and keeps DIR's."""
+    """``task=order order_rows=[...] order_keep=DIR``: the order study computes those rows only and keeps DIR's;
+    ``order_splits``, ``order_n``: on those splits only, with that many scenes per order."""
     from pathlib import Path
 
     from omegaconf import OmegaConf
@@ -816,7 +931,11 @@ def test_cli_order_task_passes_the_rows_to_compute_and_the_study_to_keep(tmp_pat
     monkeypatch.setattr(cli, "order_report", lambda *a, **k: seen.append((a, k)))
     cli.run(cfg)
     ((args, kwargs),) = seen
-    assert args[1:] == ("test", 64, 0) and kwargs == {"only": cfg.order_rows, "keep": str(tmp_path)}
+    defaults = {"splits": None, "n_per_order": 20}
+    assert args[1:] == ("test", 64, 0) and kwargs == {"only": cfg.order_rows, "keep": str(tmp_path)} | defaults
     cfg.order_rows, cfg.order_keep = None, None  # the whole study
     cli.run(cfg)
-    assert seen[1][1] == {"only": None, "keep": None}
+    assert seen[1][1] == {"only": None, "keep": None} | defaults
+    cfg.order_splits, cfg.order_n = ["test"], 40
+    cli.run(cfg)
+    assert seen[2][1] == {"only": None, "keep": None, "splits": ["test"], "n_per_order": 40}

@@ -391,6 +391,48 @@ def test_known_albedo_reading_quotes_the_best_known_albedo_row_on_pseudo_geometr
     assert text.endswith("is enough.")
 
 
+def test_combined_reading_sets_both_noise_models_beside_each_alone():
+    """The two noise models together, per geometry run on both splits, beside each model alone on the same row where
+    the study has it; nothing where no combined row was run on both splits."""
+
+    def row(accuracy):
+        return {"evidence": {"accuracy": accuracy}}
+
+    order = {
+        f"{split}/texture/network_explicit{suffix}": row(value + (0.05 if split == "test" else 0))
+        for split in ("val", "test")
+        for suffix, value in (
+            ("+geometry_noise", 0.67),
+            ("+residual_process", 0.72),
+            ("+geometry_noise+residual_process", 0.7),
+        )
+    } | {"val/texture/normal_pseudo_registered+geometry_noise+residual_process": row(0.6)}
+    text = lighting.combined_reading(order)
+    assert "0.70/0.75 on network_explicit" not in text  # the geometry's label, not its key
+    assert "0.70/0.75 on " in text and "(0.67/0.72 geometry noise alone, 0.72/0.77 residual alone)" in text, text
+    assert "0.60" not in text  # a row run on val alone is left out
+    assert text.endswith("together beats each model alone on 0 of 1 geometries.\n")  # 0.70 on val against 0.72
+    assert lighting.combined_reading({k: v for k, v in order.items() if "+geometry_noise+" not in k}) == ""
+
+
+def test_uv_oracle_reading_says_whether_the_true_uv_reaches_the_target():
+    """The networks' geometry with the true uv (an oracle row): at or above the target on both splits, the uv is what
+    stands in the way; under it on either, not even a true uv is enough; nothing where the study lacks the row."""
+
+    def row(accuracy):
+        return {"evidence": {"accuracy": accuracy}}
+
+    key = "texture/oracle_uv_network+geometry_noise"
+    text = lighting.uv_oracle_reading({f"val/{key}": row(0.9), f"test/{key}": row(0.88)})
+    assert "reaches 0.90 on val and 0.88 on test" in text and text.endswith(
+        "stands between this geometry and the target."
+    )
+    assert lighting.uv_oracle_reading({f"val/{key}": row(0.9), f"test/{key}": row(0.8)}).endswith(
+        "short of the target."
+    )
+    assert lighting.uv_oracle_reading({f"val/{key}": row(0.9)}) == ""
+
+
 def test_band2_reading_sets_each_geometry_beside_the_true_order2_lights():
 
     def row(order1):
@@ -410,8 +452,10 @@ def test_network_reading_sets_the_network_row_beside_the_pseudo_one():
 
     def row(acc, order1=None):
         band2 = {"band2_share": {"fitted_by_true_order": [0.1, order1, 0.6], "true_order2": 0.56}} if order1 else {}
-        return {"evidence": {"accuracy": acc}} | band2
+        return {"evidence": {"accuracy": acc, "confusion": [[20, 0, 0], [0, 20, 0], [0, 0, 20]]}} | band2
 
+    # 60 scenes each: two rows closer than 1.96 sqrt(sum p (1 - p) / n), about 0.15, are within the spread
+    assert lighting.difference_spread((0.77, 60), (0.75, 60)) == pytest.approx(0.153, abs=1e-3)
     order = {"test/texture/net": row(0.77, 0.71), "test/texture/pseudo": row(0.75, 0.68)}
     text = lighting.network_reading(order, "texture/net", "texture/pseudo")
     assert "scores +0.02 against the pseudo geometry's chosen row: within the sampling spread" in text
@@ -1473,7 +1517,8 @@ def test_edit_claims_without_the_reader_read_the_drawn_share(tmp_path):
     best other set by drawn share per leakage over three seeds, read where the best set draws at least half of what
     the model's reconstructions of the true faces draw; an edit under that is listed as not testable, and results
     measured before the drawn share add no row. An edit whose change lies mostly outside the face (a senior face's
-    grey hair) is testable in the face region alone."""
+    grey hair) is testable in the face region alone. With no reader at all (per off-target change) the same rule
+    reads the seeds that measured it."""
     out = tmp_path / "reports"
     readings = (  # attribute, (best drawn, ceiling) over the image and in the face, paper's and rival's per leakage
         ("beard", (0.8, 0.9), (0.8, 0.9), 3.9, 3.3),
@@ -1488,6 +1533,7 @@ def test_edit_claims_without_the_reader_read_the_drawn_share(tmp_path):
             {"attribute": a, "method": "dmt", "manifolds": m, "gain_per_leak": 1.0, "best_success": 0.2}
             | {"drawn_per_leak": v + 0.1 * i, "best_drawn": image[0]}
             | {"drawn_face_per_leak": 2 * v + 0.1 * i, "best_drawn_face": face[0]}
+            | ({"drawn_per_off_target": 1 / v + 0.1 * i} if i else {})  # seed 0 measured before the off-target change
             for a, image, face, paper, rival in readings
             for m, v in (("paper:Ae", paper), ("Ne", rival))
         ]
@@ -1501,7 +1547,7 @@ def test_edit_claims_without_the_reader_read_the_drawn_share(tmp_path):
     (out / "edit" / "explicit").mkdir()  # a shipped model measured before the drawn share: no row of its own
     old = {"model": "explicit", "setting": "shipped", "claims": [dict(claims[0], gain_per_leak=2.0)], "relight": []}
     for c in old["claims"]:
-        for key in ("drawn_per_leak", "best_drawn", "drawn_face_per_leak", "best_drawn_face"):
+        for key in ("drawn_per_leak", "best_drawn", "drawn_face_per_leak", "best_drawn_face", "drawn_per_off_target"):
             c.pop(key)
     (out / "edit" / "explicit" / "edit.json").write_text(json.dumps(old))
     rep = report.Report(out, "")
@@ -1529,6 +1575,21 @@ def test_edit_claims_without_the_reader_read_the_drawn_share(tmp_path):
         "The share of the generator's change inside the face region (`change_in_face`, the source faces): senior 15%."
         in "\n".join(rep.lines)
     )
+    # per off-target change the paper's set loses the beard (1 / 3.9 against 1 / 3.3), over the two seeds that have it
+    assert table("paper's manifolds: drawn share per off-target change") == [
+        "| explicit | `(defaults)` | dmt | beard | Ae: 0.406 ± 0.0707 (n=2) | Ne: 0.453 ± 0.0707 (n=2) | 80% of 90% | "
+        "not testable (2 seed(s); 3 needed) |",
+        f"| explicit | `(defaults)` | dmt | smiling | Ae: 1.15 ± 0.0707 (n=2) | Ne: 1.58 ± 0.0707 (n=2) | 15% of 40% | "
+        f"{gated}",
+        f"| explicit | `(defaults)` | dmt | senior | Ae: 1.15 ± 0.0707 (n=2) | Ne: 0.864 ± 0.0707 (n=2) | 15% of 95% | "
+        f"{gated}",
+    ]
+    assert not any("manifolds: drawn share in the face per off-target change" in line for line in rep.lines)
+    # at a glance: each reading's verdict alone, for the edits some reading can judge (the smile none can)
+    assert table("| gain per leakage (reader) | drawn share per leakage |") == [
+        "| explicit | `(defaults)` | dmt | beard | not testable | **confirmed** | not testable | **confirmed** | – |",
+        "| explicit | `(defaults)` | dmt | senior | not testable | not testable | not testable | **refuted** | – |",
+    ]
 
 
 def test_claim_5_shows_the_shipped_models_progression_figures(tmp_path):

@@ -19,6 +19,9 @@ Every number is taken against the **unedited reconstruction**, so model error is
 as leakage.  ``truth`` rows are the generator's own counterfactual (same face, attribute on):
 what a perfect edit scores under the same reader; ``truth reconstructed`` rows, the model's reconstruction of
 those faces: how often what the model can draw at all reads as the attribute, the most an edit can reach.
+With no reader, against the generator's change of the same faces (attribute on, less off): ``drawn_share``, the
+share of that change an edit draws, and ``off_target``, the energy of the edit's change off that change, over its
+energy (:func:`drawn_share`, :func:`off_target_share`; ``_face``: inside the face region).
 
 **Relighting.**  Target faces re-rendered by the generator under a light of the bank are the
 ground truth; the light comes from the model's estimate on a *different* face under that light
@@ -59,6 +62,12 @@ LEAK_KEYS = ("d_light", "d_pose", "d_identity", "d_attrs", "d_bg")
 DRAWN_READINGS = {
     "drawn_share": ("drawn_per_leak", "best_drawn"),
     "drawn_share_face": ("drawn_face_per_leak", "best_drawn_face"),
+}
+# the reader-free leakage beside each drawn share (off_target_share), and the claims' key of the drawn shares summed
+# over the strengths per unit of it summed
+OFF_TARGET_READINGS = {
+    "drawn_share": ("off_target", "drawn_per_off_target"),
+    "drawn_share_face": ("off_target_face", "drawn_face_per_off_target"),
 }
 
 
@@ -146,16 +155,34 @@ def step_along_attribute(codes0: dict, codes: dict, pool, manifolds) -> float:
     return torch.stack(steps).mean().item()
 
 
+def _changes(recon_off, recon_on, image_off, image_on, region=None) -> tuple:
+    """``(D_t, D_m)``: the generator's change and the model's (inside ``region`` where given)."""
+    true_change, model_change = image_on - image_off, recon_on - recon_off
+    if region is not None:
+        true_change, model_change = true_change * region, model_change * region
+    return true_change, model_change
+
+
 def drawn_share(recon_off, recon_on, image_off, image_on, region=None) -> float:
     """How much of an attribute's true change a model draws, with no reader: ``<D_m, D_t> / <D_t, D_t>`` over the
     batch, ``D_t`` the generator's change (the same faces, lights and poses with the attribute on, less off) and
     ``D_m`` the change between the model's reconstructions of the two (1: all of it; 0: none); with ``region``
     (``[B,1,H,W]``) only the change inside it counts (NaN where the attribute changes nothing there)."""
-    true_change, model_change = image_on - image_off, recon_on - recon_off
-    if region is not None:
-        true_change, model_change = true_change * region, model_change * region
+    true_change, model_change = _changes(recon_off, recon_on, image_off, image_on, region)
     energy = (true_change * true_change).sum()
     return float((model_change * true_change).sum() / energy) if energy > 0 else math.nan
+
+
+def off_target_share(recon_off, recon_on, image_off, image_on, region=None) -> float:
+    """Leakage with no reader: the energy of the part of the model's change ``D_m`` that is not along the true change
+    ``D_t`` (:func:`drawn_share`), ``|D_m - s D_t|^2 / <D_t, D_t>`` with ``s`` the drawn share, over the batch: 0 for
+    an edit that changes only what the attribute changes, however strongly; light, pose, identity or background
+    changes, and an attribute drawn in another place or shape, all count."""
+    true_change, model_change = _changes(recon_off, recon_on, image_off, image_on, region)
+    share = drawn_share(recon_off, recon_on, image_off, image_on, region)
+    if math.isnan(share):
+        return math.nan
+    return float((model_change - share * true_change).pow(2).sum() / (true_change * true_change).sum())
 
 
 def summarize(attribute, manifolds, method, strength, p0, r, leaks) -> dict:
@@ -258,10 +285,11 @@ def edit_table(
         leak = leakage(r_in, rd, src["image"], drawn, src["matte"], attribute, spread)
         row = summarize(attribute, "-", "truth reconstructed", 1.0, r_in["p"][:, i_attr], rd, leak)
 
-        def shares(edited) -> dict:
-            return {
-                "drawn_share": drawn_share(recon0, edited, off, on),
-                "drawn_share_face": drawn_share(recon0, edited, off, on, face),
+        def shares(edited) -> dict:  # each drawn share, and its off-target change (OFF_TARGET_READINGS)
+            regions = {"drawn_share": None, "drawn_share_face": face}
+            return {key: drawn_share(recon0, edited, off, on, region) for key, region in regions.items()} | {
+                OFF_TARGET_READINGS[key][0]: off_target_share(recon0, edited, off, on, region)
+                for key, region in regions.items()
             }
 
         rows.append({**row, **shares(drawn)})
@@ -409,7 +437,9 @@ def claim_summary(rows: list[dict]) -> list[dict]:
     strengths, ranked within the attribute and method (``rank`` 1 = most success per leakage); where the rows
     carry :func:`drawn_share`, the same without the reader: ``drawn_per_leak`` (the drawn shares summed over the
     strengths, over the summed leakage) and ``best_drawn``; ``drawn_face_per_leak`` and ``best_drawn_face``, the
-    same inside the face region (:data:`DRAWN_READINGS`)."""
+    same inside the face region (:data:`DRAWN_READINGS`); where they carry :func:`off_target_share` too, with no
+    reader at all: ``drawn_per_off_target`` and ``drawn_face_per_off_target``, the drawn shares summed over the
+    strengths over the summed off-target changes (:data:`OFF_TARGET_READINGS`)."""
     out = []
     for attribute in dict.fromkeys(r["attribute"] for r in rows):
         for method in ("dmt", "barycenter"):
@@ -434,6 +464,10 @@ def claim_summary(rows: list[dict]) -> list[dict]:
                         drawn = sum(r[key] for r in rs)
                         group[-1][per_leak] = drawn / leak if leak > 0 else math.nan
                         group[-1][best] = max(r[key] for r in rs)
+                        off_key, per_off = OFF_TARGET_READINGS[key]
+                        if all(off_key in r for r in rs):
+                            off = sum(r[off_key] for r in rs)
+                            group[-1][per_off] = drawn / off if off > 0 else math.nan
             order = sorted(group, key=lambda g: -g["gain_per_leak"] if math.isfinite(g["gain_per_leak"]) else math.inf)
             for g in group:
                 g["rank"] = order.index(g) + 1

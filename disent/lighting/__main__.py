@@ -13,6 +13,7 @@ from omegaconf import DictConfig
 import disent.runs  # noqa: F401  (registers ${pid:}, used by the default run folder in conf/lighting.yaml)
 from disent.lighting.experiments import (
     GEOMETRY,
+    chosen_noise_model,
     figures_for,
     noisy,
     order_data,
@@ -70,10 +71,16 @@ def posterior_of(cfg: DictConfig, name: str, item: dict) -> dict:
         item = scene_geometry(None, None, item, geometry, noise, cfg.seed)  # a network geometry's maps of the image
         if GEOMETRY[geometry].uv in item:
             choice_data, texture = order_data(item, noise, cfg.seed, "texture", geometry, cfg.texture_components)
-    residual = tuple(cfg.order_residual) if cfg.order_residual else None
-    choice = select_order(choice_data, texture=texture, residual=residual)
-    result["order_choice"] = {k: v for k, v in choice.items() if k != "criterion"} | {"residual": residual}
-    result["order_choice"]["geometry"] = geometry if texture is not None else normals
+    geometry = geometry if texture is not None else normals
+    kind = "texture" if texture is not None else "known" if albedo is not None else "constant"
+    study = Path(hydra.utils.to_absolute_path(cfg.order_study))
+    if cfg.order_noise == "auto" and not (study / "order.json").exists():
+        log.warning("no order study in %s: the order choice assumes i.i.d. noise", study)
+    model, noise_kwargs = chosen_noise_model(kind, geometry, study, cfg.order_noise)  # the study's, or the one set
+    choice = select_order(choice_data, texture=texture, **noise_kwargs)
+    result["order_choice"] = {k: v for k, v in choice.items() if k != "criterion"} | {"noise_model": model}
+    result["order_choice"] |= noise_kwargs
+    result["order_choice"]["geometry"] = geometry
     result["order_choice"]["texture_components"] = 0 if texture is None else len(texture[1])
     if "sh" in item:
         truth = item["sh"].double().numpy()
@@ -100,7 +107,17 @@ def run(cfg: DictConfig) -> None:
     if cfg.task == "order":
         keep = hydra.utils.to_absolute_path(cfg.order_keep) if cfg.order_keep else None
         only = list(cfg.order_rows) if cfg.order_rows else None
-        order_report(out, cfg.split, cfg.data.resolution, cfg.data.seed, only=only, keep=keep)
+        splits = list(cfg.order_splits) if cfg.order_splits else None
+        order_report(
+            out,
+            cfg.split,
+            cfg.data.resolution,
+            cfg.data.seed,
+            only=only,
+            keep=keep,
+            splits=splits,
+            n_per_order=cfg.order_n,
+        )
     if cfg.task in ("report", "order"):
         log.info("wrote %s; publish it with: python -m disent.report --publish %s", out, out)
         return

@@ -101,6 +101,14 @@ GEOMETRY = {
         f"implicit network's normals + matte eroded {EDGE} px + uv",
         network="implicit",
     ),
+    "oracle_uv_network": Geometry(
+        "normal_net",
+        "matte_net",
+        "uv",
+        EDGE,
+        f"explicit network's normals + matte eroded {EDGE} px, true uv (oracle)",
+        network="explicit",
+    ),
     "network_implicit_registered": Geometry(
         "normal_net",
         "matte_net",
@@ -168,6 +176,11 @@ def noisy(image: torch.Tensor, noise: float, seed: int) -> torch.Tensor:
     return image.double() + noise * torch.randn(image.shape, generator=g, dtype=torch.float64)
 
 
+# where each uv map is defined: a texture model reaches no pixel outside it (the pseudo uv is 0 off the coarse fit's
+# mask, the true uv off the matte)
+UV_DEFINED = {"uv": "matte", "uv_pseudo": "mask_pseudo", "uv_net": "matte_net"}
+
+
 def item_data(
     item: dict,
     noise: float = 0.02,
@@ -176,13 +189,17 @@ def item_data(
     known_albedo: bool = True,
     gray=False,
     normals: str = "normal",
+    texture: bool = False,
 ):
     """One item's pixels on its true (``normals="normal"``, matte) or pseudo (``normal_pseudo``,
-    mask_pseudo) geometry; ``mask`` overrides the mask."""
+    mask_pseudo) geometry; ``mask`` overrides the mask; ``texture``: only where the geometry's uv is defined
+    (:data:`UV_DEFINED`), for the texture model."""
     geometry = GEOMETRY[normals]
     mask = item[geometry.mask] if mask is None else mask
     if geometry.erosion:
         mask = eroded(mask, geometry.erosion)
+    if texture:
+        mask = (torch.as_tensor(mask) > 0.5) & (item[UV_DEFINED[geometry.uv]] > 0.5)
     albedo = item["albedo"] if known_albedo else None
     return prepare(noisy(item["image"], noise, seed), item[geometry.normals], mask, albedo, gray=gray)
 
@@ -355,7 +372,7 @@ def order_data(
 
     if albedo not in ALBEDO or normals not in GEOMETRY:
         raise ValueError(f"albedo must be one of {ALBEDO} and normals one of {tuple(GEOMETRY)}")
-    data = item_data(item, noise, seed, known_albedo=albedo == "known", normals=normals)
+    data = item_data(item, noise, seed, known_albedo=albedo == "known", normals=normals, texture=albedo == "texture")
     if albedo != "texture":
         return data, None
     return data, texture_for(data, uv_of(item, data, normals, n_components), n_components)
@@ -455,7 +472,7 @@ def geometry_noise(normals: str) -> dict:
 
 
 # (albedo, normals[, noise model]); "residual_process": rho, ell by fit_residual_process on train scenes, on the
-# row's own geometry
+# row's own geometry; "geometry_noise+residual_process": both, rho and ell fitted beside the geometry noise
 ORDER_ROWS = (
     ("known", "normal"),
     ("constant", "normal"),
@@ -483,58 +500,123 @@ ORDER_ROWS = (
     ("texture", "network_explicit", "residual_process"),
     ("texture", "network_implicit", "residual_process"),
     ("texture", "network_implicit_registered", "geometry_noise"),
+    ("texture", "normal_pseudo_registered", "geometry_noise+residual_process"),
+    ("texture", "network_explicit", "geometry_noise+residual_process"),
+    ("texture", "network_implicit", "geometry_noise+residual_process"),
+    ("texture", "oracle_uv_network", "geometry_noise"),
 )
+NOISE_MODELS = ("geometry_noise", "residual_process", "geometry_noise+residual_process")
 RESIDUAL_GRID = {"rho": (1.0, 3.0, 10.0, 30.0, 100.0, 300.0, 1000.0), "ell": (0.5, 1.0, 2.0, 4.0)}
 
 
-def true_light_residuals(ds, n_scenes: int, noise: float = 0.02, normals: str = "normal_pseudo") -> list:
-    """``(data, residual [P, C])`` of scenes ``0..n-1`` of ``ds`` (lights cut to order ``i % 3``) on the pseudo
-    geometry ``normals`` (a key of :data:`GEOMETRY`): the image less the texture model's albedo (ridge fit under
-    its PCA prior, and a gain per channel) times the scene's true light through the pseudo normals, the misfit
-    the right lighting model leaves."""
+def true_light_residuals(
+    ds, n_scenes: int, noise: float = 0.02, normals: str = "normal_pseudo", normal_sigma: float = 0.0
+) -> list:
+    """``(data, residual [P, C], extra)`` of scenes ``0..n-1`` of ``ds`` (lights cut to order ``i % 3``) on the
+    pseudo geometry ``normals`` (a key of :data:`GEOMETRY`): the image less the texture model's albedo (ridge fit
+    under its PCA prior, and a gain per channel) times the scene's true light through the pseudo normals, the misfit
+    the right lighting model leaves; ``extra [P, C]``: the variance the geometry noise ``normal_sigma`` adds to each
+    value at that light and albedo (:func:`~disent.lighting.order.geometry_variance`; None where 0)."""
+    from dataclasses import replace
+
+    from disent.lighting.order import geometry_variance
     from disent.lighting.texture import texture_for
 
     out = []
     for i in range(n_scenes):
         sh = light_of_order(ds[i]["sh"], i % 3)
         item = scene_geometry(ds, i, ds.sample(i, sh=sh), normals, noise, 7000 + i)
-        data = item_data(item, noise, 7000 + i, known_albedo=False, normals=normals)
+        data = item_data(item, noise, 7000 + i, known_albedo=False, normals=normals, texture=True)
         tex, variance = texture_for(data, uv_of(item, data, normals))
         shading = data.basis @ sh.double().numpy().T  # [P, C]
         X = (tex[1:] * shading[None]).reshape(len(variance), -1).T  # [P*C, J], pixel-major
         beta = np.linalg.solve(
             X.T @ X / noise**2 + np.diag(1 / variance), X.T @ (data.y - tex[0] * shading).reshape(-1) / noise**2
         )
-        pred = np.clip(tex[0] + np.einsum("j,jpc->pc", beta, tex[1:]), 1e-3, None) * shading
-        gain = (pred * data.y).sum(0) / (pred * pred).sum(0)
-        out.append((data, data.y - gain * pred))
+        albedo = np.clip(tex[0] + np.einsum("j,jpc->pc", beta, tex[1:]), 1e-3, None)
+        gain = (albedo * shading * data.y).sum(0) / ((albedo * shading) ** 2).sum(0)
+        data = replace(data, albedo=gain * albedo)
+        extra = geometry_variance(data, sh.double().numpy(), normal_sigma) if normal_sigma > 0 else None
+        out.append((data, data.y - data.albedo * shading, extra))
     return out
 
 
-def fit_residual_process(ds, n_scenes: int = 18, grid: dict = RESIDUAL_GRID, normals: str = "normal_pseudo") -> dict:
-    """``rho, ell`` of the order choice's residual process (:func:`disent.lighting.order.residual_whitener`)
-    by maximum likelihood (sigma profiled) over :func:`true_light_residuals` of ``ds`` (the train split) on the
-    geometry ``normals``, on a grid; returns ``{"rho", "ell", "log_likelihood": {"rho,ell": value}}``."""
-    fit = max_likelihood_residual(true_light_residuals(ds, n_scenes, normals=normals), grid)
-    return fit | {"n_scenes": n_scenes, "split": ds.split, "normals": normals}
+def fit_residual_process(
+    ds, n_scenes: int = 18, grid: dict = RESIDUAL_GRID, normals: str = "normal_pseudo", normal_sigma: float = 0.0
+) -> dict:
+    """``rho, ell`` of the order choice's residual process (:class:`disent.lighting.order.Whitener`) by maximum
+    likelihood (sigma profiled) over :func:`true_light_residuals` of ``ds`` (the train split) on the geometry
+    ``normals``, with the geometry noise ``normal_sigma`` beside it (0: the residual process alone), on a grid;
+    returns ``{"rho", "ell", "log_likelihood": {"rho,ell": value}}``."""
+    fit = max_likelihood_residual(true_light_residuals(ds, n_scenes, normals=normals, normal_sigma=normal_sigma), grid)
+    return fit | {"n_scenes": n_scenes, "split": ds.split, "normals": normals, "normal_sigma": normal_sigma}
 
 
 def max_likelihood_residual(residuals: list, grid: dict = RESIDUAL_GRID) -> dict:
     """``{"rho", "ell", "log_likelihood"}``: the grid point of the largest summed log-likelihood of the
-    ``(data, residual [P, C])`` pairs under the residual process, sigma at its maximum per pair."""
-    from disent.lighting.order import residual_whitener
+    ``(data, residual [P, C], extra)`` triples under the residual process (beside the geometry's variance ``extra
+    [P, C]``, or None), sigma at its maximum per triple."""
+    from disent.lighting.order import noise_variance, residual_whitener, unit
 
     table = {}
     for rho in grid["rho"]:
         for ell in grid["ell"]:
             total = 0.0
-            for data, r in residuals:
-                whiten, log_det = residual_whitener(data, rho, ell)
-                white = whiten(r)
-                total += -0.5 * r.size * (np.log(2 * np.pi * (white**2).mean()) + 1) - 0.5 * r.shape[1] * log_det
+            for data, r, extra in residuals:
+                whiten = residual_whitener(data, rho, ell)
+                v = noise_variance(r, extra, whiten)
+                u = unit(r, v, whiten)
+                total += -0.5 * (
+                    r.size * np.log(2 * np.pi) + (u**2).sum() + np.log(v).sum() + r.shape[1] * whiten.log_det
+                )
             table[f"{rho:g},{ell:g}"] = total
     rho, ell = map(float, max(table, key=table.get).split(","))
     return {"rho": rho, "ell": ell, "log_likelihood": table}
+
+
+def fit_key(normals: str, model: str) -> str:
+    """The key of a row's residual fit in ``residual_process.json``: its geometry, and ``+geometry_noise`` where the
+    fit had the geometry noise beside it."""
+    return normals + ("+geometry_noise" if model.startswith("geometry_noise") else "")
+
+
+def read_study(folder: Path | None, name: str = "order") -> dict:
+    """``{name: rows, "residual_process": fits}`` of the order study in ``folder`` (``{}`` for a file it lacks, or
+    for no folder)."""
+    files = (name, "residual_process")
+    return {
+        f: json.loads((Path(folder) / f"{f}.json").read_text())
+        if folder and (Path(folder) / f"{f}.json").exists()
+        else {}
+        for f in files
+    }
+
+
+def noise_model(normals: str, model: str, fits: dict) -> dict:
+    """:func:`~disent.lighting.order.select_order`'s keyword arguments of the noise model ``model`` (``iid`` or one of
+    :data:`NOISE_MODELS`) on the geometry ``normals``; ``fits``: the residual fits (``residual_process.json``)."""
+    if model not in ("iid", *NOISE_MODELS):
+        raise ValueError(f"unknown noise model {model!r}; choose from iid, {', '.join(NOISE_MODELS)}")
+    kwargs = geometry_noise(normals) if model.startswith("geometry_noise") else {}
+    if model.endswith("residual_process"):
+        if fit_key(normals, model) not in fits:
+            raise ValueError(f"no residual fit {fit_key(normals, model)!r} in the study; its fits: {', '.join(fits)}")
+        fit = fits[fit_key(normals, model)]
+        kwargs = kwargs | {"residual": (fit["rho"], fit["ell"])}
+    return kwargs
+
+
+def chosen_noise_model(albedo: str, normals: str, study: Path, model: str = "auto") -> tuple[str, dict]:
+    """``(model, select_order keyword arguments)``: the noise model ``model`` on the geometry ``normals``, its residual
+    fit read from the order study in folder ``study``; ``auto``: the noise model of the study's ``albedo/normals`` row
+    best on val (``iid`` where the study has no such row)."""
+    order, fits = read_study(study).values()
+    if model == "auto":
+        row = f"val/{albedo}/{normals}"
+        rows = [k for k in order if k == row or k.startswith(f"{row}+")]
+        best = max(rows, key=lambda k: order[k]["evidence"]["accuracy"], default=row)
+        model = best[len(row) + 1 :] or "iid"
+    return model, noise_model(normals, model, fits)
 
 
 def row_key(row: tuple) -> str:
@@ -564,7 +646,8 @@ def order_study(
 
     ``only``: names of the rows (:func:`row_key`) to compute; every other row, and its residual fit, is copied from
     the earlier study in folder ``keep`` (``<name>.json``, ``residual_process.json``) where it has one, so that a
-    new row joins a published study without running the others again.
+    new row joins a published study without running the others again; so is every row of a split not in ``splits``
+    (a row read again on test alone, with more scenes, keeps its val entry).
     """
     from disent.data import SynthFaces
 
@@ -573,32 +656,35 @@ def order_study(
     if unknown:
         raise ValueError(f"unknown order-study rows {unknown}; rows: {', '.join(names)}")
     todo = [row for row in rows if only is None or row_key(row) in only]
-    earlier = {
-        f: json.loads((Path(keep) / f"{f}.json").read_text()) if keep and (Path(keep) / f"{f}.json").exists() else {}
-        for f in (name, "residual_process")
-    }
+    earlier = read_study(keep, name)
     result, fits = {}, dict(earlier["residual_process"])
     train = SynthFaces("train", resolution, seed)
-    for normals in dict.fromkeys(row[1] for row in todo if row[2:] == ("residual_process",)):
-        fits[normals] = fit_residual_process(train, n_train_scenes, normals=normals)
+    for normals, model in dict.fromkeys(
+        (row[1], row[2]) for row in todo if row[2:] and row[2].endswith("residual_process")
+    ):
+        geometry = geometry_noise(normals)["normal_sigma"] if model.startswith("geometry_noise") else 0.0
+        fits[fit_key(normals, model)] = fit_residual_process(
+            train, n_train_scenes, normals=normals, normal_sigma=geometry
+        )
         save_json("residual_process", fits, out)
 
-    def noise_model(normals, model):
-        if model == "residual_process":
-            return {"residual": (fits[normals]["rho"], fits[normals]["ell"])}
-        return {"geometry_noise": geometry_noise(normals)}[model]
-
-    for split in splits:
-        ds = SynthFaces(split, resolution, seed)
+    # val first, then the splits computed here, then those only kept, each split's rows in the order of ``rows``
+    for split in dict.fromkeys(("val", *splits, *(k.split("/", 1)[0] for k in earlier[name]))):
+        ds = SynthFaces(split, resolution, seed) if split in splits else None
         for row in rows:
             key = f"{split}/{row_key(row)}"
-            if row not in todo:
+            if row not in todo or ds is None:
                 if key in earlier[name]:
                     result[key] = earlier[name][key]
                 continue
             albedo, normals, *model = row
             result[key] = order_confusion(
-                ds, n_per_order, noise, albedo, normals, noise_model=noise_model(normals, model[0]) if model else None
+                ds,
+                n_per_order,
+                noise,
+                albedo,
+                normals,
+                noise_model=noise_model(normals, model[0], fits) if model else None,
             )
             save_json(name, result, out)
     save_json(name, result, out)
@@ -772,17 +858,20 @@ def order_report(
     quick: bool = False,
     only=None,
     keep: Path | None = None,
+    splits=None,
+    n_per_order: int = 20,
 ) -> dict:
-    """The report's order study on val and ``split`` with its confusion figures (``python -m disent.lighting
-    task=order``; also part of :func:`run_all`), and the registration figure (:func:`plot_registration`);
-    ``only``, ``keep``: compute only some rows and copy the rest (:func:`order_study`)."""
+    """The report's order study on val and ``split`` (or on ``splits``) with ``n_per_order`` scenes per true order,
+    its confusion figures (``python -m disent.lighting task=order``; also part of :func:`run_all`), and the
+    registration figure (:func:`plot_registration`); ``only``, ``keep``: compute only some rows and copy the rest
+    (:func:`order_study`)."""
     from disent.data import SynthFaces
 
     n = 2 if quick else 1
     study = order_study(
         out,
-        ("val", split),
-        n_per_order=20 // n,
+        tuple(splits or ("val", split)),
+        n_per_order=n_per_order // n,
         resolution=resolution,
         seed=seed,
         n_train_scenes=18 // n,

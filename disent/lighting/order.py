@@ -29,10 +29,15 @@ error explains is not taken as evidence for more SH terms.  Default 0: the i.i.d
 The misfit that a texture model and pseudo geometry leave is also spatially correlated (a wrong brow or
 nose moves neighbouring pixels together), so i.i.d. noise over ~2,000 pixels overstates the evidence that
 a smooth extra SH term buys.  ``residual = (rho, ell)`` models it as a residual process: per channel the
-noise covariance is ``sigma^2 (I + rho K)``, ``K(p, q) = exp(-|p - q| / ell)`` over pixel distance, and the
-likelihood is computed after whitening with its Cholesky factor (:func:`residual_whitener`).  ``rho, ell``
+noise correlation is ``R = (I + rho K) / (1 + rho)``, ``K(p, q) = exp(-|p - q| / ell)`` over pixel distance,
+and the likelihood is computed after whitening with its Cholesky factor (:class:`Whitener`).  ``rho, ell``
 come from maximum likelihood on training scenes' residuals at their true light
 (:func:`disent.lighting.experiments.fit_residual_process`).
+
+Both together: the covariance of channel ``c`` is ``V_c^1/2 R V_c^1/2`` with the marginal variances
+``V = sigma^2 + normal_sigma^2 |a P_t grad_n S|^2`` (:func:`noise_variance`): the geometry sets how much each
+pixel may miss, the residual process how the misses of neighbours go together.  Either alone is the special
+case ``normal_sigma = 0`` or ``rho = 0``.
 
 The choice is the smallest model whose score is within ``threshold`` (log units, default
 log 20, "strong" evidence on Kass & Raftery's scale) of the best one.
@@ -113,7 +118,7 @@ def sh_basis_gradient(n: np.ndarray, K: int = 9) -> np.ndarray:
 
 
 def geometry_variance(data: LightingData, light: np.ndarray, normal_sigma: float) -> np.ndarray:
-    """``[C*P]`` (channel-major): the variance a normal error of per-axis std ``normal_sigma`` adds to each
+    """``[P, C]``: the variance a normal error of per-axis std ``normal_sigma`` adds to each
     pixel under ``light [C, K]``: ``normal_sigma^2 |a P_t grad_n S(n; L_c)|^2``."""
     from disent.render import C2
 
@@ -123,23 +128,70 @@ def geometry_variance(data: LightingData, light: np.ndarray, normal_sigma: float
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     grad = np.einsum("pkj,ck->pcj", sh_basis_gradient(n, K), light) * albedo[:, :, None]  # [P, C, 3]
     tangent = grad - (grad * n[:, None]).sum(-1, keepdims=True) * n[:, None]
-    return (normal_sigma**2 * (tangent**2).sum(-1)).T.reshape(-1)
+    return normal_sigma**2 * (tangent**2).sum(-1)
 
 
-def residual_whitener(data: LightingData, rho: float, ell: float):
-    """``whiten(x)`` for ``x [P, ...]`` (pixels first): ``Lc^-1 x`` with ``Lc Lc^T = I + rho K``, the residual
-    process's correlation over ``data``'s pixels (``K(p, q) = exp(-|p - q| / ell)``, distance in pixels), and
-    ``log det(I + rho K)`` (per channel)."""
-    from scipy.linalg import solve_triangular
+class Whitener:
+    """The residual process's correlation ``R = (I + rho K) / (1 + rho)`` over ``data``'s pixels (``K(p, q) =
+    exp(-|p - q| / ell)``, distance in pixels) by its Cholesky factor ``Lc``: ``w(x)`` is ``Lc^-1 x`` for ``x [P, ...]``
+    (pixels first), ``w.inverse(x)`` is ``R^-1 x`` and ``w.log_det`` is ``log det R``."""
 
-    r, c = np.divmod(data.index, data.shape[1])
-    dist = np.hypot(r[:, None] - r[None], c[:, None] - c[None])
-    Lc = np.linalg.cholesky(np.eye(len(dist)) + rho * np.exp(-dist / ell))
+    def __init__(self, data: LightingData, rho: float, ell: float):
+        r, c = np.divmod(data.index, data.shape[1])
+        dist = np.hypot(r[:, None] - r[None], c[:, None] - c[None])
+        self.factor = np.linalg.cholesky((np.eye(len(dist)) + rho * np.exp(-dist / ell)) / (1 + rho))
+        self.log_det = 2 * np.log(np.diag(self.factor)).sum()
 
-    def whiten(x):
-        return solve_triangular(Lc, x.reshape(len(x), -1), lower=True).reshape(x.shape)
+    def _solve(self, x, trans: int):
+        from scipy.linalg import solve_triangular
 
-    return whiten, 2 * np.log(np.diag(Lc)).sum()
+        return solve_triangular(self.factor, x.reshape(len(x), -1), lower=True, trans=trans).reshape(x.shape)
+
+    def __call__(self, x):
+        return self._solve(x, 0)
+
+    def inverse(self, x):
+        return self._solve(self._solve(x, 0), 1)
+
+
+def residual_whitener(data: LightingData, rho: float, ell: float) -> Whitener:
+    """The residual process ``(rho, ell)`` over ``data``'s pixels (:class:`Whitener`)."""
+    return Whitener(data, rho, ell)
+
+
+def noise_variance(r: np.ndarray, extra: np.ndarray | None = None, whiten: Whitener | None = None) -> np.ndarray:
+    """``V [P, C]``: each value's marginal noise variance ``sigma^2 + extra`` for the residual ``r [P, C]``, with
+    ``sigma^2`` at its maximum likelihood given the geometry's variance ``extra [P, C]`` (None: 0) and the residual
+    process ``whiten`` (None: i.i.d.)."""
+    mean_square = max(float((r**2).mean()), 1e-300)
+    if extra is None:  # closed forms
+        return np.full(r.shape, mean_square if whiten is None else max(float((whiten(r) ** 2).mean()), 1e-300))
+    lo, hi = 1e-300, mean_square  # i.i.d.: sigma^2 with sum (r^2 - v) / v^2 = 0 (the likelihood's stationarity)
+    for _ in range(80):
+        s2 = math.sqrt(lo) * math.sqrt(hi)  # the geometric mean, without underflow
+        v = s2 + extra
+        lo, hi = (s2, hi) if ((r**2 - v) / v**2).sum() > 0 else (lo, s2)
+    if whiten is None:
+        return s2 + extra
+    t = math.log(s2)  # correlated: Newton in log sigma^2 from the i.i.d. value, on
+    for _ in range(20):  # f(t) = -1/2 sum log V - 1/2 |w(r / sqrt V)|^2, its curvature taken as i.i.d.'s
+        v = math.exp(t) + extra
+        curvature = 0.5 * ((math.exp(t) / v) ** 2).sum()
+        if curvature == 0:  # sigma^2 vanishes beside the geometry's variance
+            break
+        grad = 0.5 * math.exp(t) * ((r / v**1.5 * whiten.inverse(r / np.sqrt(v))).sum() - (1 / v).sum())
+        step = float(np.clip(grad / curvature, -1.0, 1.0))
+        t += step
+        if abs(step) < 1e-4:
+            break
+    return math.exp(t) + extra
+
+
+def unit(x: np.ndarray, v: np.ndarray, whiten: Whitener | None = None) -> np.ndarray:
+    """``x [P, C, ...]`` (residuals or their Jacobian) in units of its noise: divided by ``sqrt(v [P, C])`` and
+    whitened by the residual process, so that the noise is i.i.d. N(0, 1)."""
+    x = x / np.sqrt(v).reshape(v.shape + (1,) * (x.ndim - 2))
+    return x if whiten is None else whiten(x)
 
 
 def _initial(A, y, gray):
@@ -163,16 +215,13 @@ def _fit(
     prior_scale: float,
     iterations: int | None,
     normal_sigma: float = 0.0,
-    whiten=None,
+    whiten: Whitener | None = None,
 ):
     """MAP of one candidate by (reweighted) Gauss-Newton, sigma at its conditional mode:
-    ``(theta, pred, J, v, prior)`` with ``v [C*P]`` each value's noise variance.  With ``whiten``
-    (:func:`residual_whitener`) the pixels and the design are whitened first, and ``pred``, ``J`` and ``v``
-    are in whitened units."""
+    ``(theta, r, J, v, prior)``: the residual ``r [C*P]`` and its Jacobian ``J [C*P, d]`` (channel-major) in units
+    of the noise (:func:`unit`: i.i.d. N(0, 1)), and ``v [P, C]`` each value's marginal noise variance."""
     A, y = data.design(order), data.y
-    if whiten is not None:
-        A, y = np.stack([whiten(a) for a in A]), whiten(y)
-    N = y.size
+    C, P, K = A.shape
     theta = _initial(A, y, gray)
     geometry = normal_sigma > 0
     iterations = iterations or (8 if gray or geometry else 2)  # linear i.i.d. models need one step per sigma update
@@ -182,26 +231,19 @@ def _fit(
     if gray:
         prior_mean[N_COEFFS[order] :], prior_prec[N_COEFFS[order] :] = 1.0, 1.0
 
-    def variance(theta, r):
-        if not geometry:
-            return np.full(N, max(r @ r / N, 1e-300))
-        extra = geometry_variance(data, _light(theta, A.shape[0], A.shape[2], gray), normal_sigma)
-        lo, hi = 1e-300, max(r @ r / N, 1e-300)  # sigma^2 with sum (r^2 - v) / v^2 = 0 (the likelihood's stationarity)
-        for _ in range(80):
-            s2 = math.sqrt(lo * hi)
-            v = s2 + extra
-            lo, hi = (s2, hi) if ((r**2 - v) / v**2).sum() > 0 else (lo, s2)
-        return s2 + extra
+    def linearised(theta):  # the residual, its Jacobian and the noise, all in units of the noise, channel-major
+        pred, J = _predict(theta, A, gray)
+        r = y - pred
+        extra = geometry_variance(data, _light(theta, C, K, gray), normal_sigma) if geometry else None
+        v = noise_variance(r, extra, whiten)
+        J = J.reshape(C, P, d).transpose(1, 0, 2)  # [P, C, d]
+        return unit(r, v, whiten).T.reshape(-1), unit(J, v, whiten).transpose(1, 0, 2).reshape(C * P, d), v
 
     for _ in range(iterations):  # Gauss-Newton on the log posterior, the noise at its conditional mode
-        pred, J = _predict(theta, A, gray)
-        r = (y - pred).T.reshape(-1)
-        w = 1.0 / variance(theta, r)
-        H = (J * w[:, None]).T @ J + np.diag(prior_prec)
-        theta = theta + np.linalg.solve(H, (J * w[:, None]).T @ r - prior_prec * (theta - prior_mean))
-    pred, J = _predict(theta, A, gray)
-    r = (y - pred).T.reshape(-1)
-    return theta, pred, J, variance(theta, r), (prior_mean, prior_prec)
+        r, J, _ = linearised(theta)
+        H = J.T @ J + np.diag(prior_prec)
+        theta = theta + np.linalg.solve(H, J.T @ r - prior_prec * (theta - prior_mean))
+    return theta, *linearised(theta), (prior_mean, prior_prec)
 
 
 def score(
@@ -214,11 +256,12 @@ def score(
     texture_iterations: int = 10,
     normal_sigma: float = 0.0,
     residual: tuple | None = None,
-    whitener: tuple | None = None,
+    whitener: Whitener | None = None,
 ) -> dict:
     """Maximised log-likelihood, BIC and Laplace log evidence of one candidate (``normal_sigma``: the
     geometry-error noise model of the module docstring; ``residual = (rho, ell)``: the residual process,
-    whose ``residual_whitener(data, rho, ell)`` may be passed as ``whitener`` when already computed).
+    whose ``residual_whitener(data, rho, ell)`` may be passed as ``whitener`` when already computed; both: the
+    two together).
 
     ``texture = (pixels [1+J, P, C], variance [J])`` (:meth:`TextureModel.at_pixels` and
     its PCA variances): the albedo is ``T_0 + sum_j beta_j T_j`` with ``beta_j ~ N(0,
@@ -228,12 +271,9 @@ def score(
     C, K = data.n_channels, N_COEFFS[order]
     gray = gray and order > 0 and C > 1
     N = data.y.size
-    if residual is not None and normal_sigma > 0:
-        raise ValueError("choose one noise model: the residual process or the geometry noise (normal_sigma)")
     if residual is not None and whitener is None:
         whitener = residual_whitener(data, *residual)
-    whiten, log_det = whitener if residual is not None else (None, 0.0)
-    y = data.y if whiten is None else whiten(data.y)
+    whiten = whitener if residual is not None else None
     beta, extra = None, 0.0
     if texture is not None:
         tex, variance = texture
@@ -246,27 +286,25 @@ def score(
         beta = np.zeros(len(variance))
         for _ in range(texture_iterations):
             albedo = albedo_of(beta)
-            theta, pred, J, v, prior = _fit(
+            theta, _, _, v, _ = _fit(
                 replace(data, albedo=albedo), order, gray, prior_scale, iterations, normal_sigma, whiten
             )
             shading = data.basis[:, :K] @ _light(theta, C, K, gray).T  # [P, C]: the light through S(n, L_c)
-            X, target = tex[1:] * shading[None], data.y - tex[0] * shading
-            if whiten is not None:
-                X, target = whiten(X.transpose(1, 0, 2)).transpose(1, 0, 2), whiten(target)
-            X = X.reshape(len(variance), -1).T  # [P*C, J], pixel-major
-            w = v.reshape(-1, data.n_pixels).T.reshape(-1)  # the noise variances in the same pixel-major order
-            H_beta = (X / w[:, None]).T @ X + np.diag(1.0 / variance)
-            beta = np.linalg.solve(H_beta, (X / w[:, None]).T @ target.reshape(-1))
+            # ridge regression of the image less the mean texture's on the components, all in units of the noise
+            X = unit((tex[1:] * shading[None]).transpose(1, 2, 0), v, whiten).reshape(-1, len(variance))
+            target = unit(data.y - tex[0] * shading, v, whiten).reshape(-1)
+            H_beta = X.T @ X + np.diag(1.0 / variance)
+            beta = np.linalg.solve(H_beta, X.T @ target)
         data = replace(data, albedo=albedo_of(beta))
         extra = (
             -0.5 * (beta**2 / variance).sum() - 0.5 * np.log(variance).sum() - 0.5 * np.linalg.slogdet(H_beta)[1]
         )  # log N(beta; 0, var) + J/2 log 2 pi - 1/2 log det H
-    theta, pred, J, v, (prior_mean, prior_prec) = _fit(data, order, gray, prior_scale, iterations, normal_sigma, whiten)
+    theta, r, J, v, (prior_mean, prior_prec) = _fit(data, order, gray, prior_scale, iterations, normal_sigma, whiten)
     d = theta.size + (0 if beta is None else beta.size)
-    r = (y - pred).T.reshape(-1)
-    # i.i.d.: -N/2 (log 2 pi s2 + 1); whitened: the same less C/2 log det(I + rho K)
-    loglik = -0.5 * (np.log(2 * math.pi * v) + r**2 / v).sum() - 0.5 * C * log_det
-    H = (J / v[:, None]).T @ J + np.diag(prior_prec)
+    # log N(y; pred, V^1/2 R V^1/2): r is in units of the noise; log det = sum log V + C log det R (i.i.d.: R = I)
+    loglik = -0.5 * (r.size * math.log(2 * math.pi) + (r**2).sum() + np.log(v).sum())
+    loglik -= 0.5 * C * (0.0 if whiten is None else whiten.log_det)
+    H = J.T @ J + np.diag(prior_prec)
     log_prior = (
         -0.5 * (prior_prec * (theta - prior_mean) ** 2).sum()
         + 0.5 * np.log(prior_prec / (2 * math.pi)).sum()
@@ -311,7 +349,7 @@ def select_order(
     Returns ``{"choice", "order", "gray", "scores"}``.
     """
     noise = {"normal_sigma": normal_sigma, "residual": residual}
-    if residual is not None and normal_sigma == 0:  # one Cholesky factor for every candidate
+    if residual is not None:  # one Cholesky factor for every candidate
         noise["whitener"] = residual_whitener(data, *residual)
     scores = {
         name: score(data, order, gray, prior_scale, texture=texture, **noise)
@@ -353,6 +391,9 @@ __all__ = [
     "choose",
     "geometry_variance",
     "residual_whitener",
+    "noise_variance",
+    "unit",
+    "Whitener",
     "sh_basis_gradient",
     "DEFAULT_THRESHOLD",
 ]

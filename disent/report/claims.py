@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from disent.edit.measure import DRAWN_READINGS
+from disent.edit.measure import DRAWN_READINGS, OFF_TARGET_READINGS
 from disent.eval import ablation as _ablation
 from disent.eval.evaluate import FACE_THRESHOLD, MATTE_EDGE
 from disent.eval.trivial import TEMPLATE_KEYS
@@ -229,17 +229,23 @@ def progression_figures(rep: Report, edit_dir: Path) -> None:
         rep.image(fig, f"{model}: {fig.stem[4:].replace('_', ' ')}")
 
 
-# claim 5 without the reader, by its name in the report (and in edit_rates): the edit rows' drawn share it reads
-READER_FREE = {"drawn share": "drawn_share", "drawn share in the face": "drawn_share_face"}
+# claim 5's reader-free readings: reading -> (the drawn share whose ceiling, the model's reconstructions of the true
+# faces, gates it; the claims' score; their best value), per leakage (the reader's) or per off-target change (none)
+CEILINGS = {"drawn share": "drawn_share", "drawn share in the face": "drawn_share_face"}
+READER_FREE = {}
+for _name, _key in CEILINGS.items():
+    READER_FREE[f"{_name} per leakage"] = (_name, *DRAWN_READINGS[_key])
+    READER_FREE[f"{_name} per off-target change"] = (_name, OFF_TARGET_READINGS[_key][1], DRAWN_READINGS[_key][1])
 
 
 def manifold_rows(
     model: str, where: str, results: list[dict], score: str, best: str, works, reach=None, keep_gated: str = ""
-) -> tuple[list[str], list[tuple]]:
+) -> tuple[list[str], list[tuple], dict]:
     """Claim 5's rows for one model kind and setting: per method and attribute, the paper's manifolds against the best
     other set of the claims' ``score`` (mean ± std over the ``results``' models), read where ``works(attribute, v)``
     holds for ``v`` the best set's mean ``best``. ``reach(attribute, v)`` writes that cell (default ``v`` to two
-    places). Gated edits come back as ``(attribute, method, v)``, or as rows with the verdict ``keep_gated``."""
+    places). Gated edits come back as ``(attribute, method, v)``, or as rows with the verdict ``keep_gated``; third, the
+    verdict of each ``(method, attribute)``."""
     cells: dict = {}  # (method, attribute) -> manifolds -> [(score, best)] over models
     for res in results:
         for c in res["claims"]:
@@ -247,7 +253,7 @@ def manifold_rows(
                 cells.setdefault((c["method"], c["attribute"]), {}).setdefault(c["manifolds"], []).append(
                     (c[score], c[best])
                 )
-    rows, cannot = [], []
+    rows, cannot, verdicts = [], [], {}
     for (method, attribute), sets in cells.items():
         stats = {m: _ablation.mean_std([g for g, _ in v]) for m, v in sets.items()}
         paper = next((m for m in sets if str(m).startswith("paper:")), None)
@@ -257,18 +263,20 @@ def manifold_rows(
         rival = max(others, key=lambda m: stats[m]["mean"]) if others else None
         reached = max(_ablation.mean_std([b for _, b in v])["mean"] for v in sets.values())
         if not works(attribute, reached):
+            verdicts[method, attribute] = keep_gated or "not testable (no set makes the edit)"
             if not keep_gated:
                 cannot.append((attribute, method, reached))
                 continue
             said = keep_gated
         else:
             said = verdict(stats[paper], stats[rival], "higher") if rival else "– (one code: a reference)"
+        verdicts[method, attribute] = said
         rows.append(
             f"| {model} | `{where}` | {method} | {attribute} | {paper[6:]}: {spread_text(stats[paper], '.3g')} | "
             f"{f'{rival}: ' + spread_text(stats[rival], '.3g') if rival else '–'} | "
             f"{reach(attribute, reached) if reach else f'{reached:.2f}'} | {said} |"
         )
-    return rows, cannot
+    return rows, cannot, verdicts
 
 
 SOFT_SPLIT = ("psnr_skin_full_scaled", "psnr_skin_soft_scaled")  # the face region under a full / soft model matte
@@ -428,7 +436,7 @@ def edit_rates(results: list[dict], attribute: str) -> dict:
     for name, m, key in (
         ("truth reconstructed", "truth reconstructed", "success"),
         ("truth", "truth", "success"),
-        *((name, "truth reconstructed", key) for name, key in READER_FREE.items()),
+        *((name, "truth reconstructed", key) for name, key in CEILINGS.items()),
     ):
         found = [
             r[key]
@@ -737,6 +745,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
     )
     rows, idle, relit, relit_regions, relit_matte = [], [], [], [], []
     free = {reading: [] for reading in READER_FREE}
+    glance: dict = {}  # (model, setting, method, attribute) -> reading -> verdict
     for (model, where), results in sorted(groups.items()):
         drawn = {a: edit_rates(results, a) for a in {c["attribute"] for res in results for c in res["claims"]}}
 
@@ -744,18 +753,19 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
             drawable = drawn[attribute].get("truth reconstructed")
             return success >= EDIT_WORKS and not (drawable and drawable["mean"] < EDIT_WORKS)
 
-        found, cannot = manifold_rows(model, where, results, "gain_per_leak", "best_success", reader_works)
+        found, cannot, said = manifold_rows(model, where, results, "gain_per_leak", "best_success", reader_works)
         rows += found
-        for reading, key in READER_FREE.items():
-            score, best = DRAWN_READINGS[key]
+        for cell, text in said.items():
+            glance.setdefault((model, where, *cell), {})["gain per leakage (reader)"] = text
+        for reading, (ceiling, score, best) in READER_FREE.items():
 
             def drawn_ceiling(attribute):  # the share of the true change the model's reconstructions draw
-                return (drawn[attribute].get(reading) or {}).get("mean")
+                return (drawn[attribute].get(ceiling) or {}).get("mean")
 
             def draws_enough(attribute, share):
                 return drawn_ceiling(attribute) is not None and share >= EDIT_WORKS * drawn_ceiling(attribute)
 
-            free[reading] += manifold_rows(
+            found, _, said = manifold_rows(
                 model,
                 where,
                 results,
@@ -764,7 +774,10 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
                 draws_enough,
                 reach=lambda a, v: f"{v:.0%} of {drawn_ceiling(a):.0%}" if drawn_ceiling(a) is not None else f"{v:.0%}",
                 keep_gated=f"not testable (draws under {EDIT_WORKS:.0%} of what the model draws)",
-            )[0]
+            )
+            free[reading] += found
+            for cell, text in said.items():
+                glance.setdefault((model, where, *cell), {})[reading] = text
         if cannot:
             ceiling = [
                 f"{a} {rates['truth reconstructed']['mean']:.2f} (truth {rates['truth']['mean']:.2f}"
@@ -820,6 +833,23 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
             "folders), then publish its folder."
         )
         return
+    readings = ("gain per leakage (reader)", *READER_FREE)
+    glance_head = table_head("model", "setting", "method", "attribute", *readings)
+    glance_rows = [  # the verdicts alone, where some reading has the seeds to give one
+        f"| {model} | `{where}` | {method} | {attribute} | "
+        + " | ".join(cells.get(r, "–").split(" (")[0] for r in readings)
+        + " |"
+        for (model, where, method, attribute), cells in sorted(glance.items())
+        if any(not v.startswith(("not testable", "–")) for v in cells.values())
+    ]
+    if glance_rows := rep.rows_kept(glance_head[0], glance_rows, key=4):
+        rep.add(
+            "At a glance: the verdict of each reading of the claim (the tables below give the numbers, and why a "
+            "cell is not testable), for the edits where some reading has the seeds and the edit to give one.\n",
+            *glance_head,
+            *glance_rows,
+            "",
+        )
     rep.add(
         "Attribute gain per unit leakage over the strengths of each method (`python -m disent.edit measure RUN`, "
         "16 source faces per attribute), mean ± std over the trained models (seeds) of a setting; the paper's "
@@ -854,17 +884,23 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
                 inside.setdefault(r["attribute"], []).append(r["change_in_face"])
     in_face = ", ".join(f"{a} {sum(v) / len(v):.0%}" for a, v in inside.items())
     said = {
-        "drawn share": "The same claim without the reader: how much of the generator's own change (the same faces "
-        "with the attribute on, less off) each edit draws (`disent.edit.measure.drawn_share`: 100% draws all of it, "
-        "however faint), summed over the strengths and divided by the summed leakage. The reader, trained on the "
-        "generator's sharp renders, misses the faint glasses and smiles a decoder draws; this reading does not. Read "
-        f"where some manifold set draws at least {EDIT_WORKS:.0%} of what the model's reconstructions of the faces "
-        "that truly have the attribute draw (the ceiling after *of*); the same seeds-and-spread rule.\n",
-        "drawn share in the face": "The same inside the face region only (`mask_face` of the faces with and without "
-        "the attribute, the skin a 3DMM covers): the change the face codes are meant to draw. The paper's face "
-        'masks "do not include hair. This results in less control over some edits, e.g. aging" (Sec. 5.2, '
-        "Limitations), and SynthFaces greys a senior face's hair, which no face code reaches: over the whole image "
-        "the senior change is mostly hair. Leakage, ceiling and rule as above."
+        "drawn share per leakage": "The same claim without the reader: how much of the generator's own change (the "
+        "same faces with the attribute on, less off) each edit draws (`disent.edit.measure.drawn_share`: 100% draws "
+        "all of it, however faint), summed over the strengths and divided by the summed leakage. The reader, trained "
+        "on the generator's sharp renders, misses the faint glasses and smiles a decoder draws; this reading does "
+        f"not. Read where some manifold set draws at least {EDIT_WORKS:.0%} of what the model's reconstructions of the "
+        "faces that truly have the attribute draw (the ceiling after *of*); the same seeds-and-spread rule.\n",
+        "drawn share per off-target change": "And with no reader at all: the leakage too is read off the generator's "
+        "change. An edit's *off-target change* is the energy of the part of its change that is not along the "
+        "generator's change, over that change's energy (`disent.edit.measure.off_target_share`: 0 for an edit that "
+        "changes only what the attribute changes, however strongly); light, pose, identity and background changes "
+        "count, and so does an attribute drawn in another place or shape. The drawn shares summed over the strengths, "
+        "over the summed off-target changes; ceiling and rule as above.\n",
+        "drawn share in the face per leakage": "The same inside the face region only (`mask_face` of the faces with "
+        "and without the attribute, the skin a 3DMM covers): the change the face codes are meant to draw. The "
+        'paper\'s face masks "do not include hair. This results in less control over some edits, e.g. aging" '
+        "(Sec. 5.2, Limitations), and SynthFaces greys a senior face's hair, which no face code reaches: over the "
+        "whole image the senior change is mostly hair. Leakage, ceiling and rule as above."
         + (
             " The share of the generator's change inside the face region (`change_in_face`, the source faces): "
             f"{in_face}."
@@ -872,6 +908,8 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
             else ""
         )
         + "\n",
+        "drawn share in the face per off-target change": "The same with no reader, inside the face region: both the "
+        "drawn share and the off-target change counted there alone.\n",
     }
     for reading, text in said.items():
         head = table_head(
@@ -879,9 +917,9 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
             "setting",
             "method",
             "attribute",
-            f"paper's manifolds: {reading} per leakage",
+            f"paper's manifolds: {reading}",
             "best other",
-            f"best {reading.replace('drawn share', 'drawn')}, of what the model draws",
+            f"best {READER_FREE[reading][0].replace('drawn share', 'drawn')}, of what the model draws",
             "verdict",
         )
         if kept := rep.rows_kept(head[0], free[reading], key=4):

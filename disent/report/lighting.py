@@ -24,6 +24,12 @@ def wilson_interval(share: float, n: int, z: float = 1.96) -> tuple[float, float
     return centre - half, centre + half
 
 
+def difference_spread(*rows: tuple[float, int], z: float = 1.96) -> float:
+    """The 95 % half-width (at ``z = 1.96``) of the difference between accuracies ``(share, n)`` measured on
+    independent scenes: two rows closer than this are within each other's sampling spread."""
+    return z * math.sqrt(sum(share * (1 - share) / n for share, n in rows))
+
+
 def residual_text(d: Path) -> str:
     """The residual process's fitted constants, one fit per geometry, from ``residual_process.json`` of the
     lighting folder ``d``."""
@@ -36,8 +42,8 @@ def residual_text(d: Path) -> str:
         fits = {"normal_pseudo": fits}
     return "; ".join(
         f"rho {fit['rho']:g}, ell {fit['ell']:g} px from {fit['n_scenes']} {fit['split']} scenes on "
-        f"{GEOMETRY[normals].label}"
-        for normals, fit in fits.items()
+        f"{GEOMETRY[key.partition('+')[0]].label}" + (" beside the geometry noise" if "+" in key else "")
+        for key, fit in fits.items()
     )
 
 
@@ -86,6 +92,25 @@ def known_albedo_reading(order: dict, geometry: str = "normal_pseudo", what: str
     )
 
 
+def uv_oracle_reading(order: dict, row: str = "texture/oracle_uv_network+geometry_noise") -> str:
+    """One sentence on the networks' geometry with the true uv (an oracle row): whether the texture model, reaching
+    the image through the true uv, brings the choice to the target on both splits ("" where the study lacks it)."""
+    if not all(f"{split}/{row}" in order for split in ("val", "test")):
+        return ""
+    val, test = (order[f"{split}/{row}"]["evidence"]["accuracy"] for split in ("val", "test"))
+    reached = min(val, test) >= ORDER_TARGET
+    return (
+        f" The texture model through the true uv on the explicit network's geometry (`{row}`, an oracle) reaches "
+        f"{val:.2f} on val and {test:.2f} on test: "
+        + (
+            "the albedo model is good enough, and the uv through which it reaches the image is what stands between "
+            "this geometry and the target."
+            if reached
+            else "even a true uv leaves the albedo model short of the target."
+        )
+    )
+
+
 def order_verdict(order: dict, prefix: str, what: str) -> tuple[str, str] | None:
     """``(row, sentence)``: among the study's rows whose name starts with ``prefix`` (on both splits), the one best
     on val, and its test accuracy against :data:`ORDER_TARGET` with a 95 % interval; None where there is no such
@@ -100,7 +125,8 @@ def order_verdict(order: dict, prefix: str, what: str) -> tuple[str, str] | None
         f"Verdict, {what}, the row best on val (`{chosen}`, val {order[f'val/{chosen}']['evidence']['accuracy']:.2f}), "
         f"on test: {acc:.2f} (95 % interval {lo:.2f}-{hi:.2f} over its {n} scenes) against the target "
         f"{ORDER_TARGET:.2f}: **{'reached' if acc >= ORDER_TARGET else 'not reached'}**. Over {n} scenes a split, "
-        "accuracies less than about 0.1 apart are within each other's sampling spread."
+        f"accuracies less than about {difference_spread((acc, n), (acc, n)):.2f} apart are within each other's "
+        "sampling spread."
     )
 
 
@@ -112,12 +138,15 @@ def network_reading(order: dict, chosen: str, pseudo: str | None) -> str:
         return ""
     ours, theirs = (order[f"test/{row}"] for row in (chosen, pseudo))
     gap = ours["evidence"]["accuracy"] - theirs["evidence"]["accuracy"]
+    spread = difference_spread(
+        *((r["evidence"]["accuracy"], int(np.sum(r["evidence"]["confusion"]))) for r in (ours, theirs))
+    )
     text = (
         f" The networks' normals are nearer the truth than the pseudo-GT's (claim 1), and on test the chosen row "
         f"scores {gap:+.2f} against the pseudo geometry's chosen row: "
         + (
             "within the sampling spread, so better normals alone do not bring the choice to the target."
-            if abs(gap) < 0.1
+            if abs(gap) < spread
             else f"{'above' if gap > 0 else 'below'} the sampling spread."
         )
     )
@@ -128,6 +157,39 @@ def network_reading(order: dict, chosen: str, pseudo: str | None) -> str:
             f"order-2 light holds {ours['band2_share']['true_order2']:.2f}."
         )
     return text
+
+
+def combined_reading(order: dict) -> str:
+    """One sentence on the two noise models together: per geometry with a ``+geometry_noise+residual_process`` row on
+    both splits, its val / test accuracy beside each model alone on the same geometry and albedo, and on how many
+    geometries it beats each alone on val, where rows are chosen ("" where none)."""
+    from disent.lighting.experiments import GEOMETRY
+
+    both, cells, wins = "+geometry_noise+residual_process", [], 0
+    for key in order:
+        if not (key.startswith("val/") and key.endswith(both)) or f"test/{key[4:]}" not in order:
+            continue
+        row = key[4 : -len(both)]
+        acc = {
+            name: [order[f"{s}/{row}{suffix}"]["evidence"]["accuracy"] for s in ("val", "test")]
+            for name, suffix in (
+                ("both", both),
+                ("geometry noise", "+geometry_noise"),
+                ("residual", "+residual_process"),
+            )
+            if all(f"{s}/{row}{suffix}" in order for s in ("val", "test"))
+        }
+        alone = ", ".join(f"{v[0]:.2f}/{v[1]:.2f} {name} alone" for name, v in acc.items() if name != "both")
+        label = GEOMETRY[row.split("/", 1)[1]].label
+        cells.append(f"{acc['both'][0]:.2f}/{acc['both'][1]:.2f} on {label}" + (f" ({alone})" if alone else ""))
+        wins += all(acc["both"][0] > v[0] for name, v in acc.items() if name != "both")
+    if not cells:
+        return ""
+    return (
+        "Both noise models together (the geometry noise for each pixel's variance, the residual process for how "
+        "neighbours miss together), val/test accuracy: " + "; ".join(cells) + f". On val, where rows are chosen, "
+        f"together beats each model alone on {wins} of {len(cells)} geometries.\n"
+    )
 
 
 def sec_lighting(rep: Report, out: Path) -> None:
@@ -149,7 +211,8 @@ def sec_lighting(rep: Report, out: Path) -> None:
     if order:
         rep.add(
             "### Lighting model order: model no more than a scene needs\n",
-            "Item *i* of the split relit with its own light cut to SH order 0, 1 or 2, 20 scenes per order. "
+            "Item *i* of the split relit with its own light cut to SH order 0, 1 or 2, 20 scenes per order (a row "
+            "read again on test with more has them in its confusion counts). "
             "Candidates: order 0, order 1 and 2 in gray or RGB; the smallest model within log 20 of the best "
             "Laplace evidence is chosen (BIC beside it). *Albedo*: known (the reference), constant (what L-hat "
             "assumes), or a PCA texture model fitted with the light (`disent/lighting/texture.py`). *Geometry "
@@ -158,9 +221,13 @@ def sec_lighting(rep: Report, out: Path) -> None:
             "own test error; not fitted here) does to it under the candidate's light "
             "(`select_order(..., normal_sigma=...)`, `disent.lighting.experiments.geometry_noise`). *Residual "
             "process*: the misfit is "
-            "spatially correlated, noise covariance sigma^2 (I + rho exp(-d / ell)) over pixel distance d, "
-            "with rho and ell by maximum likelihood on train scenes' residuals at their true light "
-            f"({residual_text(d)}; `select_order(..., residual=(rho, ell))`). *Eroded mask*: the pseudo mask less "
+            "spatially correlated, noise covariance sigma^2 (I + rho exp(-d / ell)) / (1 + rho) over pixel distance "
+            "d, with rho and ell by maximum likelihood on train scenes' residuals at their true light "
+            f"({residual_text(d)}; `select_order(..., residual=(rho, ell))`). *Geometry noise and residual "
+            "process*: both, each channel's covariance V^1/2 R V^1/2 with R the residual process's correlation and V "
+            "each pixel's variance under the geometry noise: the geometry says how far each pixel may miss, the "
+            "residual process how neighbours miss together (rho and ell fitted with the geometry noise beside them). "
+            "*Eroded mask*: the pseudo mask less "
             "its edge pixels, where the coarse fit's normals graze and its silhouette leaks onto hair or background "
             "(`disent.lighting.experiments.GEOMETRY`). *uv registered*: the pseudo uv corrected by the affine map "
             "that best registers the texture model to the image, found before any candidate is scored (Gauss-Newton "
@@ -168,7 +235,8 @@ def sec_lighting(rep: Report, out: Path) -> None:
             "Gaussian prior of the affine maps that take train scenes' pseudo uv onto their true uv; "
             "`disent.lighting.texture.register`). *Oracle* rows put one true layer into the pseudo geometry, "
             "to say which of its errors costs the choice: the true uv (the texture model registered to the face) "
-            "or the true normals (`disent.lighting.experiments.GEOMETRY`). *Network* rows take the normals and matte "
+            "or the true normals, or on the explicit network's geometry the true uv "
+            "(`disent.lighting.experiments.GEOMETRY`). *Network* rows take the normals and matte "
             "(eroded 1 px) that a shipped model (`disent/weights/`), trained on the pseudo-GT alone, draws from the "
             "scene's noisy image, with the pseudo uv registered (explicit) or the model's own uv (implicit; in the "
             "*uv registered* row corrected under the prior of that uv's affine errors on train scenes, "
@@ -181,7 +249,8 @@ def sec_lighting(rep: Report, out: Path) -> None:
             "and no criterion built on the fit can tell the two orders apart. Constants were chosen on val; test "
             "only reports; the order study alone: `python -m disent.lighting task=order`; some of its rows, the "
             "others kept as published: `python -m disent.lighting task=order order_rows='[ALBEDO/GEOMETRY+NOISE]' "
-            "order_keep=reports/lighting`.\n",
+            "order_keep=reports/lighting`. The order choice of `python -m disent.lighting image=PHOTO` takes the noise "
+            "model of the row best on val for its albedo and geometry (`order_noise=auto`).\n",
             *table_head(
                 "split",
                 "albedo",
@@ -195,7 +264,7 @@ def sec_lighting(rep: Report, out: Path) -> None:
         for key, r in order.items():
             split, albedo, geometry = key.split("/", 2)
             normals, _, noise = geometry.partition("+")
-            geometry = GEOMETRY[normals].label + (f", {noise.replace('_', ' ')}" if noise else "")
+            geometry = GEOMETRY[normals].label + (f", {noise.replace('_', ' ').replace('+', ' and ')}" if noise else "")
             ev, bic = r["evidence"], r["bic"]
             band2 = r.get("band2_share")  # studies written before it was measured have none
             band2 = (
@@ -222,8 +291,11 @@ def sec_lighting(rep: Report, out: Path) -> None:
                 network[1]
                 + network_reading(order, network[0], pseudo and pseudo[0])
                 + known_albedo_reading(order, "network_", "networks' geometry")
+                + uv_oracle_reading(order)
                 + "\n",
             )
+        if combined := combined_reading(order):
+            rep.add(combined)
         rows = {
             "normal_pseudo_eroded": "on the pseudo geometry",
             "normal_pseudo_registered": "with its uv registered to the image",
