@@ -558,17 +558,17 @@ def test_geometry_noise_keeps_the_order_when_normals_are_bent():
     assert picks[0.16] > picks[0.0], picks
 
 
-def test_residual_whitener_closed_form():
+def test_whitener_closed_form():
     """``whiten`` solves with the Cholesky factor of R = (I + rho K) / (1 + rho) (K(p, q) = exp(-|p - q| / ell)): the
     whitened squared norm is the Mahalanobis norm, ``inverse`` applies R^-1 and ``log_det`` is log det R."""
-    from disent.lighting.order import residual_whitener
+    from disent.lighting.order import Whitener
 
     normal, mask = ellipsoid(12, 12)
     data = prepare(render(normal, directional_light([0.2, 0.3, 1.0]), 0.01), normal, mask)
     r, c = np.divmod(data.index, 12)
     dist = np.sqrt((r[:, None] - r[None]) ** 2 + (c[:, None] - c[None]) ** 2)
     cov = (np.eye(len(dist)) + 5.0 * np.exp(-dist / 2.0)) / 6.0
-    whiten = residual_whitener(data, 5.0, 2.0)
+    whiten = Whitener(data, 5.0, 2.0)
     x = np.random.default_rng(0).normal(size=(data.n_pixels, 3))
     assert np.allclose((whiten(x) ** 2).sum(0), np.einsum("pc,pc->c", x, np.linalg.solve(cov, x)))
     assert np.allclose(whiten.inverse(x), np.linalg.solve(cov, x))

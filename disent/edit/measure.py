@@ -155,34 +155,34 @@ def step_along_attribute(codes0: dict, codes: dict, pool, manifolds) -> float:
     return torch.stack(steps).mean().item()
 
 
-def _changes(recon_off, recon_on, image_off, image_on, region=None) -> tuple:
-    """``(D_t, D_m)``: the generator's change and the model's (inside ``region`` where given)."""
+def drawn_and_off_target(recon_off, recon_on, image_off, image_on, region=None) -> tuple[float, float]:
+    """``(drawn share, off-target change)`` of a model's change ``D_m`` (between its reconstructions of the faces with
+    and without the attribute, or an edit and the unedited reconstruction) against the generator's change ``D_t``
+    (the same faces, lights and poses with the attribute on, less off), over the batch; with ``region``
+    (``[B,1,H,W]``) only the change inside it counts (NaN, NaN where the attribute changes nothing there).
+    See :func:`drawn_share` and :func:`off_target_share`."""
     true_change, model_change = image_on - image_off, recon_on - recon_off
     if region is not None:
         true_change, model_change = true_change * region, model_change * region
-    return true_change, model_change
+    energy = (true_change * true_change).sum()
+    if energy <= 0:
+        return math.nan, math.nan
+    share = (model_change * true_change).sum() / energy
+    return float(share), float((model_change - share * true_change).pow(2).sum() / energy)
 
 
 def drawn_share(recon_off, recon_on, image_off, image_on, region=None) -> float:
-    """How much of an attribute's true change a model draws, with no reader: ``<D_m, D_t> / <D_t, D_t>`` over the
-    batch, ``D_t`` the generator's change (the same faces, lights and poses with the attribute on, less off) and
-    ``D_m`` the change between the model's reconstructions of the two (1: all of it; 0: none); with ``region``
-    (``[B,1,H,W]``) only the change inside it counts (NaN where the attribute changes nothing there)."""
-    true_change, model_change = _changes(recon_off, recon_on, image_off, image_on, region)
-    energy = (true_change * true_change).sum()
-    return float((model_change * true_change).sum() / energy) if energy > 0 else math.nan
+    """How much of an attribute's true change a model draws, with no reader: ``<D_m, D_t> / <D_t, D_t>`` (1: all of
+    it; 0: none; :func:`drawn_and_off_target`)."""
+    return drawn_and_off_target(recon_off, recon_on, image_off, image_on, region)[0]
 
 
 def off_target_share(recon_off, recon_on, image_off, image_on, region=None) -> float:
     """Leakage with no reader: the energy of the part of the model's change ``D_m`` that is not along the true change
-    ``D_t`` (:func:`drawn_share`), ``|D_m - s D_t|^2 / <D_t, D_t>`` with ``s`` the drawn share, over the batch: 0 for
-    an edit that changes only what the attribute changes, however strongly; light, pose, identity or background
-    changes, and an attribute drawn in another place or shape, all count."""
-    true_change, model_change = _changes(recon_off, recon_on, image_off, image_on, region)
-    share = drawn_share(recon_off, recon_on, image_off, image_on, region)
-    if math.isnan(share):
-        return math.nan
-    return float((model_change - share * true_change).pow(2).sum() / (true_change * true_change).sum())
+    ``D_t``, ``|D_m - s D_t|^2 / <D_t, D_t>`` with ``s`` the drawn share: 0 for an edit that changes only what the
+    attribute changes, however strongly; light, pose, identity or background changes, and an attribute drawn in
+    another place or shape, all count (:func:`drawn_and_off_target`)."""
+    return drawn_and_off_target(recon_off, recon_on, image_off, image_on, region)[1]
 
 
 def summarize(attribute, manifolds, method, strength, p0, r, leaks) -> dict:
@@ -286,11 +286,10 @@ def edit_table(
         row = summarize(attribute, "-", "truth reconstructed", 1.0, r_in["p"][:, i_attr], rd, leak)
 
         def shares(edited) -> dict:  # each drawn share, and its off-target change (OFF_TARGET_READINGS)
-            regions = {"drawn_share": None, "drawn_share_face": face}
-            return {key: drawn_share(recon0, edited, off, on, region) for key, region in regions.items()} | {
-                OFF_TARGET_READINGS[key][0]: off_target_share(recon0, edited, off, on, region)
-                for key, region in regions.items()
-            }
+            out = {}
+            for key, region in (("drawn_share", None), ("drawn_share_face", face)):
+                out[key], out[OFF_TARGET_READINGS[key][0]] = drawn_and_off_target(recon0, edited, off, on, region)
+            return out
 
         rows.append({**row, **shares(drawn)})
     for label, manifolds in choices.items():

@@ -556,14 +556,14 @@ def max_likelihood_residual(residuals: list, grid: dict = RESIDUAL_GRID) -> dict
     """``{"rho", "ell", "log_likelihood"}``: the grid point of the largest summed log-likelihood of the
     ``(data, residual [P, C], extra)`` triples under the residual process (beside the geometry's variance ``extra
     [P, C]``, or None), sigma at its maximum per triple."""
-    from disent.lighting.order import noise_variance, residual_whitener, unit
+    from disent.lighting.order import Whitener, noise_variance, unit
 
     table = {}
     for rho in grid["rho"]:
         for ell in grid["ell"]:
             total = 0.0
             for data, r, extra in residuals:
-                whiten = residual_whitener(data, rho, ell)
+                whiten = Whitener(data, rho, ell)
                 v = noise_variance(r, extra, whiten)
                 u = unit(r, v, whiten)
                 total += -0.5 * (
@@ -610,7 +610,8 @@ def chosen_noise_model(albedo: str, normals: str, study: Path, model: str = "aut
     """``(model, select_order keyword arguments)``: the noise model ``model`` on the geometry ``normals``, its residual
     fit read from the order study in folder ``study``; ``auto``: the noise model of the study's ``albedo/normals`` row
     best on val (``iid`` where the study has no such row)."""
-    order, fits = read_study(study).values()
+    study = read_study(study)
+    order, fits = study["order"], study["residual_process"]
     if model == "auto":
         row = f"val/{albedo}/{normals}"
         rows = [k for k in order if k == row or k.startswith(f"{row}+")]

@@ -154,11 +154,6 @@ class Whitener:
         return self._solve(self._solve(x, 0), 1)
 
 
-def residual_whitener(data: LightingData, rho: float, ell: float) -> Whitener:
-    """The residual process ``(rho, ell)`` over ``data``'s pixels (:class:`Whitener`)."""
-    return Whitener(data, rho, ell)
-
-
 def noise_variance(r: np.ndarray, extra: np.ndarray | None = None, whiten: Whitener | None = None) -> np.ndarray:
     """``V [P, C]``: each value's marginal noise variance ``sigma^2 + extra`` for the residual ``r [P, C]``, with
     ``sigma^2`` at its maximum likelihood given the geometry's variance ``extra [P, C]`` (None: 0) and the residual
@@ -260,7 +255,7 @@ def score(
 ) -> dict:
     """Maximised log-likelihood, BIC and Laplace log evidence of one candidate (``normal_sigma``: the
     geometry-error noise model of the module docstring; ``residual = (rho, ell)``: the residual process,
-    whose ``residual_whitener(data, rho, ell)`` may be passed as ``whitener`` when already computed; both: the
+    whose ``Whitener(data, rho, ell)`` may be passed as ``whitener`` when already computed; both: the
     two together).
 
     ``texture = (pixels [1+J, P, C], variance [J])`` (:meth:`TextureModel.at_pixels` and
@@ -272,7 +267,7 @@ def score(
     gray = gray and order > 0 and C > 1
     N = data.y.size
     if residual is not None and whitener is None:
-        whitener = residual_whitener(data, *residual)
+        whitener = Whitener(data, *residual)
     whiten = whitener if residual is not None else None
     beta, extra = None, 0.0
     if texture is not None:
@@ -350,7 +345,7 @@ def select_order(
     """
     noise = {"normal_sigma": normal_sigma, "residual": residual}
     if residual is not None:  # one Cholesky factor for every candidate
-        noise["whitener"] = residual_whitener(data, *residual)
+        noise["whitener"] = Whitener(data, *residual)
     scores = {
         name: score(data, order, gray, prior_scale, texture=texture, **noise)
         for name, order, gray in candidates(data.n_channels)
@@ -390,7 +385,6 @@ __all__ = [
     "select_order",
     "choose",
     "geometry_variance",
-    "residual_whitener",
     "noise_variance",
     "unit",
     "Whitener",

@@ -232,10 +232,11 @@ def progression_figures(rep: Report, edit_dir: Path) -> None:
 # claim 5's reader-free readings: reading -> (the drawn share whose ceiling, the model's reconstructions of the true
 # faces, gates it; the claims' score; their best value), per leakage (the reader's) or per off-target change (none)
 CEILINGS = {"drawn share": "drawn_share", "drawn share in the face": "drawn_share_face"}
-READER_FREE = {}
-for _name, _key in CEILINGS.items():
-    READER_FREE[f"{_name} per leakage"] = (_name, *DRAWN_READINGS[_key])
-    READER_FREE[f"{_name} per off-target change"] = (_name, OFF_TARGET_READINGS[_key][1], DRAWN_READINGS[_key][1])
+READER_FREE = {
+    f"{name} per {per}": (name, score, DRAWN_READINGS[key][1])
+    for name, key in CEILINGS.items()
+    for per, score in (("leakage", DRAWN_READINGS[key][0]), ("off-target change", OFF_TARGET_READINGS[key][1]))
+}
 
 
 def manifold_rows(

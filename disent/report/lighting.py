@@ -24,6 +24,11 @@ def wilson_interval(share: float, n: int, z: float = 1.96) -> tuple[float, float
     return centre - half, centre + half
 
 
+def scenes(entry: dict) -> int:
+    """The number of scenes an order-study row was read on (its evidence confusion matrix's total)."""
+    return int(np.sum(entry["evidence"]["confusion"]))
+
+
 def difference_spread(*rows: tuple[float, int], z: float = 1.96) -> float:
     """The 95 % half-width (at ``z = 1.96``) of the difference between accuracies ``(share, n)`` measured on
     independent scenes: two rows closer than this are within each other's sampling spread."""
@@ -118,8 +123,8 @@ def order_verdict(order: dict, prefix: str, what: str) -> tuple[str, str] | None
     chosen = best_on_val(order, prefix)  # the row chosen on val ...
     if chosen is None:
         return None
-    test = order[f"test/{chosen}"]["evidence"]  # ... read on test
-    acc, n = test["accuracy"], int(np.sum(test["confusion"]))
+    test = order[f"test/{chosen}"]  # ... read on test
+    acc, n = test["evidence"]["accuracy"], scenes(test)
     lo, hi = wilson_interval(acc, n)
     return chosen, (
         f"Verdict, {what}, the row best on val (`{chosen}`, val {order[f'val/{chosen}']['evidence']['accuracy']:.2f}), "
@@ -138,9 +143,7 @@ def network_reading(order: dict, chosen: str, pseudo: str | None) -> str:
         return ""
     ours, theirs = (order[f"test/{row}"] for row in (chosen, pseudo))
     gap = ours["evidence"]["accuracy"] - theirs["evidence"]["accuracy"]
-    spread = difference_spread(
-        *((r["evidence"]["accuracy"], int(np.sum(r["evidence"]["confusion"]))) for r in (ours, theirs))
-    )
+    spread = difference_spread(*((r["evidence"]["accuracy"], scenes(r)) for r in (ours, theirs)))
     text = (
         f" The networks' normals are nearer the truth than the pseudo-GT's (claim 1), and on test the chosen row "
         f"scores {gap:+.2f} against the pseudo geometry's chosen row: "
