@@ -365,10 +365,11 @@ def test_bench_section_puts_gpu_figures_beside_the_cpu_ones(tmp_path):
 
 def test_known_albedo_reading_quotes_the_best_known_albedo_row_on_pseudo_geometry():
     """The lighting verdict says what the pseudo geometry allows with the true albedo: the known-albedo row on
-    pseudo normals best on val, read on val and test, and whether that is under the target."""
+    pseudo normals best on val, read on val and test, whether that is under the target, and whether the target lies
+    inside the row's 95 % interval (0.9 over 60 scenes: 0.80-0.95; over 1000: 0.88-0.92)."""
 
-    def row(accuracy):
-        return {"evidence": {"accuracy": accuracy}}
+    def row(accuracy, n=60):
+        return {"evidence": {"accuracy": accuracy, "confusion": [[n, 0, 0], [0, 0, 0], [0, 0, 0]]}}
 
     order = {
         "val/known/normal_pseudo": row(0.68),
@@ -382,13 +383,17 @@ def test_known_albedo_reading_quotes_the_best_known_albedo_row_on_pseudo_geometr
     assert "`known/normal_pseudo+geometry_noise`) the choice reaches 0.82 on val and 0.88 on test" in text, text
     assert text.endswith("not expected to bring it to the target on both splits.")
     both = {k: row(0.9) if "geometry_noise" in k else v for k, v in order.items()}
+    assert lighting.known_albedo_reading(both).endswith(
+        "is enough, but only just: the target lies inside its 95 % interval."
+    )
+    both = {k: row(0.9, 1000) if "geometry_noise" in k else v for k, v in order.items()}
     assert lighting.known_albedo_reading(both).endswith("is enough.")
     assert lighting.known_albedo_reading({"val/texture/normal_pseudo": row(0.7)}) == ""
     # the same reading for another geometry: only its own known-albedo rows count
     order |= {"val/known/network_a": row(0.86), "test/known/network_a": row(0.9), "val/known/network_b": row(0.8)}
     text = lighting.known_albedo_reading(order, "network_", "networks' geometry")
     assert "networks' geometry (the known-albedo row best on val, `known/network_a`) the choice reaches 0.86" in text
-    assert text.endswith("is enough.")
+    assert text.endswith("is enough, but only just: the target lies inside its 95 % interval.")
 
 
 def test_combined_reading_sets_both_noise_models_beside_each_alone():
@@ -523,7 +528,8 @@ def test_lighting_section_is_generated_from_the_published_json(tmp_path):
         assert "(`texture/normal_pseudo+residual_process`, val 0.55)" in text
         lo, hi = lighting.wilson_interval(acc, 60)
         assert f"on test: {acc:.2f} (95 % interval {lo:.2f}-{hi:.2f} over its 60 scenes)" in text
-        assert f"against the target {lighting.ORDER_TARGET:.2f}: **{verdict}**." in text
+        where = {0.62: "the target above its interval", 0.9: "but the target lies inside its interval"}[acc]
+        assert f"against the target {lighting.ORDER_TARGET:.2f}: **{verdict}**, {where}" in text
         assert "Verdict, the networks' geometry without the true albedo" in text
         assert "(`texture/network_explicit+residual_process`, val 0.90), on test: 0.88" in text
         lo, hi = lighting.wilson_interval(0.88, 60)
@@ -1283,6 +1289,18 @@ def test_ood_section_says_where_a_uv_model_breaks(tmp_path):
     )
     assert "| occluder | implicit | 0.02 -> 0.1 | 9 -> 20 | the UV map and the UV-space normals (at 0.5:" in text
     assert "| light | implicit | 0.02 -> 0.02 | 9 -> 10 | – |" in text
+
+
+def test_target_reading_says_whether_the_target_lies_outside_the_interval():
+    """A row's test accuracy against the order target: reached or not, and beyond the sampling spread only where
+    the target lies outside the accuracy's 95 % interval (0.80 over 300 scenes: 0.75-0.84; over 60: 0.68-0.88)."""
+    from disent.report.lighting import ORDER_TARGET, target_reading, wilson_interval
+
+    assert wilson_interval(0.80, 300)[1] < ORDER_TARGET < wilson_interval(0.80, 60)[1]
+    assert target_reading(0.80, 300) == "**not reached**, the target above its interval"
+    assert target_reading(0.80, 60).startswith("**not reached**, but the target lies inside its interval")
+    assert target_reading(0.95, 300) == "**reached**, the target below its interval"
+    assert target_reading(0.88, 60).startswith("**reached**, but the target lies inside")
 
 
 def test_wilson_interval_matches_the_closed_form():
