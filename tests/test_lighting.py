@@ -398,6 +398,23 @@ def test_chosen_noise_model_reads_the_study(tmp_path):
         chosen_noise_model("texture", "normal_pseudo", tmp_path, "geometry_noise+residual_process")
 
 
+def test_noise_parts_name_each_part_of_a_noise_model():
+    """The noise models' names, parsed in one place: which of the geometry noise and the residual process each has,
+    and a residual fit keyed by the geometry noise beside it."""
+    from disent.lighting.experiments import NOISE_MODELS, fit_key, noise_parts
+
+    assert {m: noise_parts(m) for m in ("iid", *NOISE_MODELS)} == {
+        "iid": (False, False),
+        "geometry_noise": (True, False),
+        "residual_process": (False, True),
+        "geometry_noise+residual_process": (True, True),
+    }
+    assert fit_key("normal_pseudo", "residual_process") == "normal_pseudo"
+    assert fit_key("normal_pseudo", "geometry_noise+residual_process") == "normal_pseudo+geometry_noise"
+    with pytest.raises(ValueError, match=r"unknown noise model 'residual_process\+geometry_noise'"):
+        noise_parts("residual_process+geometry_noise")
+
+
 def test_cli_order_choice_on_pseudo_geometry_uses_the_chosen_geometry(monkeypatch):
     """Without a known albedo on pseudo normals, the CLI's order choice scores the texture model on
     ``order_geometry`` (the registered uv and eroded mask by default): the pixels it sees are that geometry's,

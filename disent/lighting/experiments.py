@@ -574,10 +574,19 @@ def max_likelihood_residual(residuals: list, grid: dict = RESIDUAL_GRID) -> dict
     return {"rho": rho, "ell": ell, "log_likelihood": table}
 
 
+def noise_parts(model: str) -> tuple[bool, bool]:
+    """``(geometry noise, residual process)``: whether the noise model ``model`` (``iid`` or one of
+    :data:`NOISE_MODELS`) has each part."""
+    if model not in ("iid", *NOISE_MODELS):
+        raise ValueError(f"unknown noise model {model!r}; choose from iid, {', '.join(NOISE_MODELS)}")
+    parts = model.split("+")
+    return "geometry_noise" in parts, "residual_process" in parts
+
+
 def fit_key(normals: str, model: str) -> str:
     """The key of a row's residual fit in ``residual_process.json``: its geometry, and ``+geometry_noise`` where the
     fit had the geometry noise beside it."""
-    return normals + ("+geometry_noise" if model.startswith("geometry_noise") else "")
+    return normals + ("+geometry_noise" if noise_parts(model)[0] else "")
 
 
 def read_study(folder: Path | None, name: str = "order") -> dict:
@@ -595,10 +604,9 @@ def read_study(folder: Path | None, name: str = "order") -> dict:
 def noise_model(normals: str, model: str, fits: dict) -> dict:
     """:func:`~disent.lighting.order.select_order`'s keyword arguments of the noise model ``model`` (``iid`` or one of
     :data:`NOISE_MODELS`) on the geometry ``normals``; ``fits``: the residual fits (``residual_process.json``)."""
-    if model not in ("iid", *NOISE_MODELS):
-        raise ValueError(f"unknown noise model {model!r}; choose from iid, {', '.join(NOISE_MODELS)}")
-    kwargs = geometry_noise(normals) if model.startswith("geometry_noise") else {}
-    if model.endswith("residual_process"):
+    geometry, residual = noise_parts(model)
+    kwargs = geometry_noise(normals) if geometry else {}
+    if residual:
         if fit_key(normals, model) not in fits:
             raise ValueError(f"no residual fit {fit_key(normals, model)!r} in the study; its fits: {', '.join(fits)}")
         fit = fits[fit_key(normals, model)]
@@ -660,10 +668,8 @@ def order_study(
     earlier = read_study(keep, name)
     result, fits = {}, dict(earlier["residual_process"])
     train = SynthFaces("train", resolution, seed)
-    for normals, model in dict.fromkeys(
-        (row[1], row[2]) for row in todo if row[2:] and row[2].endswith("residual_process")
-    ):
-        geometry = geometry_noise(normals)["normal_sigma"] if model.startswith("geometry_noise") else 0.0
+    for normals, model in dict.fromkeys((row[1], row[2]) for row in todo if row[2:] and noise_parts(row[2])[1]):
+        geometry = geometry_noise(normals)["normal_sigma"] if noise_parts(model)[0] else 0.0
         fits[fit_key(normals, model)] = fit_residual_process(
             train, n_train_scenes, normals=normals, normal_sigma=geometry
         )
