@@ -956,3 +956,27 @@ def test_cli_order_task_passes_the_rows_to_compute_and_the_study_to_keep(tmp_pat
     cfg.order_splits, cfg.order_n = ["test"], 40
     cli.run(cfg)
     assert seen[2][1] == {"only": None, "keep": None, "splits": ["test"], "n_per_order": 40}
+
+
+def test_placement_objective_prefers_the_scenes_own_placement():
+    """With the coarse fit's shape made true and its placement off by two prior widths in yaw, pitch and shift, the
+    objective of the placement refinement (the image under the texture model and an order-2 light, and the prior)
+    is lower at the scene's own placement than at the coarse fit's: the image tells where the face is."""
+    from disent.data import SynthFaces
+    from disent.lighting.experiments import placed, placement_objective, placement_of, placement_prior, with_coarse_fit
+
+    ds = SynthFaces("train", 64, 0)
+    offset = np.array([2.0, -2.0, 0.0, 0.0, 2.0, -2.0])  # in prior widths
+    for i in range(2):
+        p = ds.params([i])
+        p["pseudo_alpha"], p["pseudo_expression"] = p["alpha"][:, : p["pseudo_alpha"].shape[1]], p["expression"]
+        true = placement_of(p, "")
+        p = placed(p, true + offset * placement_prior(64) * np.array([1, 1, 1, true[3], 1, 1]))
+
+        class Misplaced:  # the scene with this coarse fit
+            def params(self, index):
+                return dict(p)
+
+        objective, placement = placement_objective(Misplaced(), i, with_coarse_fit(ds.sample(i), p), 0.02, i)
+        np.testing.assert_allclose(placement_of(placement(-offset)), true, atol=1e-5)
+        assert objective(-offset) < objective(np.zeros(6)) - 50, (objective(-offset), objective(np.zeros(6)))

@@ -363,6 +363,26 @@ def test_bench_section_puts_gpu_figures_beside_the_cpu_ones(tmp_path):
     assert "figures/bench_fractions.png" in cpu and "figures/bench-cuda_fractions.png" in gpu
 
 
+def test_placement_reading_quotes_the_refined_and_the_true_placement_on_both_splits():
+    """The pseudo verdict says what the coarse fit's placement is worth under the residual process: refined against
+    the image, and made true, each on val and test with its scene counts; nothing where a row is missing."""
+
+    def row(accuracy, n):
+        return {"evidence": {"accuracy": accuracy, "confusion": [[n, 0, 0], [0, 0, 0], [0, 0, 0]]}}
+
+    order = {
+        "val/texture/normal_pseudo_placed+residual_process": row(0.82, 300),
+        "test/texture/normal_pseudo_placed+residual_process": row(0.79, 300),
+        "val/texture/oracle_placement+residual_process": row(0.92, 60),
+        "test/texture/oracle_placement+residual_process": row(0.83, 60),
+    }
+    text = lighting.placement_reading(order)
+    assert "0.82/0.79 (300/300 scenes) with it refined against the image" in text, text
+    assert "0.92/0.83 (60/60 scenes) with it made true (an oracle)" in text, text
+    del order["test/texture/oracle_placement+residual_process"]
+    assert lighting.placement_reading(order) == "\n"
+
+
 def test_known_albedo_reading_quotes_the_best_known_albedo_row_on_pseudo_geometry():
     """The lighting verdict says what the pseudo geometry allows with the true albedo: the known-albedo row on
     pseudo normals best on val, read on val and test, whether that is under the target, and whether the target lies

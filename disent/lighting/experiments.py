@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import functools
 import json
+import math
 import time
 from pathlib import Path
 from typing import NamedTuple
@@ -34,7 +35,8 @@ EDGE = 1
 # part of the coarse fit behind all three maps, which are then rendered again (made_true: its placement, i.e. pose,
 # scale and shift, or its shape, i.e. the identity components it fits and the expression;
 # coarse_fit_made_true). The registered row corrects the pseudo uv by the affine map that best registers the
-# texture model to the image (disent.lighting.texture.register). The network rows read the maps a shipped model
+# texture model to the image (disent.lighting.texture.register); the placed row renders all three maps again at the
+# coarse fit's placement refined against the image (refine_placement). The network rows read the maps a shipped model
 # (disent.models.shipped), trained on the pseudo-GT alone, draws from the scene's (noisy) image: its normals and
 # matte, and the implicit model's uv (network_maps); no ground truth enters them either.
 class Geometry(NamedTuple):
@@ -44,6 +46,7 @@ class Geometry(NamedTuple):
     erosion: int
     label: str
     register: bool = False  # the uv corrected by registering the texture model to the image (texture.register)
+    place: bool = False  # the coarse fit's placement refined against the image before its maps are rendered
     made_true: tuple = ()  # parts of the coarse fit set to the scene's truth before its maps are rendered
     network: str = ""  # the shipped model whose maps of the image (normal_net, matte_net, uv_net) the row reads
 
@@ -61,6 +64,14 @@ GEOMETRY = {
         EDGE,
         f"pseudo normals + mask eroded {EDGE} px, uv registered",
         register=True,
+    ),
+    "normal_pseudo_placed": Geometry(
+        "normal_pseudo",
+        "mask_pseudo",
+        "uv_pseudo",
+        EDGE,
+        f"pseudo normals + mask eroded {EDGE} px, placement refined",
+        place=True,
     ),
     "oracle_uv": Geometry(
         "normal_pseudo", "mask_pseudo", "uv", EDGE, f"pseudo normals + mask eroded {EDGE} px, true uv (oracle)"
@@ -127,13 +138,95 @@ def coarse_fit_made_true(ds, index: int, item: dict, parts: tuple) -> dict:
     """``item`` (scene ``index`` of SynthFaces ``ds``) with ``normal_pseudo``, ``mask_pseudo`` and ``uv_pseudo``
     rendered again from its coarse fit with ``parts`` (keys of :data:`COARSE_FIT_PARTS`) set to the scene's own
     values; the shape keeps the fit's number of identity components."""
-    from disent.data.synth.scenes import render_pseudo
-
     p = ds.params([index])
     for name in (k for part in parts for k in COARSE_FIT_PARTS[part]):
         p[f"pseudo_{name}"] = p[name][:, : p["pseudo_alpha"].shape[1]] if name == "alpha" else p[name]
+    return with_coarse_fit(item, p)
+
+
+def with_coarse_fit(item: dict, p: dict) -> dict:
+    """``item`` with ``normal_pseudo``, ``mask_pseudo`` and ``uv_pseudo`` rendered from the coarse fit in the scene
+    parameters ``p`` (its ``pseudo_*`` entries)."""
+    from disent.data.synth.scenes import render_pseudo
+
     maps = render_pseudo(item["image"][None], p, item["image"].shape[-1])
     return {**item, **{k: maps[k][0] for k in ("normal_pseudo", "mask_pseudo", "uv_pseudo")}}
+
+
+def placement_of(p: dict, prefix: str = "pseudo_") -> np.ndarray:
+    """``[6]``: the placement in scene parameters ``p`` (one scene): pose (yaw, pitch, roll; degrees), scale, shift
+    (x, y); the coarse fit's (``prefix="pseudo_"``) or the scene's own (``""``)."""
+    return np.concatenate([p[f"{prefix}{k}"].reshape(-1).double().numpy() for k in COARSE_FIT_PARTS["placement"]])
+
+
+def placed(p: dict, q: np.ndarray) -> dict:
+    """Scene parameters ``p`` with the coarse fit's placement set to ``q`` (:func:`placement_of`)."""
+    q = torch.as_tensor(q, dtype=p["pseudo_pose"].dtype)
+    return p | {"pseudo_pose": q[None, :3], "pseudo_scale": q[3:4], "pseudo_shift": q[None, 4:]}
+
+
+@functools.lru_cache(maxsize=2)
+def placement_prior(resolution: int = 64, seed: int = 0, n_scenes: int = 400) -> np.ndarray:
+    """``[6]``: the std of the coarse fit's placement error (:func:`placement_of`, the scale's relative to the
+    scale) over ``n_scenes`` SynthFaces train scenes: the prior of :func:`refine_placement`."""
+    from disent.data import SynthFaces
+
+    p = SynthFaces("train", resolution, seed).params(list(range(n_scenes)))
+    error = torch.cat(
+        [p["pseudo_pose"] - p["pose"], (p["pseudo_scale"] / p["scale"] - 1)[:, None], p["pseudo_shift"] - p["shift"]], 1
+    )
+    return error.double().std(0).numpy()
+
+
+def placement_objective(ds, index: int, item: dict, noise: float, seed: int):
+    """``(objective, placement)``: the coarse fit's placement (:func:`placement_of`) of scene ``index`` of SynthFaces
+    ``ds`` as ``placement(z)``, ``z`` its offset in units of :func:`placement_prior`'s widths, and ``objective(z)``:
+    -log p(image | placement) - log prior, up to a constant, of the image ``item`` with noise ``noise`` of seed
+    ``seed`` (the pixels the lighting fit then sees).
+
+    The likelihood is that of the texture model and an order-2 RGB light (the largest lighting candidate, so that no
+    candidate is favoured) fitted to the image over a fixed set of pixels, the coarse fit's mask eroded 3 px, with
+    sigma profiled (``N/2 log mse``); the prior is Gaussian around the coarse fit's placement; its shape stays the
+    fit's.  No ground truth enters it."""
+    from disent.lighting.order import score
+    from disent.lighting.texture import texture_model
+
+    image = noisy(item["image"], noise, seed).float()
+    p = ds.params([index])
+    start = placement_of(p)
+    width = placement_prior(image.shape[-1]) * np.array([1, 1, 1, start[3], 1, 1])
+    pixels = eroded(item["mask_pseudo"], 3)[0] > 0.5  # the same pixels for every placement
+    n_values = int(pixels.sum()) * image.shape[0]
+    model = texture_model(image.shape[-1])
+
+    def placement(z):
+        return placed(p, start + np.asarray(z) * width)
+
+    def objective(z):
+        maps = with_coarse_fit({"image": image}, placement(z))
+        mask = pixels & (maps["mask_pseudo"][0] > 0.5)
+        if mask.sum() < 0.8 * pixels.sum():  # the face moved off the pixels: no fit there
+            return 1e12
+        data = prepare(image, maps["normal_pseudo"], mask)
+        texture = (model.at_pixels(maps["uv_pseudo"], data.index), model.variance)
+        fit = score(data, 2, texture=texture, texture_iterations=4)
+        albedo = np.clip(texture[0][0] + np.einsum("j,jpc->pc", fit["texture"], texture[0][1:]), 1e-3, None)
+        mse = ((data.y - albedo * (data.basis @ np.array(fit["light"]).T)) ** 2).mean()
+        return 0.5 * n_values * math.log(mse) + 0.5 * (np.asarray(z) ** 2).sum()
+
+    return objective, placement
+
+
+def refine_placement(ds, index: int, item: dict, noise: float, seed: int, evaluations: int = 200) -> dict:
+    """``item`` (scene ``index`` of SynthFaces ``ds``) with the coarse fit's maps rendered again at its placement
+    (pose, scale, shift) refined against the image: the minimum of :func:`placement_objective` by Powell's method
+    within 3 prior widths of the coarse fit, ``evaluations`` renders at most.  It finds the placement at which the
+    coarse fit's shape best explains the image, which is not the scene's own where that shape is wrong."""
+    from scipy.optimize import minimize
+
+    objective, placement = placement_objective(ds, index, item, noise, seed)
+    z = minimize(objective, np.zeros(6), method="Powell", bounds=[(-3, 3)] * 6, options={"maxfev": evaluations})
+    return with_coarse_fit(item, placement(z.x))
 
 
 @functools.lru_cache(maxsize=2)
@@ -159,6 +252,10 @@ def scene_geometry(ds, index: int, item: dict, normals: str, noise: float, seed:
     if normals not in GEOMETRY:
         raise ValueError(f"unknown geometry {normals!r}; choose from {', '.join(GEOMETRY)}")
     geometry = GEOMETRY[normals]
+    if geometry.place:
+        if ds is None:
+            raise ValueError(f"geometry {normals!r} refines a SynthFaces scene's coarse fit: it needs one")
+        item = refine_placement(ds, index, item, noise, seed)
     if geometry.made_true:
         if ds is None:
             raise ValueError(f"geometry {normals!r} makes parts of a SynthFaces scene's coarse fit true: it needs one")
@@ -504,6 +601,9 @@ ORDER_ROWS = (
     ("texture", "network_explicit", "geometry_noise+residual_process"),
     ("texture", "network_implicit", "geometry_noise+residual_process"),
     ("texture", "oracle_uv_network", "geometry_noise"),
+    ("texture", "normal_pseudo_placed"),
+    ("texture", "normal_pseudo_placed", "residual_process"),
+    ("texture", "oracle_placement", "residual_process"),
 )
 NOISE_MODELS = ("geometry_noise", "residual_process", "geometry_noise+residual_process")
 RESIDUAL_GRID = {"rho": (1.0, 3.0, 10.0, 30.0, 100.0, 300.0, 1000.0), "ell": (0.5, 1.0, 2.0, 4.0)}

@@ -157,6 +157,27 @@ def order_verdict(order: dict, prefix: str, what: str) -> tuple[str, str] | None
     )
 
 
+def placement_reading(order: dict) -> str:
+    """One sentence on the coarse fit's placement under the residual process: refined against the image, and made
+    true (an oracle row), val/test accuracy, with a newline; empty where the study lacks either row on a split."""
+    rows = {
+        "refined against the image": "texture/normal_pseudo_placed+residual_process",
+        "made true (an oracle)": "texture/oracle_placement+residual_process",
+    }
+    if any(f"{split}/{row}" not in order for split in ("val", "test") for row in rows.values()):
+        return "\n"
+    read = [
+        f"{order[f'val/{row}']['evidence']['accuracy']:.2f}/{order[f'test/{row}']['evidence']['accuracy']:.2f} "
+        f"({scenes(order[f'val/{row}'])}/{scenes(order[f'test/{row}'])} scenes) with it {text}"
+        for text, row in rows.items()
+    ]
+    return (
+        " The coarse fit's placement (pose, scale, shift) under the residual process, val/test accuracy: "
+        + "; ".join(read)
+        + ".\n"
+    )
+
+
 def network_reading(order: dict, chosen: str, pseudo: str | None) -> str:
     """The ``chosen`` network row beside the ``pseudo`` geometry's chosen row on test: their accuracies, within or
     beyond the sampling spread, and how much band 2 each one's order-2 fit of a true order-1 scene holds, against
@@ -258,7 +279,11 @@ def sec_lighting(rep: Report, out: Path) -> None:
             "that best registers the texture model to the image, found before any candidate is scored (Gauss-Newton "
             "on the six affine parameters, the light and texture fitted again at each step, coarse to fine, under a "
             "Gaussian prior of the affine maps that take train scenes' pseudo uv onto their true uv; "
-            "`disent.lighting.texture.register`). *Oracle* rows put one true layer into the pseudo geometry, "
+            "`disent.lighting.texture.register`). *Placement refined*: the coarse fit's maps rendered again at its "
+            "pose, scale and shift refined against the image, its shape kept: Powell's method on the fit of the "
+            "texture model and an order-2 RGB light to the coarse fit's mask eroded 3 px, under a Gaussian prior of "
+            "the coarse fit's placement errors on train scenes (`disent.lighting.experiments.refine_placement`). "
+            "*Oracle* rows put one true layer into the pseudo geometry, "
             "to say which of its errors costs the choice: the true uv (the texture model registered to the face) "
             "or the true normals, or on the explicit network's geometry the true uv "
             "(`disent.lighting.experiments.GEOMETRY`). *Network* rows take the normals and matte "
@@ -303,7 +328,9 @@ def sec_lighting(rep: Report, out: Path) -> None:
             )
         pseudo = order_verdict(order, "texture/normal_pseudo", "pseudo geometry without the true albedo")
         if pseudo:
-            rep.add("", pseudo[1] + band2_reading(order, pseudo[0]) + known_albedo_reading(order) + "\n")
+            rep.add(
+                "", pseudo[1] + band2_reading(order, pseudo[0]) + known_albedo_reading(order) + placement_reading(order)
+            )
         network = order_verdict(
             order,
             "texture/network_",
@@ -324,6 +351,7 @@ def sec_lighting(rep: Report, out: Path) -> None:
         rows = {
             "normal_pseudo_eroded": "on the pseudo geometry",
             "normal_pseudo_registered": "with its uv registered to the image",
+            "normal_pseudo_placed": "with its placement refined against the image",
             "oracle_uv": "with only its uv made true",
             "oracle_normals": "with only its normals made true",
             "oracle_placement": "with the coarse fit's placement (pose, scale, shift) made true",
