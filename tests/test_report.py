@@ -487,7 +487,16 @@ def test_network_reading_sets_the_network_row_beside_the_pseudo_one():
     assert "holds 0.71 in band 2 (0.68 on the pseudo geometry's); a true order-2 light holds 0.56." in text
     order["test/texture/pseudo"] = row(0.5)  # beyond the spread; a row from before the band-2 diagnostic
     text = lighting.network_reading(order, "texture/net", "texture/pseudo")
-    assert "+0.27 against the pseudo geometry's chosen row: above the sampling spread." in text and "band 2" not in text
+    assert (
+        "+0.27 against the pseudo geometry's chosen row: beyond the sampling spread, in the networks' favour." in text
+    )
+    assert "band 2" not in text
+    order["test/texture/pseudo"] = row(0.99)
+    text = lighting.network_reading(order, "texture/net", "texture/pseudo")
+    assert (
+        "-0.22 against the pseudo geometry's chosen row: beyond the sampling spread, in the pseudo geometry's favour."
+        in text
+    )
     assert lighting.network_reading(order, "texture/net", None) == ""
 
 
@@ -555,7 +564,7 @@ def test_lighting_section_is_generated_from_the_published_json(tmp_path):
         lo, hi = lighting.wilson_interval(0.88, 60)
         assert f"0.88 (95 % interval {lo:.2f}-{hi:.2f} over its 60 scenes) against the target 0.85: **reached**" in text
         # beside the pseudo geometry's chosen row on test (0.62 or 0.9): beyond, then within the sampling spread
-        gap = {0.62: "+0.26 against the pseudo geometry's chosen row: above", 0.9: "-0.02 against the pseudo"}[acc]
+        gap = {0.62: "+0.26 against the pseudo geometry's chosen row: beyond", 0.9: "-0.02 against the pseudo"}[acc]
         assert gap in text and ("better normals alone do not bring the choice to the target" in text) == (acc == 0.9)
         assert "| val | texture | explicit network's normals + matte eroded 1 px, pseudo uv registered, resid" in text
         assert "| lambertian / gaussian | 0.67 / 0.94 (1.0) | – |" in text and "settings" not in text

@@ -193,7 +193,7 @@ def network_reading(order: dict, chosen: str, pseudo: str | None) -> str:
         + (
             "within the sampling spread, so better normals alone do not bring the choice to the target."
             if abs(gap) < spread
-            else f"{'above' if gap > 0 else 'below'} the sampling spread."
+            else "beyond the sampling spread, in the " + ("networks'" if gap > 0 else "pseudo geometry's") + " favour."
         )
     )
     if ours.get("band2_share") and theirs.get("band2_share"):
