@@ -604,6 +604,7 @@ ORDER_ROWS = (
     ("texture", "normal_pseudo_placed"),
     ("texture", "normal_pseudo_placed", "residual_process"),
     ("texture", "oracle_placement", "residual_process"),
+    ("known", "normal_pseudo_placed", "geometry_noise"),
 )
 NOISE_MODELS = ("geometry_noise", "residual_process", "geometry_noise+residual_process")
 RESIDUAL_GRID = {"rho": (1.0, 3.0, 10.0, 30.0, 100.0, 300.0, 1000.0), "ell": (0.5, 1.0, 2.0, 4.0)}
