@@ -380,7 +380,7 @@ def test_placement_reading_quotes_the_refined_and_the_true_placement_on_both_spl
     assert "0.82/0.79 (300/300 scenes) with it refined against the image" in text, text
     assert "0.92/0.83 (60/60 scenes) with it made true (an oracle)" in text, text
     del order["test/texture/oracle_placement+residual_process"]
-    assert lighting.placement_reading(order) == "\n"
+    assert lighting.placement_reading(order) == ""
 
 
 def test_known_albedo_reading_quotes_the_best_known_albedo_row_on_pseudo_geometry():

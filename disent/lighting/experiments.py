@@ -188,7 +188,7 @@ def placement_objective(ds, index: int, item: dict, noise: float, seed: int):
     candidate is favoured) fitted to the image over a fixed set of pixels, the coarse fit's mask eroded 3 px, with
     sigma profiled (``N/2 log mse``); the prior is Gaussian around the coarse fit's placement; its shape stays the
     fit's.  No ground truth enters it."""
-    from disent.lighting.order import score
+    from disent.lighting.order import score, texture_albedo
     from disent.lighting.texture import texture_model
 
     image = noisy(item["image"], noise, seed).float()
@@ -210,7 +210,7 @@ def placement_objective(ds, index: int, item: dict, noise: float, seed: int):
         data = prepare(image, maps["normal_pseudo"], mask)
         texture = (model.at_pixels(maps["uv_pseudo"], data.index), model.variance)
         fit = score(data, 2, texture=texture, texture_iterations=4)
-        albedo = np.clip(texture[0][0] + np.einsum("j,jpc->pc", fit["texture"], texture[0][1:]), 1e-3, None)
+        albedo = texture_albedo(texture[0], fit["texture"])
         mse = ((data.y - albedo * (data.basis @ np.array(fit["light"]).T)) ** 2).mean()
         return 0.5 * n_values * math.log(mse) + 0.5 * (np.asarray(z) ** 2).sum()
 
@@ -252,13 +252,11 @@ def scene_geometry(ds, index: int, item: dict, normals: str, noise: float, seed:
     if normals not in GEOMETRY:
         raise ValueError(f"unknown geometry {normals!r}; choose from {', '.join(GEOMETRY)}")
     geometry = GEOMETRY[normals]
+    if (geometry.place or geometry.made_true) and ds is None:
+        raise ValueError(f"geometry {normals!r} renders a SynthFaces scene's coarse fit again: it needs one")
     if geometry.place:
-        if ds is None:
-            raise ValueError(f"geometry {normals!r} refines a SynthFaces scene's coarse fit: it needs one")
         item = refine_placement(ds, index, item, noise, seed)
     if geometry.made_true:
-        if ds is None:
-            raise ValueError(f"geometry {normals!r} makes parts of a SynthFaces scene's coarse fit true: it needs one")
         item = coarse_fit_made_true(ds, index, item, geometry.made_true)
     if geometry.network:
         item = item | network_maps(geometry.network, noisy(item["image"], noise, seed))
@@ -620,7 +618,7 @@ def true_light_residuals(
     value at that light and albedo (:func:`~disent.lighting.order.geometry_variance`; None where 0)."""
     from dataclasses import replace
 
-    from disent.lighting.order import geometry_variance
+    from disent.lighting.order import geometry_variance, texture_albedo
     from disent.lighting.texture import texture_for
 
     out = []
@@ -634,7 +632,7 @@ def true_light_residuals(
         beta = np.linalg.solve(
             X.T @ X / noise**2 + np.diag(1 / variance), X.T @ (data.y - tex[0] * shading).reshape(-1) / noise**2
         )
-        albedo = np.clip(tex[0] + np.einsum("j,jpc->pc", beta, tex[1:]), 1e-3, None)
+        albedo = texture_albedo(tex, beta)
         gain = (albedo * shading * data.y).sum(0) / ((albedo * shading) ** 2).sum(0)
         data = replace(data, albedo=gain * albedo)
         extra = geometry_variance(data, sh.double().numpy(), normal_sigma) if normal_sigma > 0 else None

@@ -241,6 +241,12 @@ def _fit(
     return theta, *linearised(theta), (prior_mean, prior_prec)
 
 
+def texture_albedo(tex: np.ndarray, beta) -> np.ndarray:
+    """``[P, C]``: the texture model's albedo ``T_0 + sum_j beta_j T_j`` at the pixels ``tex [1+J, P, C]``
+    (:meth:`~disent.lighting.texture.TextureModel.at_pixels`), kept positive."""
+    return np.clip(tex[0] + np.einsum("j,jpc->pc", np.asarray(beta), tex[1:]), 1e-3, None)
+
+
 def score(
     data: LightingData,
     order: int,
@@ -275,12 +281,9 @@ def score(
         if tex.shape[1:] != data.y.shape:
             raise ValueError(f"texture pixels {tex.shape[1:]} do not match the data {data.y.shape}")
 
-        def albedo_of(beta):  # T_0 + sum_j beta_j T_j, kept positive
-            return np.clip(tex[0] + np.einsum("j,jpc->pc", beta, tex[1:]), 1e-3, None)
-
         beta = np.zeros(len(variance))
         for _ in range(texture_iterations):
-            albedo = albedo_of(beta)
+            albedo = texture_albedo(tex, beta)
             theta, _, _, v, _ = _fit(
                 replace(data, albedo=albedo), order, gray, prior_scale, iterations, normal_sigma, whiten
             )
@@ -290,7 +293,7 @@ def score(
             target = unit(data.y - tex[0] * shading, v, whiten).reshape(-1)
             H_beta = X.T @ X + np.diag(1.0 / variance)
             beta = np.linalg.solve(H_beta, X.T @ target)
-        data = replace(data, albedo=albedo_of(beta))
+        data = replace(data, albedo=texture_albedo(tex, beta))
         extra = (
             -0.5 * (beta**2 / variance).sum() - 0.5 * np.log(variance).sum() - 0.5 * np.linalg.slogdet(H_beta)[1]
         )  # log N(beta; 0, var) + J/2 log 2 pi - 1/2 log det H
@@ -385,6 +388,7 @@ __all__ = [
     "select_order",
     "choose",
     "geometry_variance",
+    "texture_albedo",
     "noise_variance",
     "unit",
     "Whitener",

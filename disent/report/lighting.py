@@ -159,13 +159,13 @@ def order_verdict(order: dict, prefix: str, what: str) -> tuple[str, str] | None
 
 def placement_reading(order: dict) -> str:
     """One sentence on the coarse fit's placement under the residual process: refined against the image, and made
-    true (an oracle row), val/test accuracy, with a newline; empty where the study lacks either row on a split."""
+    true (an oracle row), val/test accuracy; empty where the study lacks either row on a split."""
     rows = {
         "refined against the image": "texture/normal_pseudo_placed+residual_process",
         "made true (an oracle)": "texture/oracle_placement+residual_process",
     }
     if any(f"{split}/{row}" not in order for split in ("val", "test") for row in rows.values()):
-        return "\n"
+        return ""
     read = [
         f"{order[f'val/{row}']['evidence']['accuracy']:.2f}/{order[f'test/{row}']['evidence']['accuracy']:.2f} "
         f"({scenes(order[f'val/{row}'])}/{scenes(order[f'test/{row}'])} scenes) with it {text}"
@@ -174,7 +174,7 @@ def placement_reading(order: dict) -> str:
     return (
         " The coarse fit's placement (pose, scale, shift) under the residual process, val/test accuracy: "
         + "; ".join(read)
-        + ".\n"
+        + "."
     )
 
 
@@ -329,7 +329,12 @@ def sec_lighting(rep: Report, out: Path) -> None:
         pseudo = order_verdict(order, "texture/normal_pseudo", "pseudo geometry without the true albedo")
         if pseudo:
             rep.add(
-                "", pseudo[1] + band2_reading(order, pseudo[0]) + known_albedo_reading(order) + placement_reading(order)
+                "",
+                pseudo[1]
+                + band2_reading(order, pseudo[0])
+                + known_albedo_reading(order)
+                + placement_reading(order)
+                + "\n",
             )
         network = order_verdict(
             order,
