@@ -425,7 +425,7 @@ def test_cli_order_choice_on_pseudo_geometry_uses_the_chosen_geometry(monkeypatc
 
     import disent.lighting.__main__ as cli
     from disent.data import SynthFaces
-    from disent.lighting.experiments import item_data
+    from disent.lighting.experiments import coarse_fit_made_true, item_data
 
     cfg = OmegaConf.load(Path(__file__).resolve().parents[1] / "conf" / "lighting.yaml")
     cfg.data = {"resolution": 64}
@@ -449,6 +449,11 @@ def test_cli_order_choice_on_pseudo_geometry_uses_the_chosen_geometry(monkeypatc
     cfg.order_geometry = "oracle_placement"  # needs a SynthFaces scene's parameters, which an item alone lacks
     with pytest.raises(ValueError, match="needs one"):
         cli.posterior_of(cfg, "x", item)
+    ds = SynthFaces("test", resolution=64, size=1)  # given the scene, the coarse fit is drawn again at the truth
+    result, _, _ = cli.posterior_of(cfg, "x", item, ds, 0)
+    moved = item_data(coarse_fit_made_true(ds, 0, item, ("placement",)), 0.0, normals="oracle_placement")
+    assert result["order_choice"]["geometry"] == "oracle_placement" and np.array_equal(seen["index"], moved.index)
+    assert not np.array_equal(moved.index, eroded.index)
     cfg.order_geometry = "network_explict"  # misspelt: named, with the choices
     with pytest.raises(ValueError, match="unknown geometry 'network_explict'; choose from normal, normal_pseudo"):
         cli.posterior_of(cfg, "x", item)
@@ -963,7 +968,7 @@ def test_placement_objective_prefers_the_scenes_own_placement():
     objective of the placement refinement (the image under the texture model and an order-2 light, and the prior)
     is lower at the scene's own placement than at the coarse fit's: the image tells where the face is."""
     from disent.data import SynthFaces
-    from disent.lighting.experiments import placed, placement_objective, placement_of, placement_prior, with_coarse_fit
+    from disent.lighting.experiments import placed, placement_objective, placement_of, placement_width, with_coarse_fit
 
     ds = SynthFaces("train", 64, 0)
     offset = np.array([2.0, -2.0, 0.0, 0.0, 2.0, -2.0])  # in prior widths
@@ -971,7 +976,7 @@ def test_placement_objective_prefers_the_scenes_own_placement():
         p = ds.params([i])
         p["pseudo_alpha"], p["pseudo_expression"] = p["alpha"][:, : p["pseudo_alpha"].shape[1]], p["expression"]
         true = placement_of(p, "")
-        p = placed(p, true + offset * placement_prior(64) * np.array([1, 1, 1, true[3], 1, 1]))
+        p = placed(p, true + offset * placement_width(true))
 
         class Misplaced:  # the scene with this coarse fit
             def params(self, index):

@@ -365,7 +365,8 @@ def test_bench_section_puts_gpu_figures_beside_the_cpu_ones(tmp_path):
 
 def test_placement_reading_quotes_the_refined_and_the_true_placement_on_both_splits():
     """The pseudo verdict says what the coarse fit's placement is worth under the residual process: refined against
-    the image, and made true, each on val and test with its scene counts; nothing where a row is missing."""
+    the image (with its uv registered too, where the study has that row), and made true, each on val and test with
+    its scene counts; nothing where fewer than two rows are on both splits."""
 
     def row(accuracy, n):
         return {"evidence": {"accuracy": accuracy, "confusion": [[n, 0, 0], [0, 0, 0], [0, 0, 0]]}}
@@ -379,8 +380,15 @@ def test_placement_reading_quotes_the_refined_and_the_true_placement_on_both_spl
     text = lighting.placement_reading(order)
     assert "0.82/0.79 (300/300 scenes) with it refined against the image" in text, text
     assert "0.92/0.83 (60/60 scenes) with it made true (an oracle)" in text, text
-    del order["test/texture/oracle_placement+residual_process"]
-    assert lighting.placement_reading(order) == ""
+    assert "registered" not in text  # a row the study lacks is not read
+    order["val/texture/normal_pseudo_placed_registered+residual_process"] = row(0.88, 300)
+    order["test/texture/normal_pseudo_placed_registered+residual_process"] = row(0.86, 240)
+    assert "0.88/0.86 (300/240 scenes) with it refined and its uv registered" in lighting.placement_reading(order)
+    del (
+        order["test/texture/oracle_placement+residual_process"],
+        order["val/texture/normal_pseudo_placed+residual_process"],
+    )
+    assert lighting.placement_reading(order) == ""  # one row on both splits is no comparison
 
 
 def test_known_albedo_reading_quotes_the_best_known_albedo_row_on_pseudo_geometry():

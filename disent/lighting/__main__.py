@@ -44,17 +44,19 @@ def load_photo(path: str, resolution: int, cache_dir=None) -> dict:
 
 
 def items(cfg: DictConfig):
+    """``(name, item, ds, index)`` of each image the run fits: a photo (``ds``, ``index`` None), or SynthFaces
+    scenes, whose parameters the geometries that render the coarse fit again need (``place``, ``made_true``)."""
     if cfg.image:
-        yield Path(cfg.image).stem, load_photo(cfg.image, cfg.data.resolution, cfg.get("cache_dir"))
+        yield Path(cfg.image).stem, load_photo(cfg.image, cfg.data.resolution, cfg.get("cache_dir")), None, None
         return
     from disent.data import SynthFaces
 
     ds = SynthFaces(cfg.split, cfg.data.resolution, cfg.data.seed, effects=cfg.data.effects)
     for i in range(cfg.n_images) if cfg.n_images > 1 else [cfg.index]:
-        yield f"{cfg.split}_{i:05d}", ds[i]
+        yield f"{cfg.split}_{i:05d}", ds[i], ds, i
 
 
-def posterior_of(cfg: DictConfig, name: str, item: dict) -> dict:
+def posterior_of(cfg: DictConfig, name: str, item: dict, ds=None, index: int | None = None) -> dict:
     normals = "normal_pseudo" if cfg.image else cfg.normals
     mask = item["mask_pseudo"] if normals == "normal_pseudo" else item["matte"]
     albedo = item["albedo"] if cfg.known_albedo and "albedo" in item else None
@@ -68,7 +70,7 @@ def posterior_of(cfg: DictConfig, name: str, item: dict) -> dict:
     geometry = cfg.order_geometry if normals == "normal_pseudo" else "normal"
     choice_data, texture = data, None
     if albedo is None and cfg.texture_components > 0 and not cfg.gray:
-        item = scene_geometry(None, None, item, geometry, noise, cfg.seed)  # a network geometry's maps of the image
+        item = scene_geometry(ds, index, item, geometry, noise, cfg.seed)  # a network's maps, a coarse fit redrawn
         if GEOMETRY[geometry].uv in item:
             choice_data, texture = order_data(item, noise, cfg.seed, "texture", geometry, cfg.texture_components)
     geometry = geometry if texture is not None else normals
@@ -122,8 +124,8 @@ def run(cfg: DictConfig) -> None:
         log.info("wrote %s; publish it with: python -m disent.report --publish %s", out, out)
         return
     results = []
-    for k, (name, item) in enumerate(items(cfg)):
-        result, post, data = posterior_of(cfg, name, item)
+    for k, (name, item, ds, index) in enumerate(items(cfg)):
+        result, post, data = posterior_of(cfg, name, item, ds, index)
         if cfg.figures and k < 4:
             result["figures"] = [
                 str(p) for p in figures_for(post, item, data, out / name, "normal_pseudo" if cfg.image else cfg.normals)

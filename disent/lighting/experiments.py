@@ -36,9 +36,10 @@ EDGE = 1
 # scale and shift, or its shape, i.e. the identity components it fits and the expression;
 # coarse_fit_made_true). The registered row corrects the pseudo uv by the affine map that best registers the
 # texture model to the image (disent.lighting.texture.register); the placed row renders all three maps again at the
-# coarse fit's placement refined against the image (refine_placement). The network rows read the maps a shipped model
-# (disent.models.shipped), trained on the pseudo-GT alone, draws from the scene's (noisy) image: its normals and
-# matte, and the implicit model's uv (network_maps); no ground truth enters them either.
+# coarse fit's placement refined against the image (refine_placement), and the placed-registered row registers the
+# uv of those re-rendered maps (under the pseudo uv's registration prior). The network rows read the maps a shipped
+# model (disent.models.shipped), trained on the pseudo-GT alone, draws from the scene's (noisy) image: its normals
+# and matte, and the implicit model's uv (network_maps); no ground truth enters them either.
 class Geometry(NamedTuple):
     normals: str
     mask: str
@@ -71,6 +72,15 @@ GEOMETRY = {
         "uv_pseudo",
         EDGE,
         f"pseudo normals + mask eroded {EDGE} px, placement refined",
+        place=True,
+    ),
+    "normal_pseudo_placed_registered": Geometry(
+        "normal_pseudo",
+        "mask_pseudo",
+        "uv_pseudo",
+        EDGE,
+        f"pseudo normals + mask eroded {EDGE} px, placement refined, uv registered",
+        register=True,
         place=True,
     ),
     "oracle_uv": Geometry(
@@ -178,6 +188,12 @@ def placement_prior(resolution: int = 64, seed: int = 0, n_scenes: int = 400) ->
     return error.double().std(0).numpy()
 
 
+def placement_width(start: np.ndarray, resolution: int = 64) -> np.ndarray:
+    """``[6]``: :func:`placement_prior`'s widths about the placement ``start`` (:func:`placement_of`), the scale's
+    made absolute by ``start``'s scale."""
+    return placement_prior(resolution) * np.array([1, 1, 1, start[3], 1, 1])
+
+
 def placement_objective(ds, index: int, item: dict, noise: float, seed: int):
     """``(objective, placement)``: the coarse fit's placement (:func:`placement_of`) of scene ``index`` of SynthFaces
     ``ds`` as ``placement(z)``, ``z`` its offset in units of :func:`placement_prior`'s widths, and ``objective(z)``:
@@ -194,7 +210,7 @@ def placement_objective(ds, index: int, item: dict, noise: float, seed: int):
     image = noisy(item["image"], noise, seed).float()
     p = ds.params([index])
     start = placement_of(p)
-    width = placement_prior(image.shape[-1]) * np.array([1, 1, 1, start[3], 1, 1])
+    width = placement_width(start, image.shape[-1])
     pixels = eroded(item["mask_pseudo"], 3)[0] > 0.5  # the same pixels for every placement
     n_values = int(pixels.sum()) * image.shape[0]
     model = texture_model(image.shape[-1])
@@ -603,6 +619,7 @@ ORDER_ROWS = (
     ("texture", "normal_pseudo_placed", "residual_process"),
     ("texture", "oracle_placement", "residual_process"),
     ("known", "normal_pseudo_placed", "geometry_noise"),
+    ("texture", "normal_pseudo_placed_registered", "residual_process"),
 )
 NOISE_MODELS = ("geometry_noise", "residual_process", "geometry_noise+residual_process")
 RESIDUAL_GRID = {"rho": (1.0, 3.0, 10.0, 30.0, 100.0, 300.0, 1000.0), "ell": (0.5, 1.0, 2.0, 4.0)}
@@ -828,12 +845,15 @@ def plot_order_study(study: dict, path: Path, criterion: str = "evidence") -> No
     import matplotlib.pyplot as plt
 
     keys = list(study)
-    cols = min(3, len(keys))
+    cols = min(4, len(keys))
     rows = -(-len(keys) // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(3.3 * cols, 3.2 * rows), squeeze=False)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.3 * cols, 3.9 * rows), squeeze=False)
     for ax, key in zip(axes.flat, keys):
         draw_confusion(ax, study[key][criterion]["confusion"])
-        ax.set_title(f"{key}\n{criterion} accuracy {study[key][criterion]['accuracy']:.0%}", fontsize=9)
+        split, albedo, geometry = key.split("/", 2)
+        normals, _, model = geometry.partition("+")  # one line each: long names would run into the next panel
+        title = f"{split}, {albedo} albedo\n{normals}\n{(model or 'iid noise').replace('_', ' ')}"
+        ax.set_title(f"{title}\n{criterion} accuracy {study[key][criterion]['accuracy']:.0%}", fontsize=8)
     for ax in list(axes.flat)[len(keys) :]:
         ax.axis("off")
     fig.tight_layout()

@@ -158,13 +158,16 @@ def order_verdict(order: dict, prefix: str, what: str) -> tuple[str, str] | None
 
 
 def placement_reading(order: dict) -> str:
-    """One sentence on the coarse fit's placement under the residual process: refined against the image, and made
-    true (an oracle row), val/test accuracy; empty where the study lacks either row on a split."""
+    """One sentence on the coarse fit's placement under the residual process: refined against the image (its uv
+    as drawn, or registered too), and made true (an oracle row), val/test accuracy, for the rows the study has on
+    both splits; empty where it has fewer than two."""
     rows = {
         "refined against the image": "texture/normal_pseudo_placed+residual_process",
+        "refined and its uv registered": "texture/normal_pseudo_placed_registered+residual_process",
         "made true (an oracle)": "texture/oracle_placement+residual_process",
     }
-    if any(f"{split}/{row}" not in order for split in ("val", "test") for row in rows.values()):
+    rows = {text: row for text, row in rows.items() if all(f"{split}/{row}" in order for split in ("val", "test"))}
+    if len(rows) < 2:
         return ""
     read = [
         f"{order[f'val/{row}']['evidence']['accuracy']:.2f}/{order[f'test/{row}']['evidence']['accuracy']:.2f} "
@@ -282,7 +285,8 @@ def sec_lighting(rep: Report, out: Path) -> None:
             "`disent.lighting.texture.register`). *Placement refined*: the coarse fit's maps rendered again at its "
             "pose, scale and shift refined against the image, its shape kept: Powell's method on the fit of the "
             "texture model and an order-2 RGB light to the coarse fit's mask eroded 3 px, under a Gaussian prior of "
-            "the coarse fit's placement errors on train scenes (`disent.lighting.experiments.refine_placement`). "
+            "the coarse fit's placement errors on train scenes (`disent.lighting.experiments.refine_placement`); with "
+            "*uv registered* too, the refined maps' uv then registered as above. "
             "*Oracle* rows put one true layer into the pseudo geometry, "
             "to say which of its errors costs the choice: the true uv (the texture model registered to the face) "
             "or the true normals, or on the explicit network's geometry the true uv "
