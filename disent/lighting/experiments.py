@@ -635,7 +635,7 @@ def true_light_residuals(
     value at that light and albedo (:func:`~disent.lighting.order.geometry_variance`; None where 0)."""
     from dataclasses import replace
 
-    from disent.lighting.order import geometry_variance, texture_albedo
+    from disent.lighting.order import geometry_variance, texture_albedo, texture_coefficients
     from disent.lighting.texture import texture_for
 
     out = []
@@ -645,10 +645,7 @@ def true_light_residuals(
         data = item_data(item, noise, 7000 + i, known_albedo=False, normals=normals, texture=True)
         tex, variance = texture_for(data, uv_of(item, data, normals))
         shading = data.basis @ sh.double().numpy().T  # [P, C]
-        X = (tex[1:] * shading[None]).reshape(len(variance), -1).T  # [P*C, J], pixel-major
-        beta = np.linalg.solve(
-            X.T @ X / noise**2 + np.diag(1 / variance), X.T @ (data.y - tex[0] * shading).reshape(-1) / noise**2
-        )
+        beta, _ = texture_coefficients(tex, variance, shading, data.y, np.full(data.y.shape, noise**2))
         albedo = texture_albedo(tex, beta)
         gain = (albedo * shading * data.y).sum(0) / ((albedo * shading) ** 2).sum(0)
         data = replace(data, albedo=gain * albedo)

@@ -247,6 +247,19 @@ def texture_albedo(tex: np.ndarray, beta) -> np.ndarray:
     return np.clip(tex[0] + np.einsum("j,jpc->pc", np.asarray(beta), tex[1:]), 1e-3, None)
 
 
+def texture_coefficients(
+    tex: np.ndarray, variance: np.ndarray, shading: np.ndarray, y: np.ndarray, v: np.ndarray, whiten=None
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(beta, H)``: the texture model's coefficients ``beta ~ N(0, variance)`` at their posterior mode for the image
+    ``y [P, C] = (T_0 + sum_j beta_j T_j) * shading + noise`` (``tex [1+J, P, C]``, ``shading [P, C]``; noise of
+    variance ``v [P, C]``, whitened by the residual process ``whiten``): ridge regression in units of the noise; and
+    their posterior precision ``H``."""
+    X = unit((tex[1:] * shading[None]).transpose(1, 2, 0), v, whiten).reshape(-1, len(variance))
+    target = unit(y - tex[0] * shading, v, whiten).reshape(-1)
+    H = X.T @ X + np.diag(1.0 / variance)
+    return np.linalg.solve(H, X.T @ target), H
+
+
 def score(
     data: LightingData,
     order: int,
@@ -288,11 +301,7 @@ def score(
                 replace(data, albedo=albedo), order, gray, prior_scale, iterations, normal_sigma, whiten
             )
             shading = data.basis[:, :K] @ _light(theta, C, K, gray).T  # [P, C]: the light through S(n, L_c)
-            # ridge regression of the image less the mean texture's on the components, all in units of the noise
-            X = unit((tex[1:] * shading[None]).transpose(1, 2, 0), v, whiten).reshape(-1, len(variance))
-            target = unit(data.y - tex[0] * shading, v, whiten).reshape(-1)
-            H_beta = X.T @ X + np.diag(1.0 / variance)
-            beta = np.linalg.solve(H_beta, X.T @ target)
+            beta, H_beta = texture_coefficients(tex, variance, shading, data.y, v, whiten)
         data = replace(data, albedo=texture_albedo(tex, beta))
         extra = (
             -0.5 * (beta**2 / variance).sum() - 0.5 * np.log(variance).sum() - 0.5 * np.linalg.slogdet(H_beta)[1]
