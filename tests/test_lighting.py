@@ -977,11 +977,47 @@ def test_placement_objective_prefers_the_scenes_own_placement():
         p["pseudo_alpha"], p["pseudo_expression"] = p["alpha"][:, : p["pseudo_alpha"].shape[1]], p["expression"]
         true = placement_of(p, "")
         p = placed(p, true + offset * placement_width(true))
-
-        class Misplaced:  # the scene with this coarse fit
-            def params(self, index):
-                return dict(p)
-
-        objective, placement = placement_objective(Misplaced(), i, with_coarse_fit(ds.sample(i), p), 0.02, i)
+        objective, placement = placement_objective(p, with_coarse_fit(ds.sample(i), p), 0.02, i)
         np.testing.assert_allclose(placement_of(placement(-offset)), true, atol=1e-5)
         assert objective(-offset) < objective(np.zeros(6)) - 50, (objective(-offset), objective(np.zeros(6)))
+
+
+def test_a_photos_coarse_fit_is_drawn_again_and_its_placement_refined(monkeypatch):
+    """A photo's landmark fit (its pseudo-GT ``params``) drawn again as SynthFaces' coarse-fit scene reproduces the
+    photo's own pseudo-GT maps, so the placed geometry needs no SynthFaces scene: the CLI's order choice on a photo
+    runs on it. The photo here: a SynthFaces render through the pipeline with its exact landmarks (no dlib)."""
+    from pathlib import Path
+
+    from omegaconf import OmegaConf
+
+    import disent.data.photos.pseudo_gt as pg
+    import disent.lighting.__main__ as cli
+    from disent.data import SynthFaces
+    from disent.lighting.experiments import coarse_fit_of, with_coarse_fit
+
+    ds, settings = SynthFaces("test", 64, size=1), pg.PseudoGTSettings()
+    landmarks = pg.face_model_fitter(settings).synth_landmarks(ds.params([0]), 64)[0]
+    rgb = (ds[0]["image"].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8)
+    arrays = pg.pseudo_gt_from_landmarks(rgb, landmarks, settings)
+    item = {k: torch.as_tensor(v).float() for k, v in arrays.items()} | {
+        "image": torch.from_numpy(pg.crop_pixels(arrays["image"]))
+    }
+    drawn = with_coarse_fit(item, coarse_fit_of(None, None, item))
+    for key in ("normal_pseudo", "mask_pseudo", "uv_pseudo"):  # stored as float16
+        np.testing.assert_allclose(drawn[key].numpy(), item[key].numpy(), atol=2e-3, err_msg=key)
+    with pytest.raises(ValueError, match="neither a SynthFaces scene nor a photo's landmark fit"):
+        coarse_fit_of(None, None, {k: v for k, v in item.items() if k != "params"})
+
+    cfg = OmegaConf.load(Path(__file__).resolve().parents[1] / "conf" / "lighting.yaml")
+    cfg.data, cfg.image = {"resolution": 64}, "face.jpg"
+    cfg.known_albedo, cfg.max_steps, cfg.texture_components = False, 200, 4
+    cfg.order_geometry = "normal_pseudo_placed"
+    seen = {}
+
+    def spy(data, **kwargs):
+        seen["index"] = data.index
+        return {"choice": "order0", "order": 0, "gray": False, "scores": {}, "criterion": "evidence"}
+
+    monkeypatch.setattr(cli, "select_order", spy)
+    result, _, _ = cli.posterior_of(cfg, "x", item)
+    assert result["order_choice"]["geometry"] == "normal_pseudo_placed" and len(seen["index"]) > 100

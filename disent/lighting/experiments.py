@@ -194,11 +194,23 @@ def placement_width(start: np.ndarray, resolution: int = 64) -> np.ndarray:
     return placement_prior(resolution) * np.array([1, 1, 1, start[3], 1, 1])
 
 
-def placement_objective(ds, index: int, item: dict, noise: float, seed: int):
-    """``(objective, placement)``: the coarse fit's placement (:func:`placement_of`) of scene ``index`` of SynthFaces
-    ``ds`` as ``placement(z)``, ``z`` its offset in units of :func:`placement_prior`'s widths, and ``objective(z)``:
-    -log p(image | placement) - log prior, up to a constant, of the image ``item`` with noise ``noise`` of seed
-    ``seed`` (the pixels the lighting fit then sees).
+def coarse_fit_of(ds, index: int | None, item: dict) -> dict:
+    """The scene parameters whose ``pseudo_*`` entries are ``item``'s coarse fit: scene ``index`` of SynthFaces
+    ``ds``'s, or, for a photo (``ds`` None), its own landmark fit (the pseudo-GT's ``params``)."""
+    if ds is not None:
+        return ds.params([index])
+    if "params" not in item:
+        raise ValueError("this item has neither a SynthFaces scene nor a photo's landmark fit to draw again")
+    from disent.data.photos.pseudo_gt import coarse_fit_scene
+
+    return coarse_fit_scene(torch.as_tensor(item["params"]).double().numpy(), item["image"].shape[-1])
+
+
+def placement_objective(p: dict, item: dict, noise: float, seed: int):
+    """``(objective, placement)``: the coarse fit's placement (:func:`placement_of`) in scene parameters ``p`` (that
+    of ``item``, :func:`coarse_fit_of`) as ``placement(z)``, ``z`` its offset in units of :func:`placement_prior`'s
+    widths, and ``objective(z)``: -log p(image | placement) - log prior, up to a constant, of the image ``item`` with
+    noise ``noise`` of seed ``seed`` (the pixels the lighting fit then sees).
 
     The likelihood is that of the texture model and an order-2 RGB light (the largest lighting candidate, so that no
     candidate is favoured) fitted to the image over a fixed set of pixels, the coarse fit's mask eroded 3 px, with
@@ -208,7 +220,6 @@ def placement_objective(ds, index: int, item: dict, noise: float, seed: int):
     from disent.lighting.texture import texture_model
 
     image = noisy(item["image"], noise, seed).float()
-    p = ds.params([index])
     start = placement_of(p)
     width = placement_width(start, image.shape[-1])
     pixels = eroded(item["mask_pseudo"], 3)[0] > 0.5  # the same pixels for every placement
@@ -233,14 +244,15 @@ def placement_objective(ds, index: int, item: dict, noise: float, seed: int):
     return objective, placement
 
 
-def refine_placement(ds, index: int, item: dict, noise: float, seed: int, evaluations: int = 200) -> dict:
-    """``item`` (scene ``index`` of SynthFaces ``ds``) with the coarse fit's maps rendered again at its placement
-    (pose, scale, shift) refined against the image: the minimum of :func:`placement_objective` by Powell's method
-    within 3 prior widths of the coarse fit, ``evaluations`` renders at most.  It finds the placement at which the
-    coarse fit's shape best explains the image, which is not the scene's own where that shape is wrong."""
+def refine_placement(p: dict, item: dict, noise: float, seed: int, evaluations: int = 200) -> dict:
+    """``item`` with its coarse fit's maps rendered again at the fit's placement (pose, scale, shift; in scene
+    parameters ``p``, :func:`coarse_fit_of`) refined against the image: the minimum of :func:`placement_objective`
+    by Powell's method within 3 prior widths of the coarse fit, ``evaluations`` renders at most.  It finds the
+    placement at which the coarse fit's shape best explains the image, which is not the scene's own where that shape
+    is wrong.  The prior's widths are the SynthFaces coarse fit's errors, for a photo's landmark fit too."""
     from scipy.optimize import minimize
 
-    objective, placement = placement_objective(ds, index, item, noise, seed)
+    objective, placement = placement_objective(p, item, noise, seed)
     z = minimize(objective, np.zeros(6), method="Powell", bounds=[(-3, 3)] * 6, options={"maxfev": evaluations})
     return with_coarse_fit(item, placement(z.x))
 
@@ -263,15 +275,16 @@ def network_maps(name: str, image: torch.Tensor) -> dict:
 
 def scene_geometry(ds, index: int, item: dict, normals: str, noise: float, seed: int) -> dict:
     """``item`` (scene ``index`` of ``ds``; None for a photo) with the maps geometry ``normals`` reads: the coarse
-    fit rendered again with its parts made true, or a network's maps of the image with noise ``noise`` of seed
-    ``seed`` (the pixels the fit then sees, :func:`item_data`)."""
+    fit rendered again at its placement refined against the image (a scene's or a photo's fit) or with its parts
+    set to a scene's truth, or a network's maps of the image; noise ``noise`` of seed ``seed`` on the image (the
+    pixels the fit then sees, :func:`item_data`)."""
     if normals not in GEOMETRY:
         raise ValueError(f"unknown geometry {normals!r}; choose from {', '.join(GEOMETRY)}")
     geometry = GEOMETRY[normals]
-    if (geometry.place or geometry.made_true) and ds is None:
-        raise ValueError(f"geometry {normals!r} renders a SynthFaces scene's coarse fit again: it needs one")
+    if geometry.made_true and ds is None:
+        raise ValueError(f"geometry {normals!r} sets the coarse fit to a SynthFaces scene's truth: it needs one")
     if geometry.place:
-        item = refine_placement(ds, index, item, noise, seed)
+        item = refine_placement(coarse_fit_of(ds, index, item), item, noise, seed)
     if geometry.made_true:
         item = coarse_fit_made_true(ds, index, item, geometry.made_true)
     if geometry.network:

@@ -385,6 +385,21 @@ class FaceModelFitter:
         p = self.from_raster((0.0, 0.0, 0.0), float(np.mean(SCALE_RANGE)), (0.0, -0.02), resolution)
         return self.project_landmarks(p, resolution)
 
+    def scene(self, p: np.ndarray, resolution: int) -> dict:
+        """The fit ``p`` as the coarse-fit entries (``pseudo_*``, a batch of one) of SynthFaces' scene parameters,
+        what :func:`disent.data.synth.scenes.render_pseudo` draws."""
+        import torch
+
+        K, cam = self.n_identity, self.to_raster(p, resolution)
+        t = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float32))[None]  # noqa: E731
+        return {
+            "pseudo_alpha": t(p[6 : 6 + K]),
+            "pseudo_expression": t(p[6 + K :]),
+            "pseudo_pose": t(cam["pose"]),
+            "pseudo_scale": t(cam["scale"]),
+            "pseudo_shift": t(cam["shift"]),
+        }
+
     def render(self, p: np.ndarray, resolution: int, image: np.ndarray) -> dict:
         """The pseudo-GT maps ``[C, R, R]`` and ``sh_pseudo [3, 9]`` (numpy) of the fitted face over
         ``image [3, R, R]``, made by SynthFaces' own :func:`disent.data.synth.scenes.render_pseudo`
@@ -393,17 +408,10 @@ class FaceModelFitter:
 
         from disent.data.synth.scenes import render_pseudo
 
-        K, cam = self.n_identity, self.to_raster(p, resolution)
-        t = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float32))[None]  # noqa: E731
-        scene = {
-            "pseudo_alpha": t(p[6 : 6 + K]),
-            "pseudo_expression": t(p[6 + K :]),
-            "pseudo_pose": t(cam["pose"]),
-            "pseudo_scale": t(cam["scale"]),
-            "pseudo_shift": t(cam["shift"]),
-        }
         try:
-            out = render_pseudo(t(image), scene, resolution)
+            out = render_pseudo(
+                torch.as_tensor(image, dtype=torch.float32)[None], self.scene(p, resolution), resolution
+            )
         except ValueError as e:  # fit_sh: too few pixels or non-finite values
             raise Skip("fit failed", f"rendering/lighting: {e}") from None
         return {k: v[0].numpy() for k, v in out.items()}
@@ -421,6 +429,15 @@ class FaceModelFitter:
 @functools.lru_cache(maxsize=4)
 def face_model_fitter(settings: PseudoGTSettings) -> FaceModelFitter:
     return FaceModelFitter(settings.n_identity)
+
+
+def coarse_fit_scene(params: np.ndarray, resolution: int) -> dict:
+    """A photo's coarse fit (its pseudo-GT's ``params``) as SynthFaces' coarse-fit scene parameters
+    (:meth:`FaceModelFitter.scene`), the number of identity components read from its length."""
+    from disent.data.synth.face_model import EXPRESSIONS
+
+    params = np.asarray(params, dtype=np.float64)
+    return FaceModelFitter(len(params) - FaceModelFitter.n_pose - len(EXPRESSIONS)).scene(params, resolution)
 
 
 # ----------------------------------------------------------------------------- 4. model fit
