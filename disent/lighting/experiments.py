@@ -39,7 +39,8 @@ EDGE = 1
 # coarse fit's placement refined against the image (refine_placement), and the placed-registered row registers the
 # uv of those re-rendered maps (under the pseudo uv's registration prior). The network rows read the maps a shipped
 # model (disent.models.shipped), trained on the pseudo-GT alone, draws from the scene's (noisy) image: its normals
-# and matte, and the implicit model's uv (network_maps); no ground truth enters them either.
+# and matte, and the implicit model's uv (network_maps), or the uv of the coarse fit placed and registered as above
+# (network_explicit_placed); no ground truth enters them either.
 class Geometry(NamedTuple):
     normals: str
     mask: str
@@ -128,6 +129,16 @@ GEOMETRY = {
         "uv",
         EDGE,
         f"explicit network's normals + matte eroded {EDGE} px, true uv (oracle)",
+        network="explicit",
+    ),
+    "network_explicit_placed": Geometry(
+        "normal_net",
+        "matte_net",
+        "uv_pseudo",
+        EDGE,
+        f"explicit network's normals + matte eroded {EDGE} px, uv of the placed coarse fit registered",
+        register=True,
+        place=True,
         network="explicit",
     ),
     "network_implicit_registered": Geometry(
@@ -633,6 +644,7 @@ ORDER_ROWS = (
     ("texture", "oracle_placement", "residual_process"),
     ("known", "normal_pseudo_placed", "geometry_noise"),
     ("texture", "normal_pseudo_placed_registered", "residual_process"),
+    ("texture", "network_explicit_placed", "residual_process"),
 )
 NOISE_MODELS = ("geometry_noise", "residual_process", "geometry_noise+residual_process")
 RESIDUAL_GRID = {"rho": (1.0, 3.0, 10.0, 30.0, 100.0, 300.0, 1000.0), "ell": (0.5, 1.0, 2.0, 4.0)}
