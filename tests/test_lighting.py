@@ -417,7 +417,7 @@ def test_noise_parts_name_each_part_of_a_noise_model():
 
 def test_cli_order_choice_on_pseudo_geometry_uses_the_chosen_geometry(monkeypatch):
     """Without a known albedo on pseudo normals, the CLI's order choice scores the texture model on
-    ``order_geometry`` (the registered uv and eroded mask by default): the pixels it sees are that geometry's,
+    ``order_geometry`` (here the registered uv and eroded mask): the pixels it sees are that geometry's,
     not the posterior's whole pseudo mask."""
     from pathlib import Path
 
@@ -425,7 +425,7 @@ def test_cli_order_choice_on_pseudo_geometry_uses_the_chosen_geometry(monkeypatc
 
     import disent.lighting.__main__ as cli
     from disent.data import SynthFaces
-    from disent.lighting.experiments import coarse_fit_made_true, item_data
+    from disent.lighting.experiments import GEOMETRY, coarse_fit_made_true, item_data
 
     cfg = OmegaConf.load(Path(__file__).resolve().parents[1] / "conf" / "lighting.yaml")
     cfg.data = {"resolution": 64}
@@ -438,8 +438,10 @@ def test_cli_order_choice_on_pseudo_geometry_uses_the_chosen_geometry(monkeypatc
 
     monkeypatch.setattr(cli, "select_order", spy)
     item = SynthFaces("test", resolution=64, size=1)[0]
+    assert cfg.order_geometry in GEOMETRY
+    cfg.order_geometry = "normal_pseudo_registered"  # one that needs nothing beyond the item
     result, _, data = cli.posterior_of(cfg, "x", item)
-    assert cfg.order_geometry == "normal_pseudo_registered" and result["order_choice"]["geometry"] == cfg.order_geometry
+    assert result["order_choice"]["geometry"] == cfg.order_geometry
     eroded = item_data(item, 0.0, 0, known_albedo=False, normals=cfg.order_geometry)
     assert np.array_equal(seen["index"], eroded.index) and len(seen["index"]) < len(data.index)
     assert seen["texture"][0].shape == (5, len(eroded.index), 3)  # the mean and 4 components at those pixels
