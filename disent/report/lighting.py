@@ -344,8 +344,8 @@ def sec_lighting(rep: Report, out: Path) -> None:
         network = order_verdict(
             order,
             "texture/network_",
-            "the networks' geometry without the true albedo (the normals and matte, and the implicit model's uv, "
-            "that a shipped model trained on the pseudo-GT alone draws from the image)",
+            "the networks' geometry without the true albedo (the normals and matte that a shipped model trained on "
+            "the pseudo-GT alone draws from the image, with the implicit model's own uv or the coarse fit's)",
         )
         if network:
             rep.add(
