@@ -549,6 +549,7 @@ def order_confusion(
     conf = {"evidence": np.zeros((3, 3), int), "bic": np.zeros((3, 3), int)}
     colour = {"evidence": {}, "bic": {}}
     band2 = {"fitted": [[], [], []], "true": []}  # the largest candidate's band-2 share by true order; the truth's
+    scenes = {k: [] for k in ("index", "true_order", "evidence", "bic", "yaw", "pixels")}  # each scene's outcome
     for order in range(3):
         for i in range(n_per_order):
             sh = light_of_order(ds[i]["sh"], order)
@@ -562,6 +563,10 @@ def order_confusion(
                 r = choose(scores, crit)
                 conf[crit][order, r["order"]] += 1
                 colour[crit][r["choice"]] = colour[crit].get(r["choice"], 0) + 1
+                scenes[crit].append(r["order"])
+            yaw = float(ds.params([i])["pose"][0, 0])
+            for key, value in (("index", i), ("true_order", order), ("yaw", round(yaw, 2)), ("pixels", len(data.y))):
+                scenes[key].append(value)
     return {
         crit: {
             "confusion": m.tolist(),
@@ -575,6 +580,7 @@ def order_confusion(
             "fitted_by_true_order": [float(np.median(v)) for v in band2["fitted"]],
             "true_order2": float(np.median(band2["true"])) if band2["true"] else None,
         },
+        "scenes": scenes,  # per scene: its index, true order, the order each criterion chose, yaw (deg), pixels fitted
         "settings": {
             "split": ds.split,
             "n_per_order": n_per_order,
