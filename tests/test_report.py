@@ -1691,3 +1691,27 @@ def test_reconstruction_claim_reads_sharper_on_the_face_and_in_the_albedo_detail
     assert cells[6].startswith("not resolved")  # SSIM 0.01 apart, spread 0.02
     assert cells[7] == "**confirmed** (0.00370 ± 0.00010 (n=3) / 0.00310 ± 0.00010 (n=3))"
     assert any("leading to sharper, more accurate reconstructions" in line for line in rep.lines)
+
+
+def test_failure_lines_read_the_order_choice_by_yaw_and_pixels_and_flag_the_bin_that_fails():
+    """A row whose choice fails on every face turned more than 30 deg and on no other: the table gives each bin's
+    accuracy and count; the far bin reads as beyond the spread of the other scenes, the pixels' thirds (unrelated to
+    the failure) do not; a row without scene records gives no lines."""
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    yaw = rng.uniform(-45, 45, 300)
+    truth = np.tile([0, 1, 2], 100)
+    chosen = np.where(np.abs(yaw) >= 30, (truth + 1) % 3, truth)
+    pixels = np.arange(300) + 1000  # unrelated to the failure
+    scenes = {"true_order": truth.tolist(), "evidence": chosen.tolist(), "yaw": yaw.tolist(), "pixels": pixels.tolist()}
+    order = {"test/texture/x": {"scenes": scenes}, "val/texture/x": {}}
+    lines = lighting.failure_lines(order, ["texture/x", "texture/x"])
+    far = np.abs(yaw) >= 30
+    row = [line for line in lines if line.startswith("| test |")]
+    assert len(row) == 1 and f"| 0.00 ({far.sum()}) |" in row[0], row
+    assert f"| {1 - far.mean():.2f} (300) |" in row[0]
+    note = lines[-1]
+    assert "|yaw| 30-45 deg (0.00 against 1.00)" in note and "|yaw| 0-15 deg" in note  # the near bin: all right
+    assert "fewest pixels" not in note and "most pixels" not in note, note
+    assert lighting.failure_lines({"test/texture/x": {}}, ["texture/x"]) == []

@@ -208,6 +208,72 @@ def network_reading(order: dict, chosen: str, pseudo: str | None) -> str:
     return text
 
 
+YAW_BINS = (0.0, 15.0, 30.0, 45.0)  # |yaw| in degrees: SynthFaces draws yaw uniformly within +-45
+
+
+def failure_lines(order: dict, rows: list[str]) -> list[str]:
+    """Where the order choice fails: for each of ``rows`` (names after ``split/``) read with each scene's outcome
+    (``scenes``, :func:`disent.lighting.experiments.order_confusion`), its evidence accuracy by |yaw| and by the
+    number of pixels fitted (thirds of the split's scenes), and a sentence per row on the bins whose accuracy
+    differs from that of the split's other scenes beyond the sampling spread; no lines where no row has them."""
+    cells, notes = [], []
+    for row in dict.fromkeys(rows):
+        for split in ("val", "test"):
+            scenes = order.get(f"{split}/{row}", {}).get("scenes")
+            if not scenes:
+                continue
+            right = np.array(scenes["evidence"]) == np.array(scenes["true_order"])
+            yaw, pixels = np.abs(scenes["yaw"]), np.array(scenes["pixels"])
+            thirds = np.quantile(pixels, [1 / 3, 2 / 3])
+            bins = {
+                **{f"|yaw| {lo:g}-{hi:g} deg": (yaw >= lo) & (yaw < hi) for lo, hi in zip(YAW_BINS, YAW_BINS[1:])},
+                "fewest pixels": pixels <= thirds[0],
+                "middle third": (pixels > thirds[0]) & (pixels <= thirds[1]),
+                "most pixels": pixels > thirds[1],
+            }
+            acc, n = float(right.mean()), len(right)
+            cells.append(
+                f"| {split} | `{row}` | {acc:.2f} ({n}) | "
+                + " | ".join(f"{right[b].mean():.2f} ({b.sum()})" if b.any() else "–" for b in bins.values())
+                + " |"
+            )
+            beyond = [  # a bin against the split's other scenes (independent of it)
+                f"{name} ({right[b].mean():.2f} against {right[~b].mean():.2f})"
+                for name, b in bins.items()
+                if b.any()
+                and (~b).any()
+                and abs(right[b].mean() - right[~b].mean())
+                > difference_spread((right[b].mean(), b.sum()), (right[~b].mean(), (~b).sum()))
+            ]
+            notes.append(
+                f"`{row}` on {split}: "
+                + (
+                    "no bin differs from the other scenes beyond the sampling spread"
+                    if not beyond
+                    else "beyond the sampling spread of the other scenes: " + ", ".join(beyond)
+                )
+            )
+    if not cells:
+        return []
+    head = table_head(
+        "split",
+        "row",
+        "all scenes",
+        *(f"|yaw| {lo:g}-{hi:g} deg" for lo, hi in zip(YAW_BINS, YAW_BINS[1:])),
+        "fewest pixels (a third)",
+        "middle third",
+        "most pixels (a third)",
+    )
+    return [
+        "Where the chosen rows fail: evidence accuracy (scenes) by the face's |yaw| and by the number of pixels the "
+        "fit sees (thirds of the split's scenes; the three true orders pooled).\n",
+        *head,
+        *cells,
+        "",
+        "; ".join(notes) + ".\n",
+    ]
+
+
 def combined_reading(order: dict) -> str:
     """One sentence on the two noise models together: per geometry with a ``+geometry_noise+residual_process`` row on
     both splits, its val / test accuracy beside each model alone on the same geometry and albedo, and on how many
@@ -358,6 +424,8 @@ def sec_lighting(rep: Report, out: Path) -> None:
             )
         if combined := combined_reading(order):
             rep.add(combined)
+        if failures := failure_lines(order, [row for row, _ in filter(None, (pseudo, network))]):
+            rep.add(*failures)
         rows = {
             "normal_pseudo_eroded": "on the pseudo geometry",
             "normal_pseudo_registered": "with its uv registered to the image",
