@@ -1041,3 +1041,12 @@ def test_order_confusion_keeps_each_scenes_outcome_and_they_add_up_to_its_matric
     assert scenes["index"] == [0, 1] * 3 and scenes["true_order"] == [0, 0, 1, 1, 2, 2]
     np.testing.assert_allclose(scenes["yaw"][:2], ds.params([0, 1])["pose"][:, 0].numpy(), atol=0.01)
     assert all(n > 100 for n in scenes["pixels"])
+
+
+def test_order_choice_speed_times_each_geometry_it_is_given():
+    """A smoke run of the order choice's timing (no timing asserted): one positive time per geometry."""
+    from disent.data import SynthFaces
+    from disent.lighting.experiments import order_choice_speed
+
+    times = order_choice_speed(SynthFaces("test", 64, size=1), 1, ("normal_pseudo_registered",))
+    assert list(times) == ["normal_pseudo_registered"] and times["normal_pseudo_registered"] > 0

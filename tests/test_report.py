@@ -551,6 +551,10 @@ def test_lighting_section_is_generated_from_the_published_json(tmp_path):
     )
     fit = {"rho": 300.0, "ell": 1.0, "n_scenes": 18, "split": "train"}
     (d / "residual_process.json").write_text(json.dumps({"normal_pseudo": fit}))
+    speed = {"n_pixels": 1918, "ls_ms_per_image": 0.6, "ls_batch": 256, "posterior_gaussian_s": 0.55}
+    speed |= {"posterior_gaussian_steps": 250, "posterior_student_t_s": 1.04, "posterior_student_t_steps": 300}
+    speed |= {"order_choice_s": {"normal_pseudo_registered": 1.23, "normal_pseudo_placed": 4.56}}
+    (d / "speed.json").write_text(json.dumps(speed | {"order_choice_items": 3}))
     for acc, verdict in ((0.62, "not reached"), (0.9, "reached")):
         order["test/texture/normal_pseudo+residual_process"]["evidence"]["accuracy"] = acc
         (d / "order.json").write_text(json.dumps(order))
@@ -576,6 +580,7 @@ def test_lighting_section_is_generated_from_the_published_json(tmp_path):
         assert gap in text and ("better normals alone do not bring the choice to the target" in text) == (acc == 0.9)
         assert "| val | texture | explicit network's normals + matte eroded 1 px, pseudo uv registered, resid" in text
         assert "| lambertian / gaussian | 0.67 / 0.94 (1.0) | – |" in text and "settings" not in text
+        assert "median of test items 0-2: 1.2 s on `normal_pseudo_registered`, 4.6 s on `normal_pseudo_placed`." in text
         # an oracle row (val 0.68, above every noise model) is a diagnosis, never the chosen method
         assert "| val | texture | pseudo normals + mask eroded 1 px, true uv (oracle) |" in text
         assert "0.53/0.62 on the pseudo geometry, 0.50/0.70 with its uv registered to the image, 0.68/0.80 with" in text

@@ -1000,7 +1000,35 @@ def speed(ds=None, batch: int = 256, rounds: int = 3) -> dict:
         out[f"posterior_{likelihood}_s"] = float(np.median([d["seconds"] for d in diag]))
         out[f"posterior_{likelihood}_cpu_s"] = float(np.median([d["cpu_seconds"] for d in diag]))
         out[f"posterior_{likelihood}_steps"] = float(np.median([d["n_steps"] for d in diag]))
-    return out
+    return out | {"order_choice_s": order_choice_speed(ds, rounds), "order_choice_items": rounds}
+
+
+# the geometries whose order choice speed() times: the pseudo rows a photo can use, and the networks' best
+SPEED_GEOMETRIES = (
+    "normal_pseudo_registered",
+    "normal_pseudo_placed",
+    "normal_pseudo_placed_registered",
+    "network_explicit_placed",
+)
+
+
+def order_choice_speed(ds, rounds: int = 3, geometries=SPEED_GEOMETRIES) -> dict:
+    """``{geometry: seconds}``: the median over test items ``0..rounds-1`` of ``ds`` of one order choice without
+    the true albedo (the geometry's maps, the texture model, the five candidates under the residual process), one
+    core, the network's weights loaded beforehand."""
+    for name in {GEOMETRY[g].network for g in geometries} - {""}:
+        _network(name)
+    times = {}
+    for g in geometries:
+        seconds = []
+        for i in range(rounds):
+            start = time.perf_counter()
+            item = scene_geometry(ds, i, ds[i], g, 0.02, i)
+            data, texture = order_data(item, 0.02, i, "texture", g)
+            select_order(data, texture=texture, residual=(3.0, 1.0))
+            seconds.append(time.perf_counter() - start)
+        times[g] = float(np.median(seconds))
+    return times
 
 
 # ----------------------------------------------------------------------------- all of it

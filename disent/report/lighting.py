@@ -504,5 +504,13 @@ def sec_lighting(rep: Report, out: Path) -> None:
             f"{speed['posterior_gaussian_s']:.2f} s with a Gaussian likelihood "
             f"({speed['posterior_gaussian_steps']:.0f} "
             f"steps), {speed['posterior_student_t_s']:.2f} s with Student-t ({speed['posterior_student_t_steps']:.0f} "
-            "steps). Also `python -m disent.bench lighting`.\n",
+            "steps)"
+            + (
+                "; the order choice without the true albedo (texture model, residual process), median of test items "
+                f"0-{speed['order_choice_items'] - 1}: "
+                + ", ".join(f"{s:.1f} s on `{g}`" for g, s in speed["order_choice_s"].items())
+                if speed.get("order_choice_s")
+                else ""
+            )
+            + ". Also `python -m disent.bench lighting`.\n",
         )
