@@ -208,7 +208,7 @@ def network_reading(order: dict, chosen: str, pseudo: str | None) -> str:
     return text
 
 
-YAW_BINS = (0.0, 15.0, 30.0, 45.0)  # |yaw| in degrees: SynthFaces draws yaw uniformly within +-45
+YAW_BINS = (0.0, 15.0, 30.0, 45.0)  # |yaw| in degrees: SynthFaces draws yaw triangular within +-45, mostly near frontal
 
 
 def failure_lines(order: dict, rows: list[str]) -> list[str]:
@@ -226,7 +226,7 @@ def failure_lines(order: dict, rows: list[str]) -> list[str]:
             yaw, pixels = np.abs(scenes["yaw"]), np.array(scenes["pixels"])
             thirds = np.quantile(pixels, [1 / 3, 2 / 3])
             bins = {
-                **{f"|yaw| {lo:g}-{hi:g} deg": (yaw >= lo) & (yaw < hi) for lo, hi in zip(YAW_BINS, YAW_BINS[1:])},
+                **{f"yaw {lo:g}-{hi:g} deg": (yaw >= lo) & (yaw < hi) for lo, hi in zip(YAW_BINS, YAW_BINS[1:])},
                 "fewest pixels": pixels <= thirds[0],
                 "middle third": (pixels > thirds[0]) & (pixels <= thirds[1]),
                 "most pixels": pixels > thirds[1],
@@ -259,14 +259,14 @@ def failure_lines(order: dict, rows: list[str]) -> list[str]:
         "split",
         "row",
         "all scenes",
-        *(f"|yaw| {lo:g}-{hi:g} deg" for lo, hi in zip(YAW_BINS, YAW_BINS[1:])),
+        *(f"yaw {lo:g}-{hi:g} deg" for lo, hi in zip(YAW_BINS, YAW_BINS[1:])),
         "fewest pixels (a third)",
         "middle third",
         "most pixels (a third)",
     )
     return [
-        "Where the chosen rows fail: evidence accuracy (scenes) by the face's |yaw| and by the number of pixels the "
-        "fit sees (thirds of the split's scenes; the three true orders pooled).\n",
+        "Where the chosen rows fail: evidence accuracy (scenes) by how far the face is turned (|yaw|, either way) "
+        "and by the number of pixels the fit sees (thirds of the split's scenes; the three true orders pooled).\n",
         *head,
         *cells,
         "",
