@@ -266,7 +266,9 @@ def failure_lines(order: dict, rows: list[str]) -> list[str]:
     )
     return [
         "Where the chosen rows fail: evidence accuracy (scenes) by how far the face is turned (|yaw|, either way) "
-        "and by the number of pixels the fit sees (thirds of the split's scenes; the three true orders pooled).\n",
+        "and by the number of pixels the fit sees (thirds of the split's scenes; the three true orders pooled). A "
+        "row's scenes are its faces each lit at the three orders, so a bin's scenes are not all independent: the "
+        "spread below, which takes them as independent, is a lower bound.\n",
         *head,
         *cells,
         "",
