@@ -237,7 +237,7 @@ def failure_lines(order: dict, rows: list[str]) -> list[str]:
                 + " | ".join(f"{right[b].mean():.2f} ({b.sum()})" if b.any() else "–" for b in bins.values())
                 + " |"
             )
-            beyond = [  # a bin against the split's other scenes (independent of it)
+            beyond = [  # a bin against the split's other scenes (disjoint from it)
                 f"{name} ({right[b].mean():.2f} against {right[~b].mean():.2f})"
                 for name, b in bins.items()
                 if b.any()
