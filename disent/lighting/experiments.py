@@ -550,6 +550,7 @@ def order_confusion(
     colour = {"evidence": {}, "bic": {}}
     band2 = {"fitted": [[], [], []], "true": []}  # the largest candidate's band-2 share by true order; the truth's
     scenes = {k: [] for k in ("index", "true_order", "evidence", "bic", "yaw", "pixels")}  # each scene's outcome
+    yaw = ds.params(list(range(n_per_order)))["pose"][:, 0].tolist()  # each face's, degrees
     for order in range(3):
         for i in range(n_per_order):
             sh = light_of_order(ds[i]["sh"], order)
@@ -564,9 +565,10 @@ def order_confusion(
                 conf[crit][order, r["order"]] += 1
                 colour[crit][r["choice"]] = colour[crit].get(r["choice"], 0) + 1
                 scenes[crit].append(r["order"])
-            yaw = float(ds.params([i])["pose"][0, 0])
-            for key, value in (("index", i), ("true_order", order), ("yaw", round(yaw, 2)), ("pixels", len(data.y))):
-                scenes[key].append(value)
+            scenes["index"].append(i)
+            scenes["true_order"].append(order)
+            scenes["yaw"].append(round(yaw[i], 2))
+            scenes["pixels"].append(len(data.y))
     return {
         crit: {
             "confusion": m.tolist(),
