@@ -1721,3 +1721,42 @@ def test_failure_lines_read_the_order_choice_by_yaw_and_pixels_and_flag_the_bin_
     assert all(line.count("|") == 10 for line in lines if line.startswith("|"))  # no stray pipe breaks the table
     assert "fewest pixels" not in note and "most pixels" not in note, note
     assert lighting.failure_lines({"test/texture/x": {}}, ["texture/x"]) == []
+
+
+def test_failure_lines_flag_the_attribute_whose_faces_fail():
+    """Faces index the scenes: with a row that fails on every scene of the bearded faces (every third face) and on
+    no other, the "with beard" bin reads 0.00 and is flagged against the other scenes; the label of an attribute
+    unrelated to the failure (every other face) is not; the labels are the faces', looked up by each scene's index."""
+    import numpy as np
+
+    faces = np.arange(100)
+    beard, smiling = faces % 3 == 0, faces % 2 == 0
+    index = np.tile(faces, 3)
+    truth = np.repeat([0, 1, 2], 100)
+    chosen = np.where(beard[index], (truth + 1) % 3, truth)
+    scenes = {
+        "index": index.tolist(),
+        "true_order": truth.tolist(),
+        "evidence": chosen.tolist(),
+        "yaw": np.zeros(300).tolist(),
+        "pixels": (np.arange(300) + 1000).tolist(),
+    }
+    labels = {"test": {"beard": beard, "smiling": smiling}}
+    lines = lighting.failure_lines({"test/texture/x": {"scenes": scenes}}, ["texture/x"], labels)
+    row = next(line for line in lines if line.startswith("| test |"))
+    assert row.endswith(f"| 0.00 ({3 * beard.sum()}) | {1 - beard[smiling].mean():.2f} ({3 * smiling.sum()}) |"), row
+    assert "with beard (0.00 against 1.00)" in lines[-1] and "with smiling" not in lines[-1], lines[-1]
+    assert all(line.count("|") == 12 for line in lines if line.startswith("|"))
+
+
+def test_face_attributes_are_the_labels_the_dataset_gives_its_items():
+    """The report's attribute labels of a row's faces are those SynthFaces gives the same items, per split."""
+    from disent.data import SynthFaces
+
+    scenes = {"index": [0, 1, 2, 3, 4, 0, 1]}
+    order = {"val/texture/x": {"scenes": scenes, "settings": {"seed": 0}}, "test/texture/y": {"scenes": scenes}}
+    labels = lighting.face_attributes(order, ["texture/x"])
+    assert set(labels) == {"val"}  # the row asked for only
+    attrs = SynthFaces("val", seed=0).get_batch(range(5))["attrs"]
+    for a in ("smiling", "beard", "eyeglasses", "senior"):
+        assert labels["val"][a].tolist() == attrs[a].bool().tolist(), a

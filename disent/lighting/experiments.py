@@ -585,6 +585,7 @@ def order_confusion(
         "scenes": scenes,  # per scene: its index, true order, the order each criterion chose, yaw (deg), pixels fitted
         "settings": {
             "split": ds.split,
+            "seed": ds.seed,
             "n_per_order": n_per_order,
             "noise": noise,
             "albedo": albedo,

@@ -211,11 +211,31 @@ def network_reading(order: dict, chosen: str, pseudo: str | None) -> str:
 YAW_BINS = (0.0, 15.0, 30.0, 45.0)  # |yaw| in degrees: SynthFaces draws yaw triangular within +-45, mostly near frontal
 
 
-def failure_lines(order: dict, rows: list[str]) -> list[str]:
+def face_attributes(order: dict, rows: list[str]) -> dict:
+    """``{split: {attribute: labels [faces]}}``: the binary attribute labels of the SynthFaces faces that ``rows``'
+    scene records (``scenes``) index, per split (the study's split and seed, 0 where a record predates its
+    ``seed``)."""
+    from disent.data import SynthFaces
+    from disent.data.synth.scenes import attribute_labels
+
+    out = {}
+    for key, entry in order.items():
+        split, row = key.split("/", 1)
+        if row not in rows or not entry.get("scenes") or split in out:
+            continue
+        faces = list(range(max(entry["scenes"]["index"]) + 1))
+        p = SynthFaces(split, seed=entry["settings"].get("seed", 0)).params(faces)
+        out[split] = {a: label.numpy() for a, label in attribute_labels(p).items()}
+    return out
+
+
+def failure_lines(order: dict, rows: list[str], attributes: dict | None = None) -> list[str]:
     """Where the order choice fails: for each of ``rows`` (names after ``split/``) read with each scene's outcome
-    (``scenes``, :func:`disent.lighting.experiments.order_confusion`), its evidence accuracy by |yaw| and by the
-    number of pixels fitted (thirds of the split's scenes), and a sentence per row on the bins whose accuracy
-    differs from that of the split's other scenes beyond the sampling spread; no lines where no row has them."""
+    (``scenes``, :func:`disent.lighting.experiments.order_confusion`), its evidence accuracy by |yaw|, by the
+    number of pixels fitted (thirds of the split's scenes) and on the faces with each attribute (``attributes``,
+    :func:`face_attributes`; none where None), and a sentence per row on the bins whose accuracy differs from that
+    of the split's other scenes beyond the sampling spread; no lines where no row has them."""
+    names = sorted({a for labels in (attributes or {}).values() for a in labels})
     cells, notes = [], []
     for row in dict.fromkeys(rows):
         for split in ("val", "test"):
@@ -225,11 +245,16 @@ def failure_lines(order: dict, rows: list[str]) -> list[str]:
             right = np.array(scenes["evidence"]) == np.array(scenes["true_order"])
             yaw, pixels = np.abs(scenes["yaw"]), np.array(scenes["pixels"])
             thirds = np.quantile(pixels, [1 / 3, 2 / 3])
+            labels = (attributes or {}).get(split, {})
             bins = {
                 **{f"yaw {lo:g}-{hi:g} deg": (yaw >= lo) & (yaw < hi) for lo, hi in zip(YAW_BINS, YAW_BINS[1:])},
                 "fewest pixels": pixels <= thirds[0],
                 "middle third": (pixels > thirds[0]) & (pixels <= thirds[1]),
                 "most pixels": pixels > thirds[1],
+                **{
+                    f"with {a}": np.asarray(labels[a], bool)[scenes["index"]] if a in labels else np.zeros_like(right)
+                    for a in names
+                },
             }
             acc, n = float(right.mean()), len(right)
             cells.append(
@@ -263,10 +288,13 @@ def failure_lines(order: dict, rows: list[str]) -> list[str]:
         "fewest pixels (a third)",
         "middle third",
         "most pixels (a third)",
+        *(f"with {a}" for a in names),
     )
     return [
-        "Where the chosen rows fail: evidence accuracy (scenes) by how far the face is turned (|yaw|, either way) "
-        "and by the number of pixels the fit sees (thirds of the split's scenes; the three true orders pooled). A "
+        "Where the chosen rows fail: evidence accuracy (scenes) by how far the face is turned (|yaw|, either way), "
+        "by the number of pixels the fit sees (thirds of the split's scenes)"
+        + (f" and on the faces labelled with each attribute ({', '.join(names)})" if names else "")
+        + " (the three true orders pooled). A "
         "row's scenes are its faces each lit at the three orders, so a bin's scenes are not all independent: the "
         "spread below, which takes them as independent, is a lower bound.\n",
         *head,
@@ -426,7 +454,8 @@ def sec_lighting(rep: Report, out: Path) -> None:
             )
         if combined := combined_reading(order):
             rep.add(combined)
-        if failures := failure_lines(order, [row for row, _ in filter(None, (pseudo, network))]):
+        chosen = [row for row, _ in filter(None, (pseudo, network))]
+        if failures := failure_lines(order, chosen, face_attributes(order, chosen)):
             rep.add(*failures)
         rows = {
             "normal_pseudo_eroded": "on the pseudo geometry",

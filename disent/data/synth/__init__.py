@@ -29,7 +29,16 @@ from torch.utils.data import Dataset
 
 from disent.runtime import single_thread
 
-from .scenes import ATTR_PRIOR, ATTRIBUTES, EFFECTS, LIGHT_BANK, LIGHT_NAMES, render_scenes, scene_params
+from .scenes import (
+    ATTR_PRIOR,
+    ATTRIBUTES,
+    EFFECTS,
+    LIGHT_BANK,
+    LIGHT_NAMES,
+    attribute_labels,
+    render_scenes,
+    scene_params,
+)
 
 SPLITS = {"train": 20_000, "val": 1_000, "test": 1_000, "lightbank": None, **{f"pool_{a}": 4_000 for a in ATTRIBUTES}}
 LIGHTBANK_IDENTITIES = 50
@@ -135,8 +144,8 @@ class SynthFaces(Dataset):
             out = render_scenes(p, self.resolution, effects=eff)
         out = {k: v.float().contiguous() for k, v in out.items()}
         out["attrs"] = {}
-        for a in ATTRIBUTES:
-            out["attrs"][a] = (p[a] >= 0.5).float()
+        for a, label in attribute_labels(p).items():
+            out["attrs"][a] = label.float()
             out["attrs"][f"{a}_strength"] = p[a].float()
         out["identity"] = p["identity"].long()
         out["light_id"] = p["light_id"].long()

@@ -567,8 +567,8 @@ def scene_params(item_key: torch.Tensor, identity: torch.Tensor, seed: int, labe
     p["frame"] = FRAME_COLOURS[(u[:, 13] * len(FRAME_COLOURS)).long().clamp(max=len(FRAME_COLOURS) - 1)]
     p["noise_id"] = (u[:, 14] * 16).long().clamp(max=15)
     # Attributes: beard, eyeglasses, senior belong to the identity, smiling to the image.
-    # Label = (strength >= 0.5): positives have strengths in [0.5, 1], negatives 0 (beard,
-    # eyeglasses) or a little below the threshold (senior: age; smiling: a faint smile).
+    # Label = (strength >= 0.5, attribute_labels): positives have strengths in [0.5, 1], negatives 0
+    # (beard, eyeglasses) or a little below the threshold (senior: age; smiling: a faint smile).
     u_id, u_img = uniform(pid, "attrs", 6, seed), uniform(item_key, "attrs", 2, seed)
     draws = {
         "beard": (u_id[:, 0], u_id[:, 3]),
@@ -610,6 +610,11 @@ def scene_params(item_key: torch.Tensor, identity: torch.Tensor, seed: int, labe
     p["effects_u"] = uniform(item_key, "effects", 12, seed)
     p["effect_noise_id"] = (uniform(item_key, "effects", 13, seed)[:, 12] * 16).long().clamp(max=15)
     return p
+
+
+def attribute_labels(p: dict) -> dict[str, torch.Tensor]:
+    """Each attribute's binary label of the scenes ``p`` (:func:`scene_params`): its strength at least 0.5."""
+    return {a: p[a] >= 0.5 for a in ATTRIBUTES}
 
 
 # ----------------------------------------------------------------------------- rendering
@@ -864,6 +869,7 @@ def apply_effects(out: dict, p: dict, effects: dict) -> torch.Tensor:
 
 __all__ = [
     "ATTRIBUTES",
+    "attribute_labels",
     "EFFECTS",
     "LIGHT_BANK",
     "LIGHT_NAMES",
