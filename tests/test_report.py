@@ -1717,7 +1717,7 @@ def test_failure_lines_read_the_order_choice_by_yaw_and_pixels_and_flag_the_bin_
     assert len(row) == 1 and f"| 0.00 ({far.sum()}) |" in row[0], row
     assert f"| {1 - far.mean():.2f} (300) |" in row[0]
     note = lines[-1]
-    assert "yaw 30-45 deg (0.00 against 1.00)" in note and "yaw 0-15 deg" in note  # the near bin: all right
+    assert "yaw 30-45 deg (0.00 against 1.00;" in note and "yaw 0-15 deg" in note  # the near bin: all right
     assert all(line.count("|") == 10 for line in lines if line.startswith("|"))  # no stray pipe breaks the table
     assert "fewest pixels" not in note and "most pixels" not in note, note
     assert lighting.failure_lines({"test/texture/x": {}}, ["texture/x"]) == []
@@ -1745,7 +1745,8 @@ def test_failure_lines_flag_the_attribute_whose_faces_fail():
     lines = lighting.failure_lines({"test/texture/x": {"scenes": scenes}}, ["texture/x"], labels)
     row = next(line for line in lines if line.startswith("| test |"))
     assert row.endswith(f"| 0.00 ({3 * beard.sum()}) | {1 - beard[smiling].mean():.2f} ({3 * smiling.sum()}) |"), row
-    assert "with beard (0.00 against 1.00)" in lines[-1] and "with smiling" not in lines[-1], lines[-1]
+    assert "with beard (0.00 against 1.00; by true order 0.00/0.00/0.00 against 1.00/1.00/1.00)" in lines[-1]
+    assert "with smiling" not in lines[-1], lines[-1]
     assert all(line.count("|") == 12 for line in lines if line.startswith("|"))
 
 

@@ -262,8 +262,16 @@ def failure_lines(order: dict, rows: list[str], attributes: dict | None = None) 
                 + " | ".join(f"{right[b].mean():.2f} ({b.sum()})" if b.any() else "–" for b in bins.values())
                 + " |"
             )
-            beyond = [  # a bin against the split's other scenes (disjoint from it)
-                f"{name} ({right[b].mean():.2f} against {right[~b].mean():.2f})"
+            truth = np.array(scenes["true_order"])
+
+            def by_order(m):  # accuracy of the scenes ``m`` by true order 0/1/2
+                return "/".join(
+                    f"{right[m & (truth == k)].mean():.2f}" if (m & (truth == k)).any() else "–" for k in range(3)
+                )
+
+            beyond = [  # a bin against the split's other scenes (disjoint from it), and both by true order
+                f"{name} ({right[b].mean():.2f} against {right[~b].mean():.2f}; by true order {by_order(b)} against "
+                f"{by_order(~b)})"
                 for name, b in bins.items()
                 if b.any()
                 and (~b).any()
@@ -296,7 +304,8 @@ def failure_lines(order: dict, rows: list[str], attributes: dict | None = None) 
         + (f" and on the faces labelled with each attribute ({', '.join(names)})" if names else "")
         + " (the three true orders pooled). A "
         "row's scenes are its faces each lit at the three orders, so a bin's scenes are not all independent: the "
-        "spread below, which takes them as independent, is a lower bound.\n",
+        "spread below, which takes them as independent, is a lower bound. A bin beyond it is read by true order "
+        "0/1/2 too, against the other scenes.\n",
         *head,
         *cells,
         "",
