@@ -224,7 +224,7 @@ def face_attributes(order: dict, rows: list[str]) -> dict:
         if row not in rows or not entry.get("scenes") or split in out:
             continue
         faces = list(range(max(entry["scenes"]["index"]) + 1))
-        p = SynthFaces(split, seed=entry["settings"].get("seed", 0)).params(faces)
+        p = SynthFaces(split, seed=entry.get("settings", {}).get("seed", 0)).params(faces)
         out[split] = {a: label.numpy() for a, label in attribute_labels(p).items()}
     return out
 
@@ -242,7 +242,8 @@ def failure_lines(order: dict, rows: list[str], attributes: dict | None = None) 
             scenes = order.get(f"{split}/{row}", {}).get("scenes")
             if not scenes:
                 continue
-            right = np.array(scenes["evidence"]) == np.array(scenes["true_order"])
+            truth = np.array(scenes["true_order"])
+            right = np.array(scenes["evidence"]) == truth
             yaw, pixels = np.abs(scenes["yaw"]), np.array(scenes["pixels"])
             thirds = np.quantile(pixels, [1 / 3, 2 / 3])
             labels = (attributes or {}).get(split, {})
@@ -262,7 +263,6 @@ def failure_lines(order: dict, rows: list[str], attributes: dict | None = None) 
                 + " | ".join(f"{right[b].mean():.2f} ({b.sum()})" if b.any() else "–" for b in bins.values())
                 + " |"
             )
-            truth = np.array(scenes["true_order"])
 
             def by_order(m):  # accuracy of the scenes ``m`` by true order 0/1/2
                 return "/".join(
