@@ -955,14 +955,16 @@ def test_cli_order_task_passes_the_rows_to_compute_and_the_study_to_keep(tmp_pat
     monkeypatch.setattr(cli, "order_report", lambda *a, **k: seen.append((a, k)))
     cli.run(cfg)
     ((args, kwargs),) = seen
-    defaults = {"splits": None, "n_per_order": 20}
+    defaults = {"splits": None, "n_per_order": 20, "geometry": cfg.order_geometry}
     assert args[1:] == ("test", 64, 0) and kwargs == {"only": cfg.order_rows, "keep": str(tmp_path)} | defaults
     cfg.order_rows, cfg.order_keep = None, None  # the whole study
     cli.run(cfg)
     assert seen[1][1] == {"only": None, "keep": None} | defaults
     cfg.order_splits, cfg.order_n = ["test"], 40
     cli.run(cfg)
-    assert seen[2][1] == {"only": None, "keep": None, "splits": ["test"], "n_per_order": 40}
+    assert seen[2][1] == {"only": None, "keep": None, "splits": ["test"], "n_per_order": 40} | {
+        "geometry": cfg.order_geometry
+    }
 
 
 def test_placement_objective_prefers_the_scenes_own_placement():
@@ -1041,6 +1043,51 @@ def test_order_confusion_keeps_each_scenes_outcome_and_they_add_up_to_its_matric
     assert scenes["index"] == [0, 1] * 3 and scenes["true_order"] == [0, 0, 1, 1, 2, 2]
     np.testing.assert_allclose(scenes["yaw"][:2], ds.params([0, 1])["pose"][:, 0].numpy(), atol=0.01)
     assert all(n > 100 for n in scenes["pixels"])
+
+
+def test_fitted_image_of_the_right_order_leaves_only_the_noise():
+    """With true normals and the known albedo, the order-2 candidate's fitted image (albedo times its light through
+    the normals) leaves a residual at the added noise's level; order 0 (ambient only) leaves far more."""
+    from disent.data import SynthFaces
+    from disent.lighting.experiments import order_data
+    from disent.lighting.order import fitted, score
+
+    item = SynthFaces("val", 64, 0)[0]
+    data, _ = order_data(item, 0.01, 0, "known", "normal")
+    rms = {o: np.sqrt(((data.y - fitted(data, score(data, o))) ** 2).mean()) for o in (0, 2)}
+    assert 0.007 < rms[2] < 0.013, rms
+    assert rms[0] > 3 * rms[2], rms
+
+
+def test_order_failures_refit_the_scenes_the_study_got_wrong(tmp_path):
+    """The failure figure refits the first scene of each kind of error of a row, as the study fitted it: the choice
+    it reads again is the record's, each kind of error appears once, and where the chosen order is larger than the
+    truth its log evidence is above the true order's best (else the smaller model would have been chosen)."""
+    from disent.data import SynthFaces
+    from disent.lighting.experiments import order_confusion, plot_order_failures
+
+    ds = SynthFaces("val", 64, 0)
+    row = order_confusion(ds, 3, albedo="texture", normals="normal_pseudo")
+    records = row["scenes"]
+    wrong = {(t, e) for t, e in zip(records["true_order"], records["evidence"]) if t != e}
+    assert wrong, "the i.i.d. noise model on pseudo geometry errs on some of these scenes"
+    study = {"order": {"val/texture/normal_pseudo": row}, "residual_process": {}}
+    out = plot_order_failures(ds, study, "texture/normal_pseudo", tmp_path / "f.png", n_scenes=9)
+    assert (tmp_path / "f.png").stat().st_size > 1000
+    assert {(s["true_order"], s["chosen"]) for s in out["scenes"]} == wrong and len(out["scenes"]) == len(wrong)
+    for s in out["scenes"]:
+        k = next(
+            k
+            for k, (i, t) in enumerate(zip(records["index"], records["true_order"]))
+            if (i, t) == (s["index"], s["true_order"])
+        )
+        assert records["evidence"][k] == s["chosen"]
+        if s["chosen"] > s["true_order"]:
+            assert s["evidence_gain"] > 0, s
+    assert (
+        plot_order_failures(ds, {"order": {}, "residual_process": {}}, "texture/normal_pseudo", tmp_path / "g.png")
+        == {}
+    )
 
 
 def test_order_choice_speed_times_each_geometry_it_is_given():

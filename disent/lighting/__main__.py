@@ -105,7 +105,7 @@ def run(cfg: DictConfig) -> None:
         raise ValueError(f"task must be 'posterior', 'report' or 'order', got {cfg.task!r}")
     out = tool_folder("lighting", hydra.utils.to_absolute_path(cfg.out))
     if cfg.task == "report":
-        run_all(out, cfg.split, cfg.data.resolution, cfg.data.seed)
+        run_all(out, cfg.split, cfg.data.resolution, cfg.data.seed, geometry=cfg.order_geometry)
     if cfg.task == "order":
         keep = hydra.utils.to_absolute_path(cfg.order_keep) if cfg.order_keep else None
         only = list(cfg.order_rows) if cfg.order_rows else None
@@ -119,6 +119,7 @@ def run(cfg: DictConfig) -> None:
             keep=keep,
             splits=splits,
             n_per_order=cfg.order_n,
+            geometry=cfg.order_geometry,
         )
     if cfg.task in ("report", "order"):
         log.info("wrote %s; publish it with: python -m disent.report --publish %s", out, out)

@@ -19,7 +19,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from disent.lighting.order import choose, select_order
+from disent.lighting.order import choose, fitted, select_order
 from disent.lighting.posterior import N_COEFFS, prepare, sample_posterior
 from disent.render import C4, fit_sh, sh_basis
 
@@ -892,6 +892,73 @@ def plot_order_study(study: dict, path: Path, criterion: str = "evidence") -> No
     plt.close(fig)
 
 
+def plot_order_failures(ds, study: dict, row: str, path: Path, n_scenes: int = 4) -> dict:
+    """Why the order choice fails: up to ``n_scenes`` scenes of ``ds`` (val) that the order-study row ``row``
+    (``albedo/normals[+noise model]``, read with its scene records) got wrong by the evidence, the first of each
+    kind of error (true order, chosen order), fitted again as the study fitted them. Per scene: the noisy image, the
+    pixels fitted, the residual of the true order's best candidate and of the chosen one, and their difference (what
+    the chosen model's extra or missing SH terms fit).  Returns ``{"row", "scenes": [{index, true_order, chosen,
+    evidence_gain}]}`` (the chosen candidate's log evidence over the true order's best); ``{}`` where the row has
+    no such scene."""
+    import matplotlib.pyplot as plt
+
+    entry, records = study["order"].get(f"val/{row}", {}), study["order"].get(f"val/{row}", {}).get("scenes")
+    albedo, geometry = row.split("/", 1)
+    normals, _, model = geometry.partition("+")
+    if not records:
+        return {}
+    pairs = list(zip(records["true_order"], records["evidence"]))
+    first = {p: k for k, p in reversed(list(enumerate(pairs))) if p[0] != p[1]}  # each kind of error's first scene
+    wrong = sorted(first.values())[:n_scenes]
+    if not wrong:
+        return {}
+    kwargs = noise_model(normals, model or "iid", study["residual_process"])
+    fig, axes = plt.subplots(len(wrong), 5, figsize=(11, 2.4 * len(wrong)), squeeze=False)
+    out = []
+    for ax, k in zip(axes, wrong):
+        order, i = records["true_order"][k], records["index"][k]
+        seed = 1000 * order + i  # the scene as order_confusion drew it
+        item = scene_geometry(
+            ds, i, ds.sample(i, sh=light_of_order(ds[i]["sh"], order)), normals, entry["settings"]["noise"], seed
+        )
+        data, texture = order_data(
+            item, entry["settings"]["noise"], seed, albedo, normals, entry["settings"]["n_components"] or 20
+        )
+        result = select_order(data, texture=texture, **kwargs)
+        scores, chosen = result["scores"], result["choice"]
+        truth = max((n for n in scores if scores[n]["order"] == order), key=lambda n: scores[n]["log_evidence"])
+        picture = np.full((2, *data.shape), np.nan)
+        for j, name in enumerate((truth, chosen)):
+            picture[j].flat[data.index] = (data.y - fitted(data, scores[name], texture)).mean(1)
+        gain = scores[chosen]["log_evidence"] - scores[truth]["log_evidence"]
+        out.append({"index": i, "true_order": order, "chosen": scores[chosen]["order"], "evidence_gain": gain})
+        mask = np.zeros(data.shape)
+        mask.flat[data.index] = 1
+        ax[0].imshow(item["image"].permute(1, 2, 0).clamp(0, 1).numpy())
+        ax[0].set_title(f"val face {i}, true order {order}", fontsize=8)
+        ax[1].imshow(mask, cmap="gray")
+        ax[1].set_title(f"pixels fitted ({len(data.y)})", fontsize=8)
+        limit = np.nanpercentile(np.abs(picture), 99)
+        titles = (
+            f"residual, order {order} ({truth})",
+            f"residual, chosen order ({chosen})",
+            "difference: what it fits",
+        )
+        for a, image, title in zip(ax[2:], (picture[0], picture[1], picture[0] - picture[1]), titles):
+            a.imshow(image, cmap="RdBu", vmin=-limit, vmax=limit)
+            a.set_title(title + (f"\nlog evidence +{gain:.0f}" if a is ax[4] else ""), fontsize=8)
+        for a in ax:
+            a.axis("off")
+    fig.suptitle(
+        f"{row}\nval scenes the evidence got wrong (channel-mean residual; red: the image brighter than the fit)",
+        fontsize=9,
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return {"row": row, "scenes": out}
+
+
 def plot_registration(ds, path: Path, n_scenes: int = 4, noise: float = 0.02, n_components: int = 20) -> dict:
     """The texture model's fitted albedo on the eroded pseudo mask, reached through the pseudo uv, the registered
     uv (:func:`disent.lighting.texture.register`) and the true uv, beside the image and the true albedo, for val
@@ -1045,11 +1112,13 @@ def order_report(
     keep: Path | None = None,
     splits=None,
     n_per_order: int = 20,
+    geometry: str | None = None,
 ) -> dict:
     """The report's order study on val and ``split`` (or on ``splits``) with ``n_per_order`` scenes per true order,
-    its confusion figures (``python -m disent.lighting task=order``; also part of :func:`run_all`), and the
-    registration figure (:func:`plot_registration`); ``only``, ``keep``: compute only some rows and copy the rest
-    (:func:`order_study`)."""
+    its confusion figures (``python -m disent.lighting task=order``; also part of :func:`run_all`), the
+    registration figure (:func:`plot_registration`) and, for the row of the texture model on ``geometry`` with its
+    noise model best on val, the scenes it gets wrong (:func:`plot_order_failures`); ``only``, ``keep``: compute
+    only some rows and copy the rest (:func:`order_study`)."""
     from disent.data import SynthFaces
 
     n = 2 if quick else 1
@@ -1065,21 +1134,34 @@ def order_report(
     )
     for prefix, name in ((f"{split}/", "order_confusion"), ("val/", "order_confusion_val")):
         plot_order_study({k: v for k, v in study.items() if k.startswith(prefix)}, out / f"{name}.png")
-    save_json("registration", plot_registration(SynthFaces("val", resolution, seed), out / "registration.png"), out)
+    val = SynthFaces("val", resolution, seed)
+    save_json("registration", plot_registration(val, out / "registration.png"), out)
+    if geometry:
+        model = chosen_noise_model("texture", geometry, out)[0]
+        row = row_key(("texture", geometry) + ((model,) if model != "iid" else ()))
+        if failures := plot_order_failures(val, read_study(out), row, out / "order_failures.png"):
+            save_json("order_failures", failures, out)
     return study
 
 
-def run_all(out: Path, split: str = "test", resolution: int = 64, seed: int = 0, quick: bool = False) -> dict:
+def run_all(
+    out: Path,
+    split: str = "test",
+    resolution: int = 64,
+    seed: int = 0,
+    quick: bool = False,
+    geometry: str | None = None,
+) -> dict:
     """Every experiment of the report's lighting section; writes ``out/*`` (JSON and PNG), which
     ``python -m disent.report --publish OUT`` copies to ``reports/lighting/``."""
     from disent.data import SynthFaces
     from disent.runtime import single_core
 
     with single_core():
-        return _run_all(SynthFaces(split, resolution, seed), Path(out), resolution, seed, quick)
+        return _run_all(SynthFaces(split, resolution, seed), Path(out), resolution, seed, quick, geometry)
 
 
-def _run_all(ds, out: Path, resolution: int, seed: int, quick: bool) -> dict:
+def _run_all(ds, out: Path, resolution: int, seed: int, quick: bool, geometry: str | None = None) -> dict:
     split = ds.split
     out.mkdir(parents=True, exist_ok=True)
     summary, t0 = {}, time.perf_counter()
@@ -1106,7 +1188,7 @@ def _run_all(ds, out: Path, resolution: int, seed: int, quick: bool) -> dict:
     save_json("calibration_pseudo", summary["calibration_pseudo"], out)
     plot_calibration(summary["calibration_pseudo"], out / "calibration_pseudo.png")
 
-    summary["order"] = order_report(out, split, resolution, seed, quick)
+    summary["order"] = order_report(out, split, resolution, seed, quick, geometry=geometry)
 
     summary["speed"] = speed(ds)
     save_json("speed", summary["speed"], out)

@@ -339,6 +339,17 @@ def score(
     }
 
 
+def fitted(data: LightingData, s: dict, texture: tuple | None = None) -> np.ndarray:
+    """``[P, C]``: the image a scored candidate ``s`` (:func:`score`) predicts at ``data``'s pixels: its albedo (the
+    texture model's at its fitted coefficients, else ``data``'s known albedo, else 1) times its light through the
+    normals (Eq. 2)."""
+    light = np.asarray(s["light"])
+    shading = data.basis[:, : light.shape[1]] @ light.T
+    if texture is not None:
+        return texture_albedo(texture[0], s["texture"]) * shading
+    return (data.albedo if data.albedo is not None else 1.0) * shading
+
+
 def select_order(
     data: LightingData,
     criterion: str = "evidence",
@@ -394,6 +405,7 @@ __all__ = [
     "candidates",
     "n_params",
     "score",
+    "fitted",
     "select_order",
     "choose",
     "geometry_variance",
