@@ -946,7 +946,7 @@ def plot_order_failures(ds, study: dict, row: str, path: Path, n_scenes: int = 4
         )
         for a, image, title in zip(ax[2:], (picture[0], picture[1], picture[0] - picture[1]), titles):
             a.imshow(image, cmap="RdBu", vmin=-limit, vmax=limit)
-            a.set_title(title + (f"\nlog evidence +{gain:.0f}" if a is ax[4] else ""), fontsize=8)
+            a.set_title(title + (f"\nlog evidence {gain:+.0f} over order {order}" if a is ax[4] else ""), fontsize=8)
         for a in ax:
             a.axis("off")
     fig.suptitle(
