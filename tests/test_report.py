@@ -1750,6 +1750,21 @@ def test_failure_lines_flag_the_attribute_whose_faces_fail():
     assert all(line.count("|") == 12 for line in lines if line.startswith("|"))
 
 
+def test_failure_figure_caption_names_each_scene_and_its_signed_evidence():
+    """The failure figure's caption gives the row and, per scene, its face, true and chosen order and the chosen
+    candidate's log evidence over the true order's best with its sign (an under-fit may be chosen at a loss)."""
+    wrong = {
+        "row": "texture/x+residual_process",
+        "scenes": [
+            {"index": 4, "true_order": 0, "chosen": 1, "evidence_gain": 115.9},
+            {"index": 1, "true_order": 2, "chosen": 1, "evidence_gain": -2.2},
+        ],
+    }
+    text = lighting.failure_figure_text(wrong)
+    assert "`texture/x+residual_process`" in text
+    assert "face 4: true order 0, chosen 1, +116; face 1: true order 2, chosen 1, -2)" in text, text
+
+
 def test_face_attributes_are_the_labels_the_dataset_gives_its_items():
     """The report's attribute labels of a row's faces are those SynthFaces gives the same items, per split."""
     from disent.data import SynthFaces

@@ -527,6 +527,16 @@ def uv_of(item: dict, data, normals: str, n_components: int = 20) -> torch.Tenso
     return register(data, uv, texture_model(uv.shape[-1], n_components), prior=prior)
 
 
+def order_scene(ds, index: int, order: int, noise: float, albedo: str, normals: str, n_components: int = 20):
+    """``(sh, item, data, texture)`` of the order study's scene: item ``index`` of ``ds`` under its own light cut to
+    ``order``, noisy (seed ``1000 order + index``), on the geometry ``normals`` (:func:`scene_geometry`) with the
+    albedo model ``albedo`` (:func:`order_data`)."""
+    sh = light_of_order(ds[index]["sh"], order)
+    seed = 1000 * order + index
+    item = scene_geometry(ds, index, ds.sample(index, sh=sh), normals, noise, seed)
+    return (sh, item, *order_data(item, noise, seed, albedo, normals, n_components))
+
+
 def order_confusion(
     ds,
     n_per_order: int = 30,
@@ -553,9 +563,7 @@ def order_confusion(
     yaw = ds.params(list(range(n_per_order)))["pose"][:, 0].tolist()  # each face's, degrees
     for order in range(3):
         for i in range(n_per_order):
-            sh = light_of_order(ds[i]["sh"], order)
-            item = scene_geometry(ds, i, ds.sample(i, sh=sh), normals, noise, 1000 * order + i)
-            data, texture = order_data(item, noise, 1000 * order + i, albedo, normals, n_components)
+            sh, item, data, texture = order_scene(ds, i, order, noise, albedo, normals, n_components)
             scores = select_order(data, texture=texture, **(noise_model or {}))["scores"]
             band2["fitted"][order].append(band2_share(list(scores.values())[-1]["light"]))
             if order == 2:
@@ -902,7 +910,8 @@ def plot_order_failures(ds, study: dict, row: str, path: Path, n_scenes: int = 4
     no such scene."""
     import matplotlib.pyplot as plt
 
-    entry, records = study["order"].get(f"val/{row}", {}), study["order"].get(f"val/{row}", {}).get("scenes")
+    entry = study["order"].get(f"val/{row}", {})
+    records = entry.get("scenes")
     albedo, geometry = row.split("/", 1)
     normals, _, model = geometry.partition("+")
     if not records:
@@ -917,12 +926,9 @@ def plot_order_failures(ds, study: dict, row: str, path: Path, n_scenes: int = 4
     out = []
     for ax, k in zip(axes, wrong):
         order, i = records["true_order"][k], records["index"][k]
-        seed = 1000 * order + i  # the scene as order_confusion drew it
-        item = scene_geometry(
-            ds, i, ds.sample(i, sh=light_of_order(ds[i]["sh"], order)), normals, entry["settings"]["noise"], seed
-        )
-        data, texture = order_data(
-            item, entry["settings"]["noise"], seed, albedo, normals, entry["settings"]["n_components"] or 20
+        settings = entry["settings"]  # the scene as order_confusion drew it (n_components 0: no texture model)
+        _, item, data, texture = order_scene(
+            ds, i, order, settings["noise"], albedo, normals, settings["n_components"] or 20
         )
         result = select_order(data, texture=texture, **kwargs)
         scores, chosen = result["scores"], result["choice"]
