@@ -75,9 +75,12 @@ def cpu_name() -> str:
 
 
 def machine_info(device="cpu", threads=None) -> dict:
-    """What a number was measured on: system, processor, CPU count, torch build, device (with the GPU's name)."""
+    """What a number was measured on: system, processor, CPU count, torch, numpy and scipy builds, device (with the
+    GPU's name)."""
     import platform
 
+    import numpy
+    import scipy
     import torch
 
     info = {
@@ -85,6 +88,8 @@ def machine_info(device="cpu", threads=None) -> dict:
         "processor": cpu_name(),
         "cpus": os.cpu_count(),
         "torch": torch.__version__,
+        "numpy": numpy.__version__,
+        "scipy": scipy.__version__,
         "device": str(device),
         "threads": threads,
     }

@@ -1043,6 +1043,9 @@ def test_order_confusion_keeps_each_scenes_outcome_and_they_add_up_to_its_matric
     assert scenes["index"] == [0, 1] * 3 and scenes["true_order"] == [0, 0, 1, 1, 2, 2]
     np.testing.assert_allclose(scenes["yaw"][:2], ds.params([0, 1])["pose"][:, 0].numpy(), atol=0.01)
     assert all(n > 100 for n in scenes["pixels"])
+    import scipy
+
+    assert out["settings"]["seed"] == 0 and out["settings"]["machine"]["scipy"] == scipy.__version__
 
 
 def test_fitted_image_of_the_right_order_leaves_only_the_noise():

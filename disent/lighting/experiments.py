@@ -22,6 +22,7 @@ import torch
 from disent.lighting.order import choose, fitted, select_order
 from disent.lighting.posterior import N_COEFFS, prepare, sample_posterior
 from disent.render import C4, fit_sh, sh_basis
+from disent.runs import machine_info
 
 BANDS = {0: [0], 1: [1, 2, 3], 2: [4, 5, 6, 7, 8]}
 # pixels taken off the pseudo mask's edge: the coarse fit's silhouette is where its geometry is least right (grazing
@@ -594,6 +595,7 @@ def order_confusion(
         "settings": {
             "split": ds.split,
             "seed": ds.seed,
+            "machine": machine_info(),  # the placed geometry's Powell path depends on the libraries' floating point
             "n_per_order": n_per_order,
             "noise": noise,
             "albedo": albedo,
