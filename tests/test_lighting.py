@@ -404,11 +404,13 @@ def test_noise_parts_name_each_part_of_a_noise_model():
     from disent.lighting.experiments import NOISE_MODELS, fit_key, noise_parts
 
     assert {m: noise_parts(m) for m in ("iid", *NOISE_MODELS)} == {
-        "iid": (False, False),
-        "geometry_noise": (True, False),
-        "residual_process": (False, True),
-        "geometry_noise+residual_process": (True, True),
+        "iid": (False, False, False),
+        "geometry_noise": (True, False, False),
+        "residual_process": (False, True, False),
+        "geometry_noise+residual_process": (True, True, False),
+        "residual_process+student_t": (False, True, True),
     }
+    assert fit_key("normal_pseudo", "residual_process+student_t") == "normal_pseudo"  # the Gaussian fit's rho, ell
     assert fit_key("normal_pseudo", "residual_process") == "normal_pseudo"
     assert fit_key("normal_pseudo", "geometry_noise+residual_process") == "normal_pseudo+geometry_noise"
     with pytest.raises(ValueError, match=r"unknown noise model 'residual_process\+geometry_noise'"):
@@ -1046,6 +1048,41 @@ def test_order_confusion_keeps_each_scenes_outcome_and_they_add_up_to_its_matric
     import scipy
 
     assert out["settings"]["seed"] == 0 and out["settings"]["machine"]["scipy"] == scipy.__version__
+
+
+def test_student_t_evidence_tends_to_the_gaussian_as_nu_grows():
+    """The Student-t noise model at nu = 1e8 is the Gaussian one: the same log evidence for every candidate, with the
+    texture model and the residual process (the reweighted fit, its texture step and the Laplace terms agree)."""
+    from disent.data import SynthFaces
+    from disent.lighting.experiments import order_data
+    from disent.lighting.order import Whitener, score
+
+    data, texture = order_data(SynthFaces("val", 64, 0)[0], 0.02, 0, "texture", "normal")
+    noise = {"texture": texture, "residual": (3.0, 1.0), "whitener": Whitener(data, 3.0, 1.0)}
+    for order, gray in ((0, False), (1, True), (2, False)):
+        gauss = score(data, order, gray, **noise)["log_evidence"]
+        t = score(data, order, gray, **noise, nu=1e8)["log_evidence"]
+        assert abs(t - gauss) < 0.05, (order, gauss, t)
+
+
+def test_student_t_light_resists_outlying_pixels():
+    """With 3 % of the pixels made brighter by 0.3 (specks the model cannot explain), the order-2 light fitted under
+    Student-t noise (nu = 10) stays near the true light, while the Gaussian fit is pulled far off by them."""
+    from dataclasses import replace
+
+    from disent.data import SynthFaces
+    from disent.lighting.experiments import order_data
+    from disent.lighting.order import score
+
+    item = SynthFaces("val", 64, 0)[0]
+    data, _ = order_data(item, 0.01, 0, "known", "normal")
+    rng = np.random.default_rng(0)
+    y = data.y.copy()
+    y[rng.random(len(y)) < 0.03] += 0.3
+    data = replace(data, y=y)
+    truth = item["sh"].double().numpy()
+    error = {nu: np.abs(np.asarray(score(data, 2, nu=nu)["light"]) - truth).max() for nu in (None, 10.0)}
+    assert error[10.0] < 0.3 * error[None], error
 
 
 def test_fitted_image_of_the_right_order_leaves_only_the_noise():

@@ -211,15 +211,19 @@ def _fit(
     iterations: int | None,
     normal_sigma: float = 0.0,
     whiten: Whitener | None = None,
+    nu: float | None = None,
 ):
     """MAP of one candidate by (reweighted) Gauss-Newton, sigma at its conditional mode:
-    ``(theta, r, J, v, prior)``: the residual ``r [C*P]`` and its Jacobian ``J [C*P, d]`` (channel-major) in units
-    of the noise (:func:`unit`: i.i.d. N(0, 1)), and ``v [P, C]`` each value's marginal noise variance."""
+    ``(theta, r, J, v, w, prior)``: the residual ``r [C*P]`` and its Jacobian ``J [C*P, d]`` (channel-major) in
+    units of the noise (:func:`unit`: i.i.d. N(0, 1); with ``nu``, i.i.d. Student-t of ``nu`` degrees of freedom and
+    unit scale), ``v [P, C]`` each value's marginal noise variance (scale squared) and ``w [C*P]`` each value's
+    weight in the reweighted steps (1 for Gaussian noise)."""
     A, y = data.design(order), data.y
     C, P, K = A.shape
     theta = _initial(A, y, gray)
     geometry = normal_sigma > 0
-    iterations = iterations or (8 if gray or geometry else 2)  # linear i.i.d. models need one step per sigma update
+    # linear i.i.d. models need one step per sigma update; reweighted ones (gray, geometry, Student-t) more
+    iterations = iterations or (8 if gray or geometry or nu else 2)
     d = theta.size
     prior_mean = np.zeros(d)
     prior_prec = np.full(d, 1.0 / prior_scale**2)
@@ -232,13 +236,35 @@ def _fit(
         extra = geometry_variance(data, _light(theta, C, K, gray), normal_sigma) if geometry else None
         v = noise_variance(r, extra, whiten)
         J = J.reshape(C, P, d).transpose(1, 0, 2)  # [P, C, d]
-        return unit(r, v, whiten).T.reshape(-1), unit(J, v, whiten).transpose(1, 0, 2).reshape(C * P, d), v
+        r, J = unit(r, v, whiten).T.reshape(-1), unit(J, v, whiten).transpose(1, 0, 2).reshape(C * P, d)
+        if nu is None:
+            return r, J, v, np.ones_like(r)
+        scale = student_t_scale(r, nu)  # the t's scale, in units of the Gaussian noise
+        r, J = r / scale, J / scale
+        return r, J, v * scale**2, (nu + 1) / (nu + r**2)  # IRLS weights of the t likelihood
 
-    for _ in range(iterations):  # Gauss-Newton on the log posterior, the noise at its conditional mode
-        r, J, _ = linearised(theta)
-        H = J.T @ J + np.diag(prior_prec)
-        theta = theta + np.linalg.solve(H, J.T @ r - prior_prec * (theta - prior_mean))
+    for _ in range(iterations):  # (reweighted) Gauss-Newton on the log posterior, the noise at its conditional mode
+        r, J, _, w = linearised(theta)
+        Jw = J if nu is None else w[:, None] * J
+        H = J.T @ Jw + np.diag(prior_prec)
+        theta = theta + np.linalg.solve(H, Jw.T @ r - prior_prec * (theta - prior_mean))
     return theta, *linearised(theta), (prior_mean, prior_prec)
+
+
+def student_t_scale(u: np.ndarray, nu: float, iterations: int = 30) -> float:
+    """The maximum-likelihood scale ``s`` of i.i.d. Student-t values ``u`` (``nu`` degrees of freedom, location 0),
+    by the EM fixed point ``s^2 = mean(w u^2)``, ``w = (nu + 1) / (nu + u^2 / s^2)``."""
+    s2 = max(float((u**2).mean()), 1e-300)
+    for _ in range(iterations):
+        s2 = max(float(((nu + 1) / (nu + u**2 / s2) * u**2).mean()), 1e-300)
+    return math.sqrt(s2)
+
+
+def student_t_logpdf(u: np.ndarray, nu: float) -> np.ndarray:
+    """``log t_nu(u)`` of the standard Student-t (location 0, scale 1)."""
+    from scipy.special import gammaln
+
+    return gammaln((nu + 1) / 2) - gammaln(nu / 2) - 0.5 * math.log(nu * math.pi) - (nu + 1) / 2 * np.log1p(u**2 / nu)
 
 
 def texture_albedo(tex: np.ndarray, beta) -> np.ndarray:
@@ -248,14 +274,25 @@ def texture_albedo(tex: np.ndarray, beta) -> np.ndarray:
 
 
 def texture_coefficients(
-    tex: np.ndarray, variance: np.ndarray, shading: np.ndarray, y: np.ndarray, v: np.ndarray, whiten=None
+    tex: np.ndarray,
+    variance: np.ndarray,
+    shading: np.ndarray,
+    y: np.ndarray,
+    v: np.ndarray,
+    whiten=None,
+    weights: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(beta, H)``: the texture model's coefficients ``beta ~ N(0, variance)`` at their posterior mode for the image
     ``y [P, C] = (T_0 + sum_j beta_j T_j) * shading + noise`` (``tex [1+J, P, C]``, ``shading [P, C]``; noise of
-    variance ``v [P, C]``, whitened by the residual process ``whiten``): ridge regression in units of the noise; and
-    their posterior precision ``H``."""
+    variance ``v [P, C]``, whitened by the residual process ``whiten``): ridge regression in units of the noise,
+    each whitened value weighted by ``weights [P, C]`` where given (a Student-t's); and their posterior precision
+    ``H``."""
     X = unit((tex[1:] * shading[None]).transpose(1, 2, 0), v, whiten).reshape(-1, len(variance))
     target = unit(y - tex[0] * shading, v, whiten).reshape(-1)
+    if weights is not None:
+        w = weights.reshape(-1)
+        H = X.T @ (w[:, None] * X) + np.diag(1.0 / variance)
+        return np.linalg.solve(H, X.T @ (w * target)), H
     H = X.T @ X + np.diag(1.0 / variance)
     return np.linalg.solve(H, X.T @ target), H
 
@@ -271,11 +308,15 @@ def score(
     normal_sigma: float = 0.0,
     residual: tuple | None = None,
     whitener: Whitener | None = None,
+    nu: float | None = None,
 ) -> dict:
     """Maximised log-likelihood, BIC and Laplace log evidence of one candidate (``normal_sigma``: the
     geometry-error noise model of the module docstring; ``residual = (rho, ell)``: the residual process,
     whose ``Whitener(data, rho, ell)`` may be passed as ``whitener`` when already computed; both: the
-    two together).
+    two together; ``nu``: the noise, in units of its scale and whitened, i.i.d. Student-t of ``nu`` degrees of
+    freedom instead of Gaussian, so that a few badly fitted pixels (a misregistered eye, a wrong nose) do not buy
+    extra SH terms; fitted by iteratively reweighted Gauss-Newton, the Laplace Hessian from its Fisher information
+    ``(nu + 1) / (nu + 3)`` per value).
 
     ``texture = (pixels [1+J, P, C], variance [J])`` (:meth:`TextureModel.at_pixels` and
     its PCA variances): the albedo is ``T_0 + sum_j beta_j T_j`` with ``beta_j ~ N(0,
@@ -297,33 +338,44 @@ def score(
         beta = np.zeros(len(variance))
         for _ in range(texture_iterations):
             albedo = texture_albedo(tex, beta)
-            theta, _, _, v, _ = _fit(
-                replace(data, albedo=albedo), order, gray, prior_scale, iterations, normal_sigma, whiten
+            theta, _, _, v, w, _ = _fit(
+                replace(data, albedo=albedo), order, gray, prior_scale, iterations, normal_sigma, whiten, nu
             )
             shading = data.basis[:, :K] @ _light(theta, C, K, gray).T  # [P, C]: the light through S(n, L_c)
-            beta, H_beta = texture_coefficients(tex, variance, shading, data.y, v, whiten)
+            weights = None if nu is None else w.reshape(C, -1).T  # channel-major -> [P, C]
+            beta, H_beta = texture_coefficients(tex, variance, shading, data.y, v, whiten, weights)
+        if nu is not None:  # the Laplace volume from the Fisher information, as for the light below
+            fisher = np.full(data.y.shape, (nu + 1) / (nu + 3))
+            H_beta = texture_coefficients(tex, variance, shading, data.y, v, whiten, fisher)[1]
         data = replace(data, albedo=texture_albedo(tex, beta))
         extra = (
             -0.5 * (beta**2 / variance).sum() - 0.5 * np.log(variance).sum() - 0.5 * np.linalg.slogdet(H_beta)[1]
         )  # log N(beta; 0, var) + J/2 log 2 pi - 1/2 log det H
-    theta, r, J, v, (prior_mean, prior_prec) = _fit(data, order, gray, prior_scale, iterations, normal_sigma, whiten)
+    theta, r, J, v, _, (prior_mean, prior_prec) = _fit(
+        data, order, gray, prior_scale, iterations, normal_sigma, whiten, nu
+    )
     d = theta.size + (0 if beta is None else beta.size)
     # log N(y; pred, V^1/2 R V^1/2): r is in units of the noise; log det = sum log V + C log det R (i.i.d.: R = I)
-    loglik = -0.5 * (r.size * math.log(2 * math.pi) + (r**2).sum() + np.log(v).sum())
+    if nu is None:
+        loglik = -0.5 * (r.size * math.log(2 * math.pi) + (r**2).sum() + np.log(v).sum())
+        fisher, sigma_info = 1.0, 2 * N  # the information of theta per unit J^T J, and of log sigma
+    else:  # the whitened values in units of the scale are standard Student-t
+        loglik = float(student_t_logpdf(r, nu).sum()) - 0.5 * np.log(v).sum()
+        fisher, sigma_info = (nu + 1) / (nu + 3), N * 2 * nu / (nu + 3)
     loglik -= 0.5 * C * (0.0 if whiten is None else whiten.log_det)
-    H = J.T @ J + np.diag(prior_prec)
+    H = (J.T @ J if nu is None else fisher * (J.T @ J)) + np.diag(prior_prec)
     log_prior = (
         -0.5 * (prior_prec * (theta - prior_mean) ** 2).sum()
         + 0.5 * np.log(prior_prec / (2 * math.pi)).sum()
         - math.log(LOG_SIGMA_RANGE[1] - LOG_SIGMA_RANGE[0])
     )
-    # Laplace: log Z = log p(y, theta*, t*) + (d+1)/2 log 2 pi - 1/2 log det H; H_tt = 2N for t = log sigma
+    # Laplace: log Z = log p(y, theta*, t*) + (d+1)/2 log 2 pi - 1/2 log det H; H_tt = sigma_info for t = log sigma
     log_evidence = (
         loglik
         + log_prior
         + 0.5 * (theta.size + 1) * math.log(2 * math.pi)
         - 0.5 * np.linalg.slogdet(H)[1]
-        - 0.5 * math.log(2 * N)
+        - 0.5 * math.log(sigma_info)
         + extra
     )
     return {
@@ -358,15 +410,17 @@ def select_order(
     texture: tuple | None = None,
     normal_sigma: float = 0.0,
     residual: tuple | None = None,
+    nu: float | None = None,
 ) -> dict:
-    """Score every candidate; choose the smallest within ``threshold`` of the best.
+    """Score every candidate; choose the smallest within ``threshold`` of the best (``nu``: Student-t noise, see
+    :func:`score`).
 
     ``criterion``: ``"evidence"`` (Laplace log evidence) or ``"bic"`` (compared as -BIC/2,
     the same log units).  ``texture``: see :func:`score` (the albedo texture model, fitted per
     candidate); without it the albedo is constant (L-hat) or ``data``'s known albedo.
     Returns ``{"choice", "order", "gray", "scores"}``.
     """
-    noise = {"normal_sigma": normal_sigma, "residual": residual}
+    noise = {"normal_sigma": normal_sigma, "residual": residual, "nu": nu}
     if residual is not None:  # one Cholesky factor for every candidate
         noise["whitener"] = Whitener(data, *residual)
     scores = {
