@@ -39,6 +39,11 @@ Both together: the covariance of channel ``c`` is ``V_c^1/2 R V_c^1/2`` with the
 pixel may miss, the residual process how the misses of neighbours go together.  Either alone is the special
 case ``normal_sigma = 0`` or ``rho = 0``.
 
+The misfit pseudo geometry leaves is also heavy-tailed: a misregistered eye or a wrong nose misses by far more than
+the rest.  ``nu`` makes the whitened noise, in units of its scale, i.i.d. Student-t of ``nu`` degrees of freedom
+(iteratively reweighted fit, Laplace evidence from the Fisher information), so that those pixels do not buy extra SH
+terms.  Default None: Gaussian.
+
 The choice is the smallest model whose score is within ``threshold`` (log units, default
 log 20, "strong" evidence on Kass & Raftery's scale) of the best one.
 
