@@ -1029,6 +1029,40 @@ def test_a_photos_coarse_fit_is_drawn_again_and_its_placement_refined(monkeypatc
     assert result["order_choice"]["geometry"] == "normal_pseudo_placed" and len(seen["index"]) > 100
 
 
+def test_order_accuracy_figure_draws_every_row_with_its_wilson_interval(tmp_path, monkeypatch):
+    """The forest plot of the order study: each split's rows at their accuracy, the interval Wilson's over the
+    row's scenes (one at accuracy 1 has its upper end at 1, not above), a row read on val alone kept."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from disent.lighting.experiments import plot_order_accuracy, wilson_interval
+
+    def row(confusion):
+        return {"evidence": {"confusion": confusion, "accuracy": np.trace(confusion) / np.sum(confusion)}}
+
+    study = {
+        "val/known/normal": row(np.diag([20, 20, 20]).tolist()),
+        "val/texture/normal_pseudo": row([[10, 5, 5], [0, 10, 10], [0, 0, 20]]),
+        "test/known/normal": row([[15, 5, 0], [0, 15, 5], [0, 0, 20]]),
+    }
+    drawn, real = [], plt.Axes.errorbar
+    monkeypatch.setattr(
+        plt.Axes,
+        "errorbar",
+        lambda ax, x, y, xerr, **k: drawn.append((k["label"], x, y, xerr)) or real(ax, x, y, xerr, **k),
+    )
+    plot_order_accuracy(study, tmp_path / "a.png")
+    assert (tmp_path / "a.png").stat().st_size > 1000
+    (_, x_val, y_val, err_val), (_, x_test, y_test, err_test) = drawn
+    assert [label for label, *_ in drawn] == ["val", "test"] and len(x_val) == 2 and len(x_test) == 1
+    assert x_val[0] == 1.0 and err_val[1][0] == 0.0 and err_val[0][0] == pytest.approx(1 - wilson_interval(1.0, 60)[0])
+    lo, hi = wilson_interval(50 / 60, 60)
+    assert x_test[0] == pytest.approx(50 / 60) and err_test[:, 0] == pytest.approx([50 / 60 - lo, hi - 50 / 60])
+    assert y_test[0] == pytest.approx(y_val[0] + 0.34)  # the same row, test drawn just below val
+
+
 def test_order_confusion_keeps_each_scenes_outcome_and_they_add_up_to_its_matrices():
     """Each scene's record (true order, the order each criterion chose, yaw, pixels) adds up to the confusion
     matrices, so where the choice fails can be read scene by scene."""

@@ -7,21 +7,13 @@ from pathlib import Path
 
 import numpy as np
 
+from disent.lighting.experiments import ORDER_TARGET, wilson_interval
 from disent.report.document import Report, load_json
 from disent.report.tables import table_head
-
-ORDER_TARGET = 0.85  # share of scenes whose lighting order is chosen right on pseudo geometry
 
 
 def _pct(x) -> str:
     return "–" if x is None else f"{x:.2f}"
-
-
-def wilson_interval(share: float, n: int, z: float = 1.96) -> tuple[float, float]:
-    """The Wilson score interval of a proportion ``share`` observed over ``n`` trials (95 % at ``z = 1.96``)."""
-    centre = (share + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * math.sqrt(share * (1 - share) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return centre - half, centre + half
 
 
 def scenes(entry: dict) -> int:
@@ -517,9 +509,13 @@ def sec_lighting(rep: Report, out: Path) -> None:
                     ".\n"
                 )
             )
-        for name in ("order_confusion", "order_confusion_val"):
-            if (d / f"{name}.png").exists():
-                rep.image(d / f"{name}.png", name)
+        if (d / "order_accuracy.png").exists():
+            rep.add(
+                "Every row's evidence accuracy on val (open) and test (filled), with its 95 % interval over the row's "
+                "scenes (Wilson), against the target and against choosing one order for every scene (1/3); the "
+                "confusion matrices are in the table above (`disent.lighting.experiments.plot_order_accuracy`).\n"
+            )
+            rep.image(d / "order_accuracy.png", "order_accuracy")
         if (registration := load_json(d / "registration.json")) and (d / "registration.png").exists():
             rep.add(
                 "The texture model fitted through the pseudo, registered and true uv on val scenes under order-1 "
