@@ -1356,6 +1356,28 @@ def test_wilson_interval_matches_the_closed_form():
     assert wilson_interval(1.0, 20)[1] == pytest.approx(1.0, abs=1e-12)
 
 
+def test_paired_order_outcomes_count_the_discordant_scenes_and_mcnemar_is_exact():
+    """Two rows compared on the scenes both read (face and true order): the scenes each alone gets right, and the
+    exact McNemar p-value (0 against 5 discordant scenes: 2 / 2^5; an even split: 1); a row without its scenes'
+    outcomes is not compared."""
+    from disent.report.lighting import mcnemar_p, paired_outcomes, paired_reading
+
+    def row(index, true, chosen):
+        return {"scenes": {"index": index, "true_order": true, "evidence": chosen}}
+
+    order = {  # scene (3, 2) is read by a alone; of the four shared, a alone is right on 2, b alone on 1, both on 1
+        "val/a": row([0, 1, 2, 0, 3], [0, 0, 1, 2, 2], [0, 0, 1, 1, 2]),
+        "val/b": row([0, 1, 2, 0], [0, 0, 1, 2], [1, 2, 1, 2]),
+        "val/c": {"evidence": {"accuracy": 0.5}},
+    }
+    assert paired_outcomes(order, "val/a", "val/b") == (4, 2, 1)
+    assert paired_outcomes(order, "val/b", "val/a") == (4, 1, 2)
+    assert paired_outcomes(order, "val/a", "val/c") is None and paired_reading(order, "val", "a", "c", "c") == ""
+    assert mcnemar_p(0, 5) == pytest.approx(2 / 2**5) and mcnemar_p(5, 0) == pytest.approx(2 / 2**5)
+    assert mcnemar_p(4, 4) == pytest.approx(1.0) and mcnemar_p(0, 0) == 1.0
+    assert "2 right only under it and 1 only under b" in paired_reading(order, "val", "a", "b", "b")
+
+
 def test_background_diagnostic_sets_edits_through_the_background_against_the_face_codes():
     """``edit measure --background`` results: per attribute and method, the best success of the sets holding the
     background code beside the best of the face codes alone; none measured, no lines."""

@@ -130,6 +130,45 @@ def target_reading(acc: float, n: int) -> str:
     return f"{verdict}, the target {'below' if acc >= ORDER_TARGET else 'above'} its interval"
 
 
+def paired_outcomes(order: dict, a: str, b: str) -> tuple[int, int, int] | None:
+    """``(n, only_a, only_b)``: over the scenes that rows ``a`` and ``b`` (full keys, ``split/row``) both read (the
+    same face at the same true order: the same image, noise included), how many, and on how many each one alone
+    chose the order right; None where either lacks its scenes' outcomes."""
+    outcomes = []
+    for key in (a, b):
+        rec = order.get(key, {}).get("scenes")
+        if not rec:
+            return None
+        outcomes.append({(i, t): c == t for i, t, c in zip(rec["index"], rec["true_order"], rec["evidence"])})
+    shared = outcomes[0].keys() & outcomes[1].keys()
+    only_a = sum(outcomes[0][s] and not outcomes[1][s] for s in shared)
+    only_b = sum(outcomes[1][s] and not outcomes[0][s] for s in shared)
+    return len(shared), only_a, only_b
+
+
+def mcnemar_p(only_a: int, only_b: int) -> float:
+    """The exact two-sided McNemar p-value of paired outcomes: the discordant scenes, ``only_a`` against ``only_b``,
+    as a binomial draw of even odds."""
+    from scipy.stats import binomtest
+
+    return 1.0 if only_a + only_b == 0 else float(binomtest(only_a, only_a + only_b, 0.5).pvalue)
+
+
+def paired_reading(order: dict, split: str, a: str, b: str, name_b: str) -> str:
+    """One clause: rows ``a`` and ``b`` (names after ``split/``) on the same scenes of ``split``, how many each one
+    alone gets right and whether the difference is beyond chance (exact McNemar, 5 %); "" where either lacks its
+    scenes' outcomes or they share none."""
+    paired = paired_outcomes(order, f"{split}/{a}", f"{split}/{b}")
+    if not paired or not paired[0]:
+        return ""
+    n, only_a, only_b = paired
+    p = mcnemar_p(only_a, only_b)
+    return (
+        f"on the same {n} {split} scenes, {only_a} right only under it and {only_b} only under {name_b} (exact "
+        f"McNemar p = {p:.2g}: {'beyond' if p < 0.05 else 'within'} chance)"
+    )
+
+
 def order_verdict(order: dict, prefix: str, what: str) -> tuple[str, str] | None:
     """``(row, sentence)``: among the study's rows whose name starts with ``prefix`` (on both splits), the one best
     on val, and its test accuracy against :data:`ORDER_TARGET` with a 95 % interval; None where there is no such
@@ -140,13 +179,22 @@ def order_verdict(order: dict, prefix: str, what: str) -> tuple[str, str] | None
     test = order[f"test/{chosen}"]  # ... read on test
     acc, n = test["evidence"]["accuracy"], scenes(test)
     lo, hi = wilson_interval(acc, n)
-    return chosen, (
+    text = (
         f"Verdict, {what}, the row best on val (`{chosen}`, val {order[f'val/{chosen}']['evidence']['accuracy']:.2f}), "
         f"on test: {acc:.2f} (95 % interval {lo:.2f}-{hi:.2f} over its {n} scenes) against the target "
         f"{ORDER_TARGET:.2f}: {target_reading(acc, n)}. Over {n} scenes a split, "
         f"accuracies less than about {difference_spread((acc, n), (acc, n)):.2f} apart are within each other's "
         "sampling spread."
     )
+    runner_up = best_on_val({k: v for k, v in order.items() if not k.endswith(f"/{chosen}")}, prefix)
+    paired = [paired_reading(order, split, chosen, runner_up, "the runner-up") for split in ("val", "test")]
+    if runner_up and all(paired):
+        text += (
+            f" Paired against the runner-up on val (`{runner_up}`, val "
+            f"{order[f'val/{runner_up}']['evidence']['accuracy']:.2f}, test "
+            f"{order[f'test/{runner_up}']['evidence']['accuracy']:.2f}): " + "; ".join(paired) + "."
+        )
+    return chosen, text
 
 
 def placement_reading(order: dict) -> str:
@@ -191,6 +239,8 @@ def network_reading(order: dict, chosen: str, pseudo: str | None) -> str:
             else "beyond the sampling spread, in the " + ("networks'" if gap > 0 else "pseudo geometry's") + " favour."
         )
     )
+    if paired := paired_reading(order, "test", chosen, pseudo, "the pseudo geometry's row"):
+        text += f" Paired, {paired}."
     if ours.get("band2_share") and theirs.get("band2_share"):
         text += (
             f" Its order-2 fit of a true order-1 scene holds {ours['band2_share']['fitted_by_true_order'][1]:.2f} in "
