@@ -1136,9 +1136,10 @@ def test_fitted_image_of_the_right_order_leaves_only_the_noise():
 def test_order_failures_refit_the_scenes_the_study_got_wrong(tmp_path):
     """The failure figure refits the first scene of each kind of error of a row, as the study fitted it: the choice
     it reads again is the record's, each kind of error appears once, and where the chosen order is larger than the
-    truth its log evidence is above the true order's best (else the smaller model would have been chosen)."""
+    truth its log evidence is above the true order's best (else the smaller model would have been chosen); the
+    misfit's parts of the face (order_failure_regions) cover every wrong scene's fitted pixels once."""
     from disent.data import SynthFaces
-    from disent.lighting.experiments import order_confusion, plot_order_failures
+    from disent.lighting.experiments import order_confusion, order_failure_regions, plot_order_failures
 
     ds = SynthFaces("val", 64, 0)
     row = order_confusion(ds, 3, albedo="texture", normals="normal_pseudo")
@@ -1162,6 +1163,35 @@ def test_order_failures_refit_the_scenes_the_study_got_wrong(tmp_path):
         plot_order_failures(ds, {"order": {}, "residual_process": {}}, "texture/normal_pseudo", tmp_path / "g.png")
         == {}
     )
+    # where the misfit lies, over every wrong scene: the parts split the fitted pixels (no pixel twice, none left out)
+    regions = order_failure_regions(ds, study, "texture/normal_pseudo", "val")
+    for kind, part in regions["kinds"].items():
+        ks = [k for k, (t, e) in enumerate(zip(records["true_order"], records["evidence"])) if f"{t}->{e}" == kind]
+        assert part["scenes"] == len(ks) and part["pixels_fitted"] == sum(records["pixels"][k] for k in ks)
+        assert sum(part["pixel_share"].values()) == pytest.approx(1.0)
+        assert sum(part["reduction_share"].values()) == pytest.approx(1.0)
+        assert set(part["pixel_share"]) == {"silhouette", "eyes and brows", "nose", "mouth", "rest"}
+    assert {f"{t}->{e}" for t, e in wrong} == set(regions["kinds"])
+
+
+def test_face_regions_lie_where_the_face_model_puts_its_parts():
+    """The parts of the face read from a near-frontal face's true uv: eyes and brows above the nose above the mouth
+    (image rows grow downwards), the eyes on both sides of the nose, no pixel in two parts, none off the face."""
+    from disent.data import SynthFaces
+    from disent.data.synth.face_model import face_regions
+
+    item = SynthFaces("val", 64, 0)[0]  # yaw 1.8 deg
+    regions = {
+        k: v.numpy() & (item["matte"][0].numpy() > 0.5) for k, v in face_regions(item["uv"].permute(1, 2, 0)).items()
+    }
+    rows = {k: np.nonzero(v)[0].mean() for k, v in regions.items()}
+    assert rows["eyes and brows"] < rows["nose"] < rows["mouth"], rows
+    cols = np.nonzero(regions["eyes and brows"])[1]
+    nose = np.nonzero(regions["nose"])[1].mean()
+    assert (cols < nose).sum() > 10 and (cols > nose).sum() > 10
+    assert sum(v.astype(int) for v in regions.values()).max() == 1
+    off_face = face_regions(torch.tensor([[0.0, 0.5], [1.0, 0.5]]))  # the ends of the uv map: the sides of the head
+    assert not any(v.any() for v in off_face.values())
 
 
 def test_order_choice_speed_times_each_geometry_it_is_given():

@@ -1378,6 +1378,28 @@ def test_paired_order_outcomes_count_the_discordant_scenes_and_mcnemar_is_exact(
     assert "2 right only under it and 1 only under b" in paired_reading(order, "val", "a", "b", "b")
 
 
+def test_failure_region_lines_flag_the_parts_taking_twice_their_share():
+    """The table of where the order choice's misfit lies: one row per split and kind of error, each part's share of
+    the reduction beside its share of the pixels, and the parts at twice their share named (none where none is)."""
+    from disent.report.lighting import failure_region_lines
+
+    def kind(reduction, pixels):
+        parts = ("silhouette", "eyes and brows", "rest")
+        return {"scenes": 3, "reduction_share": dict(zip(parts, reduction)), "pixel_share": dict(zip(parts, pixels))}
+
+    regions = {
+        "val": {"row": "texture/x", "split": "val", "kinds": {"1->2": kind((0.2, 0.5, 0.3), (0.2, 0.1, 0.7))}},
+        "test": {"row": "texture/x", "split": "test", "kinds": {"0->1": kind((0.3, 0.1, 0.6), (0.3, 0.1, 0.6))}},
+    }
+    text = "\n".join(failure_region_lines(regions))
+    assert "| val | 1 -> 2 | 3 | 0.20 (0.20) | 0.50 (0.10) | 0.30 (0.70) |" in text
+    assert "| test | 0 -> 1 | 3 |" in text
+    assert "twice their share of the pixels: val 1 -> 2: eyes and brows." in text
+    assert failure_region_lines({}) == [] and failure_region_lines({"val": {}}) == []
+    regions["val"]["kinds"]["1->2"] = kind((0.2, 0.1, 0.7), (0.2, 0.1, 0.7))
+    assert "twice their share of the pixels: none." in "\n".join(failure_region_lines(regions))
+
+
 def test_background_diagnostic_sets_edits_through_the_background_against_the_face_codes():
     """``edit measure --background`` results: per attribute and method, the best success of the sets holding the
     background code beside the best of the face codes alone; none measured, no lines."""

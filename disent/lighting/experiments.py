@@ -906,6 +906,69 @@ def plot_order_accuracy(study: dict, path: Path, criterion: str = "evidence") ->
     plt.close(fig)
 
 
+def refit_study_scene(ds, study: dict, row: str, split: str, k: int) -> tuple:
+    """``(item, data, scores, truth, chosen, residuals)``: scene ``k`` of the order-study row ``row`` on ``split``
+    (``ds``; its scene records), fitted again as the study fitted it: every candidate's scores, the true order's best
+    candidate and the chosen one, and those two's residuals ``[P, C]`` at the pixels fitted."""
+    entry = study["order"][f"{split}/{row}"]
+    records, settings = entry["scenes"], entry["settings"]  # the scene as order_confusion drew it
+    albedo, geometry = row.split("/", 1)
+    normals, _, model = geometry.partition("+")
+    order = records["true_order"][k]
+    _, item, data, texture = order_scene(
+        ds, records["index"][k], order, settings["noise"], albedo, normals, settings["n_components"] or 20
+    )  # n_components 0: no texture model
+    result = select_order(data, texture=texture, **noise_model(normals, model or "iid", study["residual_process"]))
+    scores, chosen = result["scores"], result["choice"]
+    truth = max((n for n in scores if scores[n]["order"] == order), key=lambda n: scores[n]["log_evidence"])
+    residuals = {name: data.y - fitted(data, scores[name], texture) for name in (truth, chosen)}
+    return item, data, scores, truth, chosen, residuals
+
+
+def order_failure_regions(ds, study: dict, row: str, split: str = "val", edge: int = 2) -> dict:
+    """Where the misfit lies that makes the order choice fail: over every scene of ``split`` that the order-study
+    row ``row`` gets wrong, fitted again (:func:`refit_study_scene`), how much the larger of the true order's best
+    candidate and the chosen one lowers the squared residual (summed over channels) in each part of the face
+    (:func:`~disent.data.synth.face_model.face_regions` at the scene's true uv; the pixels within ``edge`` px of
+    the fitted region's border first, as the silhouette), as a share of what it lowers in all, beside the share of
+    the fitted pixels each part holds. Returns ``{"row", "split", "kinds": {"TRUE->CHOSEN": {"scenes",
+    "pixels_fitted", "reduction_share", "pixel_share"}}}``; a share of reduction above the share of pixels: the
+    extra SH terms (chosen or turned down) fit that part more than the face as a whole."""
+    from scipy.ndimage import binary_erosion
+
+    from disent.data.synth.face_model import face_regions
+
+    records = study["order"].get(f"{split}/{row}", {}).get("scenes")
+    if not records:
+        return {}
+    kinds: dict = {}
+    for k, (true, chosen_order) in enumerate(zip(records["true_order"], records["evidence"])):
+        if true == chosen_order:
+            continue
+        item, data, scores, truth, chosen, residuals = refit_study_scene(ds, study, row, split, k)
+        small, large = sorted((truth, chosen), key=lambda n: scores[n]["order"])
+        reduction = (residuals[small] ** 2 - residuals[large] ** 2).sum(1)  # [P]
+        fitted_pixels = np.zeros(data.shape, bool)
+        fitted_pixels.flat[data.index] = True
+        inner = binary_erosion(fitted_pixels, iterations=edge)
+        parts = {"silhouette": ~inner} | {
+            name: region.numpy() & inner for name, region in face_regions(item["uv"].permute(1, 2, 0)).items()
+        }
+        parts["rest"] = ~np.any(list(parts.values()), axis=0)  # the parts of the face, then the rest of the fit
+        kind = kinds.setdefault(f"{true}->{chosen_order}", {"scenes": 0, "reduction": {}, "pixels": {}})
+        kind["scenes"] += 1
+        for name, part in parts.items():
+            at = part.flat[data.index]
+            kind["reduction"][name] = kind["reduction"].get(name, 0.0) + float(reduction[at].sum())
+            kind["pixels"][name] = kind["pixels"].get(name, 0) + int(at.sum())
+    for kind in kinds.values():
+        total, n = sum(kind["reduction"].values()), sum(kind["pixels"].values())
+        kind["pixels_fitted"] = n
+        kind["reduction_share"] = {name: r / total for name, r in kind.pop("reduction").items()}
+        kind["pixel_share"] = {name: p / n for name, p in kind.pop("pixels").items()}
+    return {"row": row, "split": split, "kinds": dict(sorted(kinds.items()))}
+
+
 def plot_order_failures(ds, study: dict, row: str, path: Path, n_scenes: int = 4) -> dict:
     """Why the order choice fails: up to ``n_scenes`` scenes of ``ds`` (val) that the order-study row ``row``
     (``albedo/normals[+noise model]``, read with its scene records) got wrong by the evidence, the first of each
@@ -916,10 +979,7 @@ def plot_order_failures(ds, study: dict, row: str, path: Path, n_scenes: int = 4
     no such scene."""
     import matplotlib.pyplot as plt
 
-    entry = study["order"].get(f"val/{row}", {})
-    records = entry.get("scenes")
-    albedo, geometry = row.split("/", 1)
-    normals, _, model = geometry.partition("+")
+    records = study["order"].get(f"val/{row}", {}).get("scenes")
     if not records:
         return {}
     pairs = list(zip(records["true_order"], records["evidence"]))
@@ -927,21 +987,14 @@ def plot_order_failures(ds, study: dict, row: str, path: Path, n_scenes: int = 4
     wrong = sorted(first.values())[:n_scenes]
     if not wrong:
         return {}
-    kwargs = noise_model(normals, model or "iid", study["residual_process"])
     fig, axes = plt.subplots(len(wrong), 5, figsize=(11, 2.4 * len(wrong)), squeeze=False)
     out = []
     for ax, k in zip(axes, wrong):
         order, i = records["true_order"][k], records["index"][k]
-        settings = entry["settings"]  # the scene as order_confusion drew it (n_components 0: no texture model)
-        _, item, data, texture = order_scene(
-            ds, i, order, settings["noise"], albedo, normals, settings["n_components"] or 20
-        )
-        result = select_order(data, texture=texture, **kwargs)
-        scores, chosen = result["scores"], result["choice"]
-        truth = max((n for n in scores if scores[n]["order"] == order), key=lambda n: scores[n]["log_evidence"])
+        item, data, scores, truth, chosen, residuals = refit_study_scene(ds, study, row, "val", k)
         picture = np.full((2, *data.shape), np.nan)
         for j, name in enumerate((truth, chosen)):
-            picture[j].flat[data.index] = (data.y - fitted(data, scores[name], texture)).mean(1)
+            picture[j].flat[data.index] = residuals[name].mean(1)
         gain = scores[chosen]["log_evidence"] - scores[truth]["log_evidence"]
         out.append({"index": i, "true_order": order, "chosen": scores[chosen]["order"], "evidence_gain": gain})
         mask = np.zeros(data.shape)
@@ -1129,8 +1182,9 @@ def order_report(
     """The report's order study on val and ``split`` (or on ``splits``) with ``n_per_order`` scenes per true order,
     its accuracy figure (:func:`plot_order_accuracy`; ``python -m disent.lighting task=order``; also part of
     :func:`run_all`), the registration figure (:func:`plot_registration`) and, for the row of the texture model on
-    ``geometry`` with its noise model best on val, the scenes it gets wrong (:func:`plot_order_failures`); ``only``,
-    ``keep``: compute only some rows and copy the rest (:func:`order_study`)."""
+    ``geometry`` with its noise model best on val, the scenes it gets wrong (:func:`plot_order_failures`) and where
+    their misfit lies (:func:`order_failure_regions`, on val and ``split``); ``only``, ``keep``: compute only some
+    rows and copy the rest (:func:`order_study`)."""
     from disent.data import SynthFaces
 
     n = 2 if quick else 1
@@ -1152,6 +1206,12 @@ def order_report(
         row = row_key(("texture", geometry) + ((model,) if model != "iid" else ()))
         if failures := plot_order_failures(val, read_study(out), row, out / "order_failures.png"):
             save_json("order_failures", failures, out)
+        regions = {
+            s: order_failure_regions(SynthFaces(s, resolution, seed), read_study(out), row, s)
+            for s in dict.fromkeys(("val", split))
+        }
+        if any(regions.values()):
+            save_json("order_failure_regions", regions, out)
     return study
 
 

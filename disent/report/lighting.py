@@ -372,6 +372,43 @@ def failure_figure_text(wrong: dict) -> str:
     )
 
 
+def failure_region_lines(regions: dict) -> list[str]:
+    """Where the misfit lies that makes the order choice fail (``order_failure_regions.json``,
+    :func:`disent.lighting.experiments.order_failure_regions`, one entry per split): per split and kind of error, the
+    share of the squared-residual reduction of the larger model in each part of the face beside the part's share of
+    the fitted pixels, and the parts that take at least twice their share; no lines where there is none."""
+    entries = [e for e in regions.values() if e.get("kinds")]
+    if not entries:
+        return []
+    parts = list(next(iter(entries[0]["kinds"].values()))["pixel_share"])
+    lines = [
+        f"Where the misfit lies that makes `{entries[0]['row']}` fail: over every scene it gets wrong, fitted again, "
+        "how much the larger of the two models (the true order's best candidate and the chosen one) lowers the "
+        "squared residual in each part of the face, as a share of what it lowers in all; in brackets the part's "
+        "share of the pixels fitted. The parts: the silhouette (within 2 px of the fitted region's border), then "
+        "the eyes and brows, the nose and the mouth read from the scene's true uv "
+        "(`disent.data.synth.face_model.FACE_REGIONS`), and the rest of the fit. A part whose share of the "
+        "reduction is well above its share of the pixels is where the extra SH terms fit misfit, not light "
+        "(`disent.lighting.experiments.order_failure_regions`).\n",
+        *table_head("split", "error (true -> chosen order)", "scenes", *parts),
+    ]
+    above = []
+    for entry in entries:
+        for kind, k in entry["kinds"].items():
+            true, chosen = kind.split("->")
+            cells = [f"{k['reduction_share'][p]:.2f} ({k['pixel_share'][p]:.2f})" for p in parts]
+            lines.append(f"| {entry['split']} | {true} -> {chosen} | {k['scenes']} | " + " | ".join(cells) + " |")
+            twice = [p for p in parts if k["reduction_share"][p] >= 2 * k["pixel_share"][p]]
+            if twice:
+                above.append(f"{entry['split']} {true} -> {chosen}: {', '.join(twice)}")
+    lines.append(
+        "\nParts taking at least twice their share of the pixels: "
+        + ("; ".join(above) if above else "none")
+        + ". A negative share: there the larger model fits worse.\n"
+    )
+    return lines
+
+
 def combined_reading(order: dict) -> str:
     """One sentence on the two noise models together: per geometry with a ``+geometry_noise+residual_process`` row on
     both splits, its val / test accuracy beside each model alone on the same geometry and albedo, and on how many
@@ -528,6 +565,7 @@ def sec_lighting(rep: Report, out: Path) -> None:
         if (wrong := load_json(d / "order_failures.json")) and (d / "order_failures.png").exists():
             rep.add(failure_figure_text(wrong))
             rep.image(d / "order_failures.png", "order_failures")
+        rep.add(*failure_region_lines(load_json(d / "order_failure_regions.json") or {}))
         rows = {
             "normal_pseudo_eroded": "on the pseudo geometry",
             "normal_pseudo_registered": "with its uv registered to the image",

@@ -109,6 +109,26 @@ def uv_to_angles(uv: torch.Tensor, slit_row: int) -> tuple[torch.Tensor, torch.T
     return theta, phi, slit
 
 
+# Parts of the face around the anchors, as boxes in front coordinates (|X|, Y): the eyes with the brows above them,
+# the nose from between the eyes to below its base, the mouth with the lips (face_regions)
+FACE_REGIONS = {
+    "eyes and brows": ((EYE_X - EYE_W - 0.1, EYE_X + EYE_W + 0.1), (EYE_Y - 0.08, BROW_Y + 0.08)),
+    "nose": ((0.0, 0.14), (NOSE_BASE_Y - 0.06, EYE_Y)),
+    "mouth": ((0.0, MOUTH_W + 0.1), (MOUTH_Y - 0.12, MOUTH_Y + 0.11)),
+}
+
+
+def face_regions(uv: torch.Tensor) -> dict[str, torch.Tensor]:
+    """``{name: bool [...]}``: which of the UV points ``[..., 2]`` (a SynthFaces ``uv`` map, channels last) fall in
+    each part of the face of :data:`FACE_REGIONS`."""
+    theta, phi, _ = uv_to_angles(uv.double(), layout().slit_row)
+    ax, y = (torch.sin(theta) * torch.cos(phi)).abs(), torch.sin(phi)
+    return {
+        name: (ax >= x0) & (ax <= x1) & (y >= y0) & (y <= y1) & (torch.cos(theta) > 0)
+        for name, ((x0, x1), (y0, y1)) in FACE_REGIONS.items()
+    }
+
+
 @lru_cache(maxsize=1)
 def layout() -> Layout:
     # Put the slit where the elevation of the mouth line falls.
