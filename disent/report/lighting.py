@@ -387,9 +387,10 @@ def failure_region_lines(regions: dict) -> list[str]:
         "squared residual in each part of the face, as a share of what it lowers in all; in brackets the part's "
         "share of the pixels fitted. The parts: the silhouette (within 2 px of the fitted region's border), then "
         "the eyes and brows, the nose and the mouth read from the scene's true uv "
-        "(`disent.data.synth.face_model.FACE_REGIONS`), and the rest of the fit. A part whose share of the "
-        "reduction is well above its share of the pixels is where the extra SH terms fit misfit, not light "
-        "(`disent.lighting.experiments.order_failure_regions`).\n",
+        "(`disent.data.synth.face_model.FACE_REGIONS`), and the rest of the fit. Where the order is read too high, "
+        "a part whose share of the reduction is well above its share of the pixels holds misfit that the extra SH "
+        "terms absorb as light; where it is read too low, that part is where the terms turned down would have "
+        "shown (`disent.lighting.experiments.order_failure_regions`).\n",
         *table_head("split", "error (true -> chosen order)", "scenes", *parts),
     ]
     above = []
