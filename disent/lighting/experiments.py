@@ -874,9 +874,9 @@ def plot_order_accuracy(study: dict, path: Path, criterion: str = "evidence") ->
     import matplotlib.pyplot as plt
 
     names = list(dict.fromkeys(key.split("/", 1)[1] for key in study))  # rows in the study's order, val's first
-    splits = {"val": ("tab:blue", "o", "none", -0.17), "test": ("tab:orange", "o", "tab:orange", 0.17)}
+    splits = {"val": ("tab:blue", "none", -0.17), "test": ("tab:orange", "tab:orange", 0.17)}  # colour, fill, shift
     fig, ax = plt.subplots(figsize=(9, 1.2 + 0.24 * len(names)))
-    for split, (colour, marker, face, shift) in splits.items():
+    for split, (colour, face, shift) in splits.items():
         rows = [(i, study[f"{split}/{name}"][criterion]) for i, name in enumerate(names) if f"{split}/{name}" in study]
         if not rows:
             continue
@@ -887,7 +887,7 @@ def plot_order_accuracy(study: dict, path: Path, criterion: str = "evidence") ->
             acc,
             y,
             xerr=np.clip((acc - lo, hi - acc), 0, None),
-            fmt=marker,
+            fmt="o",
             color=colour,
             mfc=face,
             ms=4,
