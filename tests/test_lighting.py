@@ -1174,6 +1174,24 @@ def test_order_failures_refit_the_scenes_the_study_got_wrong(tmp_path):
     assert {f"{t}->{e}" for t, e in wrong} == set(regions["kinds"])
 
 
+def test_order_report_writes_its_figures_and_where_the_failures_misfit(tmp_path):
+    """``task=order`` end to end on one cheap row (two faces a true order): the study, its accuracy figure, the
+    registration figure, and for the order geometry's row the failure figure and, per split, the misfit by part
+    of the face over exactly the scenes its records get wrong."""
+    from disent.lighting.experiments import order_report
+
+    study = order_report(tmp_path, "test", only=["texture/normal_pseudo"], n_per_order=2, geometry="normal_pseudo")
+    assert set(study) == {"val/texture/normal_pseudo", "test/texture/normal_pseudo"}
+    for name in ("order.json", "order_accuracy.png", "registration.png"):
+        assert (tmp_path / name).stat().st_size > 100, name
+    regions = json.loads((tmp_path / "order_failure_regions.json").read_text())
+    assert set(regions) == {"val", "test"}
+    for split, entry in regions.items():
+        rec = study[f"{split}/texture/normal_pseudo"]["scenes"]
+        wrong = sum(t != e for t, e in zip(rec["true_order"], rec["evidence"]))
+        assert sum(kind["scenes"] for kind in entry.get("kinds", {}).values()) == wrong
+
+
 def test_face_regions_lie_where_the_face_model_puts_its_parts():
     """The parts of the face read from a near-frontal face's true uv: eyes and brows above the nose above the mouth
     (image rows grow downwards), the eyes on both sides of the nose, no pixel in two parts, none off the face."""
