@@ -869,7 +869,8 @@ def test_texture_pixels_lie_where_the_uv_is_defined():
 
 def test_order_study_computes_only_the_named_rows_and_keeps_the_rest(tmp_path, monkeypatch):
     """``order_study(only=..., keep=...)``: the named rows are computed, every other row (and its residual fit) is
-    copied from the earlier study, and an unknown row name is refused with the list of rows."""
+    copied from the earlier study, a computed row reads with the earlier study's fit of its geometry where it has
+    one, and an unknown row name is refused with the list of rows."""
     import json
 
     from disent.lighting import experiments
@@ -921,6 +922,12 @@ def test_order_study_computes_only_the_named_rows_and_keeps_the_rest(tmp_path, m
     )
     assert list(again) == list(result) and calls == [("test", "network_explicit", calls[0][2])]
     assert again[f"val/{new[0]}"] == result[f"val/{new[0]}"] and again[f"test/{new[0]}"] == {"new": "test"}
+    # a residual fit the kept study holds is not fitted again: the new row reads with it
+    (tmp_path / "residual_process.json").write_text(json.dumps({"network_explicit": {"rho": 30.0, "ell": 1.0}}))
+    monkeypatch.setattr(experiments, "fit_residual_process", lambda *a, **k: pytest.fail("refitted a kept fit"))
+    calls.clear()
+    experiments.order_study(tmp_path / "kept", ("val",), rows=rows, n_per_order=1, only=new[:1], keep=tmp_path)
+    assert calls == [("val", "network_explicit", {"noise_model": {"residual": (30.0, 1.0)}})]
     with pytest.raises(ValueError, match="unknown order-study rows.*known/normal"):
         experiments.order_study(out, rows=rows, only=["texture/nothing"], keep=tmp_path)
 

@@ -813,7 +813,8 @@ def order_study(
 ) -> dict:
     """The order-choice confusion matrices of every ``(albedo, normals[, noise model])`` row on each split
     (the residual process fitted first on ``n_train_scenes`` train scenes, per geometry of a row that uses it,
-    ``out/residual_process.json``);
+    ``out/residual_process.json``; a fit the earlier study in ``keep`` holds is kept, so that rows on one geometry,
+    compared on the same scenes, differ only in what their names say);
     written to ``out/<name>.json`` (the method and its constants are chosen on
     ``val``; ``test`` only reports).
 
@@ -833,6 +834,8 @@ def order_study(
     result, fits = {}, dict(earlier["residual_process"])
     train = SynthFaces("train", resolution, seed)
     for normals, model in dict.fromkeys((row[1], row[2]) for row in todo if row[2:] and noise_parts(row[2])[1]):
+        if fit_key(normals, model) in fits:  # kept: the rows on one geometry read with one fit
+            continue
         geometry = geometry_noise(normals)["normal_sigma"] if noise_parts(model)[0] else 0.0
         fits[fit_key(normals, model)] = fit_residual_process(
             train, n_train_scenes, normals=normals, normal_sigma=geometry
