@@ -1208,10 +1208,11 @@ def order_report(
     if geometry:
         model = chosen_noise_model("texture", geometry, out)[0]
         row = row_key(("texture", geometry) + ((model,) if model != "iid" else ()))
-        if failures := plot_order_failures(val, read_study(out), row, out / "order_failures.png"):
+        written = read_study(out)  # the study as written, with its residual fits
+        if failures := plot_order_failures(val, written, row, out / "order_failures.png"):
             save_json("order_failures", failures, out)
         regions = {
-            s: order_failure_regions(SynthFaces(s, resolution, seed), read_study(out), row, s)
+            s: order_failure_regions(val if s == "val" else SynthFaces(s, resolution, seed), written, row, s)
             for s in dict.fromkeys(("val", split))
         }
         if any(regions.values()):
