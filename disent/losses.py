@@ -42,6 +42,7 @@ from disent.render import sh_shading
 TERMS = ("recon", "recon_fg", "adv", "recon_N", "recon_L", "smooth_A", "smooth_S", "UV", "Ni", "BWS", "M")
 TRUTH = ("A_true", "N_true", "L_true")  # terms on the true layers
 TRUTH_KEYS = ("albedo", "normal", "sh", "matte")  # the batch keys they read
+RECON_L_TARGETS = ("sh_pseudo", "sh")  # loss.recon_L_target: E_recon-L's target, L-hat or the true light
 
 
 def masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -76,7 +77,7 @@ def recon_N(out, batch):
     return masked_mean((out["normal"] - batch["normal_pseudo"]).pow(2), batch["mask_pseudo"])
 
 
-def recon_L(out, batch, c: float | None = 0.75, space: str = "shading", gray: bool = False):
+def recon_L(out, batch, c: float | None = 0.75, space: str = "shading", gray: bool = False, target: str = "sh_pseudo"):
     """E_recon-L = ||Z_L - L-hat||^2.
 
     L-hat (constant albedo) is defined up to that constant; with ``c`` set, the constant is chosen
@@ -85,12 +86,18 @@ def recon_L(out, batch, c: float | None = 0.75, space: str = "shading", gray: bo
     The constant albedo leaves each face's skin colour in L-hat, and E_recon-L teaches it to the light;
     ``gray=True`` takes it out first: each face's three channels are scaled to one shading mean over the face
     (their average), so the target keeps the light's pattern and brightness but no colour of its own.
+    ``target="sh"`` puts the true SH light in L-hat's place, an oracle (not the paper's): what a perfect L-hat
+    would buy the model, scaled by ``c`` and measured as L-hat is.
     ``space="coefficients"`` is the plain L2 over the 27 numbers; ``space="shading"`` measures the
     same difference through the face's pseudo normals, ||S(N-hat, Z_L) - S(N-hat, L-hat)||^2 under
     M-hat, which ignores the SH directions a face's normal cone cannot tell apart (there the
     least-squares L-hat is noise).
     """
-    target, mask, normal = batch["sh_pseudo"], batch["mask_pseudo"], batch["normal_pseudo"]
+    if target not in RECON_L_TARGETS:
+        raise ValueError(f"loss.recon_L_target must be one of {', '.join(RECON_L_TARGETS)}, got {target!r}")
+    if target not in batch:
+        raise ValueError(f"loss.recon_L_target={target} needs the true light in the batch (SynthFaces has it)")
+    target, mask, normal = batch[target], batch["mask_pseudo"], batch["normal_pseudo"]
     if gray:
         face = (sh_shading(normal, target) * mask).sum((2, 3)) / mask.sum((2, 3)).clamp_min(1e-8)  # [B, C]
         target = target * (face.mean(1, keepdim=True) / face.clamp_min(1e-3))[:, :, None]
@@ -188,6 +195,7 @@ TERM_SETTINGS = {
     "lhat_white": ("recon_L",),
     "lhat_gray": ("recon_L",),
     "recon_L_space": ("recon_L",),
+    "recon_L_target": ("recon_L",),
     "bws_c": ("BWS", "recon_L"),
 }
 
@@ -218,11 +226,13 @@ def generator_losses(
     recon_p: int = 2,
     recon_fg_p: int = 2,
     matte_p: int = 2,
+    recon_L_target: str = "sh_pseudo",
 ) -> dict:
     """Unweighted value of every active term, plus ``total`` = sum of weight x term (E_o and the priors).
 
     ``energy_fake`` is D's energy of ``out['recon']`` (``[B]``), needed when ``adv`` is active;
-    ``lhat_white``, ``lhat_gray`` and ``recon_L_space`` choose E_recon-L's target and metric (see :func:`recon_L`);
+    ``lhat_white``, ``lhat_gray``, ``recon_L_target`` and ``recon_L_space`` choose E_recon-L's target and metric (see
+    :func:`recon_L`);
     ``recon_p`` E_recon's norm (2: the paper, 1: the release); ``recon_fg_p`` the masked reconstruction's
     (2: the release, 1); ``matte_p`` the matte's (2: the paper, 1: the release).
     """
@@ -241,7 +251,7 @@ def generator_losses(
             elif t == "M":
                 losses[t] = fn(out, batch, matte_p)
             elif t == "recon_L":
-                losses[t] = fn(out, batch, bws_c if lhat_white else None, recon_L_space, lhat_gray)
+                losses[t] = fn(out, batch, bws_c if lhat_white else None, recon_L_space, lhat_gray, recon_L_target)
             else:
                 losses[t] = fn(out, batch)
     losses["total"] = sum(weights[t] * v for t, v in losses.items())

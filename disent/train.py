@@ -40,8 +40,9 @@ TRAIN_KEYS = ("image", "normal_pseudo", "mask_pseudo", "sh_pseudo", "uv_pseudo",
 
 
 def train_keys(cfg_loss) -> tuple:
-    """The batch keys a training step reads: the pseudo-GT, and the true layers where a ceiling term is on."""
-    truth = any(cfg_loss.weights.get(t, 0) for t in L.TRUTH)
+    """The batch keys a training step reads: the pseudo-GT, and the true layers where a ceiling term is on or
+    E_recon-L reads the true light (``loss.recon_L_target=sh``)."""
+    truth = any(cfg_loss.weights.get(t, 0) for t in L.TRUTH) or cfg_loss.get("recon_L_target", "sh_pseudo") == "sh"
     return TRAIN_KEYS + (L.TRUTH_KEYS if truth else ())
 
 
@@ -124,6 +125,7 @@ def train_step(model, disc, opt_g, opt_d, batch, cfg_loss) -> dict:
         cfg_loss.get("recon_p", 2),
         cfg_loss.get("recon_fg_p", 2),
         cfg_loss.get("matte_p", 2),
+        cfg_loss.get("recon_L_target", "sh_pseudo"),
     )
     if disc is not None:
         energy_real = disc.energy(batch["image"])
@@ -279,6 +281,7 @@ ADDED_LATER = {
     "loss.recon_fg_p": 2,
     "loss.matte_p": 2,
     "loss.lhat_gray": False,
+    "loss.recon_L_target": "sh_pseudo",
     "model.decoder_convs": 1,
     **{f"loss.weights.{t}": 0.0 for t in L.TRUTH},
 }

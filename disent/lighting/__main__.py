@@ -15,10 +15,12 @@ from disent.lighting.experiments import (
     GEOMETRY,
     chosen_noise_model,
     figures_for,
+    lhat_sources,
     noisy,
     order_data,
     order_report,
     run_all,
+    save_json,
     scene_geometry,
 )
 from disent.lighting.order import select_order
@@ -27,6 +29,7 @@ from disent.runs import tool_folder
 from disent.runtime import single_core
 
 log = logging.getLogger(__name__)
+TASKS = ("posterior", "report", "order", "lhat")
 
 
 def load_photo(path: str, resolution: int, cache_dir=None) -> dict:
@@ -101,8 +104,8 @@ def main(cfg: DictConfig) -> None:
 
 
 def run(cfg: DictConfig) -> None:
-    if cfg.task not in ("posterior", "report", "order"):
-        raise ValueError(f"task must be 'posterior', 'report' or 'order', got {cfg.task!r}")
+    if cfg.task not in TASKS:
+        raise ValueError(f"task must be one of {', '.join(TASKS)}, got {cfg.task!r}")
     out = tool_folder("lighting", hydra.utils.to_absolute_path(cfg.out))
     if cfg.task == "report":
         run_all(out, cfg.split, cfg.data.resolution, cfg.data.seed, geometry=cfg.order_geometry)
@@ -121,7 +124,12 @@ def run(cfg: DictConfig) -> None:
             n_per_order=cfg.order_n,
             geometry=cfg.order_geometry,
         )
-    if cfg.task in ("report", "order"):
+    if cfg.task == "lhat":
+        from disent.data import SynthFaces
+
+        r, s = cfg.data.resolution, cfg.data.seed
+        save_json("lhat_sources", lhat_sources(SynthFaces(cfg.split, r, s), SynthFaces("train", r, s)), out)
+    if cfg.task in ("report", "order", "lhat"):
         log.info("wrote %s; publish it with: python -m disent.report --publish %s", out, out)
         return
     results = []

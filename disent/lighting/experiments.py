@@ -1,4 +1,5 @@
-"""Experiments on SynthFaces for the report: posterior width, calibration, order choice, speed.
+"""Experiments on SynthFaces for the report: posterior width, calibration, order choice, where L-hat's error comes
+from, speed.
 
 Every experiment fits the known-albedo model ``image = albedo * S(n, L) + noise`` on the true
 normals and matte, so that the sampled L is the scene's SH light and can be checked against
@@ -341,10 +342,11 @@ def item_data(
 
 
 def eroded(mask, pixels: int) -> torch.Tensor:
-    """``mask [1,H,W]`` (or ``[H,W]``) > 0.5 less the pixels within ``pixels`` (chessboard distance) of its edge."""
+    """``mask [1,H,W]`` (``[H,W]``: returned as ``[1,H,W]``; or a batch ``[B,1,H,W]``) > 0.5 less the pixels within
+    ``pixels`` (chessboard distance) of its edge."""
     m = (torch.as_tensor(mask) > 0.5).float()
-    m = m.reshape(1, 1, *m.shape[-2:])
-    return -torch.nn.functional.max_pool2d(-m, 2 * pixels + 1, 1, pixels)[0]
+    shape = m.shape if m.dim() > 2 else (1, *m.shape)
+    return -torch.nn.functional.max_pool2d(-m.reshape(-1, 1, *m.shape[-2:]), 2 * pixels + 1, 1, pixels).reshape(shape)
 
 
 def band_width(post, level: float = 0.68) -> dict:
@@ -414,6 +416,90 @@ def plot_widths(w: dict, path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+# ----------------------------------------------------------------------------- where L-hat's error comes from
+# L-hat (Eq. 9, the target of E_recon-L) fitted with its inputs made true: first its pixels (M-hat holds some hair,
+# ears or background), then from there the normals, the albedo (the paper's is constant), or both. Beside them what
+# needs no truth: M-hat eroded, a placed mean texture for the albedo, and the shipped networks' own light.
+LHAT_SOURCES = {  # name: (normals, albedo, pixels)
+    "lhat": ("normal_pseudo", "constant", "mask_pseudo"),
+    "lhat_eroded": ("normal_pseudo", "constant", "eroded"),
+    "true_pixels": ("normal_pseudo", "constant", "face"),
+    "true_pixels_template": ("normal_pseudo", "template", "face"),
+    "true_pixels_normals": ("normal", "constant", "face"),
+    "true_pixels_albedo": ("normal_pseudo", "albedo", "face"),
+    "true_pixels_normals_albedo": ("normal", "albedo", "face"),
+}
+
+
+def texture_lhat(image, normal, mask, uv, n_components: int = 20) -> torch.Tensor:
+    """``[3, 9]``: the order-2 RGB light fitted with the PCA texture model for the albedo (through ``uv``) in place of
+    L-hat's constant (:func:`disent.lighting.order.score`, Gaussian noise)."""
+    from disent.lighting.order import score
+    from disent.lighting.texture import texture_for
+
+    data = prepare(image, normal, mask)
+    return torch.as_tensor(np.asarray(score(data, 2, texture=texture_for(data, uv, n_components))["light"]))
+
+
+@torch.no_grad()
+def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -> dict:
+    """How far L-hat's light lies from the true light on the face, and with which of its inputs made true.
+
+    The first ``n`` items of ``test`` (noise-free, as training sees them); each light is scored as the report scores
+    the networks': its shading through the true normals against the true light's, scale-invariant per image and
+    channel, on the scored pixels (the true face inside M-hat; ``light_on_face``, with its standard error over the
+    faces, and ``beats_lhat``, the share of faces where it is below the paper's L-hat), and the SH error along the
+    directions the face shows (``shown``). ``LHAT_SOURCES`` are least-squares fits (:func:`disent.data.synth.scenes.
+    fit_sh_packed`) of the image over the albedo; *template*: the mean train albedo in UV space placed through the
+    pseudo uv; ``texture_model``: the PCA texture model fitted with the light (:func:`texture_lhat`) on M-hat eroded
+    ``EDGE`` px. Each shipped network in ``networks`` adds its light and the least-squares light of the image over its
+    own albedo on the pseudo normals, inside M-hat and its matte. ``floor``: the constant mean train light."""
+    from disent.data import get_batch
+    from disent.data.synth.scenes import fit_sh_packed
+    from disent.eval.evaluate import decomposed_region
+    from disent.eval.metrics import light_shading_si_mse, sh_error_shown_hidden
+    from disent.eval.trivial import dataset_means, template_albedo
+
+    g = get_batch(test, range(min(n, len(test))))
+    face = decomposed_region(g)
+    means = dataset_means(train)
+    pixels = {"mask_pseudo": g["mask_pseudo"], "eroded": eroded(g["mask_pseudo"], EDGE), "face": face}
+    albedo = {"constant": None, "template": template_albedo(means["albedo_uv"], g["uv_pseudo"]), "albedo": g["albedo"]}
+
+    def fit(normal, a, mask):
+        image = g["image"] if a is None else torch.where(mask > 0.5, g["image"] / a.clamp_min(1e-3), 0)
+        return fit_sh_packed(image, normal * (mask > 0.5), mask)
+
+    def scored(sh):
+        e = light_shading_si_mse(sh, g["sh"], g["normal"], face, reduction="none")
+        return e, sh_error_shown_hidden(sh, g["sh"], g["normal"], face)["shown"]
+
+    lights = {k: fit(g[nk], albedo[a], pixels[p]) for k, (nk, a, p) in LHAT_SOURCES.items()}
+    lights["texture_model"] = torch.stack(
+        [
+            texture_lhat(g["image"][i], g["normal_pseudo"][i], pixels["eroded"][i], g["uv_pseudo"][i])
+            for i in range(len(face))
+        ]
+    )
+    for name in networks:
+        out = _network(name)(g["image"].clamp(0, 1))
+        inside = g["mask_pseudo"] * (out["matte"] > 0.5)
+        lights[f"network_{name}"] = out["sh"]
+        lights[f"network_{name}_refit"] = fit(g["normal_pseudo"], out["albedo"], inside)
+    lights["floor"] = means["sh"].expand_as(g["sh"])
+    reference = scored(lights["lhat"])[0]
+    rows = {}
+    for k, sh in lights.items():
+        e, shown = scored(sh)
+        rows[k] = {
+            "light_on_face": float(e.mean()),
+            "light_on_face_se": float(e.std() / math.sqrt(len(e))),
+            "beats_lhat": float((e < reference).double().mean()),
+            "shown": shown,
+        }
+    return {"split": test.split, "n": len(reference), "inputs": LHAT_SOURCES, "rows": rows}
 
 
 # ----------------------------------------------------------------------------- calibration
@@ -1266,6 +1352,11 @@ def _run_all(ds, out: Path, resolution: int, seed: int, quick: bool, geometry: s
 
     summary["order"] = order_report(out, split, resolution, seed, quick, geometry=geometry)
 
+    from disent.data import SynthFaces
+
+    summary["lhat_sources"] = lhat_sources(ds, SynthFaces("train", resolution, seed))
+    save_json("lhat_sources", summary["lhat_sources"], out)
+
     summary["speed"] = speed(ds)
     save_json("speed", summary["speed"], out)
     summary["seconds"] = time.perf_counter() - t0
@@ -1290,4 +1381,5 @@ __all__ = [
     "plot_order_accuracy",
     "order_report",
     "eroded",
+    "lhat_sources",
 ]
