@@ -697,6 +697,32 @@ def test_residual_process_maximum_likelihood_finds_the_generating_constants():
     assert max_likelihood_residual(iid, grid)["rho"] == 0.0
 
 
+def test_eroded_takes_a_batch_of_masks():
+    from disent.lighting.experiments import eroded
+
+    m = torch.zeros(2, 1, 8, 8)
+    m[0, 0, 2:7, 1:6] = 1  # 5 x 5: 3 x 3 left
+    m[1, 0, 1:4, 1:4] = 1  # 3 x 3: its centre left
+    e = eroded(m, 1)
+    assert e.shape == m.shape and e[0].sum() == 9 and e[1].sum() == 1
+    assert torch.equal(e[0], eroded(m[0], 1)) and eroded(m[0, 0], 1).shape == (1, 8, 8)
+
+
+def test_lhat_sources_is_exact_with_every_input_made_true():
+    """SynthFaces renders the face as albedo (.) S(n, L): least squares on the image over the true albedo, through
+    the true normals, on the true face, returns the true light; the paper's L-hat does not."""
+    from disent.data import SynthFaces
+    from disent.lighting.experiments import LHAT_SOURCES, lhat_sources
+
+    r = lhat_sources(SynthFaces("test", size=6), SynthFaces("train", size=32), n=6, networks=("explicit",))
+    rows = r["rows"]
+    assert r["n"] == 6 and rows["true_pixels_normals_albedo"]["light_on_face"] < 1e-9
+    assert rows["true_pixels_normals_albedo"]["beats_lhat"] == 1
+    assert rows["lhat"]["light_on_face"] > 1e-3 and rows["lhat"]["beats_lhat"] == 0
+    assert set(rows) == set(LHAT_SOURCES) | {"texture_model", "network_explicit", "network_explicit_refit", "floor"}
+    assert all(len(row["inputs"]) == 3 and 0 <= row["shown"] for row in rows.values())
+
+
 def test_eroded_pseudo_mask_drops_exactly_the_edge_ring():
     from disent.lighting.experiments import GEOMETRY, eroded, item_data
 

@@ -184,6 +184,13 @@ def test_loss_terms_closed_forms():
     gray_s = (sh_shading(b["normal_pseudo"], gray) * mask).sum((2, 3))
     assert torch.allclose(gray_s, gray_s.mean(1, keepdim=True), rtol=1e-5)
     assert L.recon_L({"sh": gray}, b, c=None, gray=True).item() == pytest.approx(0, abs=1e-10)
+    # the oracle target (loss.recon_L_target=sh): the true light, whitened and measured as L-hat is
+    oracle = {**b, "sh": b["sh_pseudo"], "sh_pseudo": torch.zeros_like(b["sh_pseudo"])}
+    assert L.recon_L(out, oracle, target="sh").item() == pytest.approx(L.recon_L(out, b).item(), rel=1e-6)
+    with pytest.raises(ValueError, match="true light"):  # a batch without it (a folder of photos)
+        L.recon_L(out, b, target="sh")
+    with pytest.raises(ValueError, match="recon_L_target must be one of sh_pseudo, sh"):
+        L.recon_L(out, b, target="L_hat")
     assert L.recon_fg({"foreground": b["image"] + 0.1 * mask + 0.3 * (1 - mask)}, b).item() == pytest.approx(
         0.01, rel=1e-5
     )
@@ -260,6 +267,7 @@ def test_the_supervised_ceiling_trains_on_the_true_layers_only(name):
 
     cfg = compose_cfg(f"model={name}", "loss=ceiling")
     assert train_keys(cfg.loss) == TRAIN_KEYS + L.TRUTH_KEYS and train_keys(compose_cfg().loss) == TRAIN_KEYS
+    assert train_keys(compose_cfg("loss.recon_L_target=sh").loss) == TRAIN_KEYS + L.TRUTH_KEYS
     b = fake_batch(8)
     b.update(
         albedo=torch.full_like(b["image"], 0.5), normal=b["normal_pseudo"], sh=b["sh_pseudo"], matte=b["mask_pseudo"]

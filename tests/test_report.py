@@ -594,6 +594,49 @@ def test_lighting_section_is_generated_from_the_published_json(tmp_path):
     assert rep.lines[0].startswith(document.MISSING)
 
 
+def test_lhat_sources_table_reads_which_input_costs_l_hat_most(tmp_path):
+    """The table lists every light with its inputs in words; the reading names the input whose truth lowers L-hat's
+    error most (the albedo or the normals) and says whether the networks' light is below every L-hat without truth,
+    from the numbers; a light alone in the section still builds it."""
+    import json
+
+    from disent import report
+
+    def row(e, inputs):
+        return {"light_on_face": e, "light_on_face_se": e / 10, "beats_lhat": 0.5, "shown": 0.1, "inputs": inputs}
+
+    rows = {
+        "lhat": row(0.0086, ["normal_pseudo", "constant", "mask_pseudo"]),
+        "true_pixels": row(0.0066, ["normal_pseudo", "constant", "face"]),
+        "true_pixels_normals": row(0.0034, ["normal", "constant", "face"]),
+        "true_pixels_albedo": row(0.0011, ["normal_pseudo", "albedo", "face"]),
+        "texture_model": row(0.0054, ["normal_pseudo", "texture_model", "eroded"]),
+        "network_explicit": row(0.0044, ["network"] * 3),
+        "network_explicit_refit": row(0.0048, ["normal_pseudo", "network", "matte"]),
+        "floor": row(0.0163, ["-"] * 3),
+    }
+    text = "\n".join(lighting.lhat_source_lines({"split": "test", "n": 256, "rows": rows}))
+    assert "| L-hat | **true** | constant (the paper's) | **true face** inside M-hat | 0.0034 ± 0.0003 | 0.50 |" in text
+    assert "| explicit: least squares over its albedo | N-hat | the network's | M-hat inside its matte | 0.0048" in text
+    assert "| constant light (the mean train light; the floor) | – | – | – | 0.0163" in text
+    assert "L-hat's constant albedo costs it more than its coarse-fit normals" in text
+    assert (
+        "the best L-hat here is the texture model (0.0054); the networks' own light (explicit 0.0044) is below" in text
+    )
+    assert "does not improve on the network's (explicit 0.0048)" in text
+    rows["true_pixels_albedo"]["light_on_face"] = 0.005  # now the normals' truth helps more
+    rows["network_explicit"]["light_on_face"] = 0.006  # and the network is above the texture model
+    text = "\n".join(lighting.lhat_source_lines({"split": "test", "n": 256, "rows": rows}))
+    assert "L-hat's coarse-fit normals cost it more than its constant albedo" in text
+    assert "(explicit 0.0060) is not below it" in text and "does not improve" not in text
+    (tmp_path / "lighting").mkdir()
+    (tmp_path / "lighting" / "lhat_sources.json").write_text(json.dumps({"split": "test", "n": 256, "rows": rows}))
+    rep = report.Report(tmp_path)
+    report.sec_lighting(rep, tmp_path)
+    text = "\n".join(rep.lines)
+    assert "### Where L-hat's error comes from" in text and "### Lighting model order" not in text
+
+
 def test_beyond_the_fit_reads_each_bin_against_the_seed_spread():
     from types import SimpleNamespace
 

@@ -454,8 +454,9 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
     directions the face shows (``shown``). ``LHAT_SOURCES`` are least-squares fits (:func:`disent.data.synth.scenes.
     fit_sh_packed`) of the image over the albedo; *template*: the mean train albedo in UV space placed through the
     pseudo uv; ``texture_model``: the PCA texture model fitted with the light (:func:`texture_lhat`) on M-hat eroded
-    ``EDGE`` px. Each shipped network in ``networks`` adds its light and the least-squares light of the image over its
-    own albedo on the pseudo normals, inside M-hat and its matte. ``floor``: the constant mean train light."""
+    ``EDGE`` px. Each row names its ``inputs`` (normals, albedo, pixels). Each shipped network in ``networks`` adds
+    its light and the least-squares light of the image over its own albedo on the pseudo normals, inside M-hat and
+    its matte. ``floor``: the constant mean train light."""
     from disent.data import get_batch
     from disent.data.synth.scenes import fit_sh_packed
     from disent.eval.evaluate import decomposed_region
@@ -476,6 +477,7 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
         e = light_shading_si_mse(sh, g["sh"], g["normal"], face, reduction="none")
         return e, sh_error_shown_hidden(sh, g["sh"], g["normal"], face)["shown"]
 
+    inputs = dict(LHAT_SOURCES, texture_model=("normal_pseudo", "texture_model", "eroded"), floor=("-", "-", "-"))
     lights = {k: fit(g[nk], albedo[a], pixels[p]) for k, (nk, a, p) in LHAT_SOURCES.items()}
     lights["texture_model"] = torch.stack(
         [
@@ -488,6 +490,7 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
         inside = g["mask_pseudo"] * (out["matte"] > 0.5)
         lights[f"network_{name}"] = out["sh"]
         lights[f"network_{name}_refit"] = fit(g["normal_pseudo"], out["albedo"], inside)
+        inputs |= {f"network_{name}": ("network",) * 3, f"network_{name}_refit": ("normal_pseudo", "network", "matte")}
     lights["floor"] = means["sh"].expand_as(g["sh"])
     reference = scored(lights["lhat"])[0]
     rows = {}
@@ -498,8 +501,9 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
             "light_on_face_se": float(e.std() / math.sqrt(len(e))),
             "beats_lhat": float((e < reference).double().mean()),
             "shown": shown,
+            "inputs": inputs[k],
         }
-    return {"split": test.split, "n": len(reference), "inputs": LHAT_SOURCES, "rows": rows}
+    return {"split": test.split, "n": len(reference), "rows": rows}
 
 
 # ----------------------------------------------------------------------------- calibration

@@ -443,15 +443,98 @@ def combined_reading(order: dict) -> str:
     )
 
 
+# the inputs of a light in lhat_sources.json (disent.lighting.experiments.lhat_sources), in words
+LHAT_WORDS = {
+    "normal_pseudo": "N-hat",
+    "normal": "**true**",
+    "constant": "constant (the paper's)",
+    "template": "placed mean texture",
+    "texture_model": "texture model, fitted with L",
+    "albedo": "**true**",
+    "mask_pseudo": "M-hat",
+    "eroded": "M-hat eroded 1 px",
+    "face": "**true face** inside M-hat",
+    "network": "the network's",
+    "matte": "M-hat inside its matte",
+    "-": "–",
+}
+
+
+def lhat_source_name(key: str) -> str:
+    """A light of ``lhat_sources.json`` in words: L-hat, a shipped network's own light, or the constant light."""
+    if key == "floor":
+        return "constant light (the mean train light; the floor)"
+    if key.startswith("network_"):
+        name = key.split("_")[1]
+        return f"{name}: least squares over its albedo" if key.endswith("_refit") else f"{name} network's light"
+    return "L-hat" + (" (the paper's E_recon-L target, Eq. 9)" if key == "lhat" else "")
+
+
+def lhat_source_lines(src: dict) -> list[str]:
+    """Where L-hat's error on the face comes from (``lhat_sources.json``): the table and its reading."""
+    rows = src["rows"]
+    e = {k: r["light_on_face"] for k, r in rows.items()}
+    lines = [
+        "### Where L-hat's error comes from\n",
+        "L-hat, the least-squares light of Eq. 9 (`disent.data.synth.scenes.fit_sh_packed`), fitted with its inputs "
+        "made true one at a time: first its pixels (M-hat also covers some hair, ears and background), then from there "
+        "the normals, the albedo (or in its place a placed mean texture: the mean train albedo in UV space through the "
+        "pseudo uv), or both; beside them what needs no truth: M-hat eroded, the PCA texture model fitted with the "
+        "light (`disent.lighting.experiments.texture_lhat`), the shipped networks' own light, and the least-squares "
+        "light of the image over a network's own albedo. *Light on the face*: its shading through the true normals "
+        "against the true light's, scale-invariant per image and channel, on the scored pixels (the networks' "
+        "*light on the face* in the glance section), mean ± standard error over the faces; *beats L-hat*: the share "
+        f"of faces where it is below the paper's L-hat; *shown SH error*: along the SH directions the face shows. "
+        f"The first {src['n']} {src['split']} images, noise-free as training sees them "
+        "(`python -m disent.lighting task=lhat`; `disent.lighting.experiments.lhat_sources`).\n",
+        *table_head("light", "normals", "albedo", "pixels", "light on the face", "beats L-hat", "shown SH error"),
+    ]
+    for k, r in rows.items():
+        words = " | ".join(LHAT_WORDS.get(i, i) for i in r["inputs"])
+        lines.append(
+            f"| {lhat_source_name(k)} | {words} | {r['light_on_face']:.4f} ± {r['light_on_face_se']:.4f} | "
+            f"{r['beats_lhat']:.2f} | {r['shown']:.3f} |"
+        )
+    if not {"lhat", "true_pixels", "true_pixels_normals", "true_pixels_albedo"} <= set(e):
+        return lines + [""]
+    larger = "albedo" if e["true_pixels_albedo"] < e["true_pixels_normals"] else "normals"
+    reading = (
+        f"\nThe paper's L-hat misses the light on the face by {e['lhat']:.4f} (the constant light: "
+        f"{e.get('floor', float('nan')):.4f}). The true pixels take it to {e['true_pixels']:.4f}; from there the true "
+        f"normals to {e['true_pixels_normals']:.4f} and the true albedo to {e['true_pixels_albedo']:.4f}: L-hat's "
+        f"{'constant albedo costs' if larger == 'albedo' else 'coarse-fit normals cost'} it more than its "
+        f"{'coarse-fit normals' if larger == 'albedo' else 'constant albedo'}."
+    )
+    free = {k: e[k] for k in ("lhat_eroded", "texture_model") if k in e}
+    nets = {k.split("_")[1]: v for k, v in e.items() if k.startswith("network_") and not k.endswith("_refit")}
+    if free and nets:
+        best = min(free, key=free.get)
+        below = all(v < free[best] for v in nets.values())
+        reading += (
+            f" Without truth, the best L-hat here is {'the texture model' if best == 'texture_model' else 'eroded'}"
+            f" ({free[best]:.4f}); the networks' own light ({', '.join(f'{n} {v:.4f}' for n, v in nets.items())}) is "
+            + ("below it: trained on the paper's L-hat, the networks go beyond it" if below else "not below it")
+        )
+        refits = {n: e[f"network_{n}_refit"] for n in nets if f"network_{n}_refit" in e}
+        if refits and all(refits[n] >= nets[n] for n in refits):
+            reading += (
+                ", and the least-squares light over a network's own albedo does not improve on the network's ("
+                + ", ".join(f"{n} {v:.4f}" for n, v in refits.items())
+                + ")"
+            )
+        reading += "."
+    return lines + [reading + "\n"]
+
+
 def sec_lighting(rep: Report, out: Path) -> None:
     """How uncertain L-hat is and which lighting order a scene needs, from ``reports/lighting/*.json``."""
     from disent.lighting.experiments import GEOMETRY
 
     d = out / "lighting"
-    order, cal, cal_p, speed = (
-        load_json(d / f"{n}.json") for n in ("order", "calibration", "calibration_pseudo", "speed")
+    order, cal, cal_p, speed, sources = (
+        load_json(d / f"{n}.json") for n in ("order", "calibration", "calibration_pseudo", "speed", "lhat_sources")
     )
-    if not (order or cal or speed):
+    if not (order or cal or speed or sources):
         rep.note("`reports/lighting/`; run `python -m disent.lighting task=report`, then publish its folder.")
         return
     rep.add(
@@ -459,6 +542,8 @@ def sec_lighting(rep: Report, out: Path) -> None:
         "`python -m disent.report --publish OUTPUT_FOLDER`. SynthFaces 64x64; i.i.d. Gaussian noise, std 0.02, "
         "added to each image. Sampler: emcee with an independence proposal (`disent/lighting/posterior.py`).\n"
     )
+    if sources:
+        rep.add(*lhat_source_lines(sources))
     if order:
         rep.add(
             "### Lighting model order: model no more than a scene needs\n",
