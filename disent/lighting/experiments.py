@@ -420,8 +420,9 @@ def plot_widths(w: dict, path: Path) -> None:
 
 # ----------------------------------------------------------------------------- where L-hat's error comes from
 # L-hat (Eq. 9, the target of E_recon-L) fitted with its inputs made true: first its pixels (M-hat holds some hair,
-# ears or background), then from there the normals, the albedo (the paper's is constant), or both. Beside them what
-# needs no truth: M-hat eroded, a placed mean texture for the albedo, and the shipped networks' own light.
+# ears or background), then from there the normals, the albedo (the paper's is constant; or a placed mean texture in
+# its place), or both. lhat_sources sets beside them what needs no truth: M-hat eroded, the PCA texture model fitted
+# with the light, and the shipped networks' own light.
 LHAT_SOURCES = {  # name: (normals, albedo, pixels)
     "lhat": ("normal_pseudo", "constant", "mask_pseudo"),
     "lhat_eroded": ("normal_pseudo", "constant", "eroded"),
@@ -1328,6 +1329,8 @@ def run_all(
 
 
 def _run_all(ds, out: Path, resolution: int, seed: int, quick: bool, geometry: str | None = None) -> dict:
+    from disent.data import SynthFaces
+
     split = ds.split
     out.mkdir(parents=True, exist_ok=True)
     summary, t0 = {}, time.perf_counter()
@@ -1355,8 +1358,6 @@ def _run_all(ds, out: Path, resolution: int, seed: int, quick: bool, geometry: s
     plot_calibration(summary["calibration_pseudo"], out / "calibration_pseudo.png")
 
     summary["order"] = order_report(out, split, resolution, seed, quick, geometry=geometry)
-
-    from disent.data import SynthFaces
 
     summary["lhat_sources"] = lhat_sources(ds, SynthFaces("train", resolution, seed))
     save_json("lhat_sources", summary["lhat_sources"], out)
