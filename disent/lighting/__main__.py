@@ -129,7 +129,7 @@ def run(cfg: DictConfig) -> None:
 
         r, s = cfg.data.resolution, cfg.data.seed
         save_json("lhat_sources", lhat_sources(SynthFaces(cfg.split, r, s), SynthFaces("train", r, s)), out)
-    if cfg.task in ("report", "order", "lhat"):
+    if cfg.task != "posterior":
         log.info("wrote %s; publish it with: python -m disent.report --publish %s", out, out)
         return
     results = []

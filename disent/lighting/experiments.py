@@ -493,10 +493,10 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
         lights[f"network_{name}_refit"] = fit(g["normal_pseudo"], out["albedo"], inside)
         inputs |= {f"network_{name}": ("network",) * 3, f"network_{name}_refit": ("normal_pseudo", "network", "matte")}
     lights["floor"] = means["sh"].expand_as(g["sh"])
-    reference = scored(lights["lhat"])[0]
+    scores = {k: scored(sh) for k, sh in lights.items()}
+    reference = scores["lhat"][0]
     rows = {}
-    for k, sh in lights.items():
-        e, shown = scored(sh)
+    for k, (e, shown) in scores.items():
         rows[k] = {
             "light_on_face": float(e.mean()),
             "light_on_face_se": float(e.std() / math.sqrt(len(e))),
