@@ -42,7 +42,7 @@ from disent.render import sh_shading
 TERMS = ("recon", "recon_fg", "adv", "recon_N", "recon_L", "smooth_A", "smooth_S", "UV", "Ni", "BWS", "M")
 TRUTH = ("A_true", "N_true", "L_true")  # terms on the true layers
 TRUTH_KEYS = ("albedo", "normal", "sh", "matte")  # the batch keys they read
-RECON_L_TARGETS = ("sh_pseudo", "sh")  # loss.recon_L_target: E_recon-L's target, L-hat or the true light
+RECON_L_TARGETS = ("sh_pseudo", "sh_texture", "sh")  # loss.recon_L_target: L-hat, L-hat with a texture model, the truth
 
 
 def masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -86,8 +86,10 @@ def recon_L(out, batch, c: float | None = 0.75, space: str = "shading", gray: bo
     The constant albedo leaves each face's skin colour in L-hat, and E_recon-L teaches it to the light;
     ``gray=True`` takes it out first: each face's three channels are scaled to one shading mean over the face
     (their average), so the target keeps the light's pattern and brightness but no colour of its own.
-    ``target="sh"`` puts the true SH light in L-hat's place, an oracle (not the paper's): what a perfect L-hat
-    would buy the model, scaled by ``c`` and measured as L-hat is.
+    ``target="sh_texture"`` puts L-hat fitted with a PCA texture model for the albedo in its place
+    (:func:`disent.lighting.experiments.texture_lhat`, added to the batch by the trainer): no truth, not the paper's.
+    ``target="sh"`` puts the true SH light there, an oracle (not the paper's): what a perfect L-hat
+    would buy the model. Either is scaled by ``c`` and measured as L-hat is.
     ``space="coefficients"`` is the plain L2 over the 27 numbers; ``space="shading"`` measures the
     same difference through the face's pseudo normals, ||S(N-hat, Z_L) - S(N-hat, L-hat)||^2 under
     M-hat, which ignores the SH directions a face's normal cone cannot tell apart (there the
@@ -96,7 +98,8 @@ def recon_L(out, batch, c: float | None = 0.75, space: str = "shading", gray: bo
     if target not in RECON_L_TARGETS:
         raise ValueError(f"loss.recon_L_target must be one of {', '.join(RECON_L_TARGETS)}, got {target!r}")
     if target not in batch:
-        raise ValueError(f"loss.recon_L_target={target} needs the true light in the batch (SynthFaces has it)")
+        where = "the true light (SynthFaces has it)" if target == "sh" else "the trainer to add it (disent.train)"
+        raise ValueError(f"loss.recon_L_target={target} needs {target} in the batch: {where}")
     target, mask, normal = batch[target], batch["mask_pseudo"], batch["normal_pseudo"]
     if gray:
         face = (sh_shading(normal, target) * mask).sum((2, 3)) / mask.sum((2, 3)).clamp_min(1e-8)  # [B, C]

@@ -46,6 +46,20 @@ def train_keys(cfg_loss) -> tuple:
     return TRAIN_KEYS + (L.TRUTH_KEYS if truth else ())
 
 
+def with_texture_lhat(batch: dict, idx, cache: dict) -> dict:
+    """``batch`` with ``sh_texture``, E_recon-L's target under ``loss.recon_L_target=sh_texture``: each image's L-hat
+    fitted with the texture model (:func:`disent.lighting.experiments.texture_lhat`), fitted the first time its data
+    index ``idx`` comes and kept in ``cache`` (index -> light), as it depends on the image alone."""
+    from disent.lighting.experiments import texture_lhat
+
+    idx = torch.as_tensor(idx).tolist()
+    new = [k for k, i in enumerate(idx) if i not in cache]
+    if new:
+        parts = {k: batch[k][new] for k in ("image", "normal_pseudo", "mask_pseudo", "uv_pseudo")}
+        cache.update(zip((idx[k] for k in new), texture_lhat(parts)))
+    return {**batch, "sh_texture": torch.stack([cache[i] for i in idx])}
+
+
 class NonFiniteLoss(FloatingPointError):
     """A loss term or, after an update, a weight became NaN or Inf; the run stops and keeps its last good
     checkpoint (only finite weights are ever saved)."""
@@ -475,10 +489,14 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
         )
 
     keys = train_keys(cfg.loss)
+    texture_lights = {} if cfg.loss.get("recon_L_target") == "sh_texture" else None
 
     def make_batch(s):  # on the CPU; the prefetch thread runs it
         idx = step_indices(cfg.seed, s, steps_per_epoch, t.batch_size, len(data))
-        return to_device(get_batch(data, idx, keys), "cpu", t.channels_last)
+        batch = get_batch(data, idx, keys)
+        if texture_lights is not None:
+            batch = with_texture_lhat(batch, idx, texture_lights)
+        return to_device(batch, "cpu", t.channels_last)
 
     prefetch = Prefetcher(make_batch, range(step, total_steps), t.get("prefetch", 0), t.get("prefetch_workers", 1))
     bar = tqdm(total=total_steps, initial=step, disable=not t.progress, unit="step", dynamic_ncols=True)

@@ -434,14 +434,15 @@ LHAT_SOURCES = {  # name: (normals, albedo, pixels)
 }
 
 
-def texture_lhat(image, normal, mask, uv, n_components: int = 20) -> torch.Tensor:
-    """``[3, 9]``: the order-2 RGB light fitted with the PCA texture model for the albedo (through ``uv``) in place of
-    L-hat's constant (:func:`disent.lighting.order.score`, Gaussian noise)."""
-    from disent.lighting.order import score
-    from disent.lighting.texture import texture_for
+def texture_lhat(batch: dict) -> torch.Tensor:
+    """``[B, 3, 9]``: L-hat with the PCA texture model for the albedo in place of its constant
+    (:func:`disent.lighting.texture.texture_light`), fitted on M-hat eroded ``EDGE`` px through the pseudo normals
+    and uv of each image of ``batch``: the best light here that needs no truth (``lhat_sources``), and E_recon-L's
+    target with ``loss.recon_L_target=sh_texture``."""
+    from disent.lighting.texture import texture_light
 
-    data = prepare(image, normal, mask)
-    return torch.as_tensor(np.asarray(score(data, 2, texture=texture_for(data, uv, n_components))["light"]))
+    mask = eroded(batch["mask_pseudo"], EDGE)
+    return texture_light(batch["image"], batch["normal_pseudo"], mask, batch["uv_pseudo"]).to(batch["image"].dtype)
 
 
 @torch.no_grad()
@@ -480,12 +481,7 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
 
     inputs = dict(LHAT_SOURCES, texture_model=("normal_pseudo", "texture_model", "eroded"), floor=("-", "-", "-"))
     lights = {k: fit(g[nk], albedo[a], pixels[p]) for k, (nk, a, p) in LHAT_SOURCES.items()}
-    lights["texture_model"] = torch.stack(
-        [
-            texture_lhat(g["image"][i], g["normal_pseudo"][i], pixels["eroded"][i], g["uv_pseudo"][i])
-            for i in range(len(face))
-        ]
-    )
+    lights["texture_model"] = texture_lhat(g)
     for name in networks:
         out = _network(name)(g["image"].clamp(0, 1))
         inside = g["mask_pseudo"] * (out["matte"] > 0.5)

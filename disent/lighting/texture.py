@@ -127,6 +127,58 @@ def texture_for(data, uv, n_components: int = 20) -> tuple:
     return model.at_pixels(uv, data.index), model.variance
 
 
+def texture_light(image, normal, mask, uv, n_components: int = 20, rounds: int = 10, prior_scale: float = 2.0):
+    """``[B, C, 9]``: L-hat with the texture model's albedo in place of its constant, for a batch at once (float64):
+    the order-2 RGB light and the texture coefficients fitted by the alternating least squares of
+    :func:`disent.lighting.order.score` (Gaussian noise, ``rounds`` rounds from the mean texture), on the pixels
+    with ``mask [B,1,H,W] > 0.5``, the texture model read through ``uv [B,2,H,W]``.  Each light step is that
+    function's ridge fit (``N(0, prior_scale^2)`` coefficients, the noise at its maximum likelihood, two
+    Gauss-Newton steps from least squares); each texture step its ridge fit of the coefficients under their PCA
+    prior (``tests/test_lighting.py`` holds the two to the same light)."""
+    from disent.render import sh_basis
+
+    B, C, H, W = image.shape
+    model = texture_model(uv.shape[-1], n_components)
+    maps = torch.from_numpy(model.maps).double()  # [M, C, R, R]: the mean, then the components
+    M = len(maps)
+    inside = mask.reshape(B, H * W) > 0.5
+    counts = inside.sum(1)
+    at = torch.sort((~inside).to(torch.uint8), stable=True, dim=1)[1][:, : int(counts.max())]  # each image's pixels first
+    m = (torch.arange(at.shape[1]) < counts[:, None]).double()[:, None]  # [B, 1, P]: 0 on the padding
+
+    def packed(x):  # [B, K, H, W] -> [B, K, P] at the masked pixels, 0 on the padding
+        return x.double().reshape(B, x.shape[1], H * W).gather(2, at[:, None].expand(-1, x.shape[1], -1)) * m
+
+    grid = (2 * packed(uv) - 1).permute(0, 2, 1)[:, None]  # [B, 1, P, 2]
+    tex = F.grid_sample(maps.reshape(1, M * C, *maps.shape[-2:]).expand(B, -1, -1, -1), grid, align_corners=True)
+    tex = tex.view(B, M, C, -1) * m[:, None]  # [B, M, C, P]
+    y, basis = packed(image), sh_basis(packed(normal), 1) * m  # [B, C, P], [B, 9, P]
+    n = counts.double() * C  # values per image
+    eye = torch.eye(9, dtype=torch.float64)
+
+    def light(albedo):  # albedo [B, C, P] -> (L [B, C, 9], noise variance [B])
+        A = albedo[:, :, None] * basis[:, None]  # [B, C, 9, P]
+        AtA, Aty = A @ A.transpose(-1, -2), (A @ y[..., None])[..., 0]
+        L = torch.linalg.lstsq(AtA, Aty[..., None], driver="gelsd" if AtA.device.type == "cpu" else None)[0][..., 0]
+        for _ in range(3):  # v from L, then the ridge fit at v (order._fit's two steps), then v at the last L
+            v = (y - (L[..., None, :] @ A)[..., 0, :]).pow(2).sum((1, 2)) / n
+            if _ < 2:
+                L = torch.linalg.solve(AtA + (v / prior_scale**2)[:, None, None, None] * eye, Aty)
+        return L, v
+
+    variance = torch.from_numpy(model.variance).double()
+    beta = torch.zeros(B, M - 1, dtype=torch.float64)
+    for _ in range(rounds + 1):
+        albedo = (tex[:, 0] + torch.einsum("bj,bjcp->bcp", beta, tex[:, 1:])).clamp_min(1e-3) * m
+        L, v = light(albedo)
+        if _ == rounds:
+            return L
+        shading = L @ basis  # [B, C, P]
+        X = (tex[:, 1:] * shading[:, None]).reshape(B, M - 1, -1)  # [B, J, C*P]
+        H_beta = X @ X.transpose(1, 2) + torch.diag_embed(v[:, None] / variance)  # ridge in units of the noise
+        beta = torch.linalg.solve(H_beta, X @ (y - tex[:, 0] * shading).reshape(B, -1, 1))[..., 0]
+
+
 # uv' = [u, v, 1] W: an affine correction of the pseudo uv (W [3, 2], the identity is no correction)
 AFFINE_IDENTITY = np.array([[1.0, 0.0], [0.0, 1.0], [0.0, 0.0]])
 
