@@ -189,6 +189,10 @@ def test_loss_terms_closed_forms():
     assert L.recon_L(out, oracle, target="sh").item() == pytest.approx(L.recon_L(out, b).item(), rel=1e-6)
     with pytest.raises(ValueError, match="true light"):  # a batch without it (a folder of photos)
         L.recon_L(out, b, target="sh")
+    textured = {**b, "sh_texture": b["sh_pseudo"], "sh_pseudo": torch.zeros_like(b["sh_pseudo"])}
+    assert L.recon_L(out, textured, target="sh_texture").item() == pytest.approx(L.recon_L(out, b).item(), rel=1e-6)
+    with pytest.raises(ValueError, match="the trainer to add it"):
+        L.recon_L(out, b, target="sh_texture")
     with pytest.raises(ValueError, match="recon_L_target must be one of sh_pseudo, sh"):
         L.recon_L(out, b, target="L_hat")
     assert L.recon_fg({"foreground": b["image"] + 0.1 * mask + 0.3 * (1 - mask)}, b).item() == pytest.approx(

@@ -212,6 +212,33 @@ def test_training_sees_the_seeded_data_order_with_and_without_prefetch(tmp_path,
     assert expected[0] != expected[2] and sorted(expected[0] + expected[1]) == list(range(8))  # a new order each epoch
 
 
+def test_texture_lhat_target_is_fitted_once_per_training_image(tmp_path, monkeypatch):
+    """loss.recon_L_target=sh_texture: each step's batch carries its images' texture-model L-hat, fitted the first
+    time an image comes (two epochs of 8 images: 8 fits, none in the second epoch), in the batch's order."""
+    import disent.lighting.experiments as E
+
+    fitted = []
+
+    def fake(batch):  # a light that names its image: its mean pixel value in the DC coefficient
+        fitted.append(len(batch["image"]))
+        return torch.cat([batch["image"].mean((2, 3))[..., None], torch.zeros(len(batch["image"]), 3, 8)], 2)
+
+    monkeypatch.setattr(E, "texture_lhat", fake)
+    cache = {}
+    b = {
+        k: torch.rand(4, c, 8, 8) for k, c in (("image", 3), ("normal_pseudo", 3), ("mask_pseudo", 1), ("uv_pseudo", 2))
+    }
+    first = T.with_texture_lhat(b, torch.tensor([5, 1, 7, 2]), cache)
+    torch.testing.assert_close(first["sh_texture"][:, :, 0], b["image"].mean((2, 3)))
+    again = T.with_texture_lhat({**b, "image": b["image"].flip(0)}, [2, 7, 1, 5], cache)  # cached: no new fit
+    assert fitted == [4] and torch.equal(again["sh_texture"], first["sh_texture"].flip(0))
+    T.with_texture_lhat(b, [5, 3, 0, 1], cache)
+    assert fitted == [4, 2] and sorted(cache) == [0, 1, 2, 3, 5, 7]
+    fitted.clear()
+    run(cfg_of(*TINY, "train.epochs=2", "train.max_steps=null", "loss.recon_L_target=sh_texture"), tmp_path)
+    assert fitted == [4, 4] and all(r["recon_L"] > 0 for r in records(tmp_path) if "recon_L" in r)
+
+
 def test_validation_records_normal_errors_and_psnr(tmp_path):
     run(cfg_of(*TINY, "train.epochs=3", "train.max_steps=null", "train.val_every=2", "train.val_size=4"), tmp_path)
     vals = [r for r in records(tmp_path) if "val" in r]

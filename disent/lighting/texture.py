@@ -127,23 +127,28 @@ def texture_for(data, uv, n_components: int = 20) -> tuple:
     return model.at_pixels(uv, data.index), model.variance
 
 
-def texture_light(image, normal, mask, uv, n_components: int = 20, rounds: int = 10, prior_scale: float = 2.0):
+def texture_light(
+    image, normal, mask, uv, n_components: int = 20, rounds: int = 10, prior_scale: float = 2.0, model=None
+) -> torch.Tensor:
     """``[B, C, 9]``: L-hat with the texture model's albedo in place of its constant, for a batch at once (float64):
     the order-2 RGB light and the texture coefficients fitted by the alternating least squares of
     :func:`disent.lighting.order.score` (Gaussian noise, ``rounds`` rounds from the mean texture), on the pixels
-    with ``mask [B,1,H,W] > 0.5``, the texture model read through ``uv [B,2,H,W]``.  Each light step is that
+    with ``mask [B,1,H,W] > 0.5``, the texture ``model`` (None: :func:`texture_model` at the image's resolution and
+    ``n_components``) read through ``uv [B,2,H,W]``.  Each light step is that
     function's ridge fit (``N(0, prior_scale^2)`` coefficients, the noise at its maximum likelihood, two
     Gauss-Newton steps from least squares); each texture step its ridge fit of the coefficients under their PCA
     prior (``tests/test_lighting.py`` holds the two to the same light)."""
     from disent.render import sh_basis
 
     B, C, H, W = image.shape
-    model = texture_model(uv.shape[-1], n_components)
+    model = model or texture_model(uv.shape[-1], n_components)
     maps = torch.from_numpy(model.maps).double()  # [M, C, R, R]: the mean, then the components
     M = len(maps)
     inside = mask.reshape(B, H * W) > 0.5
     counts = inside.sum(1)
-    at = torch.sort((~inside).to(torch.uint8), stable=True, dim=1)[1][:, : int(counts.max())]  # each image's pixels first
+    at = torch.sort((~inside).to(torch.uint8), stable=True, dim=1)[1][
+        :, : int(counts.max())
+    ]  # each image's pixels first
     m = (torch.arange(at.shape[1]) < counts[:, None]).double()[:, None]  # [B, 1, P]: 0 on the padding
 
     def packed(x):  # [B, K, H, W] -> [B, K, P] at the masked pixels, 0 on the padding

@@ -182,8 +182,8 @@ def claim_ablations(rep: Report, runs: list[Run]) -> None:
         "(the full model better beyond both arms' seed spread: confirmed), *verdict* reads it only where the full "
         "model meets the default-run targets at that budget (`TARGETS`; the budget check under each ablation "
         "table; the glance section's *what holds the albedo back* says which of the shading's inputs keeps the "
-        "albedo from its target, and *what a perfect L-hat buys* how far the albedo gets with the true light as "
-        "E_recon-L's target).\n",
+        "albedo from its target, and *what a perfect L-hat buys* and *what a better L-hat without truth buys* how "
+        "far the albedo gets with the true light, or L-hat fitted with a texture model, as E_recon-L's target).\n",
         *head,
         *rows,
         "",

@@ -480,7 +480,7 @@ def lhat_source_lines(src: dict) -> list[str]:
         "made true one at a time: first its pixels (M-hat also covers some hair, ears and background), then from there "
         "the normals, the albedo (or in its place a placed mean texture: the mean train albedo in UV space through the "
         "pseudo uv), or both; beside them what needs no truth: M-hat eroded, the PCA texture model fitted with the "
-        "light (`disent.lighting.experiments.texture_lhat`), the shipped networks' own light, and the least-squares "
+        "light (`disent.lighting.experiments.texture_lhat`; E_recon-L's target under `loss.recon_L_target=sh_texture`), the shipped networks' own light, and the least-squares "
         "light of the image over a network's own albedo. *Light on the face*: its shading through the true normals "
         "against the true light's, scale-invariant per image and channel, on the scored pixels (the networks' "
         "*light on the face* in the glance section), mean ± standard error over the faces; *beats L-hat*: the share "
