@@ -835,6 +835,37 @@ def test_an_ablation_stands_against_every_full_model_it_trains_as(tmp_path):
     assert "| 0.125 ± 0 (n=3) | 0.5 ± 0 (n=3) | **confirmed** |" in rows["`model=explicit`"]
 
 
+def test_no_pseudo_light_names_the_light_target_it_takes_away(tmp_path):
+    """Without E_recon-L no target guides the light, so the no_pseudo_light runs stand against the full model of
+    every E_recon-L target; each row says which target the full model learnt from (L-hat, the true light)."""
+    good = {"normal_mean": 12.0, "recon_face_psnr": 26.5, "albedo_si_mse": 0.005, "trivial_albedo_si_mse": 0.0127}
+    for seed in range(3):
+        make_run(tmp_path, f"full{seed}", seed=seed, eval_={**good, "light_shading_si_mse": 0.005})
+        make_run(
+            tmp_path,
+            f"o{seed}",
+            seed=seed,
+            eval_={**good, "light_shading_si_mse": 0.003},
+            extra=("loss.recon_L_target=sh",),
+        )
+        make_run(
+            tmp_path,
+            f"npl{seed}",
+            ablations=["no_pseudo_light"],
+            seed=seed,
+            eval_={**good, "light_shading_si_mse": 0.01},
+        )
+    rep = report.Report(tmp_path, "")
+    ablations.claim_ablations(rep, find_runs([tmp_path]))
+    reasons = {
+        line.split("|")[1].strip(): line.split("|")[3].strip() for line in rep.lines if "| no_pseudo_light |" in line
+    }
+    assert reasons == {
+        "`model=explicit`": "L-hat guides the light (Eq. 9)",
+        "`loss.recon_L_target=sh model=explicit`": "the true light in L-hat's place guides the light (Eq. 9)",
+    }, reasons
+
+
 def test_skin_table_keeps_settings_apart_and_quotes_the_truth(tmp_path):
     """Where each face's skin goes: one row per setting and model (the gray L-hat target is its own setting), mean
     and spread over seeds, each floor beside its si-MSE and the true shading's correlations in the caption; runs

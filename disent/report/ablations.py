@@ -100,8 +100,14 @@ ABLATION_CLAIMS = (
     ("no_matting", "the matte lets the face layers serve the face (Sec. 3.3)", "normal_mean"),
     ("no_adv", "the adversarial loss: realistic, sharp faces (Eq. 7)", "recon_face_ssim"),
     ("no_pseudo_normal", "the morphable model's normals guide N_e (Eq. 8)", "normal_mean"),
-    ("no_pseudo_light", "L-hat guides the light (Eq. 9)", "light_shading_si_mse"),
+    ("no_pseudo_light", "{light_target} guides the light (Eq. 9)", "light_shading_si_mse"),
 )
+# E_recon-L's target in a setting that names one (loss.recon_L_target), else the paper's L-hat: what no_pseudo_light
+# takes away there
+LIGHT_TARGET_NAMES = {
+    "loss.recon_L_target=sh": "the true light in L-hat's place",
+    "loss.recon_L_target=sh_texture": "the texture model's L-hat in L-hat's place",
+}
 CLAIM_METRICS = {  # metric -> its label in the claims' tables
     "shading_cast": "shading cast",
     "albedo_shading_corr": "corr(albedo, true shading)",
@@ -165,8 +171,9 @@ def claim_ablations(rep: Report, runs: list[Run]) -> None:
             if a is None and b is None:  # runs scored before the metric existed
                 continue
             diff = verdict(a, b, "higher" if key in HIGHER_IS_BETTER else "lower")
+            light_target = next((v for k, v in LIGHT_TARGET_NAMES.items() if k in where.split()), "L-hat")
             rows.append(
-                f"| `{where}` | {ablation} | {reason} | {CLAIM_METRICS[key]} | {spread_text(a, '.4g')} | "
+                f"| `{where}` | {ablation} | {reason.format(light_target=light_target)} | {CLAIM_METRICS[key]} | {spread_text(a, '.4g')} | "
                 f"{spread_text(b, '.4g')} | "
                 f"{diff} | {gate or diff} |"
             )
