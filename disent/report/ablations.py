@@ -172,10 +172,10 @@ def claim_ablations(rep: Report, runs: list[Run]) -> None:
                 continue
             diff = verdict(a, b, "higher" if key in HIGHER_IS_BETTER else "lower")
             light_target = next((v for k, v in LIGHT_TARGET_NAMES.items() if k in where.split()), "L-hat")
+            reason_here = reason.format(light_target=light_target)
             rows.append(
-                f"| `{where}` | {ablation} | {reason.format(light_target=light_target)} | {CLAIM_METRICS[key]} | {spread_text(a, '.4g')} | "
-                f"{spread_text(b, '.4g')} | "
-                f"{diff} | {gate or diff} |"
+                f"| `{where}` | {ablation} | {reason_here} | {CLAIM_METRICS[key]} | {spread_text(a, '.4g')} | "
+                f"{spread_text(b, '.4g')} | {diff} | {gate or diff} |"
             )
     if not (rows := rep.rows_kept(head[0], rows, key=4)):
         rep.note(
