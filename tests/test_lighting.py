@@ -765,6 +765,7 @@ def test_lhat_sources_is_exact_with_every_input_made_true():
     assert rows["lhat"]["light_on_face"] > 1e-3 and rows["lhat"]["beats_lhat"] == 0
     assert set(rows) == set(LHAT_SOURCES) | {"texture_model", "network_explicit", "network_explicit_refit", "floor"}
     assert all(len(row["inputs"]) == 3 and 0 <= row["shown"] for row in rows.values())
+    assert all(-1 <= row[f"skin_{k}_corr"] <= 1 for row in rows.values() for k in ("tone", "brightness"))
 
 
 def test_eroded_pseudo_mask_drops_exactly_the_edge_ring():

@@ -127,6 +127,24 @@ def _corr_over_faces(x: torch.Tensor, y: torch.Tensor) -> float:
     return torch.where(flat, torch.zeros_like(corr), corr).mean().item()
 
 
+def face_colour(x: torch.Tensor, region: torch.Tensor) -> torch.Tensor:
+    """``[B, 3]``: each face's mean colour of ``x [B, C, H, W]`` (one channel: gray) inside ``region [B,1,H,W]``."""
+    return (x.expand(-1, 3, -1, -1) * region).sum((2, 3)) / region.sum((2, 3)).clamp_min(1)
+
+
+def skin_in_shading(shading_rgb: torch.Tensor, skin_rgb: torch.Tensor) -> dict:
+    """Where each face's skin went, from the faces' mean shading and true albedo colours ``[B, 3]``: ``tone``, the
+    correlation over faces of their chromaticities (each channel over the three's sum), and ``brightness``, of their
+    mean luminance; near 0 when the shading carries only the light, towards 1 when it carries the skin."""
+    return {
+        "tone": _corr_over_faces(
+            shading_rgb / shading_rgb.sum(1, keepdim=True).clamp_min(1e-12),
+            skin_rgb / skin_rgb.sum(1, keepdim=True).clamp_min(1e-12),
+        ),
+        "brightness": _corr_over_faces(shading_rgb.mean(1, True), skin_rgb.mean(1, True)),
+    }
+
+
 ALBEDO_CEILING = 0.95  # an albedo value this close to the sigmoid's 1 is pinned there: its pattern is clipped
 
 
@@ -145,30 +163,21 @@ def bws_stats(out: dict, gt: dict) -> dict:
     ``albedo_shading_corr`` is Pearson's over face pixels of each image (luminance, i.e. the channel
     mean), averaged over images: near 0 when albedo is free of shading, towards 1 when it
     absorbs it.  BWS pushes the shading mean over the batch to c = 0.75 per channel, which leaves each face free
-    to put its own skin in the shading: ``shading_albedo_tone_corr`` is the correlation over faces of the
-    shading's mean chromaticity (each channel over their sum, averaged over the channels) with the true albedo's,
-    both on the pixels of :func:`decomposed_region` (where the albedo is scored), ``shading_albedo_brightness_corr``
-    the same for the mean luminance; near 0 when the shading carries only the light, towards 1 when it carries the
-    skin.  ``true_shading_albedo_*`` are the same for the
-    true shading: what the scenes' lights give.
+    to put its own skin in the shading: ``shading_albedo_tone_corr`` and ``shading_albedo_brightness_corr`` are
+    :func:`skin_in_shading` on the pixels of :func:`decomposed_region` (where the albedo is scored); near 0 when the
+    shading carries only the light, towards 1 when it carries the skin.  ``true_shading_albedo_*`` are the same for
+    the true shading: what the scenes' lights give.
     """
     face = face_mask(gt["matte"])
     w = face.flatten(1)
     n = w.sum(1).clamp_min(1)
     mean_c = ((out["shading"].expand(-1, 3, -1, -1) * face).flatten(2).sum(2) / n[:, None]).mean(0)  # [3]
     skin_region = decomposed_region(gt)  # the face without hair and neck, as the albedo is scored
-    face_rgb = {  # [B, 3]: each face's mean colour there
-        name: (x.expand(-1, 3, -1, -1) * skin_region).sum((2, 3)) / skin_region.sum((2, 3)).clamp_min(1)
-        for name, x in (("shading", out["shading"]), ("true_shading", gt["shading"]), ("albedo", gt["albedo"]))
-    }
-    skin = face_rgb["albedo"]
+    skin = face_colour(gt["albedo"], skin_region)
     tone = {}
-    for prefix, key in (("", "shading"), ("true_", "true_shading")):
-        rgb = face_rgb[key]
-        tone[f"{prefix}shading_albedo_tone_corr"] = _corr_over_faces(
-            rgb / rgb.sum(1, keepdim=True).clamp_min(1e-12), skin / skin.sum(1, keepdim=True).clamp_min(1e-12)
-        )
-        tone[f"{prefix}shading_albedo_brightness_corr"] = _corr_over_faces(rgb.mean(1, True), skin.mean(1, True))
+    for prefix, shading in (("", out["shading"]), ("true_", gt["shading"])):
+        for what, corr in skin_in_shading(face_colour(shading, skin_region), skin).items():
+            tone[f"{prefix}shading_albedo_{what}_corr"] = corr
     return {
         "shading_mean_rgb": mean_c.tolist(),
         "shading_cast": (mean_c.max() - mean_c.min()).item(),

@@ -22,7 +22,7 @@ import torch
 
 from disent.lighting.order import choose, fitted, select_order
 from disent.lighting.posterior import N_COEFFS, prepare, sample_posterior
-from disent.render import C4, fit_sh, sh_basis
+from disent.render import C4, fit_sh, sh_basis, sh_shading
 from disent.runs import machine_info
 
 BANDS = {0: [0], 1: [1, 2, 3], 2: [4, 5, 6, 7, 8]}
@@ -453,15 +453,17 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
     the networks': its shading through the true normals against the true light's, scale-invariant per image and
     channel, on the scored pixels (the true face inside M-hat; ``light_on_face``, with its standard error over the
     faces, and ``beats_lhat``, the share of faces where it is below the paper's L-hat), and the SH error along the
-    directions the face shows (``shown``). ``LHAT_SOURCES`` are least-squares fits (:func:`disent.data.synth.scenes.
-    fit_sh_packed`) of the image over the albedo; *template*: the mean train albedo in UV space placed through the
-    pseudo uv; ``texture_model``: the PCA texture model fitted with the light (:func:`texture_lhat`) on M-hat eroded
-    ``EDGE`` px. Each row names its ``inputs`` (normals, albedo, pixels). Each shipped network in ``networks`` adds
-    its light and the least-squares light of the image over its own albedo on the pseudo normals, inside M-hat and
-    its matte. ``floor``: the constant mean train light."""
+    directions the face shows (``shown``); ``skin_tone_corr`` and ``skin_brightness_corr``: how much of each face's
+    skin its shading carries there (:func:`disent.eval.evaluate.skin_in_shading`; a per-face, per-channel scale that
+    light on the face is blind to, and that the light hands on to the albedo). ``LHAT_SOURCES`` are least-squares
+    fits (:func:`disent.data.synth.scenes.fit_sh_packed`) of the image over the albedo; *template*: the mean train
+    albedo in UV space placed through the pseudo uv; ``texture_model``: the PCA texture model fitted with the light
+    (:func:`texture_lhat`) on M-hat eroded ``EDGE`` px. Each row names its ``inputs`` (normals, albedo, pixels). Each
+    shipped network in ``networks`` adds its light and the least-squares light of the image over its own albedo on
+    the pseudo normals, inside M-hat and its matte. ``floor``: the constant mean train light."""
     from disent.data import get_batch
     from disent.data.synth.scenes import fit_sh_packed
-    from disent.eval.evaluate import decomposed_region
+    from disent.eval.evaluate import decomposed_region, face_colour, skin_in_shading
     from disent.eval.metrics import light_shading_si_mse, sh_error_shown_hidden
     from disent.eval.trivial import dataset_means, template_albedo
 
@@ -475,9 +477,12 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
         image = g["image"] if a is None else torch.where(mask > 0.5, g["image"] / a.clamp_min(1e-3), 0)
         return fit_sh_packed(image, normal * (mask > 0.5), mask)
 
+    skin = face_colour(g["albedo"], face)
+
     def scored(sh):
         e = light_shading_si_mse(sh, g["sh"], g["normal"], face, reduction="none")
-        return e, sh_error_shown_hidden(sh, g["sh"], g["normal"], face)["shown"]
+        skin_corr = skin_in_shading(face_colour(sh_shading(g["normal"].double(), sh.double()), face), skin)
+        return e, sh_error_shown_hidden(sh, g["sh"], g["normal"], face)["shown"], skin_corr
 
     inputs = dict(LHAT_SOURCES, texture_model=("normal_pseudo", "texture_model", "eroded"), floor=("-", "-", "-"))
     lights = {k: fit(g[nk], albedo[a], pixels[p]) for k, (nk, a, p) in LHAT_SOURCES.items()}
@@ -492,12 +497,14 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
     scores = {k: scored(sh) for k, sh in lights.items()}
     reference = scores["lhat"][0]
     rows = {}
-    for k, (e, shown) in scores.items():
+    for k, (e, shown, skin_corr) in scores.items():
         rows[k] = {
             "light_on_face": float(e.mean()),
             "light_on_face_se": float(e.std() / math.sqrt(len(e))),
             "beats_lhat": float((e < reference).double().mean()),
             "shown": shown,
+            "skin_tone_corr": skin_corr["tone"],
+            "skin_brightness_corr": skin_corr["brightness"],
             "inputs": inputs[k],
         }
     return {"split": test.split, "n": len(reference), "rows": rows}
