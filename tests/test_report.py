@@ -629,6 +629,16 @@ def test_lhat_sources_table_reads_which_input_costs_l_hat_most(tmp_path):
     text = "\n".join(lighting.lhat_source_lines({"split": "test", "n": 256, "rows": rows}))
     assert "L-hat's coarse-fit normals cost it more than its constant albedo" in text
     assert "(explicit 0.0060) is not below it" in text and "does not improve" not in text
+    assert "| 0.0163 ± 0.0016 | 0.50 | 0.100 | – / – |" in text and "keeps each face's skin" not in text  # older JSON
+    skin = {"lhat": (0.8, 0.77), "texture_model": (0.61, 0.76), "true_pixels_albedo": (-0.04, 0.05), "floor": (0, 0)}
+    for k, (tone, bright) in skin.items():
+        rows[k] |= {"skin_tone_corr": tone, "skin_brightness_corr": bright}
+    text = "\n".join(lighting.lhat_source_lines({"split": "test", "n": 256, "rows": rows}))
+    assert "| 0.0086 ± 0.0009 | 0.50 | 0.100 | +0.80 / +0.77 |" in text
+    assert (
+        "fitted without the true albedo keeps each face's skin in its shading (tone +0.61 to +0.80, brightness "
+        "+0.76 to +0.77" in text
+    )  # the true albedo's and the floor's rows stay out of the range
     (tmp_path / "lighting").mkdir()
     (tmp_path / "lighting" / "lhat_sources.json").write_text(json.dumps({"split": "test", "n": 256, "rows": rows}))
     rep = report.Report(tmp_path)

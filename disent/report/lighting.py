@@ -9,7 +9,7 @@ import numpy as np
 
 from disent.lighting.experiments import ORDER_TARGET, wilson_interval
 from disent.report.document import Report, load_json
-from disent.report.tables import table_head
+from disent.report.tables import fmt_value, table_head
 
 
 def _pct(x) -> str:
@@ -485,16 +485,30 @@ def lhat_source_lines(src: dict) -> list[str]:
         "light of the image over a network's own albedo. *Light on the face*: its shading through the true normals "
         "against the true light's, scale-invariant per image and channel, on the scored pixels (the networks' "
         "*light on the face* in the glance section), mean ± standard error over the faces; *beats L-hat*: the share "
-        f"of faces where it is below the paper's L-hat; *shown SH error*: along the SH directions the face shows. "
+        f"of faces where it is below the paper's L-hat; *shown SH error*: along the SH directions the face shows; "
+        "*skin in its shading*: the correlation over faces of its shading's mean chromaticity (tone) and luminance "
+        "(brightness) on the scored pixels with the true albedo's (`disent.eval.evaluate.skin_in_shading`, as "
+        "`shading_albedo_tone_corr` scores the networks' shading), the per-face scale that *light on the face* is "
+        "blind to and that a light hands on to the albedo; the true light's is about 0. "
         f"The first {src['n']} {src['split']} images, noise-free as training sees them "
         "(`python -m disent.lighting task=lhat`; `disent.lighting.experiments.lhat_sources`).\n",
-        *table_head("light", "normals", "albedo", "pixels", "light on the face", "beats L-hat", "shown SH error"),
+        *table_head(
+            "light",
+            "normals",
+            "albedo",
+            "pixels",
+            "light on the face",
+            "beats L-hat",
+            "shown SH error",
+            "skin in its shading (tone / brightness)",
+        ),
     ]
     for k, r in rows.items():
         words = " | ".join(LHAT_WORDS.get(i, i) for i in r["inputs"])
+        skin = " / ".join(fmt_value(r.get(f"skin_{c}_corr"), "+.2f") for c in ("tone", "brightness"))
         lines.append(
             f"| {lhat_source_name(k)} | {words} | {r['light_on_face']:.4f} ± {r['light_on_face_se']:.4f} | "
-            f"{r['beats_lhat']:.2f} | {r['shown']:.3f} |"
+            f"{r['beats_lhat']:.2f} | {r['shown']:.3f} | {skin} |"
         )
     if not {"lhat", "true_pixels", "true_pixels_normals", "true_pixels_albedo"} <= set(e):
         return lines + [""]
@@ -524,6 +538,16 @@ def lhat_source_lines(src: dict) -> list[str]:
                 + ")"
             )
         reading += "."
+    fitted = [r for r in rows.values() if r["inputs"][1] not in ("albedo", "-") and "skin_tone_corr" in r]
+    if fitted:
+        tone, bright = ([r[f"skin_{c}_corr"] for r in fitted] for c in ("tone", "brightness"))
+        reading += (
+            f" Every light here fitted without the true albedo keeps each face's skin in its shading (tone "
+            f"{min(tone):+.2f} to {max(tone):+.2f}, brightness {min(bright):+.2f} to {max(bright):+.2f} over faces, "
+            "the networks' own "
+            "included): the skin's scale and the light's are one unknown in the image, and a target "
+            "that carries the skin teaches it to Z_L."
+        )
     return lines + [reading + "\n"]
 
 
