@@ -544,9 +544,8 @@ def lhat_source_lines(src: dict) -> list[str]:
         reading += (
             f" Every light here fitted without the true albedo keeps each face's skin in its shading (tone "
             f"{min(tone):+.2f} to {max(tone):+.2f}, brightness {min(bright):+.2f} to {max(bright):+.2f} over faces, "
-            "the networks' own "
-            "included): the skin's scale and the light's are one unknown in the image, and a target "
-            "that carries the skin teaches it to Z_L."
+            "the networks' own included): the skin's scale and the light's are one unknown in the image, and a "
+            "target that carries the skin teaches it to Z_L."
         )
     return lines + [reading + "\n"]
 
