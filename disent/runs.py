@@ -24,6 +24,7 @@ import math
 import os
 import shutil
 import subprocess
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -218,10 +219,11 @@ class MetricsLog:
 
 def atomic_write(path, write) -> None:
     """Write ``path`` through ``write(binary_file)`` into a temp file beside it, then rename it into place:
-    a crash mid-write leaves the previous file intact (per-process temp name: workers may race)."""
+    a crash mid-write leaves the previous file intact (a temp name per process and thread: processes and the
+    prefetch threads may write the same file at once; the last rename wins)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f"{path.name}.tmp{os.getpid()}")
+    tmp = path.with_name(f"{path.name}.tmp{os.getpid()}-{threading.get_ident()}")
     with tmp.open("wb") as f:
         write(f)
     os.replace(tmp, path)

@@ -1297,3 +1297,25 @@ def test_order_choice_speed_times_each_geometry_it_is_given():
 
     times = order_choice_speed(SynthFaces("test", 64, size=1), 1, ("normal_pseudo_registered",))
     assert list(times) == ["normal_pseudo_registered"] and times["normal_pseudo_registered"] > 0
+
+
+def test_texture_model_asked_by_threads_at_once_is_built_once(tmp_path, monkeypatch):
+    """The prefetch workers of an ``sh_texture`` run ask for the texture model together on a machine without its disk
+    cache: one thread builds and writes it, the others wait and load the same model."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from disent.lighting import texture
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    builds = []
+    real_write = texture.atomic_write
+    monkeypatch.setattr(texture, "atomic_write", lambda *a: (builds.append(1), real_write(*a)))
+    texture.texture_model.cache_clear()
+    try:
+        with ThreadPoolExecutor(4) as pool:
+            models = list(pool.map(lambda _: texture.texture_model(64, 5, 32), range(4)))
+    finally:
+        texture.texture_model.cache_clear()
+    assert builds == [1]
+    for m in models[1:]:
+        np.testing.assert_array_equal(m.components, models[0].components)

@@ -5,6 +5,8 @@ import json
 import os
 import subprocess
 import sys
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -15,6 +17,7 @@ from disent.runs import (
     CheckpointError,
     RunFolderBusy,
     RunLock,
+    atomic_write,
     load_checkpoint,
     lock_holder,
     previous_checkpoint,
@@ -231,3 +234,23 @@ def test_tool_folders_publish_their_results_and_nothing_else(tmp_path, monkeypat
         publish(empty, reports)
     with pytest.raises(ValueError, match="are not published"):
         publish(tool_folder("decompose", tmp_path / "d"), reports)
+
+
+def test_atomic_write_from_threads_at_once(tmp_path):
+    """Threads of one process (the prefetch workers) writing one file at the same moment each get their own temp
+    file: every rename succeeds, the file holds one writer's whole content, and no temp file is left."""
+    n, path = 4, tmp_path / "cache.npz"
+    everyone_open = threading.Barrier(n)
+
+    def write(k):
+        def body(f):
+            f.write(bytes([k]) * 1000)
+            everyone_open.wait(timeout=10)  # every thread holds its temp file open before any renames it
+
+        atomic_write(path, body)
+
+    with ThreadPoolExecutor(n) as pool:
+        list(pool.map(write, range(n)))  # re-raises a thread's error
+    content = path.read_bytes()
+    assert len(content) == 1000 and content in {bytes([k]) * 1000 for k in range(n)}
+    assert [p.name for p in tmp_path.iterdir()] == ["cache.npz"]

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import threading
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -86,37 +87,46 @@ def _cache_path(resolution: int, n_images: int, seed: int) -> Path:
     return root / f"texture_{resolution}_{n_images}_{seed}_{hashlib.sha1(probe).hexdigest()[:12]}.npz"
 
 
+_BUILDING = threading.Lock()  # the prefetch threads ask for the model at once: one builds it, the others load it
+
+
 @lru_cache(maxsize=4)
 def texture_model(resolution: int = 64, n_components: int = 20, n_images: int = 512, seed: int = 0) -> TextureModel:
     """PCA of ``n_images`` SynthFaces train albedos in UV space (cached on disk: a pure function
     of the arguments and the generator)."""
-    path = _cache_path(resolution, n_images, seed)
-    if path.exists():
-        with np.load(path) as z:
-            full = TextureModel(z["mean"], z["components"], z["variance"])
-    else:
-        from disent.data import SynthFaces
-
-        ds = SynthFaces("train", resolution, seed)
-        albedo = torch.cat(
-            [
-                ds.get_batch(range(s, min(s + 128, n_images)))["albedo_uv"].double().flatten(1)
-                for s in range(0, n_images, 128)
-            ]
-        )
-        mean = albedo.mean(0)
-        _, sv, v = torch.linalg.svd(albedo - mean, full_matrices=False)
-        keep = min(64, len(sv))
-        shape = (3, resolution, resolution)
-        full = TextureModel(
-            mean.reshape(shape).numpy(),
-            v[:keep].reshape(keep, *shape).numpy(),
-            (sv[:keep] ** 2 / (n_images - 1)).numpy(),
-        )
-        atomic_write(path, lambda f: np.savez(f, mean=full.mean, components=full.components, variance=full.variance))
+    with _BUILDING:
+        full = _full_texture_model(resolution, n_images, seed)
     if n_components > full.n_components:
         raise ValueError(f"texture model has {full.n_components} components, asked for {n_components}")
     return full.truncate(n_components)
+
+
+def _full_texture_model(resolution: int, n_images: int, seed: int) -> TextureModel:
+    """Every kept component of :func:`texture_model`, read from its disk cache or built and written there."""
+    path = _cache_path(resolution, n_images, seed)
+    if path.exists():
+        with np.load(path) as z:
+            return TextureModel(z["mean"], z["components"], z["variance"])
+    from disent.data import SynthFaces
+
+    ds = SynthFaces("train", resolution, seed)
+    albedo = torch.cat(
+        [
+            ds.get_batch(range(s, min(s + 128, n_images)))["albedo_uv"].double().flatten(1)
+            for s in range(0, n_images, 128)
+        ]
+    )
+    mean = albedo.mean(0)
+    _, sv, v = torch.linalg.svd(albedo - mean, full_matrices=False)
+    keep = min(64, len(sv))
+    shape = (3, resolution, resolution)
+    full = TextureModel(
+        mean.reshape(shape).numpy(),
+        v[:keep].reshape(keep, *shape).numpy(),
+        (sv[:keep] ** 2 / (n_images - 1)).numpy(),
+    )
+    atomic_write(path, lambda f: np.savez(f, mean=full.mean, components=full.components, variance=full.variance))
+    return full
 
 
 def texture_for(data, uv, n_components: int = 20) -> tuple:
