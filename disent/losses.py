@@ -77,7 +77,20 @@ def recon_N(out, batch):
     return masked_mean((out["normal"] - batch["normal_pseudo"]).pow(2), batch["mask_pseudo"])
 
 
-def recon_L(out, batch, c: float | None = 0.75, space: str = "shading", gray: bool = False, target: str = "sh_pseudo"):
+def face_shading_mean(normal, light, mask) -> torch.Tensor:
+    """``[B, C]``: the mean over each face's mask of the shading S(normal, light) (Eq. 4)."""
+    return (sh_shading(normal, light) * mask).sum((2, 3)) / mask.sum((2, 3)).clamp_min(1e-8)
+
+
+def recon_L(
+    out,
+    batch,
+    c: float | None = 0.75,
+    space: str = "shading",
+    gray: bool = False,
+    target: str = "sh_pseudo",
+    oracle_mix: float = 0.0,
+):
     """E_recon-L = ||Z_L - L-hat||^2.
 
     L-hat (constant albedo) is defined up to that constant; with ``c`` set, the constant is chosen
@@ -90,6 +103,9 @@ def recon_L(out, batch, c: float | None = 0.75, space: str = "shading", gray: bo
     (:func:`disent.lighting.experiments.texture_lhat`, added to the batch by the trainer): no truth, not the paper's.
     ``target="sh"`` puts the true SH light there, an oracle (not the paper's): what a perfect L-hat
     would buy the model. Either is scaled by ``c`` and measured as L-hat is.
+    ``oracle_mix`` in [0, 1] moves the target that share of the way to the true light, scaled per face and channel
+    to the target's mean shading over M-hat (the truth's shape, the target's brightness and colour): a dose of
+    light accuracy (0: the target as chosen; 1: the truth's shape alone), not the paper's.
     ``space="coefficients"`` is the plain L2 over the 27 numbers; ``space="shading"`` measures the
     same difference through the face's pseudo normals, ||S(N-hat, Z_L) - S(N-hat, L-hat)||^2 under
     M-hat, which ignores the SH directions a face's normal cone cannot tell apart (there the
@@ -101,8 +117,13 @@ def recon_L(out, batch, c: float | None = 0.75, space: str = "shading", gray: bo
         where = "the true light (SynthFaces has it)" if target == "sh" else "the trainer to add it (disent.train)"
         raise ValueError(f"loss.recon_L_target={target} needs {target} in the batch: {where}")
     target, mask, normal = batch[target], batch["mask_pseudo"], batch["normal_pseudo"]
+    if oracle_mix:
+        if "sh" not in batch:
+            raise ValueError("loss.recon_L_oracle_mix needs the true light in the batch (SynthFaces has it)")
+        scale = face_shading_mean(normal, target, mask) / face_shading_mean(normal, batch["sh"], mask).clamp_min(1e-3)
+        target = target + oracle_mix * (batch["sh"] * scale[:, :, None] - target)
     if gray:
-        face = (sh_shading(normal, target) * mask).sum((2, 3)) / mask.sum((2, 3)).clamp_min(1e-8)  # [B, C]
+        face = face_shading_mean(normal, target, mask)  # [B, C]
         target = target * (face.mean(1, keepdim=True) / face.clamp_min(1e-3))[:, :, None]
     if c is not None:
         mean = (sh_shading(normal, target) * mask).sum((0, 2, 3)) / mask.sum().clamp_min(1e-8)  # [C]
@@ -199,6 +220,7 @@ TERM_SETTINGS = {
     "lhat_gray": ("recon_L",),
     "recon_L_space": ("recon_L",),
     "recon_L_target": ("recon_L",),
+    "recon_L_oracle_mix": ("recon_L",),
     "bws_c": ("BWS", "recon_L"),
 }
 
@@ -230,12 +252,13 @@ def generator_losses(
     recon_fg_p: int = 2,
     matte_p: int = 2,
     recon_L_target: str = "sh_pseudo",
+    recon_L_oracle_mix: float = 0.0,
 ) -> dict:
     """Unweighted value of every active term, plus ``total`` = sum of weight x term (E_o and the priors).
 
     ``energy_fake`` is D's energy of ``out['recon']`` (``[B]``), needed when ``adv`` is active;
-    ``lhat_white``, ``lhat_gray``, ``recon_L_target`` and ``recon_L_space`` choose E_recon-L's target and metric (see
-    :func:`recon_L`);
+    ``lhat_white``, ``lhat_gray``, ``recon_L_target``, ``recon_L_oracle_mix`` and ``recon_L_space`` choose E_recon-L's
+    target and metric (see :func:`recon_L`);
     ``recon_p`` E_recon's norm (2: the paper, 1: the release); ``recon_fg_p`` the masked reconstruction's
     (2: the release, 1); ``matte_p`` the matte's (2: the paper, 1: the release).
     """
@@ -254,7 +277,8 @@ def generator_losses(
             elif t == "M":
                 losses[t] = fn(out, batch, matte_p)
             elif t == "recon_L":
-                losses[t] = fn(out, batch, bws_c if lhat_white else None, recon_L_space, lhat_gray, recon_L_target)
+                c = bws_c if lhat_white else None
+                losses[t] = fn(out, batch, c, recon_L_space, lhat_gray, recon_L_target, recon_L_oracle_mix)
             else:
                 losses[t] = fn(out, batch)
     losses["total"] = sum(weights[t] * v for t, v in losses.items())

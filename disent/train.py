@@ -41,8 +41,12 @@ TRAIN_KEYS = ("image", "normal_pseudo", "mask_pseudo", "sh_pseudo", "uv_pseudo",
 
 def train_keys(cfg_loss) -> tuple:
     """The batch keys a training step reads: the pseudo-GT, and the true layers where a ceiling term is on or
-    E_recon-L reads the true light (``loss.recon_L_target=sh``)."""
-    truth = any(cfg_loss.weights.get(t, 0) for t in L.TRUTH) or cfg_loss.get("recon_L_target", "sh_pseudo") == "sh"
+    E_recon-L reads the true light (``loss.recon_L_target=sh``, ``loss.recon_L_oracle_mix`` above 0)."""
+    truth = (
+        any(cfg_loss.weights.get(t, 0) for t in L.TRUTH)
+        or cfg_loss.get("recon_L_target", "sh_pseudo") == "sh"
+        or bool(cfg_loss.get("recon_L_oracle_mix", 0.0))
+    )
     return TRAIN_KEYS + (L.TRUTH_KEYS if truth else ())
 
 
@@ -140,6 +144,7 @@ def train_step(model, disc, opt_g, opt_d, batch, cfg_loss) -> dict:
         cfg_loss.get("recon_fg_p", 2),
         cfg_loss.get("matte_p", 2),
         cfg_loss.get("recon_L_target", "sh_pseudo"),
+        cfg_loss.get("recon_L_oracle_mix", 0.0),
     )
     if disc is not None:
         energy_real = disc.energy(batch["image"])
@@ -248,6 +253,11 @@ def check_config(cfg) -> None:
             raise ConfigError(f"{key}={value!r}; choose from {', '.join(allowed)}")
     if any(cfg.loss.weights.get(k, 0) for k in L.TRUTH) and d.name != "synth":
         raise ConfigError(f"loss weights {', '.join(L.TRUTH)} train on the true layers: they need data=synth")
+    mix = cfg.loss.get("recon_L_oracle_mix", 0.0)
+    if isinstance(mix, bool) or not isinstance(mix, (int, float)) or not 0 <= mix <= 1:
+        raise ConfigError(f"loss.recon_L_oracle_mix={mix!r}: must be a number in [0, 1]")
+    if mix and d.name != "synth":
+        raise ConfigError("loss.recon_L_oracle_mix mixes the true light into E_recon-L's target: it needs data=synth")
     norms = (
         ("recon_p", "1 (L1, the release), 2 (L2, the paper)"),
         ("recon_fg_p", "1 (L1), 2 (L2, the release)"),
@@ -296,6 +306,7 @@ ADDED_LATER = {
     "loss.matte_p": 2,
     "loss.lhat_gray": False,
     "loss.recon_L_target": "sh_pseudo",
+    "loss.recon_L_oracle_mix": 0.0,
     "model.decoder_convs": 1,
     **{f"loss.weights.{t}": 0.0 for t in L.TRUTH},
 }

@@ -195,6 +195,23 @@ def test_loss_terms_closed_forms():
         L.recon_L(out, b, target="sh_texture")
     with pytest.raises(ValueError, match="recon_L_target must be one of sh_pseudo, sh"):
         L.recon_L(out, b, target="L_hat")
+    # the oracle mix (loss.recon_L_oracle_mix): a share m of the way from L-hat to the true light scaled to L-hat's
+    # mean shading per face and channel; at m = 1 the truth's shape with L-hat's brightness and colour costs 0, the
+    # truth at another scale per face and channel does not; with L-hat as the output the loss grows as m^2
+    true = torch.randn(b["sh_pseudo"].shape, generator=torch.Generator().manual_seed(2)) * 0.2
+    true[:, :, 0] += 1.0
+    mixed = {**b, "sh": true}
+    face_means = [
+        (sh_shading(b["normal_pseudo"], sh) * mask).sum((2, 3)) / mask.sum((2, 3)) for sh in (true, b["sh_pseudo"])
+    ]
+    matched = true * (face_means[1] / face_means[0])[:, :, None]
+    assert L.recon_L({"sh": matched}, mixed, c=None, oracle_mix=1.0).item() == pytest.approx(0, abs=1e-10)
+    assert L.recon_L({"sh": 2 * matched}, mixed, c=None, oracle_mix=1.0).item() > 1e-3
+    at_lhat = [L.recon_L({"sh": b["sh_pseudo"]}, mixed, c=None, oracle_mix=m).item() for m in (0.0, 0.5, 1.0)]
+    assert at_lhat[0] == 0 and at_lhat[1] == pytest.approx(0.25 * at_lhat[2], rel=1e-5) and at_lhat[2] > 1e-3
+    assert L.recon_L(out, mixed, oracle_mix=0.0).item() == L.recon_L(out, b).item()
+    with pytest.raises(ValueError, match="recon_L_oracle_mix needs the true light"):
+        L.recon_L(out, b, oracle_mix=0.5)
     assert L.recon_fg({"foreground": b["image"] + 0.1 * mask + 0.3 * (1 - mask)}, b).item() == pytest.approx(
         0.01, rel=1e-5
     )
@@ -272,6 +289,7 @@ def test_the_supervised_ceiling_trains_on_the_true_layers_only(name):
     cfg = compose_cfg(f"model={name}", "loss=ceiling")
     assert train_keys(cfg.loss) == TRAIN_KEYS + L.TRUTH_KEYS and train_keys(compose_cfg().loss) == TRAIN_KEYS
     assert train_keys(compose_cfg("loss.recon_L_target=sh").loss) == TRAIN_KEYS + L.TRUTH_KEYS
+    assert train_keys(compose_cfg("loss.recon_L_oracle_mix=0.5").loss) == TRAIN_KEYS + L.TRUTH_KEYS
     b = fake_batch(8)
     b.update(
         albedo=torch.full_like(b["image"], 0.5), normal=b["normal_pseudo"], sh=b["sh_pseudo"], matte=b["mask_pseudo"]

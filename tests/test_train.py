@@ -340,6 +340,7 @@ def test_learning_rate_schedules():
         ("loss.recon_p=3", r"loss.recon_p=3; choose from 1 \(L1, the release\), 2"),
         ("loss.recon_fg_p=0", r"loss.recon_fg_p=0; choose from 1 \(L1\), 2"),
         ("loss.matte_p=3", r"loss.matte_p=3; choose from 1 \(L1, the release\), 2"),
+        ("loss.recon_L_oracle_mix=1.5", r"loss.recon_L_oracle_mix=1.5: must be a number in \[0, 1\]"),
         ("device=tpu", "device='tpu'; choose from cpu, cuda, cuda:N"),
         ("device=cpu:1", "device='cpu:1'; choose from"),
     ],
@@ -352,6 +353,15 @@ def test_bad_settings_stop_before_anything_runs(tmp_path, override, message):
     with pytest.raises(ConfigError, match=message):
         run(cfg_of(*TINY, override), tmp_path / "run")
     assert not (tmp_path / "run" / "checkpoints").exists() and not (tmp_path / "run" / "metrics.jsonl").exists()
+
+
+def test_oracle_mix_on_photos_stops_before_anything_runs(tmp_path):
+    """loss.recon_L_oracle_mix reads the true light, which a folder of photos lacks: a ConfigError at the start."""
+    from disent.train import ConfigError
+
+    with pytest.raises(ConfigError, match="recon_L_oracle_mix mixes the true light .* needs data=synth"):
+        run(cfg_of(*TINY, "data=folder", "loss.recon_L_oracle_mix=0.5"), tmp_path / "run")
+    assert not (tmp_path / "run").exists() or not any((tmp_path / "run").iterdir())
 
 
 def test_cuda_without_a_gpu_is_one_line(tmp_path):
