@@ -1713,6 +1713,7 @@ def test_light_targets_pair_each_setting_with_its_l_hat_counterpart(tmp_path, mo
         make_run(tmp_path / "runs", f"oracle{seed}", seed=seed, eval_=better, extra=("loss.recon_L_target=sh",))
     make_run(tmp_path / "runs", "tex", eval_=ev | {"albedo_si_mse": 0.0062}, extra=("loss.recon_L_target=sh_texture",))
     make_run(tmp_path / "runs", "alone", "implicit", eval_=ev, extra=("loss.recon_L_target=sh",))  # no implicit pair
+    make_run(tmp_path / "runs", "mix", eval_=ev | {"albedo_si_mse": 0.0075}, extra=("loss.recon_L_oracle_mix=0.5",))
     monkeypatch.setattr(shipped, "manifest", lambda: {})
     lines = claims.light_target_lines(find_runs([tmp_path / "runs"]))
     rows = [line for line in lines if line.startswith("- ")]
@@ -1723,10 +1724,14 @@ def test_light_targets_pair_each_setting_with_its_l_hat_counterpart(tmp_path, mo
         "- `loss.recon_L_target=sh` (explicit) against `(defaults)`: light on the face 0.0050 ± 0.0000 (n=2) -> "
         "0.0030 ± 0.0000 (n=2); normals 12.40 ± 0.00 (n=2) -> 12.40 ± 0.00 (n=2) deg; albedo 0.0090 ± 0.0000 (n=2) "
         "-> 0.0065 ± 0.0007 (n=2), 0.72 -> 0.52 of the mean map's: misses the target (<= 0.5).",
+        "- `loss.recon_L_oracle_mix=0.5` (explicit) against `(defaults)`: light on the face 0.0050 ± 0.0000 (n=2) -> "
+        "0.0050 (n=1); normals 12.40 ± 0.00 (n=2) -> 12.40 (n=1) deg; albedo 0.0090 ± 0.0000 (n=2) -> 0.0075 (n=1), "
+        "0.72 -> 0.60 of the mean map's: misses the target (<= 0.5).",
     ]
-    assert [line.split(":")[0] for line in lines if line.startswith("What")] == [
+    assert [line.split(":")[0] for line in lines if line.startswith(("What", "How"))] == [
         "What a better L-hat without truth buys",
         "What a perfect L-hat buys",
+        "How good L-hat must be",
     ]
     assert claims.light_target_lines([]) == []
 

@@ -400,7 +400,10 @@ LIGHT_TARGETS = {
     "loss.recon_L_target=sh": "What a perfect L-hat buys: E_recon-L (Eq. 9) on the scene's true light in L-hat's "
     "place (`loss.recon_L_target=sh`, an oracle, not the paper's; the lighting section says where L-hat's error "
     "comes from)",
-}
+    "loss.recon_L_oracle_mix=": "How good L-hat must be: E_recon-L (Eq. 9) on L-hat moved a share m of the way to "
+    "the true light's shape (`loss.recon_L_oracle_mix=m`, L-hat's brightness and colour kept; an oracle dose, not "
+    "the paper's)",
+}  # a key ending in "=" stands for each of its values
 
 
 def light_target_lines(runs: list[Run]) -> list[str]:
@@ -410,11 +413,12 @@ def light_target_lines(runs: list[Run]) -> list[str]:
     keys = ("albedo_si_mse", "light_shading_si_mse", "normal_mean", "trivial_albedo_si_mse")
     spreads = scored_spreads(runs, keys)
     goal, out = TARGETS["albedo_share_of_trivial"], []
-    for token, intro in LIGHT_TARGETS.items():
+    for key, intro in LIGHT_TARGETS.items():
         lines = []
-        for (where, model), st in spreads.items():
-            base = " ".join(t for t in where.split() if t != token) or "(defaults)"
-            if base == where or (base, model) not in spreads or not st["trivial_albedo_si_mse"]:
+        for (where, model), st in sorted(spreads.items()):
+            picks = [t for t in where.split() if t == key or (key.endswith("=") and t.startswith(key))]
+            base = " ".join(t for t in where.split() if t not in picks) or "(defaults)"
+            if not picks or (base, model) not in spreads or not st["trivial_albedo_si_mse"]:
                 continue
             ref, floor = spreads[base, model], st["trivial_albedo_si_mse"]["mean"]
             share = [s["albedo_si_mse"]["mean"] / floor for s in (ref, st)]
