@@ -542,7 +542,8 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
             step += 1
             ips = len(batch["image"]) / dt
             bar.update(1)
-            bar.set_postfix(loss=f"{losses['total'].item():.4f}", img_s=f"{ips:.0f}", epoch=epoch)
+            if t.progress:  # .item() waits for the step's GPU work: not with the bar off (device=cuda runs)
+                bar.set_postfix(loss=f"{losses['total'].item():.4f}", img_s=f"{ips:.0f}", epoch=epoch)
             if step % t.log_every == 0 or step == total_steps:
                 log.write(
                     {
