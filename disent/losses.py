@@ -82,6 +82,14 @@ def face_shading_mean(normal, light, mask) -> torch.Tensor:
     return (sh_shading(normal, light) * mask).sum((2, 3)) / mask.sum((2, 3)).clamp_min(1e-8)
 
 
+def oracle_mixed(target, true, normal, mask, share: float) -> torch.Tensor:
+    """``target`` moved ``share`` of the way to the ``true`` light, the truth scaled per face and channel to the
+    target's mean shading over ``mask`` (the truth's shape, the target's brightness and colour):
+    ``loss.recon_L_oracle_mix``'s E_recon-L target."""
+    scale = face_shading_mean(normal, target, mask) / face_shading_mean(normal, true, mask).clamp_min(1e-3)
+    return target + share * (true * scale[:, :, None] - target)
+
+
 def recon_L(
     out,
     batch,
@@ -120,8 +128,7 @@ def recon_L(
     if oracle_mix:
         if "sh" not in batch:
             raise ValueError("loss.recon_L_oracle_mix needs the true light in the batch (SynthFaces has it)")
-        scale = face_shading_mean(normal, target, mask) / face_shading_mean(normal, batch["sh"], mask).clamp_min(1e-3)
-        target = target + oracle_mix * (batch["sh"] * scale[:, :, None] - target)
+        target = oracle_mixed(target, batch["sh"], normal, mask, oracle_mix)
     if gray:
         face = face_shading_mean(normal, target, mask)  # [B, C]
         target = target * (face.mean(1, keepdim=True) / face.clamp_min(1e-3))[:, :, None]

@@ -756,14 +756,23 @@ def test_lhat_sources_is_exact_with_every_input_made_true():
     """SynthFaces renders the face as albedo (.) S(n, L): least squares on the image over the true albedo, through
     the true normals, on the true face, returns the true light; the paper's L-hat does not."""
     from disent.data import SynthFaces
-    from disent.lighting.experiments import LHAT_SOURCES, lhat_sources
+    from disent.lighting.experiments import LHAT_SOURCES, ORACLE_MIXES, lhat_sources
 
     r = lhat_sources(SynthFaces("test", size=6), SynthFaces("train", size=32), n=6, networks=("explicit",))
     rows = r["rows"]
+    # the oracle doses lie between L-hat and the truth, nearer the truth the larger the share
+    doses = [rows["lhat"]["light_on_face"]] + [rows[f"oracle_mix_{m}"]["light_on_face"] for m in ORACLE_MIXES]
+    assert doses == sorted(doses, reverse=True) and doses[-1] < 0.2 * doses[0]
     assert r["n"] == 6 and rows["true_pixels_normals_albedo"]["light_on_face"] < 1e-9
     assert rows["true_pixels_normals_albedo"]["beats_lhat"] == 1
     assert rows["lhat"]["light_on_face"] > 1e-3 and rows["lhat"]["beats_lhat"] == 0
-    assert set(rows) == set(LHAT_SOURCES) | {"texture_model", "network_explicit", "network_explicit_refit", "floor"}
+    doses = {f"oracle_mix_{m}" for m in ORACLE_MIXES}
+    assert set(rows) == set(LHAT_SOURCES) | doses | {
+        "texture_model",
+        "network_explicit",
+        "network_explicit_refit",
+        "floor",
+    }
     assert all(len(row["inputs"]) == 3 and 0 <= row["shown"] for row in rows.values())
     assert all(-1 <= row[f"skin_{k}_corr"] <= 1 for row in rows.values() for k in ("tone", "brightness"))
 

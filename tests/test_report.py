@@ -611,6 +611,7 @@ def test_lhat_sources_table_reads_which_input_costs_l_hat_most(tmp_path):
         "true_pixels_normals": row(0.0034, ["normal", "constant", "face"]),
         "true_pixels_albedo": row(0.0011, ["normal_pseudo", "albedo", "face"]),
         "texture_model": row(0.0054, ["normal_pseudo", "texture_model", "eroded"]),
+        "oracle_mix_0.5": row(0.0022, ["normal_pseudo", "constant", "mask_pseudo"]),  # uses the truth: not "without"
         "network_explicit": row(0.0044, ["network"] * 3),
         "network_explicit_refit": row(0.0048, ["normal_pseudo", "network", "matte"]),
         "floor": row(0.0163, ["-"] * 3),
@@ -619,6 +620,10 @@ def test_lhat_sources_table_reads_which_input_costs_l_hat_most(tmp_path):
     assert "| L-hat | **true** | constant (the paper's) | **true face** inside M-hat | 0.0034 ± 0.0003 | 0.50 |" in text
     assert "| explicit: least squares over its albedo | N-hat | the network's | M-hat inside its matte | 0.0048" in text
     assert "| constant light (the mean train light; the floor) | – | – | – | 0.0163" in text
+    assert (
+        "| L-hat moved 0.5 of the way to the true light (`loss.recon_L_oracle_mix=0.5`) | N-hat | constant (the "
+        "paper's) | M-hat | 0.0022 ± 0.0002 |" in text
+    )
     assert "L-hat's constant albedo costs it more than its coarse-fit normals" in text
     assert (
         "the best L-hat here is the texture model (0.0054); the networks' own light (explicit 0.0044) is below" in text

@@ -434,6 +434,9 @@ LHAT_SOURCES = {  # name: (normals, albedo, pixels)
 }
 
 
+ORACLE_MIXES = (0.25, 0.5, 0.75)  # lhat_sources' doses of loss.recon_L_oracle_mix
+
+
 def texture_lhat(batch: dict) -> torch.Tensor:
     """``[B, 3, 9]``: L-hat with the PCA texture model for the albedo in place of its constant
     (:func:`disent.lighting.texture.texture_light`), fitted on M-hat eroded ``EDGE`` px through the pseudo normals
@@ -458,7 +461,9 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
     light on the face is blind to, and that the light hands on to the albedo). ``LHAT_SOURCES`` are least-squares
     fits (:func:`disent.data.synth.scenes.fit_sh_packed`) of the image over the albedo; *template*: the mean train
     albedo in UV space placed through the pseudo uv; ``texture_model``: the PCA texture model fitted with the light
-    (:func:`texture_lhat`) on M-hat eroded ``EDGE`` px. Each row names its ``inputs`` (normals, albedo, pixels). Each
+    (:func:`texture_lhat`) on M-hat eroded ``EDGE`` px; ``oracle_mix_m``: L-hat moved a share m of the way to the
+    true light (:data:`ORACLE_MIXES`, :func:`disent.losses.oracle_mixed`: E_recon-L's target under
+    ``loss.recon_L_oracle_mix=m``). Each row names its ``inputs`` (normals, albedo, pixels). Each
     shipped network in ``networks`` adds its light and the least-squares light of the image over its own albedo on
     the pseudo normals, inside M-hat and its matte. ``floor``: the constant mean train light."""
     from disent.data import get_batch
@@ -466,6 +471,7 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
     from disent.eval.evaluate import decomposed_region, face_colour, skin_in_shading
     from disent.eval.metrics import light_shading_si_mse, sh_error_shown_hidden
     from disent.eval.trivial import dataset_means, template_albedo
+    from disent.losses import oracle_mixed
 
     g = get_batch(test, range(min(n, len(test))))
     face = decomposed_region(g)
@@ -487,6 +493,11 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
     inputs = dict(LHAT_SOURCES, texture_model=("normal_pseudo", "texture_model", "eroded"), floor=("-", "-", "-"))
     lights = {k: fit(g[nk], albedo[a], pixels[p]) for k, (nk, a, p) in LHAT_SOURCES.items()}
     lights["texture_model"] = texture_lhat(g)
+    for share in ORACLE_MIXES:  # doses of light accuracy (loss.recon_L_oracle_mix): L-hat moved toward the truth
+        lights[f"oracle_mix_{share}"] = oracle_mixed(
+            lights["lhat"], g["sh"], g["normal_pseudo"], g["mask_pseudo"], share
+        )
+        inputs[f"oracle_mix_{share}"] = LHAT_SOURCES["lhat"]
     for name in networks:
         out = _network(name)(g["image"].clamp(0, 1))
         inside = g["mask_pseudo"] * (out["matte"] > 0.5)

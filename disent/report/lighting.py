@@ -464,6 +464,9 @@ def lhat_source_name(key: str) -> str:
     """A light of ``lhat_sources.json`` in words: L-hat, a shipped network's own light, or the constant light."""
     if key == "floor":
         return "constant light (the mean train light; the floor)"
+    if key.startswith("oracle_mix_"):
+        share = key.rsplit("_", 1)[1]
+        return f"L-hat moved {share} of the way to the true light (`loss.recon_L_oracle_mix={share}`)"
     if key.startswith("network_"):
         name = key.split("_")[1]
         return f"{name}: least squares over its albedo" if key.endswith("_refit") else f"{name} network's light"
