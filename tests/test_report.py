@@ -852,7 +852,8 @@ def test_an_ablation_stands_against_every_full_model_it_trains_as(tmp_path):
 
 def test_no_pseudo_light_names_the_light_target_it_takes_away(tmp_path):
     """Without E_recon-L no target guides the light, so the no_pseudo_light runs stand against the full model of
-    every E_recon-L target; each row says which target the full model learnt from (L-hat, the true light)."""
+    every E_recon-L target; each row says which target the full model learnt from (L-hat, the true light, a dose
+    between them)."""
     good = {"normal_mean": 12.0, "recon_face_psnr": 26.5, "albedo_si_mse": 0.005, "trivial_albedo_si_mse": 0.0127}
     for seed in range(3):
         make_run(tmp_path, f"full{seed}", seed=seed, eval_={**good, "light_shading_si_mse": 0.005})
@@ -862,6 +863,13 @@ def test_no_pseudo_light_names_the_light_target_it_takes_away(tmp_path):
             seed=seed,
             eval_={**good, "light_shading_si_mse": 0.003},
             extra=("loss.recon_L_target=sh",),
+        )
+        make_run(
+            tmp_path,
+            f"m{seed}",
+            seed=seed,
+            eval_={**good, "light_shading_si_mse": 0.004},
+            extra=("loss.recon_L_oracle_mix=0.5",),
         )
         make_run(
             tmp_path,
@@ -878,6 +886,8 @@ def test_no_pseudo_light_names_the_light_target_it_takes_away(tmp_path):
     assert reasons == {
         "`model=explicit`": "L-hat guides the light (Eq. 9)",
         "`loss.recon_L_target=sh model=explicit`": "the true light in L-hat's place guides the light (Eq. 9)",
+        "`loss.recon_L_oracle_mix=0.5 model=explicit`": "L-hat moved 0.5 of the way to the true light guides the "
+        "light (Eq. 9)",
     }, reasons
 
 

@@ -102,12 +102,29 @@ ABLATION_CLAIMS = (
     ("no_pseudo_normal", "the morphable model's normals guide N_e (Eq. 8)", "normal_mean"),
     ("no_pseudo_light", "{light_target} guides the light (Eq. 9)", "light_shading_si_mse"),
 )
-# E_recon-L's target in a setting that names one (loss.recon_L_target), else the paper's L-hat: what no_pseudo_light
-# takes away there
+# E_recon-L's target in a setting that names one (loss.recon_L_target, loss.recon_L_oracle_mix), else the paper's
+# L-hat: what no_pseudo_light takes away there; a key ending in "=" stands for each of its values ({} in the words)
 LIGHT_TARGET_NAMES = {
     "loss.recon_L_target=sh": "the true light in L-hat's place",
     "loss.recon_L_target=sh_texture": "the texture model's L-hat in L-hat's place",
+    "loss.recon_L_oracle_mix=": "L-hat moved {} of the way to the true light",
 }
+
+
+def setting_picks(where: str, key: str) -> list[str]:
+    """The overrides of the setting ``where`` that ``key`` names: the override itself, or any value of a key ending
+    in ``=`` (``loss.recon_L_oracle_mix=`` picks ``loss.recon_L_oracle_mix=0.5``)."""
+    return [t for t in where.split() if t == key or (key.endswith("=") and t.startswith(key))]
+
+
+def light_target_name(where: str) -> str:
+    """E_recon-L's target in the setting ``where`` in words (:data:`LIGHT_TARGET_NAMES`), else the paper's L-hat."""
+    for key, words in LIGHT_TARGET_NAMES.items():
+        if picks := setting_picks(where, key):
+            return words.format(picks[0].split("=", 1)[1])
+    return "L-hat"
+
+
 CLAIM_METRICS = {  # metric -> its label in the claims' tables
     "shading_cast": "shading cast",
     "albedo_shading_corr": "corr(albedo, true shading)",
@@ -171,8 +188,7 @@ def claim_ablations(rep: Report, runs: list[Run]) -> None:
             if a is None and b is None:  # runs scored before the metric existed
                 continue
             diff = verdict(a, b, "higher" if key in HIGHER_IS_BETTER else "lower")
-            light_target = next((v for k, v in LIGHT_TARGET_NAMES.items() if k in where.split()), "L-hat")
-            reason_here = reason.format(light_target=light_target)
+            reason_here = reason.format(light_target=light_target_name(where))
             rows.append(
                 f"| `{where}` | {ablation} | {reason_here} | {CLAIM_METRICS[key]} | {spread_text(a, '.4g')} | "
                 f"{spread_text(b, '.4g')} | {diff} | {gate or diff} |"

@@ -8,7 +8,14 @@ from disent.edit.measure import DRAWN_READINGS, OFF_TARGET_READINGS
 from disent.eval import ablation as _ablation
 from disent.eval.evaluate import FACE_THRESHOLD, MATTE_EDGE
 from disent.eval.trivial import TEMPLATE_KEYS
-from disent.report.ablations import TARGETS, albedo_share, budget_misses, claim_ablations, claim_skin
+from disent.report.ablations import (
+    TARGETS,
+    albedo_share,
+    budget_misses,
+    claim_ablations,
+    claim_skin,
+    setting_picks,
+)
 from disent.report.document import Report, load_json
 from disent.report.tables import (
     EDIT_WORKS,
@@ -403,7 +410,7 @@ LIGHT_TARGETS = {
     "loss.recon_L_oracle_mix=": "How good L-hat must be: E_recon-L (Eq. 9) on L-hat moved a share m of the way to "
     "the true light's shape (`loss.recon_L_oracle_mix=m`, L-hat's brightness and colour kept; an oracle dose, not "
     "the paper's)",
-}  # a key ending in "=" stands for each of its values
+}  # a key ending in "=" stands for each of its values (ablations.setting_picks)
 
 
 def light_target_lines(runs: list[Run]) -> list[str]:
@@ -416,7 +423,7 @@ def light_target_lines(runs: list[Run]) -> list[str]:
     for key, intro in LIGHT_TARGETS.items():
         lines = []
         for (where, model), st in sorted(spreads.items()):
-            picks = [t for t in where.split() if t == key or (key.endswith("=") and t.startswith(key))]
+            picks = setting_picks(where, key)
             base = " ".join(t for t in where.split() if t not in picks) or "(defaults)"
             if not picks or (base, model) not in spreads or not st["trivial_albedo_si_mse"]:
                 continue
