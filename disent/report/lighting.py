@@ -461,7 +461,8 @@ LHAT_WORDS = {
 
 
 def lhat_source_name(key: str) -> str:
-    """A light of ``lhat_sources.json`` in words: L-hat, a shipped network's own light, or the constant light."""
+    """A light of ``lhat_sources.json`` in words: L-hat, an oracle dose, a shipped network's own light, or the constant
+    light."""
     if key == "floor":
         return "constant light (the mean train light; the floor)"
     if key.startswith("oracle_mix_"):
