@@ -857,20 +857,13 @@ def test_no_pseudo_light_names_the_light_target_it_takes_away(tmp_path):
     good = {"normal_mean": 12.0, "recon_face_psnr": 26.5, "albedo_si_mse": 0.005, "trivial_albedo_si_mse": 0.0127}
     for seed in range(3):
         make_run(tmp_path, f"full{seed}", seed=seed, eval_={**good, "light_shading_si_mse": 0.005})
-        make_run(
-            tmp_path,
-            f"o{seed}",
-            seed=seed,
-            eval_={**good, "light_shading_si_mse": 0.003},
-            extra=("loss.recon_L_target=sh",),
-        )
-        make_run(
-            tmp_path,
-            f"m{seed}",
-            seed=seed,
-            eval_={**good, "light_shading_si_mse": 0.004},
-            extra=("loss.recon_L_oracle_mix=0.5",),
-        )
+        for name, light, target in (
+            ("o", 0.003, "loss.recon_L_target=sh"),
+            ("m", 0.004, "loss.recon_L_oracle_mix=0.5"),
+        ):
+            make_run(
+                tmp_path, f"{name}{seed}", seed=seed, eval_={**good, "light_shading_si_mse": light}, extra=(target,)
+            )
         make_run(
             tmp_path,
             f"npl{seed}",
