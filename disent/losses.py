@@ -43,6 +43,7 @@ TERMS = ("recon", "recon_fg", "adv", "recon_N", "recon_L", "smooth_A", "smooth_S
 TRUTH = ("A_true", "N_true", "L_true")  # terms on the true layers
 TRUTH_KEYS = ("albedo", "normal", "sh", "matte")  # the batch keys they read
 RECON_L_TARGETS = ("sh_pseudo", "sh_texture", "sh")  # loss.recon_L_target: L-hat, L-hat with a texture model, the truth
+RECON_L_SCALES = ("target", "sh_pseudo")  # loss.recon_L_scale: each face's scale from the target itself, or from L-hat
 
 
 def masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -82,12 +83,18 @@ def face_shading_mean(normal, light, mask) -> torch.Tensor:
     return (sh_shading(normal, light) * mask).sum((2, 3)) / mask.sum((2, 3)).clamp_min(1e-8)
 
 
+def rescaled(light, reference, normal, mask) -> torch.Tensor:
+    """``light`` scaled per face and channel to ``reference``'s mean shading over ``mask``: ``light``'s shape,
+    ``reference``'s brightness and colour."""
+    scale = face_shading_mean(normal, reference, mask) / face_shading_mean(normal, light, mask).clamp_min(1e-3)
+    return light * scale[:, :, None]
+
+
 def oracle_mixed(target, true, normal, mask, share: float) -> torch.Tensor:
     """``target`` moved ``share`` of the way to the ``true`` light, the truth scaled per face and channel to the
     target's mean shading over ``mask`` (the truth's shape, the target's brightness and colour):
     ``loss.recon_L_oracle_mix``'s E_recon-L target."""
-    scale = face_shading_mean(normal, target, mask) / face_shading_mean(normal, true, mask).clamp_min(1e-3)
-    return target + share * (true * scale[:, :, None] - target)
+    return target + share * (rescaled(true, target, normal, mask) - target)
 
 
 def recon_L(
@@ -98,6 +105,7 @@ def recon_L(
     gray: bool = False,
     target: str = "sh_pseudo",
     oracle_mix: float = 0.0,
+    scale: str = "target",
 ):
     """E_recon-L = ||Z_L - L-hat||^2.
 
@@ -111,6 +119,9 @@ def recon_L(
     (:func:`disent.lighting.experiments.texture_lhat`, added to the batch by the trainer): no truth, not the paper's.
     ``target="sh"`` puts the true SH light there, an oracle (not the paper's): what a perfect L-hat
     would buy the model. Either is scaled by ``c`` and measured as L-hat is.
+    ``scale="sh_pseudo"`` first scales the chosen target per face and channel to L-hat's mean shading over M-hat
+    (its shape, L-hat's brightness and colour; ``"target"``: its own), which parts a target's shape from its
+    per-face scale; not the paper's.
     ``oracle_mix`` in [0, 1] moves the target that share of the way to the true light, scaled per face and channel
     to the target's mean shading over M-hat (the truth's shape, the target's brightness and colour): a dose of
     light accuracy (0: the target as chosen; 1: the truth's shape alone), not the paper's.
@@ -124,7 +135,11 @@ def recon_L(
     if target not in batch:
         where = "the true light (SynthFaces has it)" if target == "sh" else "the trainer to add it (disent.train)"
         raise ValueError(f"loss.recon_L_target={target} needs {target} in the batch: {where}")
+    if scale not in RECON_L_SCALES:
+        raise ValueError(f"loss.recon_L_scale must be one of {', '.join(RECON_L_SCALES)}, got {scale!r}")
     target, mask, normal = batch[target], batch["mask_pseudo"], batch["normal_pseudo"]
+    if scale == "sh_pseudo":
+        target = rescaled(target, batch["sh_pseudo"], normal, mask)
     if oracle_mix:
         if "sh" not in batch:
             raise ValueError("loss.recon_L_oracle_mix needs the true light in the batch (SynthFaces has it)")
@@ -228,6 +243,7 @@ TERM_SETTINGS = {
     "recon_L_space": ("recon_L",),
     "recon_L_target": ("recon_L",),
     "recon_L_oracle_mix": ("recon_L",),
+    "recon_L_scale": ("recon_L",),
     "bws_c": ("BWS", "recon_L"),
 }
 
@@ -260,12 +276,13 @@ def generator_losses(
     matte_p: int = 2,
     recon_L_target: str = "sh_pseudo",
     recon_L_oracle_mix: float = 0.0,
+    recon_L_scale: str = "target",
 ) -> dict:
     """Unweighted value of every active term, plus ``total`` = sum of weight x term (E_o and the priors).
 
     ``energy_fake`` is D's energy of ``out['recon']`` (``[B]``), needed when ``adv`` is active;
-    ``lhat_white``, ``lhat_gray``, ``recon_L_target``, ``recon_L_oracle_mix`` and ``recon_L_space`` choose E_recon-L's
-    target and metric (see :func:`recon_L`);
+    ``lhat_white``, ``lhat_gray``, ``recon_L_target``, ``recon_L_oracle_mix``, ``recon_L_scale`` and ``recon_L_space``
+    choose E_recon-L's target and metric (see :func:`recon_L`);
     ``recon_p`` E_recon's norm (2: the paper, 1: the release); ``recon_fg_p`` the masked reconstruction's
     (2: the release, 1); ``matte_p`` the matte's (2: the paper, 1: the release).
     """
@@ -285,7 +302,9 @@ def generator_losses(
                 losses[t] = fn(out, batch, matte_p)
             elif t == "recon_L":
                 c = bws_c if lhat_white else None
-                losses[t] = fn(out, batch, c, recon_L_space, lhat_gray, recon_L_target, recon_L_oracle_mix)
+                losses[t] = fn(
+                    out, batch, c, recon_L_space, lhat_gray, recon_L_target, recon_L_oracle_mix, recon_L_scale
+                )
             else:
                 losses[t] = fn(out, batch)
     losses["total"] = sum(weights[t] * v for t, v in losses.items())

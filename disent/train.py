@@ -145,6 +145,7 @@ def train_step(model, disc, opt_g, opt_d, batch, cfg_loss) -> dict:
         cfg_loss.get("matte_p", 2),
         cfg_loss.get("recon_L_target", "sh_pseudo"),
         cfg_loss.get("recon_L_oracle_mix", 0.0),
+        cfg_loss.get("recon_L_scale", "target"),
     )
     if disc is not None:
         energy_real = disc.energy(batch["image"])
@@ -248,6 +249,8 @@ def check_config(cfg) -> None:
     for key, value, allowed in (
         ("train.optimizer", t.get("optimizer", "rmsprop"), OPTIMIZERS),
         ("train.schedule", t.get("schedule", "epoch_decay"), SCHEDULES),
+        ("loss.recon_L_target", cfg.loss.get("recon_L_target", "sh_pseudo"), L.RECON_L_TARGETS),
+        ("loss.recon_L_scale", cfg.loss.get("recon_L_scale", "target"), L.RECON_L_SCALES),
     ):
         if value not in allowed:
             raise ConfigError(f"{key}={value!r}; choose from {', '.join(allowed)}")
@@ -307,6 +310,7 @@ ADDED_LATER = {
     "loss.lhat_gray": False,
     "loss.recon_L_target": "sh_pseudo",
     "loss.recon_L_oracle_mix": 0.0,
+    "loss.recon_L_scale": "target",
     "model.decoder_convs": 1,
     **{f"loss.weights.{t}": 0.0 for t in L.TRUTH},
 }

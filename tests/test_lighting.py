@@ -769,10 +769,15 @@ def test_lhat_sources_is_exact_with_every_input_made_true():
     doses = {f"oracle_mix_{m}" for m in ORACLE_MIXES}
     assert set(rows) == set(LHAT_SOURCES) | doses | {
         "texture_model",
+        "texture_model_lhat_scale",
         "network_explicit",
         "network_explicit_refit",
         "floor",
     }
+    # the texture model's light at L-hat's scale per face and channel: the same shape, so the same scale-invariant error
+    tex, tex_at_lhat = rows["texture_model"], rows["texture_model_lhat_scale"]
+    assert tex_at_lhat["light_on_face"] == pytest.approx(tex["light_on_face"], rel=1e-6)
+    assert tex_at_lhat["skin_tone_corr"] != pytest.approx(tex["skin_tone_corr"], abs=1e-3)
     assert all(len(row["inputs"]) == 3 and 0 <= row["shown"] for row in rows.values())
     assert all(-1 <= row[f"skin_{k}_corr"] <= 1 for row in rows.values() for k in ("tone", "brightness"))
 

@@ -212,6 +212,16 @@ def test_loss_terms_closed_forms():
     assert L.recon_L(out, mixed, oracle_mix=0.0).item() == L.recon_L(out, b).item()
     with pytest.raises(ValueError, match="recon_L_oracle_mix needs the true light"):
         L.recon_L(out, b, oracle_mix=0.5)
+    # L-hat's per-face scale (loss.recon_L_scale=sh_pseudo): a target keeps its shape and takes L-hat's mean shading
+    # per face and channel, so the truth's shape costs 0 at L-hat's scale and at its own it does not
+    at_scale = {**b, "sh_texture": true}
+    assert L.recon_L({"sh": matched}, at_scale, c=None, target="sh_texture", scale="sh_pseudo").item() == pytest.approx(
+        0, abs=1e-10
+    )
+    assert L.recon_L({"sh": matched}, at_scale, c=None, target="sh_texture").item() > 1e-3
+    assert L.recon_L(out, b, scale="sh_pseudo").item() == pytest.approx(L.recon_L(out, b).item(), rel=1e-6)
+    with pytest.raises(ValueError, match="recon_L_scale must be one of target, sh_pseudo"):
+        L.recon_L(out, b, scale="lhat")
     assert L.recon_fg({"foreground": b["image"] + 0.1 * mask + 0.3 * (1 - mask)}, b).item() == pytest.approx(
         0.01, rel=1e-5
     )

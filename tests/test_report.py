@@ -1710,7 +1710,8 @@ def test_albedo_cause_table_sets_the_detailed_albedo_with_each_input_made_true_b
 
 def test_light_targets_pair_each_setting_with_its_l_hat_counterpart(tmp_path, monkeypatch):
     """What another E_recon-L target buys (the true light, L-hat with a texture model): a setting trained on one is
-    read against the same setting with L-hat (the defaults' when it has no other override), its albedo as a share of
+    read against the same setting with L-hat (the defaults' when it has no other override), or, at L-hat's per-face
+    scale (loss.recon_L_scale), against the target at its own scale; its albedo as a share of
     the mean map's against the target, one paragraph per target; a setting without its counterpart adds nothing."""
     import disent.models.shipped as shipped
 
@@ -1722,6 +1723,8 @@ def test_light_targets_pair_each_setting_with_its_l_hat_counterpart(tmp_path, mo
     make_run(tmp_path / "runs", "tex", eval_=ev | {"albedo_si_mse": 0.0062}, extra=("loss.recon_L_target=sh_texture",))
     make_run(tmp_path / "runs", "alone", "implicit", eval_=ev, extra=("loss.recon_L_target=sh",))  # no implicit pair
     make_run(tmp_path / "runs", "mix", eval_=ev | {"albedo_si_mse": 0.0075}, extra=("loss.recon_L_oracle_mix=0.5",))
+    at_lhat_scale = ("loss.recon_L_target=sh_texture", "loss.recon_L_scale=sh_pseudo")  # read against "tex"
+    make_run(tmp_path / "runs", "texs", eval_=ev | {"albedo_si_mse": 0.0056}, extra=at_lhat_scale)
     monkeypatch.setattr(shipped, "manifest", lambda: {})
     lines = claims.light_target_lines(find_runs([tmp_path / "runs"]))
     rows = [line for line in lines if line.startswith("- ")]
@@ -1729,6 +1732,10 @@ def test_light_targets_pair_each_setting_with_its_l_hat_counterpart(tmp_path, mo
         "- `loss.recon_L_target=sh_texture` (explicit) against `(defaults)`: light on the face 0.0050 ± 0.0000 (n=2) "
         "-> 0.0050 (n=1); normals 12.40 ± 0.00 (n=2) -> 12.40 (n=1) deg; albedo 0.0090 ± 0.0000 (n=2) -> 0.0062 "
         "(n=1), 0.72 -> 0.50 of the mean map's: meets the target (<= 0.5).",
+        "- `loss.recon_L_scale=sh_pseudo loss.recon_L_target=sh_texture` (explicit) against "
+        "`loss.recon_L_target=sh_texture`: light on the face 0.0050 (n=1) -> 0.0050 (n=1); normals 12.40 (n=1) -> "
+        "12.40 (n=1) deg; albedo 0.0062 (n=1) -> 0.0056 (n=1), 0.50 -> 0.45 of the mean map's: meets the target "
+        "(<= 0.5).",
         "- `loss.recon_L_target=sh` (explicit) against `(defaults)`: light on the face 0.0050 ± 0.0000 (n=2) -> "
         "0.0030 ± 0.0000 (n=2); normals 12.40 ± 0.00 (n=2) -> 12.40 ± 0.00 (n=2) deg; albedo 0.0090 ± 0.0000 (n=2) "
         "-> 0.0065 ± 0.0007 (n=2), 0.72 -> 0.52 of the mean map's: misses the target (<= 0.5).",
@@ -1736,8 +1743,9 @@ def test_light_targets_pair_each_setting_with_its_l_hat_counterpart(tmp_path, mo
         "0.0050 (n=1); normals 12.40 ± 0.00 (n=2) -> 12.40 (n=1) deg; albedo 0.0090 ± 0.0000 (n=2) -> 0.0075 (n=1), "
         "0.72 -> 0.60 of the mean map's: misses the target (<= 0.5).",
     ]
-    assert [line.split(":")[0] for line in lines if line.startswith(("What", "How"))] == [
+    assert [line.split(":")[0] for line in lines if line.startswith(("What", "How", "Its"))] == [
         "What a better L-hat without truth buys",
+        "Its shape or its scale",
         "What a perfect L-hat buys",
         "How good L-hat must be",
     ]

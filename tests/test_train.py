@@ -235,8 +235,14 @@ def test_texture_lhat_target_is_fitted_once_per_training_image(tmp_path, monkeyp
     T.with_texture_lhat(b, [5, 3, 0, 1], cache)
     assert fitted == [4, 2] and sorted(cache) == [0, 1, 2, 3, 5, 7]
     fitted.clear()
-    run(cfg_of(*TINY, "train.epochs=2", "train.max_steps=null", "loss.recon_L_target=sh_texture"), tmp_path)
-    assert fitted == [4, 4] and all(r["recon_L"] > 0 for r in records(tmp_path) if "recon_L" in r)
+    rescaled, real = [], L.rescaled  # loss.recon_L_scale=sh_pseudo: each step's target is taken to L-hat's scale
+    monkeypatch.setattr(L, "rescaled", lambda light, reference, *a: rescaled.append(1) or real(light, reference, *a))
+    run(cfg_of(*TINY, "train.epochs=2", "train.max_steps=null", "loss.recon_L_target=sh_texture"), tmp_path / "own")
+    assert fitted == [4, 4] and all(r["recon_L"] > 0 for r in records(tmp_path / "own") if "recon_L" in r)
+    assert not rescaled
+    overrides = ("train.max_steps=2", "loss.recon_L_target=sh_texture", "loss.recon_L_scale=sh_pseudo")
+    run(cfg_of(*TINY, *overrides), tmp_path / "lhat_scale")
+    assert len(rescaled) == 2
 
 
 def test_validation_records_normal_errors_and_psnr(tmp_path):
@@ -340,6 +346,8 @@ def test_learning_rate_schedules():
         ("loss.recon_p=3", r"loss.recon_p=3; choose from 1 \(L1, the release\), 2"),
         ("loss.recon_fg_p=0", r"loss.recon_fg_p=0; choose from 1 \(L1\), 2"),
         ("loss.matte_p=3", r"loss.matte_p=3; choose from 1 \(L1, the release\), 2"),
+        ("loss.recon_L_target=lhat", "loss.recon_L_target='lhat'; choose from sh_pseudo, sh_texture, sh"),
+        ("loss.recon_L_scale=sh", "loss.recon_L_scale='sh'; choose from target, sh_pseudo"),
         ("loss.recon_L_oracle_mix=1.5", r"loss.recon_L_oracle_mix=1.5: must be a number in \[0, 1\]"),
         ("device=tpu", "device='tpu'; choose from cpu, cuda, cuda:N"),
         ("device=cpu:1", "device='cpu:1'; choose from"),

@@ -461,17 +461,19 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
     light on the face is blind to, and that the light hands on to the albedo). ``LHAT_SOURCES`` are least-squares
     fits (:func:`disent.data.synth.scenes.fit_sh_packed`) of the image over the albedo; *template*: the mean train
     albedo in UV space placed through the pseudo uv; ``texture_model``: the PCA texture model fitted with the light
-    (:func:`texture_lhat`) on M-hat eroded ``EDGE`` px; ``oracle_mix_m``: L-hat moved a share m of the way to the
-    true light (:data:`ORACLE_MIXES`, :func:`disent.losses.oracle_mixed`: E_recon-L's target under
-    ``loss.recon_L_oracle_mix=m``). Each row names its ``inputs`` (normals, albedo, pixels). Each
-    shipped network in ``networks`` adds its light and the least-squares light of the image over its own albedo on
-    the pseudo normals, inside M-hat and its matte. ``floor``: the constant mean train light."""
+    (:func:`texture_lhat`) on M-hat eroded ``EDGE`` px, and ``texture_model_lhat_scale``, the same at L-hat's mean
+    shading per face and channel (:func:`disent.losses.rescaled`; E_recon-L's target under
+    ``loss.recon_L_scale=sh_pseudo``); ``oracle_mix_m``: L-hat moved a share m of the way to the true light
+    (:data:`ORACLE_MIXES`, :func:`disent.losses.oracle_mixed`: E_recon-L's target under
+    ``loss.recon_L_oracle_mix=m``). Each row names its ``inputs`` (normals, albedo, pixels). Each shipped network
+    in ``networks`` adds its light and the least-squares light of the image over its own albedo on the pseudo
+    normals, inside M-hat and its matte. ``floor``: the constant mean train light."""
     from disent.data import get_batch
     from disent.data.synth.scenes import fit_sh_packed
     from disent.eval.evaluate import decomposed_region, face_colour, skin_in_shading
     from disent.eval.metrics import light_shading_si_mse, sh_error_shown_hidden
     from disent.eval.trivial import dataset_means, template_albedo
-    from disent.losses import oracle_mixed
+    from disent.losses import oracle_mixed, rescaled
 
     g = get_batch(test, range(min(n, len(test))))
     face = decomposed_region(g)
@@ -493,6 +495,10 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
     inputs = dict(LHAT_SOURCES, texture_model=("normal_pseudo", "texture_model", "eroded"), floor=("-", "-", "-"))
     lights = {k: fit(g[nk], albedo[a], pixels[p]) for k, (nk, a, p) in LHAT_SOURCES.items()}
     lights["texture_model"] = texture_lhat(g)
+    lights["texture_model_lhat_scale"] = rescaled(
+        lights["texture_model"], lights["lhat"], g["normal_pseudo"], g["mask_pseudo"]
+    )
+    inputs["texture_model_lhat_scale"] = inputs["texture_model"]
     for share in ORACLE_MIXES:  # doses of light accuracy (loss.recon_L_oracle_mix): L-hat moved toward the truth
         lights[f"oracle_mix_{share}"] = oracle_mixed(
             lights["lhat"], g["sh"], g["normal_pseudo"], g["mask_pseudo"], share

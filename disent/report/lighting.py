@@ -465,6 +465,8 @@ def lhat_source_name(key: str) -> str:
     light."""
     if key == "floor":
         return "constant light (the mean train light; the floor)"
+    if key == "texture_model_lhat_scale":
+        return "L-hat at L-hat's per-face scale (`loss.recon_L_scale=sh_pseudo`)"
     if key.startswith("oracle_mix_"):
         share = key.rsplit("_", 1)[1]
         return f"L-hat moved {share} of the way to the true light (`loss.recon_L_oracle_mix={share}`)"
