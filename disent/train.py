@@ -39,15 +39,21 @@ from disent.runtime import Prefetcher, tune_malloc
 TRAIN_KEYS = ("image", "normal_pseudo", "mask_pseudo", "sh_pseudo", "uv_pseudo", "normal_uv_pseudo")
 
 
+def truth_readers(cfg_loss) -> list[str]:
+    """The loss settings that read SynthFaces' true layers: a ceiling term that is on, or E_recon-L on the true light
+    (``loss.recon_L_target=sh``, ``loss.recon_L_oracle_mix`` above 0)."""
+    readers = [f"loss.weights.{t}" for t in L.TRUTH if cfg_loss.weights.get(t, 0)]
+    if cfg_loss.get("recon_L_target", "sh_pseudo") == "sh":
+        readers.append("loss.recon_L_target=sh")
+    if cfg_loss.get("recon_L_oracle_mix", 0.0):
+        readers.append(f"loss.recon_L_oracle_mix={cfg_loss.recon_L_oracle_mix}")
+    return readers
+
+
 def train_keys(cfg_loss) -> tuple:
-    """The batch keys a training step reads: the pseudo-GT, and the true layers where a ceiling term is on or
-    E_recon-L reads the true light (``loss.recon_L_target=sh``, ``loss.recon_L_oracle_mix`` above 0)."""
-    truth = (
-        any(cfg_loss.weights.get(t, 0) for t in L.TRUTH)
-        or cfg_loss.get("recon_L_target", "sh_pseudo") == "sh"
-        or bool(cfg_loss.get("recon_L_oracle_mix", 0.0))
-    )
-    return TRAIN_KEYS + (L.TRUTH_KEYS if truth else ())
+    """The batch keys a training step reads: the pseudo-GT, and the true layers where a setting reads them
+    (:func:`truth_readers`)."""
+    return TRAIN_KEYS + (L.TRUTH_KEYS if truth_readers(cfg_loss) else ())
 
 
 def with_texture_lhat(batch: dict, idx, cache: dict) -> dict:
@@ -254,13 +260,11 @@ def check_config(cfg) -> None:
     ):
         if value not in allowed:
             raise ConfigError(f"{key}={value!r}; choose from {', '.join(allowed)}")
-    if any(cfg.loss.weights.get(k, 0) for k in L.TRUTH) and d.name != "synth":
-        raise ConfigError(f"loss weights {', '.join(L.TRUTH)} train on the true layers: they need data=synth")
     mix = cfg.loss.get("recon_L_oracle_mix", 0.0)
     if isinstance(mix, bool) or not isinstance(mix, (int, float)) or not 0 <= mix <= 1:
         raise ConfigError(f"loss.recon_L_oracle_mix={mix!r}: must be a number in [0, 1]")
-    if mix and d.name != "synth":
-        raise ConfigError("loss.recon_L_oracle_mix mixes the true light into E_recon-L's target: it needs data=synth")
+    if (readers := truth_readers(cfg.loss)) and d.name != "synth":
+        raise ConfigError(f"{', '.join(readers)} read(s) the true layers, which only data=synth has")
     norms = (
         ("recon_p", "1 (L1, the release), 2 (L2, the paper)"),
         ("recon_fg_p", "1 (L1), 2 (L2, the release)"),

@@ -363,12 +363,22 @@ def test_bad_settings_stop_before_anything_runs(tmp_path, override, message):
     assert not (tmp_path / "run" / "checkpoints").exists() and not (tmp_path / "run" / "metrics.jsonl").exists()
 
 
-def test_oracle_mix_on_photos_stops_before_anything_runs(tmp_path):
-    """loss.recon_L_oracle_mix reads the true light, which a folder of photos lacks: a ConfigError at the start."""
+@pytest.mark.parametrize(
+    "overrides,named",
+    [
+        (("loss.recon_L_oracle_mix=0.5",), "loss.recon_L_oracle_mix=0.5"),
+        (("loss.recon_L_target=sh",), "loss.recon_L_target=sh"),
+        (("loss=ceiling",), "loss.weights.A_true, loss.weights.N_true, loss.weights.L_true"),
+    ],
+)
+def test_settings_that_read_the_truth_stop_on_photos_before_anything_runs(tmp_path, overrides, named):
+    """The true layers (E_recon-L on the true light, the ceiling's terms) exist on SynthFaces alone: on a folder of
+    photos each setting that reads them is named in a ConfigError at the start (loss.recon_L_target=sh used to fail
+    only at the first step)."""
     from disent.train import ConfigError
 
-    with pytest.raises(ConfigError, match="recon_L_oracle_mix mixes the true light .* needs data=synth"):
-        run(cfg_of(*TINY, "data=folder", "loss.recon_L_oracle_mix=0.5"), tmp_path / "run")
+    with pytest.raises(ConfigError, match=f"^{named} read\\(s\\) the true layers, which only data=synth has$"):
+        run(cfg_of(*TINY, "data=folder", *overrides), tmp_path / "run")
     assert not (tmp_path / "run").exists() or not any((tmp_path / "run").iterdir())
 
 
