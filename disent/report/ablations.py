@@ -102,12 +102,34 @@ ABLATION_CLAIMS = (
     ("no_pseudo_normal", "the morphable model's normals guide N_e (Eq. 8)", "normal_mean"),
     ("no_pseudo_light", "{light_target} guides the light (Eq. 9)", "light_shading_si_mse"),
 )
-# E_recon-L's target in a setting that names one (loss.recon_L_target, loss.recon_L_oracle_mix), else the paper's
-# L-hat: what no_pseudo_light takes away there; a key ending in "=" stands for each of its values ({} in the words)
-LIGHT_TARGET_NAMES = {
-    "loss.recon_L_target=sh": "the true light in L-hat's place",
-    "loss.recon_L_target=sh_texture": "the texture model's L-hat in L-hat's place",
-    "loss.recon_L_oracle_mix=": "L-hat moved {} of the way to the true light",
+# E_recon-L targets other than the paper's L-hat: an override (one ending in "=" stands for each of its values,
+# setting_picks; {} in the words) -> its name in words (what no_pseudo_light takes away in a setting that names it),
+# and the claims' paragraph on what it buys, read against the same setting without it (claims.light_target_lines)
+LIGHT_TARGETS = {
+    "loss.recon_L_target=sh_texture": (
+        "the texture model's L-hat in L-hat's place",
+        "What a better L-hat without truth buys: E_recon-L (Eq. 9) on L-hat fitted with the PCA texture model for the "
+        "albedo in place of its constant (`loss.recon_L_target=sh_texture`, not the paper's; the lighting section's "
+        '"PCA texture model fitted with the light" row), against the same setting with L-hat',
+    ),
+    "loss.recon_L_scale=sh_pseudo": (
+        "the target at L-hat's per-face scale",
+        "Its shape or its scale: the same texture-model target scaled per face and channel to L-hat's mean shading "
+        "over M-hat, its shape kept (`loss.recon_L_scale=sh_pseudo`, not the paper's), against the target at its own "
+        "scale",
+    ),
+    "loss.recon_L_target=sh": (
+        "the true light in L-hat's place",
+        "What a perfect L-hat buys: E_recon-L (Eq. 9) on the scene's true light in L-hat's place "
+        "(`loss.recon_L_target=sh`, an oracle, not the paper's; the lighting section says where L-hat's error comes "
+        "from), against the same setting with L-hat",
+    ),
+    "loss.recon_L_oracle_mix=": (
+        "L-hat moved {} of the way to the true light",
+        "How good L-hat must be: E_recon-L (Eq. 9) on L-hat moved a share m of the way to the true light's shape "
+        "(`loss.recon_L_oracle_mix=m`, L-hat's brightness and colour kept; an oracle dose, not the paper's), against "
+        "the same setting with L-hat",
+    ),
 }
 
 
@@ -118,8 +140,8 @@ def setting_picks(where: str, key: str) -> list[str]:
 
 
 def light_target_name(where: str) -> str:
-    """E_recon-L's target in the setting ``where`` in words (:data:`LIGHT_TARGET_NAMES`), else the paper's L-hat."""
-    for key, words in LIGHT_TARGET_NAMES.items():
+    """E_recon-L's target in the setting ``where`` in words (:data:`LIGHT_TARGETS`), else the paper's L-hat."""
+    for key, (words, _) in LIGHT_TARGETS.items():
         if picks := setting_picks(where, key):
             return words.format(picks[0].split("=", 1)[1])
     return "L-hat"

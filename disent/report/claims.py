@@ -9,6 +9,7 @@ from disent.eval import ablation as _ablation
 from disent.eval.evaluate import FACE_THRESHOLD, MATTE_EDGE
 from disent.eval.trivial import TEMPLATE_KEYS
 from disent.report.ablations import (
+    LIGHT_TARGETS,
     TARGETS,
     albedo_share,
     budget_misses,
@@ -399,25 +400,6 @@ def albedo_cause_lines(runs: list[Run]) -> list[str]:
     ]
 
 
-# E_recon-L targets other than the paper's L-hat (loss.recon_L_target), each read against the same setting without
-# its key: with L-hat, or (loss.recon_L_scale) with the target at its own scale
-LIGHT_TARGETS = {
-    "loss.recon_L_target=sh_texture": "What a better L-hat without truth buys: E_recon-L (Eq. 9) on L-hat fitted with "
-    "the PCA texture model for the albedo in place of its constant (`loss.recon_L_target=sh_texture`, not the "
-    "paper's; the lighting section's \"PCA texture model fitted with the light\" row), against the same setting "
-    "with L-hat",
-    "loss.recon_L_scale=sh_pseudo": "Its shape or its scale: the same texture-model target scaled per face and "
-    "channel to L-hat's mean shading over M-hat, its shape kept (`loss.recon_L_scale=sh_pseudo`, not the paper's), "
-    "against the target at its own scale",
-    "loss.recon_L_target=sh": "What a perfect L-hat buys: E_recon-L (Eq. 9) on the scene's true light in L-hat's "
-    "place (`loss.recon_L_target=sh`, an oracle, not the paper's; the lighting section says where L-hat's error "
-    "comes from), against the same setting with L-hat",
-    "loss.recon_L_oracle_mix=": "How good L-hat must be: E_recon-L (Eq. 9) on L-hat moved a share m of the way to "
-    "the true light's shape (`loss.recon_L_oracle_mix=m`, L-hat's brightness and colour kept; an oracle dose, not "
-    "the paper's), against the same setting with L-hat",
-}  # a key ending in "=" stands for each of its values (ablations.setting_picks)
-
-
 def light_target_lines(runs: list[Run]) -> list[str]:
     """What another E_recon-L target buys: each setting trained on one of :data:`LIGHT_TARGETS` against the same
     setting without it (with the paper's L-hat, or the target at its own scale), on the light on the face, the
@@ -426,7 +408,7 @@ def light_target_lines(runs: list[Run]) -> list[str]:
     keys = ("albedo_si_mse", "light_shading_si_mse", "normal_mean", "trivial_albedo_si_mse")
     spreads = scored_spreads(runs, keys)
     goal, out = TARGETS["albedo_share_of_trivial"], []
-    for key, intro in LIGHT_TARGETS.items():
+    for key, (_, intro) in LIGHT_TARGETS.items():
         lines = []
         for (where, model), st in sorted(spreads.items()):
             picks = setting_picks(where, key)
