@@ -765,6 +765,7 @@ def test_lhat_sources_is_exact_with_every_input_made_true():
     assert doses == sorted(doses, reverse=True) and doses[-1] < 0.2 * doses[0]
     assert r["n"] == 6 and rows["true_pixels_normals_albedo"]["light_on_face"] < 1e-9
     assert rows["true_pixels_normals_albedo"]["beats_lhat"] == 1
+    assert rows["true_pixels_normals_albedo"]["contrast"] == pytest.approx(1, abs=1e-6)  # the truth's own contrast
     assert rows["lhat"]["light_on_face"] > 1e-3 and rows["lhat"]["beats_lhat"] == 0
     doses = {f"oracle_mix_{m}" for m in ORACLE_MIXES}
     assert set(rows) == set(LHAT_SOURCES) | doses | {

@@ -355,3 +355,32 @@ def test_mask_iou_closed_forms():
     assert mask_iou(0.6 * a, b) == pytest.approx(1 / 3) and mask_iou(0.4 * a, b) == 0
     with pytest.raises(ValueError):
         mask_iou(a, b[..., :4])
+
+
+def test_shading_contrast_is_the_slope_of_log_shading_on_the_truths():
+    """1 for the true light at any scale per image and channel, 0 for a light without direction, between for a
+    flatter one; each value is numpy's least-squares slope of the centred log shadings over the mask."""
+    import numpy as np
+
+    from disent.eval.metrics import shading_contrast
+    from disent.render import sh_shading
+
+    n = _normals(B=2, H=10, W=10, seed=3)
+    n[:, 2] = n[:, 2].abs() + 0.5  # facing the camera, so the lights below shade every pixel above 0
+    n = n / n.norm(dim=1, keepdim=True)
+    mask = torch.zeros(2, 1, 10, 10)
+    mask[..., 2:9, 1:8] = 1
+    true = torch.zeros(2, 3, 9, dtype=torch.float64)
+    true[..., 0] = 1.0
+    true[..., 1:4] = torch.tensor([0.3, 0.5, -0.2], dtype=torch.float64)  # y, z, x
+    flatter = true.clone()
+    flatter[..., 1:4] *= 0.5
+    scale = torch.tensor([[2.0, 0.5, 1.0], [3.0, 1.0, 0.2]], dtype=torch.float64)[..., None]
+    assert torch.allclose(shading_contrast(true * scale, true, n, mask), torch.ones(2, 3, dtype=torch.float64))
+    dc_only = true * torch.eye(9, dtype=torch.float64)[0]
+    assert torch.allclose(shading_contrast(dc_only, true, n, mask), torch.zeros(2, 3, dtype=torch.float64))
+    c = shading_contrast(flatter, true, n, mask)
+    assert ((0.2 < c) & (c < 0.9)).all()
+    inside = mask[1, 0].bool().numpy()
+    s, t = (sh_shading(n, light)[1, 0].log().numpy()[inside] for light in (flatter, true))
+    assert c[1, 0].item() == pytest.approx(np.polyfit(t, s, 1)[0], rel=1e-9)

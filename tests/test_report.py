@@ -639,11 +639,19 @@ def test_lhat_sources_table_reads_which_input_costs_l_hat_most(tmp_path):
     for k, (tone, bright) in skin.items():
         rows[k] |= {"skin_tone_corr": tone, "skin_brightness_corr": bright}
     text = "\n".join(lighting.lhat_source_lines({"split": "test", "n": 256, "rows": rows}))
-    assert "| 0.0086 ± 0.0009 | 0.50 | 0.100 | +0.80 / +0.77 |" in text
+    assert (
+        "| 0.0086 ± 0.0009 | 0.50 | 0.100 | +0.80 / +0.77 | – |" in text and "light is flatter" not in text
+    )  # older JSON
     assert (
         "fitted without the true albedo keeps each face's skin in its shading (tone +0.61 to +0.80, brightness "
         "+0.76 to +0.77" in text
     )  # the true albedo's and the floor's rows stay out of the range
+    rows["lhat"]["contrast"], rows["texture_model"]["contrast"] = 0.92, 0.88
+    text = "\n".join(lighting.lhat_source_lines({"split": "test", "n": 256, "rows": rows}))
+    assert "| 0.0086 ± 0.0009 | 0.50 | 0.100 | +0.80 / +0.77 | 0.92 |" in text
+    assert "The texture model's light is flatter than L-hat's (contrast 0.88 against 0.92)" in text
+    rows["texture_model"]["contrast"] = 0.95
+    assert "light is flatter" not in "\n".join(lighting.lhat_source_lines({"split": "test", "n": 256, "rows": rows}))
     (tmp_path / "lighting").mkdir()
     (tmp_path / "lighting" / "lhat_sources.json").write_text(json.dumps({"split": "test", "n": 256, "rows": rows}))
     rep = report.Report(tmp_path)

@@ -201,6 +201,23 @@ def light_shading_si_mse(
     return scale_invariant_mse(sh_shading(n, sh.double()), sh_shading(n, reference_sh.double()), mask, reduction)
 
 
+def shading_contrast(
+    sh: torch.Tensor, reference_sh: torch.Tensor, normal: torch.Tensor, mask: torch.Tensor, floor: float = 1e-3
+) -> torch.Tensor:
+    """``[B, C]``: how much of ``reference_sh``'s shading contrast ``sh`` shows through ``normal`` inside ``mask``:
+    the least-squares slope of its log shading (Eq. 4) on the reference's, each centred over the mask, per image and
+    channel. 1: as contrasty (any scale); 0: flat; below 1: a light that leaves the rest of the shading to the albedo.
+    Shading is clamped at ``floor`` before the log."""
+    n, w = normal.detach().double(), mask.double()
+
+    def centred_log(light):
+        s = sh_shading(n, light.double()).clamp_min(floor).log()
+        return s - (s * w).sum((2, 3), keepdim=True) / w.sum((2, 3), keepdim=True).clamp_min(1e-12)
+
+    s, t = centred_log(sh), centred_log(reference_sh)
+    return (s * t * w).sum((2, 3)) / (t * t * w).sum((2, 3)).clamp_min(1e-12)
+
+
 BAND_SIGMA = 2.0  # px at 64x64: the coarse band keeps what varies over more than a few pixels (shading-like)
 
 

@@ -458,7 +458,9 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
     faces, and ``beats_lhat``, the share of faces where it is below the paper's L-hat), and the SH error along the
     directions the face shows (``shown``); ``skin_tone_corr`` and ``skin_brightness_corr``: how much of each face's
     skin its shading carries there (:func:`disent.eval.evaluate.skin_in_shading`; a per-face, per-channel scale that
-    light on the face is blind to, and that the light hands on to the albedo). ``LHAT_SOURCES`` are least-squares
+    light on the face is blind to, and that the light hands on to the albedo); ``contrast``: the median over faces
+    and channels of :func:`disent.eval.metrics.shading_contrast` against the true light there (below 1: flatter than
+    the truth, the rest of the shading left to the albedo). ``LHAT_SOURCES`` are least-squares
     fits (:func:`disent.data.synth.scenes.fit_sh_packed`) of the image over the albedo; *template*: the mean train
     albedo in UV space placed through the pseudo uv; ``texture_model``: the PCA texture model fitted with the light
     (:func:`texture_lhat`) on M-hat eroded ``EDGE`` px, and ``texture_model_lhat_scale``, the same at L-hat's mean
@@ -471,7 +473,7 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
     from disent.data import get_batch
     from disent.data.synth.scenes import fit_sh_packed
     from disent.eval.evaluate import decomposed_region, face_colour, skin_in_shading
-    from disent.eval.metrics import light_shading_si_mse, sh_error_shown_hidden
+    from disent.eval.metrics import light_shading_si_mse, sh_error_shown_hidden, shading_contrast
     from disent.eval.trivial import dataset_means, template_albedo
     from disent.losses import oracle_mixed, rescaled
 
@@ -490,7 +492,8 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
     def scored(sh):
         e = light_shading_si_mse(sh, g["sh"], g["normal"], face, reduction="none")
         skin_corr = skin_in_shading(face_colour(sh_shading(g["normal"].double(), sh.double()), face), skin)
-        return e, sh_error_shown_hidden(sh, g["sh"], g["normal"], face)["shown"], skin_corr
+        contrast = shading_contrast(sh, g["sh"], g["normal"], face).median()
+        return e, sh_error_shown_hidden(sh, g["sh"], g["normal"], face)["shown"], skin_corr, contrast
 
     inputs = dict(LHAT_SOURCES, texture_model=("normal_pseudo", "texture_model", "eroded"), floor=("-", "-", "-"))
     lights = {k: fit(g[nk], albedo[a], pixels[p]) for k, (nk, a, p) in LHAT_SOURCES.items()}
@@ -514,7 +517,7 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
     scores = {k: scored(sh) for k, sh in lights.items()}
     reference = scores["lhat"][0]
     rows = {}
-    for k, (e, shown, skin_corr) in scores.items():
+    for k, (e, shown, skin_corr, contrast) in scores.items():
         rows[k] = {
             "light_on_face": float(e.mean()),
             "light_on_face_se": float(e.std() / math.sqrt(len(e))),
@@ -522,6 +525,7 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
             "shown": shown,
             "skin_tone_corr": skin_corr["tone"],
             "skin_brightness_corr": skin_corr["brightness"],
+            "contrast": float(contrast),
             "inputs": inputs[k],
         }
     return {"split": test.split, "n": len(reference), "rows": rows}

@@ -495,7 +495,10 @@ def lhat_source_lines(src: dict) -> list[str]:
         "*skin in its shading*: the correlation over faces of its shading's mean chromaticity (tone) and luminance "
         "(brightness) on the scored pixels with the true albedo's (`disent.eval.evaluate.skin_in_shading`, as "
         "`shading_albedo_tone_corr` scores the networks' shading), the per-face scale that *light on the face* is "
-        "blind to and that a light hands on to the albedo; the true light's is about 0. "
+        "blind to and that a light hands on to the albedo; the true light's is about 0; *contrast*: the median over "
+        "faces and channels of the slope of its log shading on the true light's, on the scored pixels "
+        "(`disent.eval.metrics.shading_contrast`; 1: the truth's contrast at any scale, below 1: flatter, the rest of "
+        "the shading left to the albedo). "
         f"The first {src['n']} {src['split']} images, noise-free as training sees them "
         "(`python -m disent.lighting task=lhat`; `disent.lighting.experiments.lhat_sources`).\n",
         *table_head(
@@ -507,6 +510,7 @@ def lhat_source_lines(src: dict) -> list[str]:
             "beats L-hat",
             "shown SH error",
             "skin in its shading (tone / brightness)",
+            "contrast",
         ),
     ]
     for k, r in rows.items():
@@ -514,7 +518,7 @@ def lhat_source_lines(src: dict) -> list[str]:
         skin = " / ".join(fmt_value(r.get(f"skin_{c}_corr"), "+.2f") for c in ("tone", "brightness"))
         lines.append(
             f"| {lhat_source_name(k)} | {words} | {r['light_on_face']:.4f} ± {r['light_on_face_se']:.4f} | "
-            f"{r['beats_lhat']:.2f} | {r['shown']:.3f} | {skin} |"
+            f"{r['beats_lhat']:.2f} | {r['shown']:.3f} | {skin} | {fmt_value(r.get('contrast'), '.2f')} |"
         )
     if not {"lhat", "true_pixels", "true_pixels_normals", "true_pixels_albedo"} <= set(e):
         return lines + [""]
@@ -544,6 +548,12 @@ def lhat_source_lines(src: dict) -> list[str]:
                 + ")"
             )
         reading += "."
+    contrast = {k: rows[k].get("contrast") for k in ("lhat", "texture_model")}
+    if None not in contrast.values() and contrast["texture_model"] < contrast["lhat"]:
+        reading += (
+            f" The texture model's light is flatter than L-hat's (contrast {contrast['texture_model']:.2f} against "
+            f"{contrast['lhat']:.2f}): its texture takes part of the shading, which a target then leaves to the albedo."
+        )
     fitted = [r for r in rows.values() if r["inputs"][1] not in ("albedo", "-") and "skin_tone_corr" in r]
     if fitted:
         tone, bright = ([r[f"skin_{c}_corr"] for r in fitted] for c in ("tone", "brightness"))
