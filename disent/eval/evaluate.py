@@ -26,6 +26,7 @@ from disent.eval.metrics import (
     sh_error,
     sh_error_shown_hidden,
     sh_gram,
+    shading_contrast,
 )
 from disent.render import sh_shading
 
@@ -208,7 +209,9 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     ``sh_error`` after the per-image scale alignment, and ``sh_error_coefficients`` its share per coefficient;
     ``light_shading_si_mse``: the light's shading through the true normals against the true shading;
     ``sh_error_shown`` and ``sh_error_hidden``: the coefficients' error split between the SH directions the face's
-    normals show and those they hide (:func:`~disent.eval.metrics.sh_error_shown_hidden`).
+    normals show and those they hide (:func:`~disent.eval.metrics.sh_error_shown_hidden`); ``light_contrast``: how
+    much of the true shading's contrast the light's shading shows there, the median over faces and channels of
+    :func:`~disent.eval.metrics.shading_contrast` (1: the truth's; below 1: flatter, the rest left to the albedo).
     ``matte_iou``: the matte's IoU with the true face region ``mask_face`` (the skin a 3DMM covers: what the matte's
     supervision M-hat estimates; not hair, ears or neck), and ``pseudo_matte_iou`` M-hat's own, both cut at 0.5
     (:func:`~disent.eval.metrics.mask_iou`; higher is better); ``matte_soft_edge`` and the rest of
@@ -265,6 +268,7 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
         for prefix, sh in (("", out["sh"]), ("pseudo_", gt["sh_pseudo"])):
             split = sh_error_shown_hidden(sh, gt["sh"], gt["normal"], region)
             m[f"{prefix}sh_error_shown"], m[f"{prefix}sh_error_hidden"] = split["shown"], split["hidden"]
+            m[f"{prefix}light_contrast"] = shading_contrast(sh, gt["sh"], gt["normal"], region).median().item()
     if {"albedo", "shading"} <= set(out) and "shading" in gt:
         m.update(bws_stats(out, gt))
     if "matte" in out and "mask_face" in gt:  # the matte against the face region M-hat estimates (Sec. 3.3)

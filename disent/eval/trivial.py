@@ -49,6 +49,7 @@ KEYS = (
     "sh_error_shown",
     "sh_error_hidden",
     "light_shading_si_mse",
+    "light_contrast",
     "matte_iou",
 )
 
