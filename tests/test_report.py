@@ -1733,17 +1733,23 @@ def test_light_targets_pair_each_setting_with_its_l_hat_counterpart(tmp_path, mo
     make_run(tmp_path / "runs", "mix", eval_=ev | {"albedo_si_mse": 0.0075}, extra=("loss.recon_L_oracle_mix=0.5",))
     at_lhat_scale = ("loss.recon_L_target=sh_texture", "loss.recon_L_scale=sh_pseudo")  # read against "tex"
     make_run(tmp_path / "runs", "texs", eval_=ev | {"albedo_si_mse": 0.0056}, extra=at_lhat_scale)
+    texture = ("loss.recon_L_target=sh_texture",)  # a seed scored with the light's contrast, on both sides of a pair
+    make_run(
+        tmp_path / "runs", "tex1", seed=1, eval_=ev | {"albedo_si_mse": 0.0062, "light_contrast": 0.66}, extra=texture
+    )
+    at_lhat_scale_contrast = ev | {"albedo_si_mse": 0.0056, "light_contrast": 0.70}
+    make_run(tmp_path / "runs", "texs1", seed=1, eval_=at_lhat_scale_contrast, extra=at_lhat_scale)
     monkeypatch.setattr(shipped, "manifest", lambda: {})
     lines = claims.light_target_lines(find_runs([tmp_path / "runs"]))
     rows = [line for line in lines if line.startswith("- ")]
     assert rows == [
         "- `loss.recon_L_target=sh_texture` (explicit) against `(defaults)`: light on the face 0.0050 ± 0.0000 (n=2) "
-        "-> 0.0050 (n=1); normals 12.40 ± 0.00 (n=2) -> 12.40 (n=1) deg; albedo 0.0090 ± 0.0000 (n=2) -> 0.0062 "
-        "(n=1), 0.72 -> 0.50 of the mean map's: meets the target (<= 0.5).",
+        "-> 0.0050 ± 0.0000 (n=2); normals 12.40 ± 0.00 (n=2) -> 12.40 ± 0.00 (n=2) deg; albedo 0.0090 ± 0.0000 "
+        "(n=2) -> 0.0062 ± 0.0000 (n=2), 0.72 -> 0.50 of the mean map's: meets the target (<= 0.5).",
         "- `loss.recon_L_scale=sh_pseudo loss.recon_L_target=sh_texture` (explicit) against "
-        "`loss.recon_L_target=sh_texture`: light on the face 0.0050 (n=1) -> 0.0050 (n=1); normals 12.40 (n=1) -> "
-        "12.40 (n=1) deg; albedo 0.0062 (n=1) -> 0.0056 (n=1), 0.50 -> 0.45 of the mean map's: meets the target "
-        "(<= 0.5).",
+        "`loss.recon_L_target=sh_texture`: light on the face 0.0050 ± 0.0000 (n=2) -> 0.0050 ± 0.0000 (n=2); light "
+        "contrast 0.66 (n=1) -> 0.70 (n=1); normals 12.40 ± 0.00 (n=2) -> 12.40 ± 0.00 (n=2) deg; albedo 0.0062 ± "
+        "0.0000 (n=2) -> 0.0056 ± 0.0000 (n=2), 0.50 -> 0.45 of the mean map's: meets the target (<= 0.5).",
         "- `loss.recon_L_target=sh` (explicit) against `(defaults)`: light on the face 0.0050 ± 0.0000 (n=2) -> "
         "0.0030 ± 0.0000 (n=2); normals 12.40 ± 0.00 (n=2) -> 12.40 ± 0.00 (n=2) deg; albedo 0.0090 ± 0.0000 (n=2) "
         "-> 0.0065 ± 0.0007 (n=2), 0.72 -> 0.52 of the mean map's: misses the target (<= 0.5).",
