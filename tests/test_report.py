@@ -1719,8 +1719,9 @@ def test_albedo_cause_table_sets_the_detailed_albedo_with_each_input_made_true_b
 def test_light_targets_pair_each_setting_with_its_l_hat_counterpart(tmp_path, monkeypatch):
     """What another E_recon-L target buys (the true light, L-hat with a texture model): a setting trained on one is
     read against the same setting with L-hat (the defaults' when it has no other override), or, at L-hat's per-face
-    scale (loss.recon_L_scale), against the target at its own scale; its albedo as a share of
-    the mean map's against the target, one paragraph per target; a setting without its counterpart adds nothing."""
+    scale (loss.recon_L_scale), against the target at its own scale; its albedo as a share of the mean map's against
+    the target, the light's contrast where both sides were scored with it, one paragraph per target; a setting
+    without its counterpart adds nothing."""
     import disent.models.shipped as shipped
 
     ev = {"trivial_albedo_si_mse": 0.0125, "light_shading_si_mse": 0.005, "normal_mean": 12.4, "albedo_si_mse": 0.009}
