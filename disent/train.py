@@ -56,18 +56,24 @@ def train_keys(cfg_loss) -> tuple:
     return TRAIN_KEYS + (L.TRUTH_KEYS if truth_readers(cfg_loss) else ())
 
 
-def with_texture_lhat(batch: dict, idx, cache: dict) -> dict:
-    """``batch`` with ``sh_texture``, E_recon-L's target under ``loss.recon_L_target=sh_texture``: each image's L-hat
-    fitted with the texture model (:func:`disent.lighting.experiments.texture_lhat`), fitted the first time its data
-    index ``idx`` comes and kept in ``cache`` (index -> light), as it depends on the image alone."""
-    from disent.lighting.experiments import texture_lhat
+# E_recon-L targets the trainer fits from each image's pseudo-GT (loss.recon_L_target) -> their fit in
+# disent.lighting.experiments
+FITTED_TARGETS = {"sh_texture": "texture_lhat", "sh_pseudo_eroded": "eroded_lhat"}
+
+
+def with_fitted_lhat(batch: dict, idx, cache: dict, target: str = "sh_texture") -> dict:
+    """``batch`` with ``target``, E_recon-L's target under ``loss.recon_L_target=target`` (:data:`FITTED_TARGETS`):
+    each image's L-hat fitted with the texture model (:func:`disent.lighting.experiments.texture_lhat`) or on M-hat
+    eroded (:func:`~disent.lighting.experiments.eroded_lhat`), fitted the first time its data index ``idx`` comes
+    and kept in ``cache`` (index -> light), as it depends on the image alone."""
+    from disent.lighting import experiments
 
     idx = torch.as_tensor(idx).tolist()
     new = [k for k, i in enumerate(idx) if i not in cache]
     if new:
         parts = {k: batch[k][new] for k in ("image", "normal_pseudo", "mask_pseudo", "uv_pseudo")}
-        cache.update(zip((idx[k] for k in new), texture_lhat(parts)))
-    return {**batch, "sh_texture": torch.stack([cache[i] for i in idx])}
+        cache.update(zip((idx[k] for k in new), getattr(experiments, FITTED_TARGETS[target])(parts)))
+    return {**batch, target: torch.stack([cache[i] for i in idx])}
 
 
 class NonFiniteLoss(FloatingPointError):
@@ -508,13 +514,14 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
         )
 
     keys = train_keys(cfg.loss)
-    texture_lights = {} if cfg.loss.get("recon_L_target") == "sh_texture" else None
+    fitted = cfg.loss.get("recon_L_target") if cfg.loss.get("recon_L_target") in FITTED_TARGETS else None
+    fitted_lights = {}  # data index -> its fitted E_recon-L target
 
     def make_batch(s):  # on the CPU; the prefetch thread runs it
         idx = step_indices(cfg.seed, s, steps_per_epoch, t.batch_size, len(data))
         batch = get_batch(data, idx, keys)
-        if texture_lights is not None:
-            batch = with_texture_lhat(batch, idx, texture_lights)
+        if fitted:
+            batch = with_fitted_lhat(batch, idx, fitted_lights, fitted)
         return to_device(batch, "cpu", t.channels_last)
 
     prefetch = Prefetcher(make_batch, range(step, total_steps), t.get("prefetch", 0), t.get("prefetch_workers", 1))

@@ -1334,3 +1334,20 @@ def test_texture_model_asked_by_threads_at_once_is_built_once(tmp_path, monkeypa
     assert builds == [1]
     for m in models[1:]:
         np.testing.assert_array_equal(m.components, models[0].components)
+
+
+def test_eroded_lhat_does_not_see_m_hats_rim():
+    """loss.recon_L_target=sh_pseudo_eroded: L-hat fitted on M-hat eroded 1 px is blind to what M-hat's rim shows
+    (paint it over and the light stays), where the paper's L-hat on all of M-hat moves."""
+    from disent.data import SynthFaces, get_batch
+    from disent.data.synth.scenes import fit_sh_packed
+    from disent.lighting.experiments import EDGE, eroded, eroded_lhat
+
+    g = get_batch(SynthFaces("test", size=4), range(4))
+    rim = (g["mask_pseudo"] > 0.5) & (eroded(g["mask_pseudo"], EDGE) < 0.5)
+    painted = {**g, "image": torch.where(rim, torch.tensor([0.9, 0.1, 0.1])[None, :, None, None], g["image"])}
+    assert rim.any(dim=(1, 2, 3)).all()
+    torch.testing.assert_close(eroded_lhat(painted), eroded_lhat(g), rtol=1e-6, atol=1e-7)
+    lhat = [fit_sh_packed(b["image"], b["normal_pseudo"], b["mask_pseudo"]) for b in (g, painted)]
+    assert (lhat[0] - lhat[1]).abs().max() > 1e-2
+    torch.testing.assert_close(lhat[0].float(), g["sh_pseudo"], rtol=1e-4, atol=1e-5)  # the batch's own L-hat

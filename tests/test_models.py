@@ -193,7 +193,7 @@ def test_loss_terms_closed_forms():
     assert L.recon_L(out, textured, target="sh_texture").item() == pytest.approx(L.recon_L(out, b).item(), rel=1e-6)
     with pytest.raises(ValueError, match="the trainer to add it"):
         L.recon_L(out, b, target="sh_texture")
-    with pytest.raises(ValueError, match="recon_L_target must be one of sh_pseudo, sh"):
+    with pytest.raises(ValueError, match="recon_L_target must be one of sh_pseudo, sh_pseudo_eroded, sh_texture, sh"):
         L.recon_L(out, b, target="L_hat")
     # the oracle mix (loss.recon_L_oracle_mix): a share m of the way from L-hat to the true light scaled to L-hat's
     # mean shading per face and channel; at m = 1 the truth's shape with L-hat's brightness and colour costs 0, the

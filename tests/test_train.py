@@ -212,9 +212,10 @@ def test_training_sees_the_seeded_data_order_with_and_without_prefetch(tmp_path,
     assert expected[0] != expected[2] and sorted(expected[0] + expected[1]) == list(range(8))  # a new order each epoch
 
 
-def test_texture_lhat_target_is_fitted_once_per_training_image(tmp_path, monkeypatch):
-    """loss.recon_L_target=sh_texture: each step's batch carries its images' texture-model L-hat, fitted the first
-    time an image comes (two epochs of 8 images: 8 fits, none in the second epoch), in the batch's order."""
+def test_fitted_lhat_targets_are_fitted_once_per_training_image(tmp_path, monkeypatch):
+    """loss.recon_L_target=sh_texture (or sh_pseudo_eroded): each step's batch carries its images' texture-model
+    L-hat (or L-hat on M-hat eroded), fitted the first time an image comes (two epochs of 8 images: 8 fits, none in
+    the second epoch), in the batch's order."""
     import disent.lighting.experiments as E
 
     fitted = []
@@ -228,11 +229,11 @@ def test_texture_lhat_target_is_fitted_once_per_training_image(tmp_path, monkeyp
     b = {
         k: torch.rand(4, c, 8, 8) for k, c in (("image", 3), ("normal_pseudo", 3), ("mask_pseudo", 1), ("uv_pseudo", 2))
     }
-    first = T.with_texture_lhat(b, torch.tensor([5, 1, 7, 2]), cache)
+    first = T.with_fitted_lhat(b, torch.tensor([5, 1, 7, 2]), cache)
     torch.testing.assert_close(first["sh_texture"][:, :, 0], b["image"].mean((2, 3)))
-    again = T.with_texture_lhat({**b, "image": b["image"].flip(0)}, [2, 7, 1, 5], cache)  # cached: no new fit
+    again = T.with_fitted_lhat({**b, "image": b["image"].flip(0)}, [2, 7, 1, 5], cache)  # cached: no new fit
     assert fitted == [4] and torch.equal(again["sh_texture"], first["sh_texture"].flip(0))
-    T.with_texture_lhat(b, [5, 3, 0, 1], cache)
+    T.with_fitted_lhat(b, [5, 3, 0, 1], cache)
     assert fitted == [4, 2] and sorted(cache) == [0, 1, 2, 3, 5, 7]
     fitted.clear()
     rescaled, real = [], L.rescaled  # loss.recon_L_scale=sh_pseudo: each step's target is taken to L-hat's scale
@@ -243,6 +244,10 @@ def test_texture_lhat_target_is_fitted_once_per_training_image(tmp_path, monkeyp
     overrides = ("train.max_steps=2", "loss.recon_L_target=sh_texture", "loss.recon_L_scale=sh_pseudo")
     run(cfg_of(*TINY, *overrides), tmp_path / "lhat_scale")
     assert len(rescaled) == 2
+    eroded = []  # loss.recon_L_target=sh_pseudo_eroded: L-hat on M-hat eroded, fitted once per image as well
+    monkeypatch.setattr(E, "eroded_lhat", lambda batch: eroded.append(len(batch["image"])) or fake(batch))
+    run(cfg_of(*TINY, "train.epochs=2", "train.max_steps=null", "loss.recon_L_target=sh_pseudo_eroded"), tmp_path / "e")
+    assert eroded == [4, 4] and all(r["recon_L"] > 0 for r in records(tmp_path / "e") if "recon_L" in r)
 
 
 def test_validation_records_normal_errors_and_psnr(tmp_path):
@@ -346,7 +351,7 @@ def test_learning_rate_schedules():
         ("loss.recon_p=3", r"loss.recon_p=3; choose from 1 \(L1, the release\), 2"),
         ("loss.recon_fg_p=0", r"loss.recon_fg_p=0; choose from 1 \(L1\), 2"),
         ("loss.matte_p=3", r"loss.matte_p=3; choose from 1 \(L1, the release\), 2"),
-        ("loss.recon_L_target=lhat", "loss.recon_L_target='lhat'; choose from sh_pseudo, sh_texture, sh"),
+        ("loss.recon_L_target=lhat", "loss.recon_L_target='lhat'; choose from sh_pseudo, sh_pseudo_eroded, sh_texture"),
         ("loss.recon_L_scale=sh", "loss.recon_L_scale='sh'; choose from target, sh_pseudo"),
         ("loss.recon_L_oracle_mix=1.5", r"loss.recon_L_oracle_mix=1.5: must be a number in \[0, 1\]"),
         ("device=tpu", "device='tpu'; choose from cpu, cuda, cuda:N"),

@@ -437,6 +437,17 @@ LHAT_SOURCES = {  # name: (normals, albedo, pixels)
 ORACLE_MIXES = (0.25, 0.5, 0.75)  # lhat_sources' doses of loss.recon_L_oracle_mix
 
 
+def eroded_lhat(batch: dict) -> torch.Tensor:
+    """``[B, 3, 9]``: the paper's L-hat (constant albedo, :func:`disent.data.synth.scenes.fit_sh_packed`) fitted on
+    M-hat eroded ``EDGE`` px through the pseudo normals of each image of ``batch``: M-hat's rim, where the coarse fit
+    reaches past the skin, left out (``lhat_sources``' ``lhat_eroded``); E_recon-L's target with
+    ``loss.recon_L_target=sh_pseudo_eroded``."""
+    from disent.data.synth.scenes import fit_sh_packed
+
+    mask = eroded(batch["mask_pseudo"], EDGE)
+    return fit_sh_packed(batch["image"], batch["normal_pseudo"] * mask, mask).to(batch["image"].dtype)
+
+
 def texture_lhat(batch: dict) -> torch.Tensor:
     """``[B, 3, 9]``: L-hat with the PCA texture model for the albedo in place of its constant
     (:func:`disent.lighting.texture.texture_light`), fitted on M-hat eroded ``EDGE`` px through the pseudo normals

@@ -112,6 +112,12 @@ LIGHT_TARGETS = {
         "albedo in place of its constant (`loss.recon_L_target=sh_texture`, not the paper's; the lighting section's "
         '"PCA texture model fitted with the light" row), against the same setting with L-hat',
     ),
+    "loss.recon_L_target=sh_pseudo_eroded": (
+        "L-hat on M-hat eroded in L-hat's place",
+        "What a more contrasty L-hat without truth buys: E_recon-L (Eq. 9) on L-hat fitted on M-hat eroded 1 px "
+        "(`loss.recon_L_target=sh_pseudo_eroded`, not the paper's; the lighting section's row with M-hat eroded: "
+        "its light shows the truth's contrast where L-hat's is flatter), against the same setting with L-hat",
+    ),
     "loss.recon_L_scale=sh_pseudo": (
         "the target at L-hat's per-face scale",
         "Its shape or its scale: the same texture-model target scaled per face and channel to L-hat's mean shading "

@@ -465,6 +465,8 @@ def lhat_source_name(key: str) -> str:
     light."""
     if key == "floor":
         return "constant light (the mean train light; the floor)"
+    if key == "lhat_eroded":
+        return "L-hat (`loss.recon_L_target=sh_pseudo_eroded`)"
     if key == "texture_model_lhat_scale":
         return "L-hat at L-hat's per-face scale (`loss.recon_L_scale=sh_pseudo`)"
     if key.startswith("oracle_mix_"):
