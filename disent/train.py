@@ -514,7 +514,8 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
         )
 
     keys = train_keys(cfg.loss)
-    fitted = cfg.loss.get("recon_L_target") if cfg.loss.get("recon_L_target") in FITTED_TARGETS else None
+    target = cfg.loss.get("recon_L_target", "sh_pseudo")
+    fitted = target if target in FITTED_TARGETS else None  # E_recon-L's target, where the trainer fits it
     fitted_lights = {}  # data index -> its fitted E_recon-L target
 
     def make_batch(s):  # on the CPU; the prefetch thread runs it
