@@ -208,10 +208,12 @@ def test_intrinsic_layers_are_scored_where_the_model_renders_the_face():
     m = metrics_from_outputs({"sh": tinted, "normal": gt["normal"]}, gt)
     assert m["light_shading_si_mse"] < 1e-12 < m["sh_error"]
     assert m["light_contrast"] == pytest.approx(1, abs=1e-9)  # the truth's contrast at another colour
+    assert m["light_pattern_corr"] == pytest.approx(1, abs=1e-9) and m["light_contrast_ratio"] == pytest.approx(1)
     assert metrics_from_outputs({"sh": turned, "normal": gt["normal"]}, gt)["light_shading_si_mse"] > 1e-4
     flat = gt["sh"].clone()
     flat[:, :, 1:] *= 0.5  # every direction at half strength: a flatter light, the same DC
-    assert metrics_from_outputs({"sh": flat, "normal": gt["normal"]}, gt)["light_contrast"] < 0.9
+    m = metrics_from_outputs({"sh": flat, "normal": gt["normal"]}, gt)
+    assert m["light_contrast"] < 0.9 and m["light_contrast_ratio"] < 0.9 and m["light_pattern_corr"] > 0.98
 
 
 def test_conditioning_grows_towards_profile():

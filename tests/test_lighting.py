@@ -756,7 +756,7 @@ def test_lhat_sources_is_exact_with_every_input_made_true():
     """SynthFaces renders the face as albedo (.) S(n, L): least squares on the image over the true albedo, through
     the true normals, on the true face, returns the true light; the paper's L-hat does not."""
     from disent.data import SynthFaces
-    from disent.lighting.experiments import LHAT_SOURCES, ORACLE_MIXES, lhat_sources
+    from disent.lighting.experiments import LHAT_SOURCES, ORACLE_MIXES, SHARPENING, lhat_sources
 
     r = lhat_sources(SynthFaces("test", size=6), SynthFaces("train", size=32), n=6, networks=("explicit",))
     rows = r["rows"]
@@ -780,7 +780,26 @@ def test_lhat_sources_is_exact_with_every_input_made_true():
     assert tex_at_lhat["light_on_face"] == pytest.approx(tex["light_on_face"], rel=1e-6)
     assert tex_at_lhat["skin_tone_corr"] != pytest.approx(tex["skin_tone_corr"], abs=1e-3)
     assert all(len(row["inputs"]) == 3 and 0 <= row["shown"] for row in rows.values())
+    # contrast = pattern x magnitude face by face; the medians need not multiply exactly
+    truth = rows["true_pixels_normals_albedo"]
+    assert truth["pattern_corr"] == pytest.approx(1, abs=1e-6) and truth["contrast_ratio"] == pytest.approx(1, abs=1e-6)
+    assert all(-1 <= row["pattern_corr"] <= 1 and row["contrast_ratio"] > 0 for row in rows.values())
+    net = rows["network_explicit"]
+    assert net["calibration"] > 0 and list(net["sharpened_albedo"]) == list(SHARPENING)
+    assert "calibration" not in rows["lhat"]
     assert all(-1 <= row[f"skin_{k}_corr"] <= 1 for row in rows.values() for k in ("tone", "brightness"))
+
+
+def test_sharpened_albedo_is_exact_at_the_true_shading_alone():
+    """SynthFaces' image is albedo (.) shading: over the true shading (k = 1) the detailed albedo is the truth up to
+    scale; a more or a less contrasty shading leaves its contrast in the albedo."""
+    from disent.data import SynthFaces, get_batch
+    from disent.eval.evaluate import decomposed_region
+    from disent.lighting.experiments import sharpened_albedo
+
+    g = get_batch(SynthFaces("test", size=3), range(3))
+    e = sharpened_albedo(g["image"], g["shading"], g["albedo"], decomposed_region(g), ks=(0.8, 1.0, 1.25))
+    assert e[1.0] < 1e-6 < min(e[0.8], e[1.25])
 
 
 def test_eroded_pseudo_mask_drops_exactly_the_edge_ring():

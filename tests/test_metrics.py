@@ -376,11 +376,41 @@ def test_shading_contrast_is_the_slope_of_log_shading_on_the_truths():
     flatter = true.clone()
     flatter[..., 1:4] *= 0.5
     scale = torch.tensor([[2.0, 0.5, 1.0], [3.0, 1.0, 0.2]], dtype=torch.float64)[..., None]
-    assert torch.allclose(shading_contrast(true * scale, true, n, mask), torch.ones(2, 3, dtype=torch.float64))
+    assert torch.allclose(shading_contrast(true * scale, true, n, mask)["slope"], torch.ones(2, 3, dtype=torch.float64))
     dc_only = true * torch.eye(9, dtype=torch.float64)[0]
-    assert torch.allclose(shading_contrast(dc_only, true, n, mask), torch.zeros(2, 3, dtype=torch.float64))
-    c = shading_contrast(flatter, true, n, mask)
+    assert torch.allclose(shading_contrast(dc_only, true, n, mask)["slope"], torch.zeros(2, 3, dtype=torch.float64))
+    c = shading_contrast(flatter, true, n, mask)["slope"]
     assert ((0.2 < c) & (c < 0.9)).all()
     inside = mask[1, 0].bool().numpy()
     s, t = (sh_shading(n, light)[1, 0].log().numpy()[inside] for light in (flatter, true))
     assert c[1, 0].item() == pytest.approx(np.polyfit(t, s, 1)[0], rel=1e-9)
+
+
+def test_log_shading_agreement_parts_the_slope_into_pattern_and_magnitude():
+    """A shading that is the reference's to the power k, at any scale, has pattern 1 and magnitude k; with a pattern
+    of its own the parts are numpy's correlation and ratio of spreads, their product is the slope, and the magnitude
+    that leaves the least squared log error is the correlation (an estimate right on average is flatter)."""
+    import numpy as np
+
+    from disent.eval.metrics import log_shading_agreement
+
+    g = torch.Generator().manual_seed(0)
+    t = torch.rand(2, 3, 8, 8, generator=g, dtype=torch.float64) + 0.2
+    mask = torch.zeros(2, 1, 8, 8)
+    mask[..., 1:7, 2:8] = 1
+    a = log_shading_agreement(3.0 * t.pow(0.6), t, mask)
+    assert torch.allclose(a["corr"], torch.ones(2, 3, dtype=torch.float64))
+    assert torch.allclose(a["ratio"], torch.full((2, 3), 0.6, dtype=torch.float64))
+    assert torch.allclose(a["slope"], a["corr"] * a["ratio"])
+    other = t.pow(0.8) * (0.5 * torch.rand(2, 3, 8, 8, generator=g, dtype=torch.float64)).exp()  # its own pattern
+    a = log_shading_agreement(other, t, mask)
+    inside = mask[0, 0].bool().numpy()
+    x, y = (z[0, 1].log().numpy()[inside] for z in (other, t))
+    assert a["corr"][0, 1].item() == pytest.approx(np.corrcoef(x, y)[0, 1], rel=1e-9)
+    assert a["ratio"][0, 1].item() == pytest.approx(x.std() / y.std(), rel=1e-9)
+    assert torch.allclose(a["slope"], a["corr"] * a["ratio"])
+    xc, yc = x - x.mean(), y - y.mean()
+    ks = np.linspace(0.05, 2, 400)  # other's log contrast times k: its magnitude k * ratio
+    errors = [((k * xc - yc) ** 2).sum() for k in ks]
+    best = ks[int(np.argmin(errors))] * a["ratio"][0, 1].item()
+    assert best == pytest.approx(a["corr"][0, 1].item(), abs=0.01)

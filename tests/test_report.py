@@ -648,10 +648,25 @@ def test_lhat_sources_table_reads_which_input_costs_l_hat_most(tmp_path):
     )  # the true albedo's and the floor's rows stay out of the range
     rows["lhat"]["contrast"], rows["texture_model"]["contrast"] = 0.92, 0.88
     text = "\n".join(lighting.lhat_source_lines({"split": "test", "n": 256, "rows": rows}))
-    assert "| 0.0086 ± 0.0009 | 0.50 | 0.100 | +0.80 / +0.77 | 0.92 |" in text
-    assert "The texture model's light is flatter than L-hat's (contrast 0.88 against 0.92)" in text
-    rows["texture_model"]["contrast"] = 0.95
-    assert "light is flatter" not in "\n".join(lighting.lhat_source_lines({"split": "test", "n": 256, "rows": rows}))
+    assert "| 0.0086 ± 0.0009 | 0.50 | 0.100 | +0.80 / +0.77 | 0.92 |" in text and "a better pattern" not in text
+    rows["lhat"] |= {"pattern_corr": 0.893, "contrast_ratio": 1.03}  # the contrast's two parts, where scored
+    rows["texture_model"] |= {"pattern_corr": 0.903, "contrast_ratio": 0.96}
+    text = "\n".join(lighting.lhat_source_lines({"split": "test", "n": 256, "rows": rows}))
+    assert "| +0.80 / +0.77 | 0.92 (0.89, 1.03) |" in text
+    assert (
+        "The texture model's light has a better pattern (0.90 against 0.89) and less magnitude (0.96 against 1.03) "
+        "than L-hat's: contrast 0.88 against 0.92." in text
+    )
+    assert "Calibration about L-hat" not in text  # no network row with the sweep
+    sweep = {"0.8": 0.0098, "0.9": 0.0091, "1.0": 0.0090, "1.2": 0.0112}
+    rows["network_explicit"] |= {"calibration": 1.08, "sharpened_albedo": sweep}
+    text = "\n".join(lighting.lhat_source_lines({"split": "test", "n": 256, "rows": rows}))
+    assert "| network | calibration | k = 0.8 | k = 0.9 | k = 1.0 | k = 1.2 |" in text
+    assert "| explicit | 1.08 | 0.00980 | 0.00910 | 0.00900 | 0.01120 |" in text
+    assert "best at k = 1.0 for explicit: the networks' shading is as contrasty as its pattern allows" in text
+    rows["network_explicit"]["sharpened_albedo"] = sweep | {"1.2": 0.0080}  # a sharper shading would help
+    text = "\n".join(lighting.lhat_source_lines({"split": "test", "n": 256, "rows": rows}))
+    assert "best at k = 1.2 for explicit (11.1% below k = 1): a more contrasty shading would help explicit's" in text
     (tmp_path / "lighting").mkdir()
     (tmp_path / "lighting" / "lhat_sources.json").write_text(json.dumps({"split": "test", "n": 256, "rows": rows}))
     rep = report.Report(tmp_path)
@@ -1720,8 +1735,8 @@ def test_light_targets_pair_each_setting_with_its_l_hat_counterpart(tmp_path, mo
     """What another E_recon-L target buys (the true light, L-hat with a texture model): a setting trained on one is
     read against the same setting with L-hat (the defaults' when it has no other override), or, at L-hat's per-face
     scale (loss.recon_L_scale), against the target at its own scale; its albedo as a share of the mean map's against
-    the target, the light's contrast where both sides were scored with it, one paragraph per target; a setting
-    without its counterpart adds nothing."""
+    the target, the light's contrast and its parts where both sides were scored with them, one paragraph per target;
+    a setting without its counterpart adds nothing."""
     import disent.models.shipped as shipped
 
     ev = {"trivial_albedo_si_mse": 0.0125, "light_shading_si_mse": 0.005, "normal_mean": 12.4, "albedo_si_mse": 0.009}
@@ -1736,9 +1751,14 @@ def test_light_targets_pair_each_setting_with_its_l_hat_counterpart(tmp_path, mo
     make_run(tmp_path / "runs", "texs", eval_=ev | {"albedo_si_mse": 0.0056}, extra=at_lhat_scale)
     texture = ("loss.recon_L_target=sh_texture",)  # a seed scored with the light's contrast, on both sides of a pair
     make_run(
-        tmp_path / "runs", "tex1", seed=1, eval_=ev | {"albedo_si_mse": 0.0062, "light_contrast": 0.66}, extra=texture
-    )
-    at_lhat_scale_contrast = ev | {"albedo_si_mse": 0.0056, "light_contrast": 0.70}
+        tmp_path / "runs",
+        "tex1",
+        seed=1,
+        eval_=ev | {"albedo_si_mse": 0.0062, "light_contrast": 0.66, "light_pattern_corr": 0.9},
+        extra=texture,
+    )  # the pattern on both sides, the magnitude on one: only the pattern is read
+    at_lhat_scale_contrast = ev | {"albedo_si_mse": 0.0056, "light_contrast": 0.70, "light_pattern_corr": 0.91}
+    at_lhat_scale_contrast |= {"light_contrast_ratio": 0.77}
     make_run(tmp_path / "runs", "texs1", seed=1, eval_=at_lhat_scale_contrast, extra=at_lhat_scale)
     monkeypatch.setattr(shipped, "manifest", lambda: {})
     lines = claims.light_target_lines(find_runs([tmp_path / "runs"]))
@@ -1749,8 +1769,9 @@ def test_light_targets_pair_each_setting_with_its_l_hat_counterpart(tmp_path, mo
         "(n=2) -> 0.0062 ± 0.0000 (n=2), 0.72 -> 0.50 of the mean map's: meets the target (<= 0.5).",
         "- `loss.recon_L_scale=sh_pseudo loss.recon_L_target=sh_texture` (explicit) against "
         "`loss.recon_L_target=sh_texture`: light on the face 0.0050 ± 0.0000 (n=2) -> 0.0050 ± 0.0000 (n=2); light "
-        "contrast 0.66 (n=1) -> 0.70 (n=1); normals 12.40 ± 0.00 (n=2) -> 12.40 ± 0.00 (n=2) deg; albedo 0.0062 ± "
-        "0.0000 (n=2) -> 0.0056 ± 0.0000 (n=2), 0.50 -> 0.45 of the mean map's: meets the target (<= 0.5).",
+        "contrast 0.66 (n=1) -> 0.70 (n=1); its pattern 0.90 (n=1) -> 0.91 (n=1); normals 12.40 ± 0.00 (n=2) -> "
+        "12.40 ± 0.00 (n=2) deg; albedo 0.0062 ± 0.0000 (n=2) -> 0.0056 ± 0.0000 (n=2), 0.50 -> 0.45 of the mean "
+        "map's: meets the target (<= 0.5).",
         "- `loss.recon_L_target=sh` (explicit) against `(defaults)`: light on the face 0.0050 ± 0.0000 (n=2) -> "
         "0.0030 ± 0.0000 (n=2); normals 12.40 ± 0.00 (n=2) -> 12.40 ± 0.00 (n=2) deg; albedo 0.0090 ± 0.0000 (n=2) "
         "-> 0.0065 ± 0.0007 (n=2), 0.72 -> 0.52 of the mean map's: misses the target (<= 0.5).",

@@ -15,6 +15,7 @@ from disent.eval.metrics import (
     angular_error_deg,
     completed_sh,
     light_shading_si_mse,
+    log_shading_agreement,
     mask_iou,
     normal_angular_error,
     normal_spread,
@@ -86,6 +87,8 @@ def decomposed_region(gt: dict) -> torch.Tensor:
     return face_mask(gt["matte"]) * (gt["mask_pseudo"] > 0.5)
 
 
+AGREEMENT_KEYS = {"contrast": "slope", "pattern_corr": "corr", "contrast_ratio": "ratio"}  # metric suffix -> part of
+# disent.eval.metrics.log_shading_agreement, each the median over faces and channels
 PSEUDO_ERROR_BINS = (0, 5, 10, 20, 180)  # degrees of the pseudo-GT's own error: nearly right ... far off
 
 
@@ -210,8 +213,11 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     ``light_shading_si_mse``: the light's shading through the true normals against the true shading;
     ``sh_error_shown`` and ``sh_error_hidden``: the coefficients' error split between the SH directions the face's
     normals show and those they hide (:func:`~disent.eval.metrics.sh_error_shown_hidden`); ``light_contrast``: how
-    much of the true shading's contrast the light's shading shows there, the median over faces and channels of
-    :func:`~disent.eval.metrics.shading_contrast` (1: the truth's; below 1: flatter, the rest left to the albedo).
+    much of the true shading's contrast the light's shading shows there, through the true normals, the median over
+    faces and channels of :func:`~disent.eval.metrics.shading_contrast`'s slope (1: the truth's; below 1: the rest
+    left to the albedo), parted into ``light_pattern_corr`` (its log shading's correlation with the truth's) and
+    ``light_contrast_ratio`` (its magnitude); ``shading_contrast``, ``shading_pattern_corr`` and
+    ``shading_contrast_ratio``: the same for the model's own shading (its normals too) against the true shading.
     ``matte_iou``: the matte's IoU with the true face region ``mask_face`` (the skin a 3DMM covers: what the matte's
     supervision M-hat estimates; not hair, ears or neck), and ``pseudo_matte_iou`` M-hat's own, both cut at 0.5
     (:func:`~disent.eval.metrics.mask_iou`; higher is better); ``matte_soft_edge`` and the rest of
@@ -256,6 +262,8 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
         shading = out["shading"].expand_as(gt["shading"])
         m["shading_si_mse"] = scale_invariant_mse(shading, gt["shading"], region)
         m["shading_colour_si_mse"] = scale_invariant_mse(shading, gt["shading"], region, per_channel=False)
+        agree = log_shading_agreement(shading, gt["shading"], region)
+        m.update({f"shading_{k}": agree[v].median().item() for k, v in AGREEMENT_KEYS.items()})
     if "sh" in out:
         m["sh_error"] = sh_error(out["sh"], gt["sh"])
         m["pseudo_sh_error"] = sh_error(gt["sh_pseudo"], gt["sh"])
@@ -268,7 +276,8 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
         for prefix, sh in (("", out["sh"]), ("pseudo_", gt["sh_pseudo"])):
             split = sh_error_shown_hidden(sh, gt["sh"], gt["normal"], region)
             m[f"{prefix}sh_error_shown"], m[f"{prefix}sh_error_hidden"] = split["shown"], split["hidden"]
-            m[f"{prefix}light_contrast"] = shading_contrast(sh, gt["sh"], gt["normal"], region).median().item()
+            agree = shading_contrast(sh, gt["sh"], gt["normal"], region)
+            m.update({f"{prefix}light_{k}": agree[v].median().item() for k, v in AGREEMENT_KEYS.items()})
     if {"albedo", "shading"} <= set(out) and "shading" in gt:
         m.update(bws_stats(out, gt))
     if "matte" in out and "mask_face" in gt:  # the matte against the face region M-hat estimates (Sec. 3.3)

@@ -201,21 +201,35 @@ def light_shading_si_mse(
     return scale_invariant_mse(sh_shading(n, sh.double()), sh_shading(n, reference_sh.double()), mask, reduction)
 
 
-def shading_contrast(
-    sh: torch.Tensor, reference_sh: torch.Tensor, normal: torch.Tensor, mask: torch.Tensor, floor: float = 1e-3
-) -> torch.Tensor:
-    """``[B, C]``: how much of ``reference_sh``'s shading contrast ``sh`` shows through ``normal`` inside ``mask``:
-    the least-squares slope of its log shading (Eq. 4) on the reference's, each centred over the mask, per image and
-    channel. 1: as contrasty (any scale); 0: flat; below 1: a light that leaves the rest of the shading to the albedo.
-    Shading is clamped at ``floor`` before the log."""
-    n, w = normal.detach().double(), mask.double()
+def log_shading_agreement(shading: torch.Tensor, reference: torch.Tensor, mask: torch.Tensor, floor: float = 1e-3):
+    """How a shading ``[B,C,H,W]`` follows a ``reference`` shading inside ``mask``, on their log shadings (clamped at
+    ``floor``), each centred over the mask per image and channel: ``dict`` of ``[B, C]`` tensors, ``corr``, their
+    correlation (the pattern: 1 where the shading falls where the reference's does), ``ratio``, the ratio of their
+    standard deviations (the magnitude of the contrast: 1 as contrasty as the reference, 0 flat), and ``slope``,
+    the least-squares slope of the shading's on the reference's, ``corr * ratio``. Blind to each image's and
+    channel's scale. Below the ``slope`` of 1 a shading leaves part of the reference's to the albedo, by a pattern
+    that differs (``corr``) or a contrast that is smaller (``ratio``). Where the pattern is imperfect, the least
+    squared log error needs ``ratio = corr``, not 1: an estimate that is right on average is flatter than its truth."""
+    w = mask.double().expand_as(shading[:, :1])
 
-    def centred_log(light):
-        s = sh_shading(n, light.double()).clamp_min(floor).log()
+    def centred_log(s):
+        s = s.double().clamp_min(floor).log()
         return s - (s * w).sum((2, 3), keepdim=True) / w.sum((2, 3), keepdim=True).clamp_min(1e-12)
 
-    s, t = centred_log(sh), centred_log(reference_sh)
-    return (s * t * w).sum((2, 3)) / (t * t * w).sum((2, 3)).clamp_min(1e-12)
+    s, t = centred_log(shading), centred_log(reference)
+    st, ss, tt = ((a * b * w).sum((2, 3)) for a, b in ((s, t), (s, s), (t, t)))
+    tt, ss = tt.clamp_min(1e-12), ss.clamp_min(1e-12)
+    return {"corr": st / (ss * tt).sqrt(), "ratio": (ss / tt).sqrt(), "slope": st / tt}
+
+
+def shading_contrast(
+    sh: torch.Tensor, reference_sh: torch.Tensor, normal: torch.Tensor, mask: torch.Tensor, floor: float = 1e-3
+) -> dict:
+    """:func:`log_shading_agreement` of the shading of the light ``sh`` with that of ``reference_sh``, both through
+    ``normal`` (Eq. 4) inside ``mask``: ``slope`` is how much of the reference's shading contrast the light shows (1:
+    as contrasty, at any scale; 0: flat), ``corr`` and ``ratio`` part it into pattern and magnitude."""
+    n = normal.detach().double()
+    return log_shading_agreement(sh_shading(n, sh.double()), sh_shading(n, reference_sh.double()), mask, floor)
 
 
 BAND_SIGMA = 2.0  # px at 64x64: the coarse band keeps what varies over more than a few pixels (shading-like)

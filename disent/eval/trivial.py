@@ -50,6 +50,11 @@ KEYS = (
     "sh_error_hidden",
     "light_shading_si_mse",
     "light_contrast",
+    "light_pattern_corr",
+    "light_contrast_ratio",
+    "shading_contrast",
+    "shading_pattern_corr",
+    "shading_contrast_ratio",
     "matte_iou",
 )
 

@@ -435,6 +435,19 @@ LHAT_SOURCES = {  # name: (normals, albedo, pixels)
 
 
 ORACLE_MIXES = (0.25, 0.5, 0.75)  # lhat_sources' doses of loss.recon_L_oracle_mix
+SHARPENING = (0.7, 0.8, 0.9, 1.0, 1.1, 1.2, 1.4)  # lhat_sources' powers k of a network's shading (its log contrast x k)
+
+
+def sharpened_albedo(image, shading, albedo, region, ks=SHARPENING) -> dict:
+    """``{k: si-MSE}``: the detailed albedo of Sec. 5.3, the image over the shading raised to the power ``k`` (its
+    log contrast scaled by k about each face's mean; the scale this also changes is one the si-MSE forgives), scored
+    against the true ``albedo`` on ``region``: what a more (k > 1) or less (k < 1) contrasty shading would give the
+    albedo, all else kept."""
+    from disent.edit.relight import detailed_albedo
+    from disent.eval.metrics import scale_invariant_mse
+
+    s = shading.double().clamp_min(1e-3)
+    return {k: scale_invariant_mse(detailed_albedo(image.double(), s.pow(k)), albedo, region) for k in ks}
 
 
 def eroded_lhat(batch: dict) -> torch.Tensor:
@@ -469,9 +482,10 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
     faces, and ``beats_lhat``, the share of faces where it is below the paper's L-hat), and the SH error along the
     directions the face shows (``shown``); ``skin_tone_corr`` and ``skin_brightness_corr``: how much of each face's
     skin its shading carries there (:func:`disent.eval.evaluate.skin_in_shading`; a per-face, per-channel scale that
-    light on the face is blind to, and that the light hands on to the albedo); ``contrast``: the median over faces
-    and channels of :func:`disent.eval.metrics.shading_contrast` against the true light there (below 1: flatter than
-    the truth, the rest of the shading left to the albedo). ``LHAT_SOURCES`` are least-squares
+    light on the face is blind to, and that the light hands on to the albedo); ``contrast``, ``pattern_corr`` and
+    ``contrast_ratio``: the medians over faces and channels of :func:`disent.eval.metrics.shading_contrast`'s slope,
+    correlation and magnitude against the true light there (a slope below 1 leaves the rest of the shading to the
+    albedo). ``LHAT_SOURCES`` are least-squares
     fits (:func:`disent.data.synth.scenes.fit_sh_packed`) of the image over the albedo; *template*: the mean train
     albedo in UV space placed through the pseudo uv; ``texture_model``: the PCA texture model fitted with the light
     (:func:`texture_lhat`) on M-hat eroded ``EDGE`` px, and ``texture_model_lhat_scale``, the same at L-hat's mean
@@ -480,7 +494,10 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
     (:data:`ORACLE_MIXES`, :func:`disent.losses.oracle_mixed`: E_recon-L's target under
     ``loss.recon_L_oracle_mix=m``). Each row names its ``inputs`` (normals, albedo, pixels). Each shipped network
     in ``networks`` adds its light and the least-squares light of the image over its own albedo on the pseudo
-    normals, inside M-hat and its matte. ``floor``: the constant mean train light."""
+    normals, inside M-hat and its matte, with its ``calibration`` (the slope of L-hat's log shading on the network's
+    light's, through N-hat on M-hat, the median over faces and channels: 1 where it is right on average about its
+    target) and ``sharpened_albedo`` (:func:`sharpened_albedo` of its own shading). ``floor``: the constant mean
+    train light."""
     from disent.data import get_batch
     from disent.data.synth.scenes import fit_sh_packed
     from disent.eval.evaluate import decomposed_region, face_colour, skin_in_shading
@@ -503,8 +520,8 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
     def scored(sh):
         e = light_shading_si_mse(sh, g["sh"], g["normal"], face, reduction="none")
         skin_corr = skin_in_shading(face_colour(sh_shading(g["normal"].double(), sh.double()), face), skin)
-        contrast = shading_contrast(sh, g["sh"], g["normal"], face).median()
-        return e, sh_error_shown_hidden(sh, g["sh"], g["normal"], face)["shown"], skin_corr, contrast
+        agree = {k: float(v.median()) for k, v in shading_contrast(sh, g["sh"], g["normal"], face).items()}
+        return e, sh_error_shown_hidden(sh, g["sh"], g["normal"], face)["shown"], skin_corr, agree
 
     inputs = dict(LHAT_SOURCES, texture_model=("normal_pseudo", "texture_model", "eroded"), floor=("-", "-", "-"))
     lights = {k: fit(g[nk], albedo[a], pixels[p]) for k, (nk, a, p) in LHAT_SOURCES.items()}
@@ -518,17 +535,25 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
             lights["lhat"], g["sh"], g["normal_pseudo"], g["mask_pseudo"], share
         )
         inputs[f"oracle_mix_{share}"] = LHAT_SOURCES["lhat"]
+    extra = {}  # row -> what only a network's row has
     for name in networks:
         out = _network(name)(g["image"].clamp(0, 1))
         inside = g["mask_pseudo"] * (out["matte"] > 0.5)
         lights[f"network_{name}"] = out["sh"]
+        # its target L-hat's log shading regressed on the network's (no truth): 1 where the network is right on
+        # average about its target, E[L-hat | network] = network, whatever it cannot tell from the image left out
+        calibration = shading_contrast(lights["lhat"], out["sh"], g["normal_pseudo"], g["mask_pseudo"])["slope"]
+        extra[f"network_{name}"] = {
+            "calibration": float(calibration.median()),
+            "sharpened_albedo": sharpened_albedo(g["image"], out["shading"], g["albedo"], face),
+        }
         lights[f"network_{name}_refit"] = fit(g["normal_pseudo"], out["albedo"], inside)
         inputs |= {f"network_{name}": ("network",) * 3, f"network_{name}_refit": ("normal_pseudo", "network", "matte")}
     lights["floor"] = means["sh"].expand_as(g["sh"])
     scores = {k: scored(sh) for k, sh in lights.items()}
     reference = scores["lhat"][0]
     rows = {}
-    for k, (e, shown, skin_corr, contrast) in scores.items():
+    for k, (e, shown, skin_corr, agree) in scores.items():
         rows[k] = {
             "light_on_face": float(e.mean()),
             "light_on_face_se": float(e.std() / math.sqrt(len(e))),
@@ -536,9 +561,11 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
             "shown": shown,
             "skin_tone_corr": skin_corr["tone"],
             "skin_brightness_corr": skin_corr["brightness"],
-            "contrast": float(contrast),
+            "contrast": agree["slope"],
+            "pattern_corr": agree["corr"],
+            "contrast_ratio": agree["ratio"],
             "inputs": inputs[k],
-        }
+        } | extra.get(k, {})
     return {"split": test.split, "n": len(reference), "rows": rows}
 
 

@@ -403,9 +403,11 @@ def albedo_cause_lines(runs: list[Run]) -> list[str]:
 def light_target_lines(runs: list[Run]) -> list[str]:
     """What another E_recon-L target buys: each setting trained on one of :data:`LIGHT_TARGETS` against the same
     setting without it (with the paper's L-hat, or the target at its own scale), on the light on the face, its
-    contrast where both sides were scored with it, the normals and the albedo (its share of the mean map's, the
-    albedo target's measure); a paragraph per target, none where no such pair was scored."""
-    keys = ("albedo_si_mse", "light_shading_si_mse", "normal_mean", "trivial_albedo_si_mse", "light_contrast")
+    contrast and that contrast's pattern and magnitude where both sides were scored with them, the normals and the
+    albedo (its share of the mean map's, the albedo target's measure); a paragraph per target, none where no such
+    pair was scored."""
+    parts = ("light_contrast", "light_pattern_corr", "light_contrast_ratio")
+    keys = ("albedo_si_mse", "light_shading_si_mse", "normal_mean", "trivial_albedo_si_mse", *parts)
     spreads = scored_spreads(runs, keys)
     goal, out = TARGETS["albedo_share_of_trivial"], []
     for key, (_, intro) in LIGHT_TARGETS.items():
@@ -421,8 +423,9 @@ def light_target_lines(runs: list[Run]) -> list[str]:
                 f"{spread_text(ref[k], fmt)} -> {spread_text(st[k], fmt)}"
                 for k, fmt in (("light_shading_si_mse", ".4f"), ("normal_mean", ".2f"), ("albedo_si_mse", ".4f"))
             )
-            if ref["light_contrast"] and st["light_contrast"]:
-                light += f"; light contrast {spread_text(ref['light_contrast'])} -> {spread_text(st['light_contrast'])}"
+            for k, words in zip(parts, ("light contrast", "its pattern", "its magnitude")):
+                if ref[k] and st[k]:
+                    light += f"; {words} {spread_text(ref[k])} -> {spread_text(st[k])}"
             lines.append(
                 f"- `{where}` ({model}) against `{base}`: light on the face {light}; normals {normals} deg; albedo "
                 f"{albedo}, {share[0]:.2f} -> {share[1]:.2f} of the mean map's: "

@@ -478,6 +478,65 @@ def lhat_source_name(key: str) -> str:
     return "L-hat" + (" (the paper's E_recon-L target, Eq. 9)" if key == "lhat" else "")
 
 
+def contrast_cell(row: dict) -> str:
+    """A light's contrast against the truth's, with its pattern and magnitude where the row has them."""
+    parts = [row.get(k) for k in ("pattern_corr", "contrast_ratio")]
+    extra = f" ({parts[0]:.2f}, {parts[1]:.2f})" if None not in parts else ""
+    return fmt_value(row.get("contrast"), ".2f") + extra
+
+
+def contrast_reading(name: str, row: dict, lhat: dict) -> str:
+    """How ``row``'s light's contrast differs from L-hat's (``lhat``), part by part: pattern and magnitude."""
+
+    def compared(key, more, less, same):
+        x, y = row[key], lhat[key]
+        return f"{more if x > y + 0.005 else less if x < y - 0.005 else same} ({x:.2f} against {y:.2f})"
+
+    pattern = compared("pattern_corr", "a better pattern", "a worse pattern", "the same pattern")
+    magnitude = compared("contrast_ratio", "more magnitude", "less magnitude", "as much magnitude")
+    contrast = f"contrast {row['contrast']:.2f} against {lhat['contrast']:.2f}"
+    return f"{name} has {pattern} and {magnitude} than L-hat's: {contrast}"
+
+
+def sharpening_lines(rows: dict) -> list[str]:
+    """What a more or less contrasty shading would give each shipped network's albedo (``lhat_sources.json``'s
+    ``sharpened_albedo``), with the network's calibration about its target: the table and its reading."""
+    nets = {k.split("_")[1]: r for k, r in rows.items() if "sharpened_albedo" in r}
+    if not nets:
+        return []
+    ks = list(next(iter(nets.values()))["sharpened_albedo"])
+    lines = [
+        "\nWhy a network's light is flatter than its target, and whether more contrast would help. *Calibration*: "
+        "the slope of L-hat's log shading on the network's light's, through N-hat on M-hat (no truth), the median "
+        "over faces and channels: 1 where the network is right on average about its target, what a least-squares "
+        "fit gives when it cannot tell all of the target from the image; it is then flatter than the target by "
+        "what it cannot tell. The other columns take the network's own shading S (its normals and light) to the "
+        "power k, its log contrast times k, and score the detailed albedo of Sec. 5.3, the image over S^k, against "
+        "the true albedo (si-MSE, scored pixels; `disent.lighting.experiments.sharpened_albedo`): k = 1 is the "
+        "shading as it is, k > 1 more contrasty.\n",
+        *table_head("network", "calibration", *(f"k = {k}" for k in ks)),
+    ]
+    for name, r in nets.items():
+        cells = " | ".join(f"{v:.5f}" for v in r["sharpened_albedo"].values())
+        lines.append(f"| {name} | {fmt_value(r.get('calibration'), '.2f')} | {cells} |")
+    best = {n: min(r["sharpened_albedo"], key=r["sharpened_albedo"].get) for n, r in nets.items()}
+    gain = {n: 1 - r["sharpened_albedo"][best[n]] / r["sharpened_albedo"][str(1.0)] for n, r in nets.items()}
+    calibrated = ", ".join(f"{n} {fmt_value(r.get('calibration'), '.2f')}" for n, r in nets.items())
+    sharper = [n for n in nets if float(best[n]) > 1.0 and gain[n] > 0.01]
+    lines.append(
+        f"\nCalibration about L-hat: {calibrated}. The detailed albedo is best at k = "
+        + ", ".join(f"{best[n]} for {n}" + (f" ({gain[n]:.1%} below k = 1)" if gain[n] else "") for n in nets)
+        + (
+            f": a more contrasty shading would help {' and '.join(sharper)}'s albedo.\n"
+            if sharper
+            else ": the networks' shading is as contrasty as its pattern allows, and more contrast would not help "
+            "the albedo; what the light lacks is its pattern (the first part of the contrast column), not its "
+            "magnitude.\n"
+        )
+    )
+    return lines
+
+
 def lhat_source_lines(src: dict) -> list[str]:
     """Where L-hat's error on the face comes from (``lhat_sources.json``): the table and its reading."""
     rows = src["rows"]
@@ -499,8 +558,10 @@ def lhat_source_lines(src: dict) -> list[str]:
         "`shading_albedo_tone_corr` scores the networks' shading), the per-face scale that *light on the face* is "
         "blind to and that a light hands on to the albedo; the true light's is about 0; *contrast*: the median over "
         "faces and channels of the slope of its log shading on the true light's, on the scored pixels "
-        "(`disent.eval.metrics.shading_contrast`; 1: the truth's contrast at any scale, below 1: flatter, the rest of "
-        "the shading left to the albedo). "
+        "(`disent.eval.metrics.shading_contrast`; 1: the truth's contrast at any scale, below 1: the rest of the "
+        "shading left to the albedo), and in brackets the two parts of that slope (`disent.eval.metrics."
+        "log_shading_agreement`): the *pattern*, the correlation of its log shading with the truth's, and the "
+        "*magnitude*, the ratio of their spreads (the slope is pattern x magnitude, face by face). "
         f"The first {src['n']} {src['split']} images, noise-free as training sees them "
         "(`python -m disent.lighting task=lhat`; `disent.lighting.experiments.lhat_sources`).\n",
         *table_head(
@@ -512,7 +573,7 @@ def lhat_source_lines(src: dict) -> list[str]:
             "beats L-hat",
             "shown SH error",
             "skin in its shading (tone / brightness)",
-            "contrast",
+            "contrast (pattern, magnitude)",
         ),
     ]
     for k, r in rows.items():
@@ -520,7 +581,7 @@ def lhat_source_lines(src: dict) -> list[str]:
         skin = " / ".join(fmt_value(r.get(f"skin_{c}_corr"), "+.2f") for c in ("tone", "brightness"))
         lines.append(
             f"| {lhat_source_name(k)} | {words} | {r['light_on_face']:.4f} ± {r['light_on_face_se']:.4f} | "
-            f"{r['beats_lhat']:.2f} | {r['shown']:.3f} | {skin} | {fmt_value(r.get('contrast'), '.2f')} |"
+            f"{r['beats_lhat']:.2f} | {r['shown']:.3f} | {skin} | {contrast_cell(r)} |"
         )
     if not {"lhat", "true_pixels", "true_pixels_normals", "true_pixels_albedo"} <= set(e):
         return lines + [""]
@@ -550,12 +611,9 @@ def lhat_source_lines(src: dict) -> list[str]:
                 + ")"
             )
         reading += "."
-    contrast = {k: rows[k].get("contrast") for k in ("lhat", "texture_model")}
-    if None not in contrast.values() and contrast["texture_model"] < contrast["lhat"]:
-        reading += (
-            f" The texture model's light is flatter than L-hat's (contrast {contrast['texture_model']:.2f} against "
-            f"{contrast['lhat']:.2f}): its texture takes part of the shading, which a target then leaves to the albedo."
-        )
+    for k, name in (("lhat_eroded", "L-hat on M-hat eroded 1 px"), ("texture_model", "The texture model's light")):
+        if k in rows and None not in (rows[k].get("pattern_corr"), rows["lhat"].get("pattern_corr")):
+            reading += " " + contrast_reading(name, rows[k], rows["lhat"]) + "."
     fitted = [r for r in rows.values() if r["inputs"][1] not in ("albedo", "-") and "skin_tone_corr" in r]
     if fitted:
         tone, bright = ([r[f"skin_{c}_corr"] for r in fitted] for c in ("tone", "brightness"))
@@ -565,7 +623,7 @@ def lhat_source_lines(src: dict) -> list[str]:
             "the networks' own included): the skin's scale and the light's are one unknown in the image, and a "
             "target that carries the skin teaches it to Z_L."
         )
-    return lines + [reading + "\n"]
+    return lines + [reading + "\n", *sharpening_lines(rows)]
 
 
 def sec_lighting(rep: Report, out: Path) -> None:
