@@ -1788,6 +1788,67 @@ def test_light_targets_pair_each_setting_with_its_l_hat_counterpart(tmp_path, mo
     assert claims.light_target_lines([]) == []
 
 
+def test_target_source_names_the_lighting_row_of_a_settings_e_recon_l_target():
+    assert claims.target_source("(defaults)") == claims.target_source("+experiment=long") == "lhat"
+    assert claims.target_source("loss.recon_L_target=sh_pseudo_eroded") == "lhat_eroded"
+    assert claims.target_source("loss.recon_L_scale=sh_pseudo loss.recon_L_target=sh_texture") == (
+        "texture_model_lhat_scale"
+    )
+    assert claims.target_source("loss.recon_L_oracle_mix=0.25") == "oracle_mix_0.25"
+    truth = "true_pixels_normals_albedo"  # the truth's shape, at whichever scale
+    assert claims.target_source("+experiment=long loss.recon_L_target=sh") == truth
+    assert claims.target_source("loss.recon_L_oracle_mix=1.0 loss.recon_L_target=sh_texture") == truth
+    assert claims.target_source("loss.recon_L_oracle_mix=0.5 loss.recon_L_target=sh_texture") is None  # no such row
+    assert claims.target_source("loss.lhat_gray=true") is None  # changes more than the target
+    assert claims.target_source("+ablation=no_bws") is None
+
+
+def test_light_pattern_section_reads_the_albedo_against_the_targets_pattern(tmp_path, monkeypatch):
+    """One row per explicit setting that changes E_recon-L's target alone, with the target's pattern and magnitude
+    from the lighting section's table and the network's own where its runs have them; a figure beside it; nothing
+    without the lighting table."""
+    import disent.models.shipped as shipped
+    from disent import report
+
+    monkeypatch.setattr(shipped, "manifest", lambda: {})
+    ev = {"trivial_albedo_si_mse": 0.0125, "albedo_si_mse": 0.0093, "light_shading_si_mse": 0.005}
+    for seed in (0, 1):
+        make_run(tmp_path / "runs", f"paper{seed}", seed=seed, eval_=ev | {"light_pattern_corr": 0.93 + 0.01 * seed})
+        truth = ev | {"albedo_si_mse": 0.0083, "light_pattern_corr": 0.97, "light_contrast_ratio": 0.89}
+        make_run(tmp_path / "runs", f"oracle{seed}", seed=seed, eval_=truth, extra=("loss.recon_L_target=sh",))
+    make_run(tmp_path / "runs", "gray", eval_=ev, extra=("loss.lhat_gray=true",))  # not a target: no row
+    runs = find_runs([tmp_path / "runs"])
+    rep = report.Report(tmp_path)
+    claims.light_pattern_section(rep, runs)
+    assert rep.lines == []  # no lighting table yet
+    rows = {
+        "lhat": {"pattern_corr": 0.893, "contrast_ratio": 1.03},
+        "true_pixels_normals_albedo": {"pattern_corr": 1.0, "contrast_ratio": 1.0},
+    }
+    (tmp_path / "lighting").mkdir()
+    (tmp_path / "lighting" / "lhat_sources.json").write_text(json.dumps({"rows": rows}))
+    claims.light_pattern_section(rep, runs)
+    text = "\n".join(rep.lines)
+    assert "| `(defaults)` | default | 0.893 | 1.03 | 0.935 ± 0.007 (n=2) | – | 0.74 ± 0.00 (n=2) |" in text
+    assert (
+        "| `loss.recon_L_target=sh` | default | 1.000 | 1.00 | 0.970 ± 0.000 (n=2) | 0.89 ± 0.00 (n=2) | 0.66" in text
+    )
+    assert "lhat_gray" not in text and (tmp_path / "figures" / "albedo_vs_light_pattern.png").exists()
+    assert "Rank correlation" not in text  # two settings: too few to rank
+
+
+def test_pattern_rank_reading_ranks_the_albedo_against_the_pattern_per_rung():
+    share = [{"mean": m} for m in (0.74, 0.72, 0.70, 0.66, 0.62, 0.45)]
+    points = [("default", x, None, s) for x, s in zip((0.89, 0.94, 0.98, 1.0), share)]
+    points += [("long", 0.89, 0.95, share[4]), ("long", 1.0, 0.98, share[5])]
+    text = claims.pattern_rank_reading(points)
+    assert "default rung, the target's pattern: -1.00 over 4 settings" in text
+    assert "long rung" not in text and "network" not in text  # 2 long settings; no network pattern at default
+    points[1] = ("default", 0.94, None, {"mean": 0.75})  # one setting out of order
+    assert "default rung, the target's pattern: -0.80 over 4 settings" in claims.pattern_rank_reading(points)
+    assert claims.pattern_rank_reading(points[4:]) == ""
+
+
 def test_edit_claims_without_the_reader_read_the_drawn_share(tmp_path):
     """Claim 5's reader-free tables, over the image and inside the face region: the paper's manifolds against the
     best other set by drawn share per leakage over three seeds, read where the best set draws at least half of what

@@ -116,7 +116,8 @@ LIGHT_TARGETS = {
         "L-hat on M-hat eroded in L-hat's place",
         "What a more contrasty L-hat without truth buys: E_recon-L (Eq. 9) on L-hat fitted on M-hat eroded 1 px "
         "(`loss.recon_L_target=sh_pseudo_eroded`, not the paper's; the lighting section's row with M-hat eroded: "
-        "its light shows the truth's contrast where L-hat's is flatter), against the same setting with L-hat",
+        "its light shows the truth's contrast where L-hat's is flatter, by more magnitude with the same pattern), "
+        "against the same setting with L-hat",
     ),
     "loss.recon_L_scale=sh_pseudo": (
         "the target at L-hat's per-face scale",

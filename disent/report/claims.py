@@ -17,7 +17,7 @@ from disent.report.ablations import (
     claim_skin,
     setting_picks,
 )
-from disent.report.document import Report, load_json
+from disent.report.document import Report, load_json, pyplot
 from disent.report.tables import (
     EDIT_WORKS,
     MIN_SEEDS,
@@ -117,6 +117,7 @@ def sec_targets(rep: Report, runs: list[Run]) -> None:
             "",
         )
     rep.add(*albedo_cause_lines(runs), *light_target_lines(runs))
+    light_pattern_section(rep, runs)
     if light_rows := rep.rows_kept(LIGHT_HEAD[0], light_table(groups), key=2):
         rep.add(
             "The light against its floor, the *constant light* (the mean train SH, the same for every face): on the "
@@ -434,6 +435,110 @@ def light_target_lines(runs: list[Run]) -> list[str]:
         if lines:
             out += [f"{intro}, test split, mean ± std over seeds:\n", *lines, ""]
     return out
+
+
+LIGHT_TARGET_KEYS = ("loss.recon_L_target", "loss.recon_L_oracle_mix", "loss.recon_L_scale")  # what picks the target
+RUNGS = ("+experiment=long",)  # a setting's budget override, kept apart from its target
+
+
+def target_source(where: str) -> str | None:
+    """The row of the lighting section's ``lhat_sources.json`` that is E_recon-L's target under the setting ``where``
+    (L-hat, L-hat eroded, the texture model at its own or L-hat's scale, an oracle dose; the truth's shape for the
+    true light or a full dose), or None where the setting changes anything else."""
+    tokens = [t for t in where.split() if t not in (*RUNGS, "(defaults)")]
+    picks = dict(t.split("=", 1) for t in tokens if "=" in t)
+    if len(picks) != len(tokens) or any(k not in LIGHT_TARGET_KEYS for k in picks):
+        return None
+    target, scale = picks.get("loss.recon_L_target", "sh_pseudo"), picks.get("loss.recon_L_scale", "target")
+    mix = float(picks.get("loss.recon_L_oracle_mix", 0))
+    if target == "sh" or mix == 1:
+        return "true_pixels_normals_albedo"  # the truth's shape (at L-hat's or the texture model's scale)
+    if mix:
+        return f"oracle_mix_{picks['loss.recon_L_oracle_mix']}" if target == "sh_pseudo" else None
+    texture = "texture_model_lhat_scale" if scale == "sh_pseudo" else "texture_model"
+    return {"sh_pseudo": "lhat", "sh_pseudo_eroded": "lhat_eroded", "sh_texture": texture}.get(target)
+
+
+def light_pattern_section(rep: Report, runs: list[Run]) -> None:
+    """The albedo against its E_recon-L target's pattern and magnitude (the lighting section's ``lhat_sources.json``)
+    and the network's own light's (``light_pattern_corr``, ``light_contrast_ratio``), one row per setting that changes
+    the target alone (:func:`target_source`), explicit, at each rung; with a figure. Nothing without that file."""
+    sources = load_json(rep.out / "lighting" / "lhat_sources.json")
+    if not sources:
+        return
+    keys = ("albedo_si_mse", "trivial_albedo_si_mse", "light_pattern_corr", "light_contrast_ratio")
+    rows, points = [], []
+    for (where, model), st in scored_spreads(runs, keys).items():
+        row = sources["rows"].get(target_source(where) or "")
+        if model != "explicit" or not row or "pattern_corr" not in row or not st["trivial_albedo_si_mse"]:
+            continue
+        floor = st["trivial_albedo_si_mse"]["mean"]
+        share = {k: st["albedo_si_mse"][k] / floor for k in ("mean", "std")}
+        rung = "long" if "+experiment=long" in where.split() else "default"
+        net = [st[k] for k in keys[2:]]
+        points.append((rung, row["pattern_corr"], net[0] and net[0]["mean"], share))
+        rows.append(
+            f"| `{where}` | {rung} | {row['pattern_corr']:.3f} | {row['contrast_ratio']:.2f} | "
+            f"{' | '.join(spread_text(v, f) if v else '–' for v, f in zip(net, ('.3f', '.2f')))} | "
+            f"{share['mean']:.2f} ± {share['std']:.2f} (n={st['albedo_si_mse']['n']}) |"
+        )
+    if not rows:
+        return
+    plt = pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
+    for ax, i, label in zip(axes, (1, 2), ("the target's", "the network's own light's")):
+        for rung, marker in (("default", "o"), ("long", "s")):
+            xy = [(p[i], p[3]) for p in points if p[0] == rung and p[i] is not None]
+            if xy:
+                ax.errorbar(
+                    [x for x, _ in xy], [s["mean"] for _, s in xy], [s["std"] for _, s in xy], fmt=marker, capsize=3,
+                    label=f"{rung} rung",
+                )  # fmt: skip
+        ax.axhline(TARGETS["albedo_share_of_trivial"], color="k", lw=0.8, ls="--", label="albedo target")
+        ax.set_xlabel(f"{label} pattern: corr. of log shading with the truth's")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("albedo si-MSE / mean map's")
+    axes[0].legend()
+    rep.add(
+        "The albedo against its light's pattern: each setting above that changes E_recon-L's target alone "
+        "(explicit), with the target's pattern and magnitude (the lighting section's table: the correlation of its "
+        "log shading with the truth's, and the ratio of their spreads; `disent.eval.metrics.log_shading_agreement`) "
+        "and the same for the network's own light (`light_pattern_corr`, `light_contrast_ratio`, mean ± std over "
+        "seeds; – where its runs were scored before them); the albedo as a share of the mean map's. Test split.\n",
+        *table_head(
+            "setting",
+            "rung",
+            "target: pattern",
+            "target: magnitude",
+            "network: pattern",
+            "network: magnitude",
+            "albedo / mean map's",
+        ),
+        *sorted(rows, key=lambda r: (r.split(" | ")[1], r.split(" | ")[2])),
+        "",
+    )
+    rep.figure(fig, "albedo_vs_light_pattern.png", "albedo against the light's pattern")
+    rep.add(pattern_rank_reading(points), "")
+
+
+def pattern_rank_reading(points: list[tuple]) -> str:
+    """Spearman's rank correlation over settings, per rung, of the albedo share with the target's and the network's
+    pattern (``points``: ``(rung, target pattern, network pattern or None, share)``); where at least 4 settings."""
+    from scipy.stats import spearmanr
+
+    parts = []
+    for rung in ("default", "long"):
+        for i, whose in ((1, "the target's"), (2, "the network's own light's")):
+            xy = [(p[i], p[3]["mean"]) for p in points if p[0] == rung and p[i] is not None]
+            if len(xy) >= 4:
+                rho = spearmanr(*zip(*xy)).statistic
+                parts.append(f"{rung} rung, {whose} pattern: {rho:+.2f} over {len(xy)} settings")
+    if not parts:
+        return ""
+    return (
+        "Rank correlation (Spearman) of the albedo's share with the pattern, -1 where a better pattern always gives "
+        "a better albedo: " + "; ".join(parts) + ".\n"
+    )
 
 
 def matte_lines(runs: list[Run]) -> list[str]:
