@@ -56,23 +56,33 @@ def train_keys(cfg_loss) -> tuple:
     return TRAIN_KEYS + (L.TRUTH_KEYS if truth_readers(cfg_loss) else ())
 
 
-# E_recon-L targets the trainer fits from each image's pseudo-GT (loss.recon_L_target) -> their fit in
-# disent.lighting.experiments
-FITTED_TARGETS = {"sh_texture": "texture_lhat", "sh_pseudo_eroded": "eroded_lhat"}
+# E_recon-L targets the trainer fits from each image (loss.recon_L_target) -> their fit in disent.lighting.experiments
+FITTED_TARGETS = {"sh_texture": "texture_lhat", "sh_pseudo_eroded": "eroded_lhat", "sh_network": "network_lhat"}
 
 
-def with_fitted_lhat(batch: dict, idx, cache: dict, target: str = "sh_texture") -> dict:
-    """``batch`` with ``target``, E_recon-L's target under ``loss.recon_L_target=target`` (:data:`FITTED_TARGETS`):
-    each image's L-hat fitted with the texture model (:func:`disent.lighting.experiments.texture_lhat`) or on M-hat
-    eroded (:func:`~disent.lighting.experiments.eroded_lhat`), fitted the first time its data index ``idx`` comes
-    and kept in ``cache`` (index -> light), as it depends on the image alone."""
+def target_fit(cfg_loss):
+    """The fit of E_recon-L's target from a batch (:data:`FITTED_TARGETS`), or None where the batch has it (L-hat,
+    the truth); ``loss.recon_L_network`` names the network of ``sh_network``."""
+    from functools import partial
+
     from disent.lighting import experiments
 
+    target = cfg_loss.get("recon_L_target", "sh_pseudo")
+    if target not in FITTED_TARGETS:
+        return None
+    fit = getattr(experiments, FITTED_TARGETS[target])
+    return partial(fit, network=cfg_loss.get("recon_L_network", "explicit")) if target == "sh_network" else fit
+
+
+def with_fitted_lhat(batch: dict, idx, cache: dict, target: str, fit) -> dict:
+    """``batch`` with ``target``, E_recon-L's target under ``loss.recon_L_target=target``: ``fit`` (:func:`target_fit`)
+    of each image, L-hat with the texture model, on M-hat eroded or a network's light, made the first time its data
+    index ``idx`` comes and kept in ``cache`` (index -> light), as it depends on the image alone."""
     idx = torch.as_tensor(idx).tolist()
     new = [k for k, i in enumerate(idx) if i not in cache]
     if new:
         parts = {k: batch[k][new] for k in ("image", "normal_pseudo", "mask_pseudo", "uv_pseudo")}
-        cache.update(zip((idx[k] for k in new), getattr(experiments, FITTED_TARGETS[target])(parts)))
+        cache.update(zip((idx[k] for k in new), fit(parts)))
     return {**batch, target: torch.stack([cache[i] for i in idx])}
 
 
@@ -269,6 +279,14 @@ def check_config(cfg) -> None:
     mix = cfg.loss.get("recon_L_oracle_mix", 0.0)
     if isinstance(mix, bool) or not isinstance(mix, (int, float)) or not 0 <= mix <= 1:
         raise ConfigError(f"loss.recon_L_oracle_mix={mix!r}: must be a number in [0, 1]")
+    if cfg.loss.get("recon_L_target") == "sh_network":
+        network = cfg.loss.get("recon_L_network", "explicit")
+        from disent.lighting.experiments import trained_network
+
+        try:
+            trained_network(str(network))
+        except Exception as e:
+            raise ConfigError(f"loss.recon_L_network={network!r}: no model to load ({e})") from e
     if (readers := truth_readers(cfg.loss)) and d.name != "synth":
         raise ConfigError(f"{', '.join(readers)} read(s) the true layers, which only data=synth has")
     norms = (
@@ -321,6 +339,7 @@ ADDED_LATER = {
     "loss.recon_L_target": "sh_pseudo",
     "loss.recon_L_oracle_mix": 0.0,
     "loss.recon_L_scale": "target",
+    "loss.recon_L_network": "explicit",
     "model.decoder_convs": 1,
     **{f"loss.weights.{t}": 0.0 for t in L.TRUTH},
 }
@@ -514,15 +533,14 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
         )
 
     keys = train_keys(cfg.loss)
-    target = cfg.loss.get("recon_L_target", "sh_pseudo")
-    fitted = target if target in FITTED_TARGETS else None  # E_recon-L's target, where the trainer fits it
+    target, fit = cfg.loss.get("recon_L_target", "sh_pseudo"), target_fit(cfg.loss)  # where the trainer fits it
     fitted_lights = {}  # data index -> its fitted E_recon-L target
 
     def make_batch(s):  # on the CPU; the prefetch thread runs it
         idx = step_indices(cfg.seed, s, steps_per_epoch, t.batch_size, len(data))
         batch = get_batch(data, idx, keys)
-        if fitted:
-            batch = with_fitted_lhat(batch, idx, fitted_lights, fitted)
+        if fit:
+            batch = with_fitted_lhat(batch, idx, fitted_lights, target, fit)
         return to_device(batch, "cpu", t.channels_last)
 
     prefetch = Prefetcher(make_batch, range(step, total_steps), t.get("prefetch", 0), t.get("prefetch_workers", 1))

@@ -1795,6 +1795,8 @@ def test_target_source_names_the_lighting_row_of_a_settings_e_recon_l_target():
         "texture_model_lhat_scale"
     )
     assert claims.target_source("loss.recon_L_oracle_mix=0.25") == "oracle_mix_0.25"
+    assert claims.target_source("loss.recon_L_target=sh_network") == "network_explicit"
+    assert claims.target_source("loss.recon_L_network=implicit loss.recon_L_target=sh_network") == "network_implicit"
     truth = "true_pixels_normals_albedo"  # the truth's shape, at whichever scale
     assert claims.target_source("+experiment=long loss.recon_L_target=sh") == truth
     assert claims.target_source("loss.recon_L_oracle_mix=1.0 loss.recon_L_target=sh_texture") == truth

@@ -213,9 +213,9 @@ def test_training_sees_the_seeded_data_order_with_and_without_prefetch(tmp_path,
 
 
 def test_fitted_lhat_targets_are_fitted_once_per_training_image(tmp_path, monkeypatch):
-    """loss.recon_L_target=sh_texture (or sh_pseudo_eroded): each step's batch carries its images' texture-model
-    L-hat (or L-hat on M-hat eroded), fitted the first time an image comes (two epochs of 8 images: 8 fits, none in
-    the second epoch), in the batch's order."""
+    """loss.recon_L_target=sh_texture (or sh_pseudo_eroded, sh_network): each step's batch carries its images'
+    texture-model L-hat (or L-hat on M-hat eroded, a network's light), fitted the first time an image comes (two
+    epochs of 8 images: 8 fits, none in the second epoch), in the batch's order."""
     import disent.lighting.experiments as E
 
     fitted = []
@@ -229,11 +229,11 @@ def test_fitted_lhat_targets_are_fitted_once_per_training_image(tmp_path, monkey
     b = {
         k: torch.rand(4, c, 8, 8) for k, c in (("image", 3), ("normal_pseudo", 3), ("mask_pseudo", 1), ("uv_pseudo", 2))
     }
-    first = T.with_fitted_lhat(b, torch.tensor([5, 1, 7, 2]), cache)
+    first = T.with_fitted_lhat(b, torch.tensor([5, 1, 7, 2]), cache, "sh_texture", fake)
     torch.testing.assert_close(first["sh_texture"][:, :, 0], b["image"].mean((2, 3)))
-    again = T.with_fitted_lhat({**b, "image": b["image"].flip(0)}, [2, 7, 1, 5], cache)  # cached: no new fit
+    again = T.with_fitted_lhat({**b, "image": b["image"].flip(0)}, [2, 7, 1, 5], cache, "sh_texture", fake)  # cached
     assert fitted == [4] and torch.equal(again["sh_texture"], first["sh_texture"].flip(0))
-    T.with_fitted_lhat(b, [5, 3, 0, 1], cache)
+    T.with_fitted_lhat(b, [5, 3, 0, 1], cache, "sh_texture", fake)
     assert fitted == [4, 2] and sorted(cache) == [0, 1, 2, 3, 5, 7]
     fitted.clear()
     rescaled, real = [], L.rescaled  # loss.recon_L_scale=sh_pseudo: each step's target is taken to L-hat's scale
@@ -248,6 +248,28 @@ def test_fitted_lhat_targets_are_fitted_once_per_training_image(tmp_path, monkey
     monkeypatch.setattr(E, "eroded_lhat", lambda batch: eroded.append(len(batch["image"])) or fake(batch))
     run(cfg_of(*TINY, "train.epochs=2", "train.max_steps=null", "loss.recon_L_target=sh_pseudo_eroded"), tmp_path / "e")
     assert eroded == [4, 4] and all(r["recon_L"] > 0 for r in records(tmp_path / "e") if "recon_L" in r)
+    drawn = []  # loss.recon_L_target=sh_network: the named network's light of each image, drawn once per image
+    monkeypatch.setattr(E, "network_lhat", lambda batch, network: drawn.append(network) or fake(batch))
+    overrides = ("train.epochs=2", "train.max_steps=null", "loss.recon_L_target=sh_network")
+    run(cfg_of(*TINY, *overrides, "loss.recon_L_network=implicit"), tmp_path / "n")
+    assert drawn == ["implicit", "implicit"] and all(
+        r["recon_L"] > 0 for r in records(tmp_path / "n") if "recon_L" in r
+    )
+
+
+def test_network_target_is_the_named_networks_own_light():
+    """loss.recon_L_target=sh_network: the light the shipped model draws from each image, as the lighting section's
+    network row scores it; a network that cannot be loaded stops the run at the start, naming the key."""
+    from disent.data import SynthFaces, get_batch
+    from disent.lighting.experiments import network_lhat, trained_network
+
+    b = get_batch(SynthFaces("test", size=2), range(2))
+    with torch.no_grad():
+        own = trained_network("explicit")(b["image"].clamp(0, 1))["sh"]
+    torch.testing.assert_close(network_lhat(b, "explicit"), own)
+    assert T.target_fit({"recon_L_target": "sh_pseudo"}) is None and T.target_fit({}) is None
+    with pytest.raises(T.ConfigError, match="loss.recon_L_network='nowhere/run'"):
+        T.check_config(cfg_of(*TINY, "loss.recon_L_target=sh_network", "loss.recon_L_network=nowhere/run"))
 
 
 def test_validation_records_normal_errors_and_psnr(tmp_path):

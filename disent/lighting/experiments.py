@@ -271,17 +271,19 @@ def refine_placement(p: dict, item: dict, noise: float, seed: int, evaluations: 
 
 
 @functools.lru_cache(maxsize=2)
-def _network(name: str):
+@functools.lru_cache(maxsize=4)
+def trained_network(name: str):
+    """A trained model in eval mode, loaded once: a shipped name, a run folder or a checkpoint."""
     from disent.models import load_run
 
-    return load_run(name)[0]
+    return load_run(name)[0].eval()
 
 
 def network_maps(name: str, image: torch.Tensor) -> dict:
     """The maps shipped model ``name`` draws from ``image [3,H,W]``: ``normal_net``, ``matte_net`` and, from a
     model with a uv layer (implicit), ``uv_net``."""
     with torch.no_grad():
-        out = _network(name)(image.float().clamp(0, 1)[None])
+        out = trained_network(name)(image.float().clamp(0, 1)[None])
     maps = {"normal_net": out["normal"][0].double(), "matte_net": out["matte"][0]}
     return maps | ({"uv_net": out["uv"][0]} if "uv" in out else {})
 
@@ -461,6 +463,14 @@ def eroded_lhat(batch: dict) -> torch.Tensor:
     return fit_sh_packed(batch["image"], batch["normal_pseudo"] * mask, mask).to(batch["image"].dtype)
 
 
+@torch.no_grad()
+def network_lhat(batch: dict, network: str = "explicit") -> torch.Tensor:
+    """``[B, 3, 9]``: the light the trained model ``network`` (a shipped name, a run folder or a checkpoint) draws
+    from each image of ``batch``: no truth, its own light where it learned one from L-hat (the lighting section's
+    network rows); E_recon-L's target with ``loss.recon_L_target=sh_network`` (``loss.recon_L_network``)."""
+    return trained_network(str(network))(batch["image"].float().clamp(0, 1))["sh"].to(batch["image"].dtype)
+
+
 def texture_lhat(batch: dict) -> torch.Tensor:
     """``[B, 3, 9]``: L-hat with the PCA texture model for the albedo in place of its constant
     (:func:`disent.lighting.texture.texture_light`), fitted on M-hat eroded ``EDGE`` px through the pseudo normals
@@ -537,7 +547,7 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
         inputs[f"oracle_mix_{share}"] = LHAT_SOURCES["lhat"]
     extra = {}  # row -> what only a network's row has
     for name in networks:
-        out = _network(name)(g["image"].clamp(0, 1))
+        out = trained_network(name)(g["image"].clamp(0, 1))
         inside = g["mask_pseudo"] * (out["matte"] > 0.5)
         lights[f"network_{name}"] = out["sh"]
         # its target L-hat's log shading regressed on the network's (no truth): 1 where the network is right on
@@ -1309,7 +1319,7 @@ def order_choice_speed(ds, rounds: int = 3, geometries=SPEED_GEOMETRIES) -> dict
     the true albedo (the geometry's maps, the texture model, the five candidates under the residual process), one
     core, the network's weights loaded beforehand."""
     for name in {GEOMETRY[g].network for g in geometries} - {""}:
-        _network(name)
+        trained_network(name)
     times = {}
     for g in geometries:
         seconds = []

@@ -119,6 +119,13 @@ LIGHT_TARGETS = {
         "its light shows the truth's contrast where L-hat's is flatter, by more magnitude with the same pattern), "
         "against the same setting with L-hat",
     ),
+    "loss.recon_L_target=sh_network": (
+        "a trained network's light in L-hat's place",
+        "What a network's own light buys as the target: E_recon-L (Eq. 9) on the light a trained network draws from "
+        "each image (`loss.recon_L_target=sh_network`, the shipped explicit model unless `loss.recon_L_network` names "
+        "another; no truth, not the paper's; the lighting section's network rows: a better pattern than any L-hat "
+        "without truth, less magnitude), against the same setting with L-hat",
+    ),
     "loss.recon_L_scale=sh_pseudo": (
         "the target at L-hat's per-face scale",
         "Its shape or its scale: the same texture-model target scaled per face and channel to L-hat's mean shading "

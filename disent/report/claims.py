@@ -437,7 +437,7 @@ def light_target_lines(runs: list[Run]) -> list[str]:
     return out
 
 
-LIGHT_TARGET_KEYS = ("loss.recon_L_target", "loss.recon_L_oracle_mix", "loss.recon_L_scale")  # what picks the target
+LIGHT_TARGET_KEYS = ("loss.recon_L_target", "loss.recon_L_oracle_mix", "loss.recon_L_scale", "loss.recon_L_network")
 RUNGS = ("+experiment=long",)  # a setting's budget override, kept apart from its target
 
 
@@ -456,7 +456,10 @@ def target_source(where: str) -> str | None:
     if mix:
         return f"oracle_mix_{picks['loss.recon_L_oracle_mix']}" if target == "sh_pseudo" else None
     texture = "texture_model_lhat_scale" if scale == "sh_pseudo" else "texture_model"
-    return {"sh_pseudo": "lhat", "sh_pseudo_eroded": "lhat_eroded", "sh_texture": texture}.get(target)
+    network = f"network_{picks.get('loss.recon_L_network', 'explicit')}"  # a shipped model's row
+    return {"sh_pseudo": "lhat", "sh_pseudo_eroded": "lhat_eroded", "sh_texture": texture, "sh_network": network}.get(
+        target
+    )
 
 
 def light_pattern_section(rep: Report, runs: list[Run]) -> None:
