@@ -441,6 +441,17 @@ LIGHT_TARGET_KEYS = ("loss.recon_L_target", "loss.recon_L_oracle_mix", "loss.rec
 RUNGS = ("+experiment=long",)  # a setting's budget override, kept apart from its target
 
 
+SOURCE_WORDS = {  # target_source's rows, short, for the figure
+    "lhat": "L-hat",
+    "lhat_eroded": "eroded",
+    "texture_model": "texture",
+    "texture_model_lhat_scale": "texture at L-hat's scale",
+    "true_pixels_normals_albedo": "truth's shape",
+    **{f"oracle_mix_{m}": f"dose {m}" for m in ("0.25", "0.5", "0.75")},
+    **{f"network_{m}": f"{m}'s light" for m in ("explicit", "implicit")},
+}
+
+
 def target_source(where: str) -> str | None:
     """The row of the lighting section's ``lhat_sources.json`` that is E_recon-L's target under the setting ``where``
     (L-hat, L-hat eroded, the texture model at its own or L-hat's scale, an oracle dose; the truth's shape for the
@@ -472,14 +483,15 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
     keys = ("albedo_si_mse", "trivial_albedo_si_mse", "light_pattern_corr", "light_contrast_ratio")
     rows, points = [], []
     for (where, model), st in scored_spreads(runs, keys).items():
-        row = sources["rows"].get(target_source(where) or "")
+        source = target_source(where)
+        row = sources["rows"].get(source or "")
         if model != "explicit" or not row or "pattern_corr" not in row or not st["trivial_albedo_si_mse"]:
             continue
         floor = st["trivial_albedo_si_mse"]["mean"]
         share = {k: st["albedo_si_mse"][k] / floor for k in ("mean", "std")}
         rung = "long" if "+experiment=long" in where.split() else "default"
         net = [st[k] for k in keys[2:]]
-        points.append((rung, row["pattern_corr"], net[0] and net[0]["mean"], share))
+        points.append((rung, row["pattern_corr"], net[0] and net[0]["mean"], share, SOURCE_WORDS.get(source, source)))
         rows.append(
             f"| `{where}` | {rung} | {row['pattern_corr']:.3f} | {row['contrast_ratio']:.2f} | "
             f"{' | '.join(spread_text(v, f) if v else '–' for v, f in zip(net, ('.3f', '.2f')))} | "
@@ -489,16 +501,18 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
         return
     plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
-    for ax, i, label in zip(axes, (1, 2), ("the target's", "the network's own light's")):
+    for ax, i, label in zip(axes, (1, 2), ("target's", "network's own light's")):
         for rung, marker in (("default", "o"), ("long", "s")):
-            xy = [(p[i], p[3]) for p in points if p[0] == rung and p[i] is not None]
+            xy = [(p[i], p[3], p[4]) for p in points if p[0] == rung and p[i] is not None]
             if xy:
                 ax.errorbar(
-                    [x for x, _ in xy], [s["mean"] for _, s in xy], [s["std"] for _, s in xy], fmt=marker, capsize=3,
-                    label=f"{rung} rung",
+                    [x for x, _, _ in xy], [s["mean"] for _, s, _ in xy], [s["std"] for _, s, _ in xy], fmt=marker,
+                    capsize=3, label=f"{rung} rung",
                 )  # fmt: skip
+            for x, s, name in xy:
+                ax.annotate(name, (x, s["mean"]), textcoords="offset points", xytext=(4, 3), fontsize=7)
         ax.axhline(TARGETS["albedo_share_of_trivial"], color="k", lw=0.8, ls="--", label="albedo target")
-        ax.set_xlabel(f"{label} pattern: corr. of log shading with the truth's")
+        ax.set_xlabel(f"{label} pattern (corr. of log shading with the truth)")
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("albedo si-MSE / mean map's")
     axes[0].legend()
@@ -526,7 +540,8 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
 
 def pattern_rank_reading(points: list[tuple]) -> str:
     """Spearman's rank correlation over settings, per rung, of the albedo share with the target's and the network's
-    pattern (``points``: ``(rung, target pattern, network pattern or None, share)``); where at least 4 settings."""
+    pattern (``points``: ``(rung, target pattern, network pattern or None, share, name)``); where at least 4
+    settings."""
     from scipy.stats import spearmanr
 
     parts = []
