@@ -271,7 +271,6 @@ def refine_placement(p: dict, item: dict, noise: float, seed: int, evaluations: 
 
 
 @functools.lru_cache(maxsize=2)
-@functools.lru_cache(maxsize=4)
 def trained_network(name: str):
     """A trained model in eval mode, loaded once: a shipped name, a run folder or a checkpoint."""
     from disent.models import load_run
