@@ -783,6 +783,7 @@ def test_lhat_sources_is_exact_with_every_input_made_true():
     # contrast = pattern x magnitude face by face; the medians need not multiply exactly
     truth = rows["true_pixels_normals_albedo"]
     assert truth["pattern_corr"] == pytest.approx(1, abs=1e-6) and truth["contrast_ratio"] == pytest.approx(1, abs=1e-6)
+    assert abs(truth["log_error"]) < 1e-9 < rows["lhat"]["log_error"]
     assert all(-1 <= row["pattern_corr"] <= 1 and row["contrast_ratio"] > 0 for row in rows.values())
     net = rows["network_explicit"]
     assert net["calibration"] > 0 and list(net["sharpened_albedo"]) == list(SHARPENING)

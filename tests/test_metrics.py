@@ -401,6 +401,7 @@ def test_log_shading_agreement_parts_the_slope_into_pattern_and_magnitude():
     a = log_shading_agreement(3.0 * t.pow(0.6), t, mask)
     assert torch.allclose(a["corr"], torch.ones(2, 3, dtype=torch.float64))
     assert torch.allclose(a["ratio"], torch.full((2, 3), 0.6, dtype=torch.float64))
+    assert torch.allclose(a["error"], torch.full((2, 3), 0.16, dtype=torch.float64))  # (1 - 0.6)^2
     assert torch.allclose(a["slope"], a["corr"] * a["ratio"])
     other = t.pow(0.8) * (0.5 * torch.rand(2, 3, 8, 8, generator=g, dtype=torch.float64)).exp()  # its own pattern
     a = log_shading_agreement(other, t, mask)
@@ -409,7 +410,9 @@ def test_log_shading_agreement_parts_the_slope_into_pattern_and_magnitude():
     assert a["corr"][0, 1].item() == pytest.approx(np.corrcoef(x, y)[0, 1], rel=1e-9)
     assert a["ratio"][0, 1].item() == pytest.approx(x.std() / y.std(), rel=1e-9)
     assert torch.allclose(a["slope"], a["corr"] * a["ratio"])
+    assert torch.allclose(a["error"], 1 - 2 * a["corr"] * a["ratio"] + a["ratio"] ** 2)
     xc, yc = x - x.mean(), y - y.mean()
+    assert a["error"][0, 1].item() == pytest.approx(((xc - yc) ** 2).sum() / (yc**2).sum(), rel=1e-9)
     ks = np.linspace(0.05, 2, 400)  # other's log contrast times k: its magnitude k * ratio
     errors = [((k * xc - yc) ** 2).sum() for k in ks]
     best = ks[int(np.argmin(errors))] * a["ratio"][0, 1].item()

@@ -87,8 +87,8 @@ def decomposed_region(gt: dict) -> torch.Tensor:
     return face_mask(gt["matte"]) * (gt["mask_pseudo"] > 0.5)
 
 
-AGREEMENT_KEYS = {"contrast": "slope", "pattern_corr": "corr", "contrast_ratio": "ratio"}  # metric suffix -> part of
-# disent.eval.metrics.log_shading_agreement, each the median over faces and channels
+# metric suffix -> part of disent.eval.metrics.log_shading_agreement, each the median over faces and channels
+AGREEMENT_KEYS = {"contrast": "slope", "pattern_corr": "corr", "contrast_ratio": "ratio", "log_error": "error"}
 PSEUDO_ERROR_BINS = (0, 5, 10, 20, 180)  # degrees of the pseudo-GT's own error: nearly right ... far off
 
 
@@ -216,8 +216,10 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     much of the true shading's contrast the light's shading shows there, through the true normals, the median over
     faces and channels of :func:`~disent.eval.metrics.shading_contrast`'s slope (1: the truth's; below 1: the rest
     left to the albedo), parted into ``light_pattern_corr`` (its log shading's correlation with the truth's) and
-    ``light_contrast_ratio`` (its magnitude); ``shading_contrast``, ``shading_pattern_corr`` and
-    ``shading_contrast_ratio``: the same for the model's own shading (its normals too) against the true shading.
+    ``light_contrast_ratio`` (its magnitude), and ``light_log_error``, what both leave wrong (the squared difference
+    of the centred log shadings as a share of the truth's spread); ``shading_contrast``, ``shading_pattern_corr``,
+    ``shading_contrast_ratio`` and ``shading_log_error``: the same for the model's own shading (its normals too)
+    against the true shading.
     ``matte_iou``: the matte's IoU with the true face region ``mask_face`` (the skin a 3DMM covers: what the matte's
     supervision M-hat estimates; not hair, ears or neck), and ``pseudo_matte_iou`` M-hat's own, both cut at 0.5
     (:func:`~disent.eval.metrics.mask_iou`; higher is better); ``matte_soft_edge`` and the rest of

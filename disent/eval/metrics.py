@@ -205,11 +205,13 @@ def log_shading_agreement(shading: torch.Tensor, reference: torch.Tensor, mask: 
     """How a shading ``[B,C,H,W]`` follows a ``reference`` shading inside ``mask``, on their log shadings (clamped at
     ``floor``), each centred over the mask per image and channel: ``dict`` of ``[B, C]`` tensors, ``corr``, their
     correlation (the pattern: 1 where the shading falls where the reference's does), ``ratio``, the ratio of their
-    standard deviations (the magnitude of the contrast: 1 as contrasty as the reference, 0 flat), and ``slope``,
-    the least-squares slope of the shading's on the reference's, ``corr * ratio``. Blind to each image's and
-    channel's scale. Below the ``slope`` of 1 a shading leaves part of the reference's to the albedo, by a pattern
-    that differs (``corr``) or a contrast that is smaller (``ratio``). Where the pattern is imperfect, the least
-    squared log error needs ``ratio = corr``, not 1: an estimate that is right on average is flatter than its truth."""
+    standard deviations (the magnitude of the contrast: 1 as contrasty as the reference, 0 flat), ``slope``, the
+    least-squares slope of the shading's on the reference's, ``corr * ratio``, and ``error``, their squared
+    difference as a share of the reference's spread, ``1 - 2 corr ratio + ratio^2`` (0: the same up to scale; the
+    error an albedo ``I / S`` inherits, in log). Blind to each image's and channel's scale. Below the ``slope`` of 1
+    a shading leaves part of the reference's to the albedo, by a pattern that differs (``corr``) or a contrast that
+    is smaller (``ratio``). Where the pattern is imperfect, the least ``error`` needs ``ratio = corr``, not 1: an
+    estimate that is right on average is flatter than its truth."""
     w = mask.double().expand_as(shading[:, :1])
 
     def centred_log(s):
@@ -219,7 +221,8 @@ def log_shading_agreement(shading: torch.Tensor, reference: torch.Tensor, mask: 
     s, t = centred_log(shading), centred_log(reference)
     st, ss, tt = ((a * b * w).sum((2, 3)) for a, b in ((s, t), (s, s), (t, t)))
     tt, ss = tt.clamp_min(1e-12), ss.clamp_min(1e-12)
-    return {"corr": st / (ss * tt).sqrt(), "ratio": (ss / tt).sqrt(), "slope": st / tt}
+    error = ((s - t).pow(2) * w).sum((2, 3)) / tt
+    return {"corr": st / (ss * tt).sqrt(), "ratio": (ss / tt).sqrt(), "slope": st / tt, "error": error}
 
 
 def shading_contrast(

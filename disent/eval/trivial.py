@@ -52,9 +52,11 @@ KEYS = (
     "light_contrast",
     "light_pattern_corr",
     "light_contrast_ratio",
+    "light_log_error",
     "shading_contrast",
     "shading_pattern_corr",
     "shading_contrast_ratio",
+    "shading_log_error",
     "matte_iou",
 )
 

@@ -491,10 +491,10 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
     faces, and ``beats_lhat``, the share of faces where it is below the paper's L-hat), and the SH error along the
     directions the face shows (``shown``); ``skin_tone_corr`` and ``skin_brightness_corr``: how much of each face's
     skin its shading carries there (:func:`disent.eval.evaluate.skin_in_shading`; a per-face, per-channel scale that
-    light on the face is blind to, and that the light hands on to the albedo); ``contrast``, ``pattern_corr`` and
-    ``contrast_ratio``: the medians over faces and channels of :func:`disent.eval.metrics.shading_contrast`'s slope,
-    correlation and magnitude against the true light there (a slope below 1 leaves the rest of the shading to the
-    albedo). ``LHAT_SOURCES`` are least-squares
+    light on the face is blind to, and that the light hands on to the albedo); ``contrast``, ``pattern_corr``,
+    ``contrast_ratio`` and ``log_error``: the medians over faces and channels of
+    :func:`disent.eval.metrics.shading_contrast`'s slope, correlation, magnitude and error against the true light
+    there (a slope below 1 leaves the rest of the shading to the albedo). ``LHAT_SOURCES`` are least-squares
     fits (:func:`disent.data.synth.scenes.fit_sh_packed`) of the image over the albedo; *template*: the mean train
     albedo in UV space placed through the pseudo uv; ``texture_model``: the PCA texture model fitted with the light
     (:func:`texture_lhat`) on M-hat eroded ``EDGE`` px, and ``texture_model_lhat_scale``, the same at L-hat's mean
@@ -573,6 +573,7 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
             "contrast": agree["slope"],
             "pattern_corr": agree["corr"],
             "contrast_ratio": agree["ratio"],
+            "log_error": agree["error"],
             "inputs": inputs[k],
         } | extra.get(k, {})
     return {"split": test.split, "n": len(reference), "rows": rows}

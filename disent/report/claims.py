@@ -474,13 +474,14 @@ def target_source(where: str) -> str | None:
 
 
 def light_pattern_section(rep: Report, runs: list[Run]) -> None:
-    """The albedo against its E_recon-L target's pattern and magnitude (the lighting section's ``lhat_sources.json``)
-    and the network's own light's (``light_pattern_corr``, ``light_contrast_ratio``), one row per setting that changes
-    the target alone (:func:`target_source`), explicit, at each rung; with a figure. Nothing without that file."""
+    """The albedo against its E_recon-L target's pattern, magnitude and log error (the lighting section's
+    ``lhat_sources.json``) and the network's own light's (``light_pattern_corr``, ``light_contrast_ratio``,
+    ``light_log_error``), one row per setting that changes the target alone (:func:`target_source`), explicit, at
+    each rung; with a figure. Nothing without that file."""
     sources = load_json(rep.out / "lighting" / "lhat_sources.json")
     if not sources:
         return
-    keys = ("albedo_si_mse", "trivial_albedo_si_mse", "light_pattern_corr", "light_contrast_ratio")
+    keys = ("albedo_si_mse", "trivial_albedo_si_mse", "light_pattern_corr", "light_contrast_ratio", "light_log_error")
     rows, points = [], []
     for (where, model), st in scored_spreads(runs, keys).items():
         source = target_source(where)
@@ -491,17 +492,19 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
         share = {k: st["albedo_si_mse"][k] / floor for k in ("mean", "std")}
         rung = "long" if "+experiment=long" in where.split() else "default"
         net = [st[k] for k in keys[2:]]
-        points.append((rung, row["pattern_corr"], net[0] and net[0]["mean"], share, SOURCE_WORDS.get(source, source)))
+        points.append((rung, row["pattern_corr"], net[2] and net[2]["mean"], share, SOURCE_WORDS.get(source, source)))
         rows.append(
             f"| `{where}` | {rung} | {row['pattern_corr']:.3f} | {row['contrast_ratio']:.2f} | "
-            f"{' | '.join(spread_text(v, f) if v else '–' for v, f in zip(net, ('.3f', '.2f')))} | "
+            f"{fmt_value(row.get('log_error'), '.3f')} | "
+            f"{' | '.join(spread_text(v, f) if v else '–' for v, f in zip(net, ('.3f', '.2f', '.3f')))} | "
             f"{share['mean']:.2f} ± {share['std']:.2f} (n={st['albedo_si_mse']['n']}) |"
         )
     if not rows:
         return
     plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
-    for ax, i, label in zip(axes, (1, 2), ("target's", "network's own light's")):
+    labels = ("target's pattern (corr. of log shading with the truth)", "network's own light: log error (0: truth's)")
+    for ax, i, label in zip(axes, (1, 2), labels):
         for rung, marker in (("default", "o"), ("long", "s")):
             xy = [(p[i], p[3], p[4]) for p in points if p[0] == rung and p[i] is not None]
             if xy:
@@ -512,23 +515,27 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
             for x, s, name in xy:
                 ax.annotate(name, (x, s["mean"]), textcoords="offset points", xytext=(4, 3), fontsize=7)
         ax.axhline(TARGETS["albedo_share_of_trivial"], color="k", lw=0.8, ls="--", label="albedo target")
-        ax.set_xlabel(f"{label} pattern (corr. of log shading with the truth)")
+        ax.set_xlabel(label)
         ax.grid(alpha=0.3)
+    axes[1].invert_xaxis()  # better to the right on both panels
     axes[0].set_ylabel("albedo si-MSE / mean map's")
     axes[0].legend()
     rep.add(
-        "The albedo against its light's pattern: each setting above that changes E_recon-L's target alone "
-        "(explicit), with the target's pattern and magnitude (the lighting section's table: the correlation of its "
-        "log shading with the truth's, and the ratio of their spreads; `disent.eval.metrics.log_shading_agreement`) "
-        "and the same for the network's own light (`light_pattern_corr`, `light_contrast_ratio`, mean ± std over "
-        "seeds; – where its runs were scored before them); the albedo as a share of the mean map's. Test split.\n",
+        "The albedo against its light: each setting above that changes E_recon-L's target alone (explicit), with "
+        "the target's pattern, magnitude and log error (the lighting section's table: the correlation of its log "
+        "shading with the truth's, the ratio of their spreads, and what both leave wrong; "
+        "`disent.eval.metrics.log_shading_agreement`) and the same for the network's own light (`light_pattern_corr`, "
+        "`light_contrast_ratio`, `light_log_error`, mean ± std over seeds; – where its runs were scored before "
+        "them); the albedo as a share of the mean map's. Test split.\n",
         *table_head(
             "setting",
             "rung",
             "target: pattern",
             "target: magnitude",
+            "target: log error",
             "network: pattern",
             "network: magnitude",
+            "network: log error",
             "albedo / mean map's",
         ),
         *sorted(rows, key=lambda r: (r.split(" | ")[1], r.split(" | ")[2])),
@@ -540,22 +547,22 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
 
 def pattern_rank_reading(points: list[tuple]) -> str:
     """Spearman's rank correlation over settings, per rung, of the albedo share with the target's and the network's
-    pattern (``points``: ``(rung, target pattern, network pattern or None, share, name)``); where at least 4
-    settings."""
+    pattern and the network's light's log error (``points``: ``(rung, target pattern, network log error or None,
+    share, name)``); where at least 4 settings."""
     from scipy.stats import spearmanr
 
     parts = []
     for rung in ("default", "long"):
-        for i, whose in ((1, "the target's"), (2, "the network's own light's")):
+        for i, what in ((1, "the target's pattern"), (2, "the network's own light's log error")):
             xy = [(p[i], p[3]["mean"]) for p in points if p[0] == rung and p[i] is not None]
-            if len(xy) >= 4:
+            if len(xy) >= 4 and len({x for x, _ in xy}) > 1:
                 rho = spearmanr(*zip(*xy)).statistic
-                parts.append(f"{rung} rung, {whose} pattern: {rho:+.2f} over {len(xy)} settings")
+                parts.append(f"{rung} rung, {what}: {rho:+.2f} over {len(xy)} settings")
     if not parts:
         return ""
     return (
-        "Rank correlation (Spearman) of the albedo's share with the pattern, -1 where a better pattern always gives "
-        "a better albedo: " + "; ".join(parts) + ".\n"
+        "Rank correlation (Spearman) of the albedo's share with each: -1 where a better pattern always gives a "
+        "better albedo, +1 where a smaller log error always does: " + "; ".join(parts) + ".\n"
     )
 
 

@@ -561,7 +561,10 @@ def lhat_source_lines(src: dict) -> list[str]:
         "(`disent.eval.metrics.shading_contrast`; 1: the truth's contrast at any scale, below 1: the rest of the "
         "shading left to the albedo), and in brackets the two parts of that slope (`disent.eval.metrics."
         "log_shading_agreement`): the *pattern*, the correlation of its log shading with the truth's, and the "
-        "*magnitude*, the ratio of their spreads (the slope is pattern x magnitude, face by face). "
+        "*magnitude*, the ratio of their spreads (the slope is pattern x magnitude, face by face); *log error*: what "
+        "both leave wrong, the squared difference of the centred log shadings as a share of the truth's spread, "
+        "1 - 2 pattern x magnitude + magnitude^2 face by face (0: the truth's up to scale; the error an albedo, the "
+        "image over this shading, inherits), the median over faces and channels. "
         f"The first {src['n']} {src['split']} images, noise-free as training sees them "
         "(`python -m disent.lighting task=lhat`; `disent.lighting.experiments.lhat_sources`).\n",
         *table_head(
@@ -574,6 +577,7 @@ def lhat_source_lines(src: dict) -> list[str]:
             "shown SH error",
             "skin in its shading (tone / brightness)",
             "contrast (pattern, magnitude)",
+            "log error",
         ),
     ]
     for k, r in rows.items():
@@ -581,7 +585,8 @@ def lhat_source_lines(src: dict) -> list[str]:
         skin = " / ".join(fmt_value(r.get(f"skin_{c}_corr"), "+.2f") for c in ("tone", "brightness"))
         lines.append(
             f"| {lhat_source_name(k)} | {words} | {r['light_on_face']:.4f} ± {r['light_on_face_se']:.4f} | "
-            f"{r['beats_lhat']:.2f} | {r['shown']:.3f} | {skin} | {contrast_cell(r)} |"
+            f"{r['beats_lhat']:.2f} | {r['shown']:.3f} | {skin} | {contrast_cell(r)} | "
+            f"{fmt_value(r.get('log_error'), '.3f')} |"
         )
     if not {"lhat", "true_pixels", "true_pixels_normals", "true_pixels_albedo"} <= set(e):
         return lines + [""]
