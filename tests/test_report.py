@@ -1817,7 +1817,7 @@ def test_light_pattern_section_reads_the_albedo_against_the_targets_pattern(tmp_
     for seed in (0, 1):
         make_run(tmp_path / "runs", f"paper{seed}", seed=seed, eval_=ev | {"light_pattern_corr": 0.93 + 0.01 * seed})
         truth = ev | {"albedo_si_mse": 0.0083, "light_pattern_corr": 0.97, "light_contrast_ratio": 0.89}
-        truth |= {"light_log_error": 0.067}
+        truth |= {"light_log_error": 0.067, "shading_log_error": 0.27}
         make_run(tmp_path / "runs", f"oracle{seed}", seed=seed, eval_=truth, extra=("loss.recon_L_target=sh",))
     make_run(tmp_path / "runs", "gray", eval_=ev, extra=("loss.lhat_gray=true",))  # not a target: no row
     runs = find_runs([tmp_path / "runs"])
@@ -1832,28 +1832,34 @@ def test_light_pattern_section_reads_the_albedo_against_the_targets_pattern(tmp_
     (tmp_path / "lighting" / "lhat_sources.json").write_text(json.dumps({"rows": rows}))
     claims.light_pattern_section(rep, runs)
     text = "\n".join(rep.lines)
-    assert "| `(defaults)` | default | 0.893 | 1.03 | – | 0.935 ± 0.007 (n=2) | – | – | 0.74 ± 0.00 (n=2) |" in text
+    assert "| `(defaults)` | default | 0.893 | 1.03 | – | 0.935 ± 0.007 (n=2) | – | – | – | 0.74 ± 0.00 (n=2) |" in text
     assert (
         "| `loss.recon_L_target=sh` | default | 1.000 | 1.00 | 0.000 | 0.970 ± 0.000 (n=2) | 0.89 ± 0.00 (n=2) | "
-        "0.067 ± 0.000 (n=2) | 0.66" in text
+        "0.067 ± 0.000 (n=2) | 0.270 ± 0.000 (n=2) | 0.66" in text
     )
     assert "lhat_gray" not in text and (tmp_path / "figures" / "albedo_vs_light_pattern.png").exists()
-    assert "Rank correlation" not in text  # two settings: too few to rank
+    assert "Rank agreement" not in text  # two settings: too few to rank
 
 
-def test_pattern_rank_reading_ranks_the_albedo_against_the_pattern_per_rung():
-    share = [{"mean": m} for m in (0.74, 0.72, 0.70, 0.66, 0.62, 0.45)]
-    points = [("default", x, None, s, "") for x, s in zip((0.89, 0.94, 0.98, 1.0), share)]
-    points += [("long", 0.89, 0.13, share[4], ""), ("long", 1.0, 0.05, share[5], "")]
-    text = claims.pattern_rank_reading(points)
-    assert "default rung, the target's pattern: -1.00 over 4 settings" in text
-    assert "long rung" not in text and "network" not in text  # 2 long settings; no network log error at default
-    points[1] = ("default", 0.94, None, {"mean": 0.75}, "")  # one setting out of order
-    assert "default rung, the target's pattern: -0.80 over 4 settings" in claims.pattern_rank_reading(points)
-    points = [("default", 0.9, e, {"mean": m}, "") for e, m in ((0.14, 0.79), (0.13, 0.74), (0.1, 0.72), (0.07, 0.66))]
-    text = claims.pattern_rank_reading(points)  # one target pattern for all: not ranked
-    assert "default rung, the network's own light's log error: +1.00 over 4" in text and "target's" not in text
-    assert claims.pattern_rank_reading(points[4:]) == ""
+def test_albedo_rank_reading_ranks_the_albedo_against_each_measure_per_rung():
+    """+1 where the better value always goes with the better albedo: a higher target pattern, a lower log error."""
+
+    def point(rung, share, pattern=None, light=None, shading=None):
+        return {"rung": rung, "share": {"mean": share}, "target_pattern": pattern, "light_log_error": light,
+                "shading_log_error": shading}  # fmt: skip
+
+    points = [point("default", m, x) for x, m in zip((0.89, 0.94, 0.98, 1.0), (0.74, 0.72, 0.70, 0.66))]
+    points += [point("long", 0.62, 0.89, 0.13), point("long", 0.45, 1.0, 0.05)]
+    text = claims.albedo_rank_reading(points)
+    assert "default rung, the target's pattern (corr. of log shading with the truth): +1.00 over 4 settings" in text
+    assert "long rung" not in text and "network" not in text  # 2 long settings; no network error at default
+    points[1]["share"]["mean"] = 0.75  # one setting out of order
+    assert "target's pattern (corr. of log shading with the truth): +0.80 over 4" in claims.albedo_rank_reading(points)
+    points = [point("default", m, 0.9, e, e + 0.1) for e, m in ((0.14, 0.79), (0.13, 0.74), (0.1, 0.72), (0.07, 0.66))]
+    text = claims.albedo_rank_reading(points)  # one target pattern for all: not ranked
+    assert "default rung, the network's own light: log error: +1.00 over 4" in text and "target's" not in text
+    assert "the network's own shading (its normals too): log error: +1.00 over 4" in text
+    assert claims.albedo_rank_reading(points[4:]) == ""
 
 
 def test_edit_claims_without_the_reader_read_the_drawn_share(tmp_path):

@@ -473,17 +473,26 @@ def target_source(where: str) -> str | None:
     )
 
 
+# what the albedo is set against (light_pattern_section): (point key, axis label, lower is better)
+ALBEDO_AGAINST = (
+    ("target_pattern", "target's pattern (corr. of log shading with the truth)", False),
+    ("light_log_error", "network's own light: log error", True),
+    ("shading_log_error", "network's own shading (its normals too): log error", True),
+)
+
+
 def light_pattern_section(rep: Report, runs: list[Run]) -> None:
     """The albedo against its E_recon-L target's pattern, magnitude and log error (the lighting section's
-    ``lhat_sources.json``) and the network's own light's (``light_pattern_corr``, ``light_contrast_ratio``,
-    ``light_log_error``), one row per setting that changes the target alone (:func:`target_source`), explicit, at
-    each rung; with a figure. Nothing without that file."""
+    ``lhat_sources.json``), the network's own light's (``light_pattern_corr``, ``light_contrast_ratio``,
+    ``light_log_error``) and its shading's log error (``shading_log_error``), one row per setting that changes the
+    target alone (:func:`target_source`), explicit, at each rung; with a figure and the rank correlations
+    (:func:`albedo_rank_reading`). Nothing without that file."""
     sources = load_json(rep.out / "lighting" / "lhat_sources.json")
     if not sources:
         return
-    keys = ("albedo_si_mse", "trivial_albedo_si_mse", "light_pattern_corr", "light_contrast_ratio", "light_log_error")
+    net_keys = ("light_pattern_corr", "light_contrast_ratio", "light_log_error", "shading_log_error")
     rows, points = [], []
-    for (where, model), st in scored_spreads(runs, keys).items():
+    for (where, model), st in scored_spreads(runs, ("albedo_si_mse", "trivial_albedo_si_mse", *net_keys)).items():
         source = target_source(where)
         row = sources["rows"].get(source or "")
         if model != "explicit" or not row or "pattern_corr" not in row or not st["trivial_albedo_si_mse"]:
@@ -491,78 +500,88 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
         floor = st["trivial_albedo_si_mse"]["mean"]
         share = {k: st["albedo_si_mse"][k] / floor for k in ("mean", "std")}
         rung = "long" if "+experiment=long" in where.split() else "default"
-        net = [st[k] for k in keys[2:]]
-        points.append((rung, row["pattern_corr"], net[2] and net[2]["mean"], share, SOURCE_WORDS.get(source, source)))
+        mean = {k: st[k] and st[k]["mean"] for k in net_keys}
+        points.append({"rung": rung, "name": SOURCE_WORDS.get(source, source), "share": share, **mean})
+        points[-1]["target_pattern"] = row["pattern_corr"]
         rows.append(
             f"| `{where}` | {rung} | {row['pattern_corr']:.3f} | {row['contrast_ratio']:.2f} | "
             f"{fmt_value(row.get('log_error'), '.3f')} | "
-            f"{' | '.join(spread_text(v, f) if v else '–' for v, f in zip(net, ('.3f', '.2f', '.3f')))} | "
-            f"{share['mean']:.2f} ± {share['std']:.2f} (n={st['albedo_si_mse']['n']}) |"
+            + " | ".join(
+                spread_text(st[k], f) if st[k] else "–" for k, f in zip(net_keys, (".3f", ".2f", ".3f", ".3f"))
+            )
+            + f" | {share['mean']:.2f} ± {share['std']:.2f} (n={st['albedo_si_mse']['n']}) |"
         )
     if not rows:
         return
     plt = pyplot()
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
-    labels = ("target's pattern (corr. of log shading with the truth)", "network's own light: log error (0: truth's)")
-    for ax, i, label in zip(axes, (1, 2), labels):
+    fig, axes = plt.subplots(1, len(ALBEDO_AGAINST), figsize=(15, 4.2), sharey=True)
+    for ax, (key, label, lower) in zip(axes, ALBEDO_AGAINST):
         for rung, marker in (("default", "o"), ("long", "s")):
-            xy = [(p[i], p[3], p[4]) for p in points if p[0] == rung and p[i] is not None]
-            if xy:
-                ax.errorbar(
-                    [x for x, _, _ in xy], [s["mean"] for _, s, _ in xy], [s["std"] for _, s, _ in xy], fmt=marker,
-                    capsize=3, label=f"{rung} rung",
-                )  # fmt: skip
-            for x, s, name in xy:
-                ax.annotate(name, (x, s["mean"]), textcoords="offset points", xytext=(4, 3), fontsize=7)
+            here = [p for p in points if p["rung"] == rung and p[key] is not None]
+            if here:
+                x, y, e = (
+                    [p[key] for p in here],
+                    [p["share"]["mean"] for p in here],
+                    [p["share"]["std"] for p in here],
+                )
+                ax.errorbar(x, y, e, fmt=marker, capsize=3, label=f"{rung} rung")
+            for p in here:
+                ax.annotate(
+                    p["name"], (p[key], p["share"]["mean"]), textcoords="offset points", xytext=(4, 3), fontsize=7
+                )
         ax.axhline(TARGETS["albedo_share_of_trivial"], color="k", lw=0.8, ls="--", label="albedo target")
         ax.set_xlabel(label)
         ax.grid(alpha=0.3)
-    axes[1].invert_xaxis()  # better to the right on both panels
+        if lower:
+            ax.invert_xaxis()  # better to the right on every panel
     axes[0].set_ylabel("albedo si-MSE / mean map's")
     axes[0].legend()
     rep.add(
         "The albedo against its light: each setting above that changes E_recon-L's target alone (explicit), with "
         "the target's pattern, magnitude and log error (the lighting section's table: the correlation of its log "
         "shading with the truth's, the ratio of their spreads, and what both leave wrong; "
-        "`disent.eval.metrics.log_shading_agreement`) and the same for the network's own light (`light_pattern_corr`, "
-        "`light_contrast_ratio`, `light_log_error`, mean ± std over seeds; – where its runs were scored before "
-        "them); the albedo as a share of the mean map's. Test split.\n",
+        "`disent.eval.metrics.log_shading_agreement`), the same for the network's own light through the true normals "
+        "(`light_pattern_corr`, `light_contrast_ratio`, `light_log_error`), and the log error of the network's own "
+        "shading, its normals and light together, against the true shading (`shading_log_error`), mean ± std over "
+        "seeds (– where its runs were scored before them); the albedo as a share of the mean map's. Test split.\n",
         *table_head(
             "setting",
             "rung",
             "target: pattern",
             "target: magnitude",
             "target: log error",
-            "network: pattern",
-            "network: magnitude",
-            "network: log error",
+            "network's light: pattern",
+            "magnitude",
+            "log error",
+            "network's shading: log error",
             "albedo / mean map's",
         ),
         *sorted(rows, key=lambda r: (r.split(" | ")[1], r.split(" | ")[2])),
         "",
     )
-    rep.figure(fig, "albedo_vs_light_pattern.png", "albedo against the light's pattern")
-    rep.add(pattern_rank_reading(points), "")
+    rep.figure(fig, "albedo_vs_light_pattern.png", "the albedo against its target's pattern and its network's errors")
+    rep.add(albedo_rank_reading(points), "")
 
 
-def pattern_rank_reading(points: list[tuple]) -> str:
-    """Spearman's rank correlation over settings, per rung, of the albedo share with the target's and the network's
-    pattern and the network's light's log error (``points``: ``(rung, target pattern, network log error or None,
-    share, name)``); where at least 4 settings."""
+def albedo_rank_reading(points: list[dict]) -> str:
+    """Spearman's rank correlation over settings, per rung, of the albedo share with each of :data:`ALBEDO_AGAINST`
+    (``points``: dicts with ``rung``, ``share`` and those keys, None where unscored), where at least 4 settings have
+    distinct values; signed so that +1 means the better value always goes with the better albedo."""
     from scipy.stats import spearmanr
 
     parts = []
     for rung in ("default", "long"):
-        for i, what in ((1, "the target's pattern"), (2, "the network's own light's log error")):
-            xy = [(p[i], p[3]["mean"]) for p in points if p[0] == rung and p[i] is not None]
+        for key, label, lower in ALBEDO_AGAINST:
+            xy = [(p[key], p["share"]["mean"]) for p in points if p["rung"] == rung and p.get(key) is not None]
             if len(xy) >= 4 and len({x for x, _ in xy}) > 1:
-                rho = spearmanr(*zip(*xy)).statistic
-                parts.append(f"{rung} rung, {what}: {rho:+.2f} over {len(xy)} settings")
+                rho = spearmanr(*zip(*xy)).statistic * (1 if lower else -1)
+                parts.append(f"{rung} rung, the {label}: {rho:+.2f} over {len(xy)} settings")
     if not parts:
         return ""
     return (
-        "Rank correlation (Spearman) of the albedo's share with each: -1 where a better pattern always gives a "
-        "better albedo, +1 where a smaller log error always does: " + "; ".join(parts) + ".\n"
+        "Rank agreement (Spearman's correlation, +1 where the better value always goes with the better albedo): "
+        + "; ".join(parts)
+        + ".\n"
     )
 
 
