@@ -657,6 +657,9 @@ def test_lhat_sources_table_reads_which_input_costs_l_hat_most(tmp_path):
         "The texture model's light has a better pattern (0.90 against 0.89) and less magnitude (0.96 against 1.03) "
         "than L-hat's: contrast 0.88 against 0.92." in text
     )
+    rows["lhat"]["log_error"], rows["texture_model"]["log_error"] = 0.254, 0.232
+    text = "\n".join(lighting.lhat_source_lines({"split": "test", "n": 256, "rows": rows}))
+    assert "than L-hat's: contrast 0.88 against 0.92, log error 0.232 against 0.254." in text
     assert "Calibration about L-hat" not in text  # no network row with the sweep
     sweep = {"0.8": 0.0098, "0.9": 0.0091, "1.0": 0.0090, "1.2": 0.0112}
     rows["network_explicit"] |= {"calibration": 1.08, "sharpened_albedo": sweep}

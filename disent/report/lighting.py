@@ -495,6 +495,8 @@ def contrast_reading(name: str, row: dict, lhat: dict) -> str:
     pattern = compared("pattern_corr", "a better pattern", "a worse pattern", "the same pattern")
     magnitude = compared("contrast_ratio", "more magnitude", "less magnitude", "as much magnitude")
     contrast = f"contrast {row['contrast']:.2f} against {lhat['contrast']:.2f}"
+    if None not in (row.get("log_error"), lhat.get("log_error")):
+        contrast += f", log error {row['log_error']:.3f} against {lhat['log_error']:.3f}"
     return f"{name} has {pattern} and {magnitude} than L-hat's: {contrast}"
 
 
