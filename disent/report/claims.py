@@ -501,8 +501,8 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
         share = {k: st["albedo_si_mse"][k] / floor for k in ("mean", "std")}
         rung = "long" if "+experiment=long" in where.split() else "default"
         mean = {k: st[k] and st[k]["mean"] for k in net_keys}
-        points.append({"rung": rung, "name": SOURCE_WORDS.get(source, source), "share": share, **mean})
-        points[-1]["target_pattern"] = row["pattern_corr"]
+        name = SOURCE_WORDS.get(source, source)
+        points.append({"rung": rung, "name": name, "share": share, "target_pattern": row["pattern_corr"], **mean})
         rows.append(
             f"| `{where}` | {rung} | {row['pattern_corr']:.3f} | {row['contrast_ratio']:.2f} | "
             f"{fmt_value(row.get('log_error'), '.3f')} | "
