@@ -143,6 +143,32 @@ def test_teaser_needs_the_three_ladder_models_or_keeps_the_published_one(tmp_pat
     assert "![teaser explicit](figures/teaser_explicit.png)" in text and "weighted" not in text
 
 
+def test_teaser_names_each_model_by_its_setting_seed_and_steps(tmp_path, monkeypatch):
+    """Each teaser's title says what was trained (setting, seed, steps), not where the run folder lay."""
+    import torch
+
+    from disent.models import build_model
+
+    ev = {"recon_mse": 0.02, "normal_mean": 20.0, "steps": 1200}
+    for name, model in (("b", "baseline"), ("e", "explicit"), ("i", "implicit")):
+        d = make_run(tmp_path / "runs", name, model, seed=2, eval_=ev)
+        (d / "checkpoints").mkdir()
+        (d / "checkpoints" / "last.pt").write_bytes(b"")
+        (d / "status.json").write_text('{"status": "ok"}')
+    torch.manual_seed(0)
+    monkeypatch.setattr(
+        training, "load_chosen", lambda chosen: {m: build_model(r.cfg["model"]).eval() for m, r in chosen.items()}
+    )
+    titles = []
+    monkeypatch.setattr(training, "image_grid", lambda rows, path, title: titles.append(title))
+    rep = report.Report(tmp_path / "reports", "")
+    rep.section("Teaser", report.sec_teaser, find_runs([tmp_path / "runs"]), 2)
+    teasers = [t for t in titles if "SynthFaces test images" in t]
+    assert len(teasers) == 3 and all("(defaults), seed 2, 1,200 steps" in t for t in teasers)
+    assert not any(str(tmp_path) in t for t in titles)
+    assert sum(f"run `{tmp_path / 'runs'}" in line for line in rep.lines) == 3  # the folder stays in the text
+
+
 def test_records_outlive_the_run_folders(tmp_path):
     fake_suite(tmp_path / "runs")
     (tmp_path / "runs" / "1" / "checkpoints").mkdir()

@@ -220,6 +220,8 @@ def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
         return over_max(x) if k == "shading" else x
 
     for name, out in outs.items():
+        r = chosen[name]
+        what = f"`{setting(r, drop_model=True)}`, seed {r.seed}, {r.value('steps') or 0:,.0f} steps"
         rows = [("input", batch["image"])] + [
             (k + (" / max" if k == "shading" else ""), shown(out, k))
             for k in ("recon", "albedo", "normal", "shading", "matte")
@@ -229,9 +231,10 @@ def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
         image_grid(
             rows,
             path,
-            f"{name} ({chosen[name].path}) on SynthFaces test images; albedo, normal and shading where its matte > 0.5",
+            f"{name} ({what.replace('`', '')}) on SynthFaces test images; albedo, normal and shading where its "
+            "matte > 0.5",
         )
-        rep.add(f"**{name}** (`{chosen[name].path}`)\n")
+        rep.add(f"**{name}** ({what}; run `{r.origin}`)\n")
         rep.image(path, f"teaser {name}")
     rec = [("input", batch["image"])] + [(f"{k} recon", outs[k]["recon"]) for k in MODELS if k in outs]
     path = rep.fig / "baseline_vs_ours.png"
