@@ -1868,6 +1868,19 @@ def test_light_pattern_section_reads_the_albedo_against_the_targets_pattern(tmp_
     )
     assert "lhat_gray" not in text and (tmp_path / "figures" / "albedo_vs_light_pattern.png").exists()
     assert "Rank agreement" not in text  # two settings: too few to rank
+    # the shipped explicit weights (one long-rung seed on L-hat): a row of the table, not a point of the figure or ranks
+    metrics = {"albedo_si_mse": 0.008, "trivial_albedo_si_mse": 0.0127, "light_pattern_corr": 0.95}
+    metrics |= {"light_contrast_ratio": 0.857, "light_log_error": 0.146, "shading_log_error": 0.236}
+    monkeypatch.setattr(shipped, "manifest", lambda: {"explicit": {"metrics": metrics}, "baseline": {"metrics": {}}})
+    ranked = []
+    monkeypatch.setattr(claims, "albedo_rank_reading", lambda points: ranked.extend(points) or "")
+    rep = report.Report(tmp_path)
+    claims.light_pattern_section(rep, runs)
+    assert (
+        "| `shipped` | long | 0.893 | 1.03 | – | 0.950 (n=1) | 0.86 (n=1) | 0.146 (n=1) | 0.236 (n=1) | 0.63 ± 0.00 (n=1) |"
+        in rep.lines
+    )
+    assert sorted(p["name"] for p in ranked) == ["L-hat", "truth's shape"]
 
 
 def test_albedo_rank_reading_ranks_the_albedo_against_each_measure_per_rung():
