@@ -451,15 +451,23 @@ def sharpened_albedo(image, shading, albedo, region, ks=SHARPENING) -> dict:
     return {k: scale_invariant_mse(detailed_albedo(image.double(), s.pow(k)), albedo, region) for k in ks}
 
 
-def eroded_lhat(batch: dict) -> torch.Tensor:
-    """``[B, 3, 9]``: the paper's L-hat (constant albedo, :func:`disent.data.synth.scenes.fit_sh_packed`) fitted on
-    M-hat eroded ``EDGE`` px through the pseudo normals of each image of ``batch``: M-hat's rim, where the coarse fit
-    reaches past the skin, left out (``lhat_sources``' ``lhat_eroded``); E_recon-L's target with
-    ``loss.recon_L_target=sh_pseudo_eroded``."""
+def least_squares_light(image, normal, mask, albedo=None) -> torch.Tensor:
+    """``[B, 3, 9]``: the least-squares SH light (:func:`disent.data.synth.scenes.fit_sh_packed`) of ``image`` over
+    ``albedo`` (None: a constant, the paper's L-hat) through ``normal`` on the pixels where ``mask`` > 0.5."""
     from disent.data.synth.scenes import fit_sh_packed
 
+    if albedo is not None:
+        image = torch.where(mask > 0.5, image / albedo.clamp_min(1e-3), 0)
+    return fit_sh_packed(image, normal * (mask > 0.5), mask)
+
+
+def eroded_lhat(batch: dict) -> torch.Tensor:
+    """``[B, 3, 9]``: the paper's L-hat (:func:`least_squares_light` with a constant albedo) fitted on M-hat eroded
+    ``EDGE`` px through the pseudo normals of each image of ``batch``: M-hat's rim, where the coarse fit reaches past
+    the skin, left out (``lhat_sources``' ``lhat_eroded``); E_recon-L's target with
+    ``loss.recon_L_target=sh_pseudo_eroded``."""
     mask = eroded(batch["mask_pseudo"], EDGE)
-    return fit_sh_packed(batch["image"], batch["normal_pseudo"] * mask, mask).to(batch["image"].dtype)
+    return least_squares_light(batch["image"], batch["normal_pseudo"], mask).to(batch["image"].dtype)
 
 
 @torch.no_grad()
@@ -508,7 +516,6 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
     target) and ``sharpened_albedo`` (:func:`sharpened_albedo` of its own shading). ``floor``: the constant mean
     train light."""
     from disent.data import get_batch
-    from disent.data.synth.scenes import fit_sh_packed
     from disent.eval.evaluate import decomposed_region, face_colour, skin_in_shading
     from disent.eval.metrics import light_shading_si_mse, sh_error_shown_hidden, shading_contrast
     from disent.eval.trivial import dataset_means, template_albedo
@@ -520,10 +527,6 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
     pixels = {"mask_pseudo": g["mask_pseudo"], "eroded": eroded(g["mask_pseudo"], EDGE), "face": face}
     albedo = {"constant": None, "template": template_albedo(means["albedo_uv"], g["uv_pseudo"]), "albedo": g["albedo"]}
 
-    def fit(normal, a, mask):
-        image = g["image"] if a is None else torch.where(mask > 0.5, g["image"] / a.clamp_min(1e-3), 0)
-        return fit_sh_packed(image, normal * (mask > 0.5), mask)
-
     skin = face_colour(g["albedo"], face)
 
     def scored(sh):
@@ -533,7 +536,7 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
         return e, sh_error_shown_hidden(sh, g["sh"], g["normal"], face)["shown"], skin_corr, agree
 
     inputs = dict(LHAT_SOURCES, texture_model=("normal_pseudo", "texture_model", "eroded"), floor=("-", "-", "-"))
-    lights = {k: fit(g[nk], albedo[a], pixels[p]) for k, (nk, a, p) in LHAT_SOURCES.items()}
+    lights = {k: least_squares_light(g["image"], g[nk], pixels[p], albedo[a]) for k, (nk, a, p) in LHAT_SOURCES.items()}
     lights["texture_model"] = texture_lhat(g)
     lights["texture_model_lhat_scale"] = rescaled(
         lights["texture_model"], lights["lhat"], g["normal_pseudo"], g["mask_pseudo"]
@@ -556,7 +559,7 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
             "calibration": float(calibration.median()),
             "sharpened_albedo": sharpened_albedo(g["image"], out["shading"], g["albedo"], face),
         }
-        lights[f"network_{name}_refit"] = fit(g["normal_pseudo"], out["albedo"], inside)
+        lights[f"network_{name}_refit"] = least_squares_light(g["image"], g["normal_pseudo"], inside, out["albedo"])
         inputs |= {f"network_{name}": ("network",) * 3, f"network_{name}_refit": ("normal_pseudo", "network", "matte")}
     lights["floor"] = means["sh"].expand_as(g["sh"])
     scores = {k: scored(sh) for k, sh in lights.items()}
