@@ -944,6 +944,13 @@ def noise_model(normals: str, model: str, fits: dict) -> dict:
     return kwargs
 
 
+def best_on_val(order: dict, accept) -> str | None:
+    """The name (after ``val/``) of the order study's val row of best evidence accuracy among those whose name
+    ``accept(name)`` takes; None where there is none."""
+    rows = [k[4:] for k in order if k.startswith("val/") and accept(k[4:])]
+    return max(rows, key=lambda k: order[f"val/{k}"]["evidence"]["accuracy"], default=None)
+
+
 def chosen_noise_model(albedo: str, normals: str, study: Path, model: str = "auto") -> tuple[str, dict]:
     """``(model, select_order keyword arguments)``: the noise model ``model`` on the geometry ``normals``, its residual
     fit read from the order study in folder ``study``; ``auto``: the noise model of the study's ``albedo/normals`` row
@@ -951,9 +958,8 @@ def chosen_noise_model(albedo: str, normals: str, study: Path, model: str = "aut
     study = read_study(study)
     order, fits = study["order"], study["residual_process"]
     if model == "auto":
-        row = f"val/{albedo}/{normals}"
-        rows = [k for k in order if k == row or k.startswith(f"{row}+")]
-        best = max(rows, key=lambda k: order[k]["evidence"]["accuracy"], default=row)
+        row = f"{albedo}/{normals}"
+        best = best_on_val(order, lambda k: k == row or k.startswith(f"{row}+")) or row
         model = best[len(row) + 1 :] or "iid"
     return model, noise_model(normals, model, fits)
 

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from disent.lighting import experiments
 from disent.lighting.experiments import ORDER_TARGET, wilson_interval
 from disent.report.document import Report, load_json
 from disent.report.tables import fmt_value, table_head
@@ -69,8 +70,7 @@ def band2_reading(order: dict, chosen: str) -> str:
 def best_on_val(order: dict, prefix: str) -> str | None:
     """The name (after ``split/``) of the study's row best on val among those whose name starts with ``prefix``
     and which were run on test too; None where there is none."""
-    rows = [k[4:] for k in order if k.startswith(f"val/{prefix}") and f"test/{k[4:]}" in order]
-    return max(rows, key=lambda k: order[f"val/{k}"]["evidence"]["accuracy"]) if rows else None
+    return experiments.best_on_val(order, lambda k: k.startswith(prefix) and f"test/{k}" in order)
 
 
 def known_albedo_reading(order: dict, geometry: str = "normal_pseudo", what: str = "pseudo geometry") -> str:
