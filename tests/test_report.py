@@ -1846,7 +1846,7 @@ def test_light_pattern_section_reads_the_albedo_against_the_targets_pattern(tmp_
     for seed in (0, 1):
         make_run(tmp_path / "runs", f"paper{seed}", seed=seed, eval_=ev | {"light_pattern_corr": 0.93 + 0.01 * seed})
         truth = ev | {"albedo_si_mse": 0.0083, "light_pattern_corr": 0.97, "light_contrast_ratio": 0.89}
-        truth |= {"light_log_error": 0.067, "shading_log_error": 0.27}
+        truth |= {"light_log_error": 0.067, "shading_log_error": 0.27, "albedo_detailed_true_light_si_mse": 0.008}
         make_run(tmp_path / "runs", f"oracle{seed}", seed=seed, eval_=truth, extra=("loss.recon_L_target=sh",))
     make_run(tmp_path / "runs", "gray", eval_=ev, extra=("loss.lhat_gray=true",))  # not a target: no row
     runs = find_runs([tmp_path / "runs"])
@@ -1868,6 +1868,11 @@ def test_light_pattern_section_reads_the_albedo_against_the_targets_pattern(tmp_
     )
     assert "lhat_gray" not in text and (tmp_path / "figures" / "albedo_vs_light_pattern.png").exists()
     assert "Rank agreement" not in text  # two settings: too few to rank
+    # the normals' cap: only the oracle runs were scored with it (0.008 / 0.0125); no long-rung runs
+    assert "a share of the mean map's: default rung 0.64 (short of the target)." in text
+    assert claims.normals_caps([{"rung": "long", "cap": 0.4}, {"rung": "long", "cap": 0.5}]) == {"long": 0.45}
+    assert "long rung 0.45 (within the target)" in claims.normals_cap_reading({"long": 0.45})
+    assert claims.normals_cap_reading({}) == ""
     # the shipped explicit weights (one long-rung seed on L-hat): a row of the table, not a point of the figure or ranks
     metrics = {"albedo_si_mse": 0.008, "trivial_albedo_si_mse": 0.0127, "light_pattern_corr": 0.95}
     metrics |= {"light_contrast_ratio": 0.857, "light_log_error": 0.146, "shading_log_error": 0.236}

@@ -491,8 +491,11 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
     if not sources:
         return
     net_keys = ("light_pattern_corr", "light_contrast_ratio", "light_log_error", "shading_log_error")
+    cap_key = "albedo_detailed_true_light_si_mse"  # I / S(N, L) with its N and the true L: what its normals allow
     rows, points = [], []
-    for (where, model), st in scored_spreads(runs, ("albedo_si_mse", "trivial_albedo_si_mse", *net_keys)).items():
+    for (where, model), st in scored_spreads(
+        runs, ("albedo_si_mse", "trivial_albedo_si_mse", *net_keys, cap_key)
+    ).items():
         shipped = where == "shipped"  # the shipped weights: one seed of `+experiment=long` on L-hat (the paper's)
         source = "lhat" if shipped else target_source(where)
         row = sources["rows"].get(source or "")
@@ -503,8 +506,11 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
         rung = "long" if shipped or "+experiment=long" in where.split() else "default"
         mean = {k: st[k] and st[k]["mean"] for k in net_keys}
         name = SOURCE_WORDS.get(source, source)
+        cap = st[cap_key] and st[cap_key]["mean"] / floor
         if not shipped:  # the figure and the ranks: one point per setting (the shipped seed is one of its runs)
-            points.append({"rung": rung, "name": name, "share": share, "target_pattern": row["pattern_corr"], **mean})
+            points.append(
+                {"rung": rung, "name": name, "share": share, "target_pattern": row["pattern_corr"], "cap": cap, **mean}
+            )
         rows.append(
             f"| `{where}` | {rung} | {row['pattern_corr']:.3f} | {row['contrast_ratio']:.2f} | "
             f"{fmt_value(row.get('log_error'), '.3f')} | "
@@ -515,10 +521,13 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
         )
     if not rows:
         return
+    caps = normals_caps(points)
     plt = pyplot()
     fig, axes = plt.subplots(1, len(ALBEDO_AGAINST), figsize=(15, 4.2), sharey=True)
     for ax, (key, label, lower) in zip(axes, ALBEDO_AGAINST):
-        for rung, marker in (("default", "o"), ("long", "s")):
+        for (rung, marker), colour in zip((("default", "o"), ("long", "s")), ("C0", "C1")):
+            if rung in caps:
+                ax.axhline(caps[rung], color=colour, lw=0.8, ls=":", label=f"{rung} rung: its normals, the true light")
             here = [p for p in points if p["rung"] == rung and p[key] is not None]
             if here:
                 x, y, e = (
@@ -526,7 +535,7 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
                     [p["share"]["mean"] for p in here],
                     [p["share"]["std"] for p in here],
                 )
-                ax.errorbar(x, y, e, fmt=marker, capsize=3, label=f"{rung} rung")
+                ax.errorbar(x, y, e, fmt=marker, color=colour, capsize=3, label=f"{rung} rung")
             for p in here:
                 ax.annotate(
                     p["name"], (p[key], p["share"]["mean"]), textcoords="offset points", xytext=(4, 3), fontsize=7
@@ -564,7 +573,35 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
         "",
     )
     rep.figure(fig, "albedo_vs_light_pattern.png", "the albedo against its target's pattern and its network's errors")
-    rep.add(albedo_rank_reading(points), "")
+    rep.add(albedo_rank_reading(points), normals_cap_reading(caps), "")
+
+
+def normals_caps(points: list[dict]) -> dict:
+    """``{rung: share}``: the mean over a rung's settings of the detailed albedo with the network's normals under the
+    true light (``cap``, a share of the mean map's): how far its normals let the albedo go whatever its light."""
+    caps = {}
+    for rung in ("default", "long"):
+        if here := [p["cap"] for p in points if p["rung"] == rung and p.get("cap") is not None]:
+            caps[rung] = sum(here) / len(here)
+    return caps
+
+
+def normals_cap_reading(caps: dict) -> str:
+    """One sentence on :func:`normals_caps` against the albedo target; "" without caps."""
+    if not caps:
+        return ""
+    goal = TARGETS["albedo_share_of_trivial"]
+    parts = [
+        f"{rung} rung {share:.2f} ({'within' if share <= goal else 'short of'} the target)"
+        for rung, share in caps.items()
+    ]
+    return (
+        "What the networks' normals allow: the detailed albedo I / S(N, L) with each network's own normals under the "
+        "true light (`albedo_detailed_true_light_si_mse`, the mean over the rung's settings above, dotted in the "
+        f"figure), a share of the mean map's: {'; '.join(parts)}. Where it is short of the target (<= {goal}), a "
+        "better light alone is not expected to bring the albedo there at that budget (the networks trained on the "
+        "true light, `loss.recon_L_target=sh`, end near it); the normals must improve too.\n"
+    )
 
 
 def albedo_rank_reading(points: list[dict]) -> str:
