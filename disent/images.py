@@ -71,6 +71,17 @@ def over_max(shading: torch.Tensor) -> torch.Tensor:
     return shading / shading.amax((-3, -2, -1), keepdim=True).clamp_min(1e-6)
 
 
+FACE_LAYERS = ("albedo", "normal", "shading")  # the layers the rendered face is made of (Eqs. 2-4)
+
+
+def on_matte(out: dict, key: str, threshold: float = 0.5) -> torch.Tensor:
+    """``out[key]``; a face layer (:data:`FACE_LAYERS`) black where the model's own matte is at or under
+    ``threshold``, where the composite (Eq. 6) shows the background instead. Other layers, and models without a
+    matte, as they are."""
+    x = out[key]
+    return x * (out["matte"] > threshold) if key in FACE_LAYERS and "matte" in out else x
+
+
 def strip(images: list[torch.Tensor], pad: int = 2, kind: str = "rgb") -> torch.Tensor:
     """Maps ``[3,H,W]`` side by side with a white gap of ``pad`` pixels, each shown as ``kind`` (:func:`display`)."""
     gap = torch.ones(3, images[0].shape[1], pad)

@@ -341,6 +341,17 @@ def test_srgb_transfer_closed_forms():
     assert np.allclose(srgb_to_linear(x.numpy()), lin.numpy()) and isinstance(srgb_to_linear(x.numpy()), np.ndarray)
 
 
+def test_on_matte_blacks_out_the_face_layers_where_the_matte_shows_the_background():
+    from disent.images import on_matte
+
+    matte = torch.tensor([[[[0.2, 0.5], [0.51, 1.0]]]])
+    out = {"matte": matte, "albedo": torch.full((1, 3, 2, 2), 0.4), "recon": torch.full((1, 3, 2, 2), 0.7)}
+    kept = torch.tensor([[[[0.0, 0.0], [1.0, 1.0]]]])  # over 0.5 only
+    assert torch.equal(on_matte(out, "albedo"), 0.4 * kept.expand(1, 3, 2, 2))
+    assert torch.equal(on_matte(out, "recon"), out["recon"])  # not a face layer: the whole picture
+    assert torch.equal(on_matte({"albedo": out["albedo"]}, "albedo"), out["albedo"])  # no matte: as it is
+
+
 def test_folder_items_and_their_light_are_in_linear_radiance(tmp_path):
     """An item's image is its cached 8-bit crop decoded from sRGB, and sh_pseudo is L-hat of that decoded image
     (not of the stored sRGB codes), so the models and the pseudo-GT light read the same pixels as SynthFaces'."""

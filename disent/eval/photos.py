@@ -31,7 +31,7 @@ import torch
 import torch.nn.functional as F
 
 from disent.data.photos import pseudo_gt as pg
-from disent.images import linear_to_srgb, over_max, to_array
+from disent.images import linear_to_srgb, on_matte, over_max, to_array
 
 RELIGHT_NAMES = ("flash_az-60", "flash_az+0", "flash_az+60", "top", "rim_both")
 
@@ -157,13 +157,13 @@ def figures(model, batch: dict, names: list[str], out: Path, tag: str, budget: s
 
     res = model(batch["image"])
     cols = [("input", batch["image"], "srgb"), ("recon", res["recon"], "srgb")]  # colour pictures shown as photos are
-    if "normal" in res:
+    if "normal" in res:  # the face layers where the model's own matte claims the face, as in the teaser
         cols += [
             ("matte", res["matte"], "gray"),
-            ("normal", res["normal"], "normal"),
+            ("normal", on_matte(res, "normal"), "normal"),
             ("normal_pseudo", batch["normal_pseudo"], "normal"),
-            ("albedo", res["albedo"], "srgb"),
-            ("shading / max", over_max(res["shading"]), "rgb"),
+            ("albedo", on_matte(res, "albedo"), "srgb"),
+            ("shading / max", over_max(on_matte(res, "shading")), "rgb"),
         ]
     n = len(names)
     fig, axes = plt.subplots(n, len(cols), figsize=(1.3 * len(cols), 1.3 * n), squeeze=False)
@@ -174,7 +174,8 @@ def figures(model, batch: dict, names: list[str], out: Path, tag: str, budget: s
             if i == 0:
                 axes[i, j].set_title(title, fontsize=7)
         axes[i, 0].text(-2, 32, names[i], fontsize=5, ha="right", va="center")
-    fig.suptitle(f"{tag} on real photos (trained on SynthFaces{budget})", fontsize=8)
+    where = "; normal, albedo and shading where its matte > 0.5" if "normal" in res else ""
+    fig.suptitle(f"{tag} on real photos (trained on SynthFaces{budget}){where}", fontsize=8)
     fig.tight_layout()
     fig.savefig(out / f"decomposition_{tag}.png", dpi=150)
     plt.close(fig)

@@ -8,7 +8,7 @@ import re
 
 from disent.eval import ablation as _ablation
 from disent.eval.metrics import FLAT_SHARE, normals_collapsed
-from disent.images import to_array
+from disent.images import on_matte, to_array
 from disent.report.document import Report, pyplot
 from disent.report.pictures import test_batch, wrapped
 from disent.report.tables import (
@@ -383,11 +383,11 @@ def plot_skin_albedos(rep: Report, groups: dict) -> None:
     except (ImportError, FileNotFoundError) as e:
         rep.note(f"cannot render the albedo by setting from checkpoints ({e}).")
         return
-    columns = [("input", batch["image"]), ("true albedo", batch["albedo"] * (batch["matte"] > 0.5))]
+    columns = [("input", batch["image"]), ("true albedo", on_matte(batch, "albedo"))]
     for where, model in models.items():
         out = predict(model, batch["image"])
         shipped = " (shipped weights)" if isinstance(sources[where], str) else f" ({sources[where].path.name})"
-        columns.append((where + shipped, out["albedo"] * (out["matte"] > 0.5)))
+        columns.append((where + shipped, on_matte(out, "albedo")))
     plt = pyplot()
     fig, axes = plt.subplots(SKIN_FACES, len(columns), figsize=(1.15 * len(columns), 1.15 * SKIN_FACES + 0.9))
     for j, (name, t) in enumerate(columns):

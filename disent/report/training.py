@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from disent.images import over_max
+from disent.images import on_matte, over_max
 from disent.report.document import Report, pyplot
 from disent.report.pictures import image_grid, test_batch
 from disent.report.tables import (
@@ -212,11 +212,8 @@ def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
 
     outs = {name: predict(model, batch["image"]) for name, model in models.items()}
 
-    def foreground(out, k):  # the intrinsic layers where the model's own matte claims the face
-        return out[k] * (out["matte"] > 0.5) if k in ("albedo", "normal", "shading") and "matte" in out else out[k]
-
     def shown(out, k):  # shading (mean 0.75 by BWS, peaks above 1) divided by each image's maximum
-        x = foreground(out, k)
+        x = on_matte(out, k)
         return over_max(x) if k == "shading" else x
 
     for name, out in outs.items():
@@ -247,7 +244,7 @@ def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
         ("normal pseudo-GT", batch["normal_pseudo"] * batch["mask_pseudo"]),
     ]
     with_normals = [k for k in MODELS if k in outs and "normal" in outs[k]]
-    nrm += [(f"normal {k}", foreground(outs[k], "normal")) for k in with_normals]
+    nrm += [(f"normal {k}", on_matte(outs[k], "normal")) for k in with_normals]
     scored = decomposed_region(batch)  # the angular error where it is scored, black 0 to white ERROR_WHITE degrees
 
     def error(normal):
