@@ -573,7 +573,7 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
         "",
     )
     rep.figure(fig, "albedo_vs_light_pattern.png", "the albedo against its target's pattern and its network's errors")
-    rep.add(albedo_rank_reading(points), normals_cap_reading(caps), "")
+    rep.add(albedo_rank_reading(points), normals_cap_reading(points), "")
 
 
 def normals_caps(points: list[dict]) -> dict:
@@ -586,21 +586,24 @@ def normals_caps(points: list[dict]) -> dict:
     return caps
 
 
-def normals_cap_reading(caps: dict) -> str:
-    """One sentence on :func:`normals_caps` against the albedo target; "" without caps."""
+def normals_cap_reading(points: list[dict]) -> str:
+    """One sentence on :func:`normals_caps` against the albedo target, beside the albedo of the networks trained on
+    the truth's shape (the oracle's points) at the same rung; "" without caps."""
+    caps = normals_caps(points)
     if not caps:
         return ""
-    goal = TARGETS["albedo_share_of_trivial"]
-    parts = [
-        f"{rung} rung {share:.2f} ({'within' if share <= goal else 'short of'} the target)"
-        for rung, share in caps.items()
-    ]
+    goal, oracle = TARGETS["albedo_share_of_trivial"], SOURCE_WORDS["true_pixels_normals_albedo"]
+    parts = []
+    for rung, share in caps.items():
+        part = f"{rung} rung {share:.2f} ({'within' if share <= goal else 'short of'} the target"
+        if truth := [p["share"]["mean"] for p in points if p["rung"] == rung and p["name"] == oracle]:
+            part += f"; trained on the true light's shape the albedo ends at {min(truth):.2f}"
+        parts.append(part + ")")
     return (
         "What the networks' normals allow: the detailed albedo I / S(N, L) with each network's own normals under the "
         "true light (`albedo_detailed_true_light_si_mse`, the mean over the rung's settings above, dotted in the "
         f"figure), a share of the mean map's: {'; '.join(parts)}. Where it is short of the target (<= {goal}), a "
-        "better light alone is not expected to bring the albedo there at that budget (the networks trained on the "
-        "true light, `loss.recon_L_target=sh`, end near it); the normals must improve too.\n"
+        "better light alone is not expected to bring the albedo there at that budget; the normals must improve too.\n"
     )
 
 
