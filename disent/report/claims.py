@@ -546,7 +546,9 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
         if lower:
             ax.invert_xaxis()  # better to the right on every panel
     axes[0].set_ylabel("albedo si-MSE / mean map's")
-    axes[0].legend()
+    axes[-1].legend(
+        loc="upper right", fontsize=8
+    )  # the rightmost panel's upper right is empty: the worst albedo has the worst shading
     rep.add(
         "The albedo against its light: each setting above that changes E_recon-L's target alone (explicit), with "
         "the target's pattern, magnitude and log error (the lighting section's table: the correlation of its log "
