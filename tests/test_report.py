@@ -1873,8 +1873,9 @@ def test_light_pattern_section_reads_the_albedo_against_the_targets_pattern(tmp_
     assert "a share of the mean map's: " + reading in text
     long = [{"rung": "long", "cap": c, "name": "L-hat", "share": {"mean": 0.6}} for c in (0.4, 0.5)]
     assert claims.normals_caps(long) == {"long": 0.45}
-    assert "long rung 0.45 (within the target)." in claims.normals_cap_reading(long)
-    assert claims.normals_cap_reading([{**long[0], "cap": None}]) == ""
+    assert "long rung 0.45 (within the target)." in claims.normals_cap_reading(long, claims.normals_caps(long))
+    unscored = [{**long[0], "cap": None}]
+    assert claims.normals_cap_reading(unscored, claims.normals_caps(unscored)) == ""
     # the shipped explicit weights (one long-rung seed on L-hat): a row of the table, not a point of the figure or ranks
     metrics = {"albedo_si_mse": 0.008, "trivial_albedo_si_mse": 0.0127, "light_pattern_corr": 0.95}
     metrics |= {"light_contrast_ratio": 0.857, "light_log_error": 0.146, "shading_log_error": 0.236}

@@ -546,9 +546,8 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
         if lower:
             ax.invert_xaxis()  # better to the right on every panel
     axes[0].set_ylabel("albedo si-MSE / mean map's")
-    axes[-1].legend(
-        loc="upper right", fontsize=8
-    )  # the rightmost panel's upper right is empty: the worst albedo has the worst shading
+    # the rightmost panel's upper right stays empty: the worst albedo goes with the worst shading
+    axes[-1].legend(loc="upper right", fontsize=8)
     rep.add(
         "The albedo against its light: each setting above that changes E_recon-L's target alone (explicit), with "
         "the target's pattern, magnitude and log error (the lighting section's table: the correlation of its log "
@@ -575,7 +574,7 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
         "",
     )
     rep.figure(fig, "albedo_vs_light_pattern.png", "the albedo against its target's pattern and its network's errors")
-    rep.add(albedo_rank_reading(points), normals_cap_reading(points), "")
+    rep.add(albedo_rank_reading(points), normals_cap_reading(points, caps), "")
 
 
 def normals_caps(points: list[dict]) -> dict:
@@ -588,10 +587,9 @@ def normals_caps(points: list[dict]) -> dict:
     return caps
 
 
-def normals_cap_reading(points: list[dict]) -> str:
-    """One sentence on :func:`normals_caps` against the albedo target, beside the albedo of the networks trained on
-    the truth's shape (the oracle's points) at the same rung; "" without caps."""
-    caps = normals_caps(points)
+def normals_cap_reading(points: list[dict], caps: dict) -> str:
+    """One sentence on the ``caps`` (:func:`normals_caps` of ``points``) against the albedo target, beside the albedo
+    of the networks trained on the truth's shape (the oracle's points) at the same rung; "" without caps."""
     if not caps:
         return ""
     goal, oracle = TARGETS["albedo_share_of_trivial"], SOURCE_WORDS["true_pixels_normals_albedo"]
