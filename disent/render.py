@@ -170,6 +170,12 @@ def design_condition(normal: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     return (ev[:, -1] / ev[:, 0].clamp_min(1e-300)).to(normal.dtype)
 
 
+def over_albedo(image, mask, albedo):
+    """The shading a least-squares light fits where an albedo map is given: ``image / albedo``, and ``mask``
+    ``[B,1,H,W]`` without the pixels where any channel's albedo is under 1e-3 (no shading can be read there)."""
+    return image / albedo.clamp_min(1e-3), mask * (albedo > 1e-3).all(1, keepdim=True)
+
+
 def fit_sh(
     image,
     normal,
@@ -205,9 +211,7 @@ def fit_sh(
     mask = mask.reshape(B, 1, *image.shape[2:]).to(dtype)
     target = image.to(dtype)
     if albedo is not None:
-        keep = (albedo.to(dtype) > 1e-3).all(1, keepdim=True)
-        mask = mask * keep
-        target = target / albedo.to(dtype).clamp_min(1e-3)
+        target, mask = over_albedo(target, mask, albedo.to(dtype))
     counts = (mask.flatten(1) > 0).sum(1)
     if (counts < min_pixels).any():
         bad = torch.nonzero(counts < min_pixels).flatten().tolist()

@@ -477,6 +477,12 @@ class Run:
         return any(_get(self.cfg, f"loss.weights.{t}", 0) for t in TRUTH)
 
     @property
+    def light_oracle(self) -> bool:
+        """E_recon-L's target draws on the scene's true light (``loss.recon_L_target=sh`` or an oracle dose
+        ``loss.recon_L_oracle_mix`` > 0): a measurement of what a better L-hat buys, not the paper's model."""
+        return _get(self.cfg, "loss.recon_L_target") == "sh" or bool(_get(self.cfg, "loss.recon_L_oracle_mix", 0))
+
+    @property
     def plain(self) -> bool:
         """The paper's model as configured: no ablation, not a ceiling run."""
         return not self.ablations and not self.ceiling

@@ -144,6 +144,13 @@ def test_sh_pseudo_is_l_hat_of_the_pseudo_normals(batch):
     sh_soft = fit_sh(*(t.double() for t in (batch["image"], batch["normal_pseudo"], soft)))[0].float()
     assert not torch.allclose(sh_soft, sh, atol=1e-3)
     assert torch.allclose(fit_sh_packed(batch["image"], batch["normal_pseudo"], soft), sh_soft, atol=1e-5)
+    # Over an albedo map, with the same rule: pixels where the albedo is ~0 (here a dark band) are left out.
+    albedo = batch["albedo"].clone()
+    albedo[..., 20:26, :] = 0
+    want = fit_sh(*(t.double() for t in (batch["image"], batch["normal_pseudo"], batch["mask_pseudo"], albedo)))[0]
+    assert not torch.allclose(want.float(), sh, atol=1e-2)
+    packed = fit_sh_packed(batch["image"], batch["normal_pseudo"], batch["mask_pseudo"], albedo)
+    assert torch.allclose(packed, want.float(), atol=1e-5), (packed - want).abs().max()
 
 
 def test_pseudo_gt_error_in_the_stated_band():

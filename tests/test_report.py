@@ -771,6 +771,10 @@ def test_budget_check_names_each_missed_target(tmp_path):
     near = {**good, "albedo_si_mse": 0.5016 * 0.0127}  # a hair past the target: more digits, never "0.50"
     run = find_runs([make_run(tmp_path, "c", eval_=near).parent])
     assert "albedo 0.502 of the mean map's" in budget_check([r for r in run if r.path.name == "c"])
+    oracle = find_runs([make_run(tmp_path, "d", eval_=good, extra=["loss.recon_L_oracle_mix=0.75"]).parent])
+    text = budget_check([r for r in oracle if r.path.name == "d"])  # meets them fed the truth: says so
+    assert "meets every target" in text and "fed the true light" in text and "not the paper's model" in text
+    assert "fed the true light" not in budget_check([r for r in oracle if r.path.name == "a"])
 
 
 def test_targets_section_reads_each_rung_against_its_own_targets(tmp_path):
@@ -1628,6 +1632,18 @@ def test_published_rows_under_a_default_since_changed_match_todays_rows(tmp_path
     assert headings == ["### `+experiment=long`", "### `train.max_steps=7` ‡"]
 
 
+def test_rows_kept_keys_on_the_cells_it_is_told(tmp_path):
+    """A published row whose key cells match a new row is replaced, even where a cell outside the key (words) was
+    reworded; a row whose key differs is kept and marked."""
+    head = "| setting | reason | metric | value |"
+    rows = ["| `a` | old words | m | 1 |", "| `b` | words | m | 2 |"]
+    rep = report.Report(tmp_path, "\n\n".join(["# r", "## T\n", "\n".join([head, "|---|---|---|---|", *rows])]))
+    rep.title = "T"
+    new = ["| `a` | new words | m | 3 |"]
+    assert rep.rows_kept(head, new, key=(0, 2)) == [*new, "| `b` ‡ | words | m | 2 |"]
+    assert len(rep.rows_kept(head, new, key=3)) == 3  # keyed on the words too, the old row stays beside the new
+
+
 def test_bws_section_reads_the_fixed_images_budget(tmp_path):
     def row(bws, bs, steps, tone):
         return {
@@ -1879,14 +1895,22 @@ def test_light_pattern_section_reads_the_albedo_against_the_targets_pattern(tmp_
     # the shipped explicit weights (one long-rung seed on L-hat): a row of the table, not a point of the figure or ranks
     metrics = {"albedo_si_mse": 0.008, "trivial_albedo_si_mse": 0.0127, "light_pattern_corr": 0.95}
     metrics |= {"light_contrast_ratio": 0.857, "light_log_error": 0.146, "shading_log_error": 0.236}
-    monkeypatch.setattr(shipped, "manifest", lambda: {"explicit": {"metrics": metrics}, "baseline": {"metrics": {}}})
+    cfg = {"train": {"max_steps": 10000}, "loss": {}}  # a config older than the target's option: L-hat
+    entries = {"explicit": {"metrics": metrics, "cfg": cfg}, "baseline": {"metrics": {}, "cfg": cfg}}
+    monkeypatch.setattr(shipped, "manifest", lambda: entries)
     ranked = []
     monkeypatch.setattr(claims, "albedo_rank_reading", lambda points: ranked.extend(points) or "")
     rep = report.Report(tmp_path)
     claims.light_pattern_section(rep, runs)
     shipped_row = "| `shipped` | long | 0.893 | 1.03 | – | 0.950 (n=1) | 0.86 (n=1) | 0.146 (n=1) | 0.236 (n=1) | "
     assert shipped_row + "0.63 ± 0.00 (n=1) |" in rep.lines
+    assert "one seed of `+experiment=long` as their manifest's config reads" in "\n".join(rep.lines)
     assert sorted(p["name"] for p in ranked) == ["L-hat", "truth's shape"]
+    # weights trained at the default rung on the true light: their row reads that target's, at that rung
+    cfg |= {"train": {"max_steps": 1200}, "loss": {"recon_L_target": "sh"}}
+    rep = report.Report(tmp_path)
+    claims.light_pattern_section(rep, runs)
+    assert any(line.startswith("| `shipped` | default | 1.000 | 1.00 | 0.000 |") for line in rep.lines)
 
 
 def test_albedo_rank_reading_ranks_the_albedo_against_each_measure_per_rung():

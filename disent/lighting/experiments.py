@@ -456,9 +456,7 @@ def least_squares_light(image, normal, mask, albedo=None) -> torch.Tensor:
     ``albedo`` (None: a constant, the paper's L-hat) through ``normal`` on the pixels where ``mask`` > 0.5."""
     from disent.data.synth.scenes import fit_sh_packed
 
-    if albedo is not None:
-        image = torch.where(mask > 0.5, image / albedo.clamp_min(1e-3), 0)
-    return fit_sh_packed(image, normal * (mask > 0.5), mask)
+    return fit_sh_packed(image, normal * (mask > 0.5), mask, albedo)
 
 
 def eroded_lhat(batch: dict) -> torch.Tensor:

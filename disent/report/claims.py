@@ -31,7 +31,7 @@ from disent.report.tables import (
     table_head,
     verdict,
 )
-from disent.runs import Run, group_by_setting, setting
+from disent.runs import Run, composed_config, group_by_setting, setting
 
 # The trainable-models targets by rung: the default rung's absolute ones (TARGETS), the long rung's normals 15 %
 # better than the pseudo-GT they were supervised by (the paper's "beyond the morphable model" claim, with a margin)
@@ -481,6 +481,21 @@ ALBEDO_AGAINST = (
 )
 
 
+def shipped_setting(name: str) -> str:
+    """The setting the shipped weights ``name`` trained at, in :func:`target_source`'s terms, read off their
+    manifest's config: the long rung where they ran its steps, E_recon-L's target and oracle dose where not L-hat's
+    (a config older than those options trained on L-hat)."""
+    from disent.models.shipped import manifest
+
+    cfg, default = manifest()[name]["cfg"], composed_config(())
+    long_steps = composed_config(("+experiment=long",))["train"]["max_steps"]
+    tokens = ["+experiment=long"] if cfg.get("train", {}).get("max_steps") == long_steps else []
+    for key in (k.split(".", 1)[1] for k in LIGHT_TARGET_KEYS):
+        if cfg.get("loss", {}).get(key) not in (None, default["loss"][key]):
+            tokens.append(f"loss.{key}={cfg['loss'][key]}")
+    return " ".join(tokens) or "(defaults)"
+
+
 def light_pattern_section(rep: Report, runs: list[Run]) -> None:
     """The albedo against its E_recon-L target's pattern, magnitude and log error (the lighting section's
     ``lhat_sources.json``), the network's own light's (``light_pattern_corr``, ``light_contrast_ratio``,
@@ -492,22 +507,28 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
         return
     net_keys = ("light_pattern_corr", "light_contrast_ratio", "light_log_error", "shading_log_error")
     cap_key = "albedo_detailed_true_light_si_mse"  # I / S(N, L) with its N and the true L: what its normals allow
-    rows, points = [], []
+    rows, points, shipped_words = [], [], ""
     for (where, model), st in scored_spreads(
         runs, ("albedo_si_mse", "trivial_albedo_si_mse", *net_keys, cap_key)
     ).items():
-        shipped = where == "shipped"  # the shipped weights: one seed of `+experiment=long` on L-hat (the paper's)
-        source = "lhat" if shipped else target_source(where)
+        shipped = where == "shipped"  # the shipped weights: one seed of their setting (the manifest's config)
+        trained_at = shipped_setting(model) if shipped else where
+        source = target_source(trained_at)
         row = sources["rows"].get(source or "")
         if model != "explicit" or not row or "pattern_corr" not in row or not st["trivial_albedo_si_mse"]:
             continue
         floor = st["trivial_albedo_si_mse"]["mean"]
         share = {k: st["albedo_si_mse"][k] / floor for k in ("mean", "std")}
-        rung = "long" if shipped or "+experiment=long" in where.split() else "default"
+        rung = "long" if "+experiment=long" in trained_at.split() else "default"
         mean = {k: st[k] and st[k]["mean"] for k in net_keys}
         name = SOURCE_WORDS.get(source, source)
         cap = st[cap_key] and st[cap_key]["mean"] / floor
-        if not shipped:  # the figure and the ranks: one point per setting (the shipped seed is one of its runs)
+        if shipped:
+            shipped_words = (
+                f" `shipped`: the shipped explicit weights, one seed of `{trained_at}` as their manifest's config "
+                "reads (`python -m disent.models.shipped explicit --add-metrics`), a row of the table only."
+            )
+        else:  # the figure and the ranks: one point per setting (the shipped seed is one of its runs)
             points.append(
                 {"rung": rung, "name": name, "share": share, "target_pattern": row["pattern_corr"], "cap": cap, **mean}
             )
@@ -555,9 +576,8 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
         "`disent.eval.metrics.log_shading_agreement`), the same for the network's own light through the true normals "
         "(`light_pattern_corr`, `light_contrast_ratio`, `light_log_error`), and the log error of the network's own "
         "shading, its normals and light together, against the true shading (`shading_log_error`), mean ± std over "
-        "seeds (– where its runs were scored before them); the albedo as a share of the mean map's. Test split. "
-        "`shipped`: the shipped explicit weights, one seed of the long rung on L-hat (`python -m disent.models.shipped "
-        "explicit --add-metrics`), a row of the table only.\n",
+        "seeds (– where its runs were scored before them); the albedo as a share of the mean map's. Test split."
+        f"{shipped_words}\n",
         *table_head(
             "setting",
             "rung",

@@ -89,14 +89,18 @@ class Report:
                 line for line in old if not line.startswith(KEPT)
             ]
 
-    def rows_kept(self, head: str, rows: list[str], key: int = 1, unless: str | None = None) -> list[str]:
+    def rows_kept(
+        self, head: str, rows: list[str], key: int | tuple[int, ...] = 1, unless: str | None = None
+    ) -> list[str]:
         """``rows`` of a table with header line ``head``, then the rows of the published table under the same
-        header in this section whose first ``key`` cells match none of ``rows`` (and that do not contain
-        ``unless``): an earlier build measured them on runs this build does not have.  Those are marked
-        :data:`KEPT_ROW` (a note under the section says why)."""
+        header in this section whose key cells (the first ``key``, or the cells numbered in ``key``) match none
+        of ``rows`` (and that do not contain ``unless``): an earlier build measured them on runs this build does
+        not have.  Those are marked :data:`KEPT_ROW` (a note under the section says why)."""
+        picked = range(key) if isinstance(key, int) else key
 
         def key_of(line):
-            return tuple(retyped_cell(c.replace(KEPT_ROW, "")) for c in line.strip().strip("|").split("|")[:key])
+            cells = line.strip().strip("|").split("|")
+            return tuple(retyped_cell(cells[i].replace(KEPT_ROW, "")) for i in picked if i < len(cells))
 
         have = {key_of(r) for r in rows}
         kept = []

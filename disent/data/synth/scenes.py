@@ -26,6 +26,7 @@ from disent.render import (
     C4,
     composite,
     image_formation,
+    over_albedo,
     sh_basis,
     sh_from_directions,
     sh_matrix,
@@ -762,10 +763,16 @@ def _pseudo_maps(image: torch.Tensor, fit: dict, r: dict, res: int) -> dict:
 
 
 def fit_sh_packed(
-    image: torch.Tensor, normal: torch.Tensor, mask: torch.Tensor, min_pixels: int = 16, chunk: int = 128
+    image: torch.Tensor,
+    normal: torch.Tensor,
+    mask: torch.Tensor,
+    albedo: torch.Tensor | None = None,
+    min_pixels: int = 16,
+    chunk: int = 128,
 ) -> torch.Tensor:
-    """:func:`disent.render.fit_sh` (constant albedo) on the masked pixels only: the same least
-    squares, as its sums over pixels need nothing else.
+    """:func:`disent.render.fit_sh` on the masked pixels only: the same least squares (a constant albedo, or the
+    image over ``albedo`` by the same rule, :func:`disent.render.over_albedo`), as its sums over pixels need
+    nothing else.
 
     Each image's masked pixels are packed into pieces of ``chunk`` (the last one padded with
     zero weight); one batched float64 product gives every piece's sums of products of the
@@ -775,6 +782,8 @@ def fit_sh_packed(
     T planes, so the normal equations are T (sums) T^T and T (sums with the image)."""
     B, C = image.shape[:2]
     HW = image[0, 0].numel()
+    if albedo is not None:
+        image, mask = over_albedo(image, mask.reshape(B, 1, *image.shape[2:]), albedo)
     w = mask.reshape(B * HW)
     sel = (w > 0).nonzero().squeeze(1)  # [M] flat b * HW + p, sorted
     counts = torch.bincount(torch.div(sel, HW, rounding_mode="floor"), minlength=B)
