@@ -42,8 +42,9 @@ from disent.render import sh_shading
 TERMS = ("recon", "recon_fg", "adv", "recon_N", "recon_L", "smooth_A", "smooth_S", "UV", "Ni", "BWS", "M")
 TRUTH = ("A_true", "N_true", "L_true")  # terms on the true layers
 TRUTH_KEYS = ("albedo", "normal", "sh", "matte")  # the batch keys they read
-# loss.recon_L_target: L-hat, L-hat on M-hat eroded, L-hat with a texture model, a trained network's light, the truth
-RECON_L_TARGETS = ("sh_pseudo", "sh_pseudo_eroded", "sh_texture", "sh_network", "sh")
+# loss.recon_L_target: L-hat, L-hat on M-hat eroded, L-hat with a texture model, a trained network's light, that light
+# averaged with the texture model's refit through the network's geometry, the truth
+RECON_L_TARGETS = ("sh_pseudo", "sh_pseudo_eroded", "sh_texture", "sh_network", "sh_network_texture", "sh")
 RECON_L_SCALES = ("target", "sh_pseudo")  # loss.recon_L_scale: each face's scale from the target itself, or from L-hat
 
 
@@ -119,8 +120,9 @@ def recon_L(
     ``target="sh_texture"`` puts L-hat fitted with a PCA texture model for the albedo in its place
     (:func:`disent.lighting.experiments.texture_lhat`, added to the batch by the trainer), ``"sh_pseudo_eroded"``
     L-hat fitted on M-hat eroded 1 px (:func:`disent.lighting.experiments.eroded_lhat`, the same), ``"sh_network"``
-    the light a trained network draws from the image (:func:`disent.lighting.experiments.network_lhat`, the same):
-    no truth, not the paper's.
+    the light a trained network draws from the image (:func:`disent.lighting.experiments.network_lhat`, the same),
+    ``"sh_network_texture"`` that light averaged with the texture model's L-hat refitted through the network's
+    normals and uv (:func:`disent.lighting.experiments.network_texture_lhat`, the same): no truth, not the paper's.
     ``target="sh"`` puts the true SH light there, an oracle (not the paper's): what a perfect L-hat
     would buy the model. Either is scaled by ``c`` and measured as L-hat is.
     ``scale="sh_pseudo"`` first scales the chosen target per face and channel to L-hat's mean shading over M-hat

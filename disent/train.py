@@ -57,12 +57,18 @@ def train_keys(cfg_loss) -> tuple:
 
 
 # E_recon-L targets the trainer fits from each image (loss.recon_L_target) -> their fit in disent.lighting.experiments
-FITTED_TARGETS = {"sh_texture": "texture_lhat", "sh_pseudo_eroded": "eroded_lhat", "sh_network": "network_lhat"}
+FITTED_TARGETS = {
+    "sh_texture": "texture_lhat",
+    "sh_pseudo_eroded": "eroded_lhat",
+    "sh_network": "network_lhat",
+    "sh_network_texture": "network_texture_lhat",
+}
+NETWORK_TARGETS = ("sh_network", "sh_network_texture")  # the targets drawn through loss.recon_L_network
 
 
 def target_fit(cfg_loss):
     """The fit of E_recon-L's target from a batch (:data:`FITTED_TARGETS`), or None where the batch has it (L-hat,
-    the truth); ``loss.recon_L_network`` names the network of ``sh_network``."""
+    the truth); ``loss.recon_L_network`` names the network of :data:`NETWORK_TARGETS`."""
     from functools import partial
 
     from disent.lighting import experiments
@@ -71,7 +77,7 @@ def target_fit(cfg_loss):
     if target not in FITTED_TARGETS:
         return None
     fit = getattr(experiments, FITTED_TARGETS[target])
-    return partial(fit, network=cfg_loss.get("recon_L_network", "explicit")) if target == "sh_network" else fit
+    return partial(fit, network=cfg_loss.get("recon_L_network", "explicit")) if target in NETWORK_TARGETS else fit
 
 
 def with_fitted_lhat(batch: dict, idx, cache: dict, target: str, fit) -> dict:
@@ -279,7 +285,7 @@ def check_config(cfg) -> None:
     mix = cfg.loss.get("recon_L_oracle_mix", 0.0)
     if isinstance(mix, bool) or not isinstance(mix, (int, float)) or not 0 <= mix <= 1:
         raise ConfigError(f"loss.recon_L_oracle_mix={mix!r}: must be a number in [0, 1]")
-    if cfg.loss.get("recon_L_target") == "sh_network":
+    if cfg.loss.get("recon_L_target") in NETWORK_TARGETS:
         network = cfg.loss.get("recon_L_network", "explicit")
         from disent.lighting.experiments import trained_network
 

@@ -773,6 +773,7 @@ def test_lhat_sources_is_exact_with_every_input_made_true():
         "texture_model_lhat_scale",
         "network_explicit",
         "network_explicit_refit",
+        "network_explicit_texture",
         "floor",
     }
     # the texture model's light at L-hat's scale per face and channel: the same shape, so the same scale-invariant error
@@ -788,6 +789,7 @@ def test_lhat_sources_is_exact_with_every_input_made_true():
     net = rows["network_explicit"]
     assert net["calibration"] > 0 and list(net["sharpened_albedo"]) == list(SHARPENING)
     assert "calibration" not in rows["lhat"]
+    assert rows["network_explicit_texture"]["inputs"] == ("network", "texture_model", "eroded_matte")
     assert all(-1 <= row[f"skin_{k}_corr"] <= 1 for row in rows.values() for k in ("tone", "brightness"))
 
 

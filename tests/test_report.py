@@ -654,7 +654,19 @@ def test_lhat_sources_table_reads_which_input_costs_l_hat_most(tmp_path):
     assert (
         "the best L-hat here is the texture model (0.0054); the networks' own light (explicit 0.0044) is below" in text
     )
-    assert "does not improve on the network's (explicit 0.0048)" in text
+    assert "does not improve on the network's (explicit 0.0048)" in text and "sh_network_texture" not in text
+    rows["network_explicit_texture"] = row(0.0026, ["network", "texture_model", "eroded_matte"])
+    text = "\n".join(lighting.lhat_source_lines({"split": "test", "n": 256, "rows": rows}))
+    assert (
+        "| explicit network's light and the texture model through its geometry (`sh_network_texture`) | the "
+        "network's | texture model, fitted with L | M-hat eroded 1 px inside its matte | 0.0026" in text
+    )
+    assert "(`sh_network_texture`), a network's light gets nearer than either (explicit 0.0026)" in text
+    assert "explicit 0.0044) is below" in text  # the texture row is not one more network
+    rows["network_explicit_texture"]["light_on_face"] = 0.0050
+    text = "\n".join(lighting.lhat_source_lines({"split": "test", "n": 256, "rows": rows}))
+    assert "a network's light gets no nearer than both (explicit 0.0050)" in text
+    del rows["network_explicit_texture"]
     rows["true_pixels_albedo"]["light_on_face"] = 0.005  # now the normals' truth helps more
     rows["network_explicit"]["light_on_face"] = 0.006  # and the network is above the texture model
     text = "\n".join(lighting.lhat_source_lines({"split": "test", "n": 256, "rows": rows}))
@@ -1842,6 +1854,8 @@ def test_target_source_names_the_lighting_row_of_a_settings_e_recon_l_target():
     assert claims.target_source("loss.recon_L_oracle_mix=0.25") == "oracle_mix_0.25"
     assert claims.target_source("loss.recon_L_target=sh_network") == "network_explicit"
     assert claims.target_source("loss.recon_L_network=implicit loss.recon_L_target=sh_network") == "network_implicit"
+    both = "loss.recon_L_network=implicit loss.recon_L_target=sh_network_texture"
+    assert claims.target_source(both) == "network_implicit_texture"
     truth = "true_pixels_normals_albedo"  # the truth's shape, at whichever scale
     assert claims.target_source("+experiment=long loss.recon_L_target=sh") == truth
     assert claims.target_source("loss.recon_L_oracle_mix=1.0 loss.recon_L_target=sh_texture") == truth

@@ -255,6 +255,10 @@ def test_fitted_lhat_targets_are_fitted_once_per_training_image(tmp_path, monkey
     assert drawn == ["implicit", "implicit"] and all(
         r["recon_L"] > 0 for r in records(tmp_path / "n") if "recon_L" in r
     )
+    drawn.clear()  # sh_network_texture: the same, through its own fit
+    monkeypatch.setattr(E, "network_texture_lhat", lambda batch, network: drawn.append(network) or fake(batch))
+    run(cfg_of(*TINY, "train.max_steps=2", "loss.recon_L_target=sh_network_texture"), tmp_path / "nt")
+    assert drawn == ["explicit", "explicit"]
 
 
 def test_network_target_is_the_named_networks_own_light():
@@ -268,8 +272,29 @@ def test_network_target_is_the_named_networks_own_light():
         own = trained_network("explicit")(b["image"].clamp(0, 1))["sh"]
     torch.testing.assert_close(network_lhat(b, "explicit"), own)
     assert T.target_fit({"recon_L_target": "sh_pseudo"}) is None and T.target_fit({}) is None
-    with pytest.raises(T.ConfigError, match="loss.recon_L_network='nowhere/run'"):
-        T.check_config(cfg_of(*TINY, "loss.recon_L_target=sh_network", "loss.recon_L_network=nowhere/run"))
+    for target in T.NETWORK_TARGETS:
+        with pytest.raises(T.ConfigError, match="loss.recon_L_network='nowhere/run'"):
+            T.check_config(cfg_of(*TINY, f"loss.recon_L_target={target}", "loss.recon_L_network=nowhere/run"))
+
+
+def test_network_texture_target_averages_the_networks_light_with_its_texture_refit():
+    """loss.recon_L_target=sh_network_texture: at share 0 the network's own light, at share 1 the texture model's
+    L-hat through the network's normals and uv (the implicit model draws one) on M-hat eroded inside its matte, and
+    between them the average; the explicit model, without uv, reads the pseudo uv."""
+    from disent.data import SynthFaces, get_batch
+    from disent.lighting.experiments import EDGE, eroded, network_texture_lhat, trained_network
+    from disent.lighting.texture import texture_light
+
+    b = get_batch(SynthFaces("test", size=2), range(2))
+    for name, uv_key in (("implicit", "uv"), ("explicit", None)):
+        with torch.no_grad():
+            out = trained_network(name)(b["image"].clamp(0, 1))
+        mask = eroded(b["mask_pseudo"], EDGE) * (out["matte"] > 0.5)
+        refit = texture_light(b["image"], out["normal"], mask, out[uv_key] if uv_key else b["uv_pseudo"]).float()
+        torch.testing.assert_close(network_texture_lhat(b, name, share=0), out["sh"])
+        torch.testing.assert_close(network_texture_lhat(b, name, share=1), refit)
+        torch.testing.assert_close(network_texture_lhat(b, name, share=0.6), 0.6 * refit + 0.4 * out["sh"])
+        assert not torch.allclose(refit, out["sh"], atol=1e-2)  # the two differ: the share matters
 
 
 def test_validation_records_normal_errors_and_psnr(tmp_path):

@@ -131,6 +131,14 @@ LIGHT_TARGETS = {
         "another; no truth, not the paper's; the lighting section's network rows: a better pattern than any L-hat "
         "without truth, less magnitude), against the same setting with L-hat",
     ),
+    "loss.recon_L_target=sh_network_texture": (
+        "a trained network's light and its texture-model refit in L-hat's place",
+        "What a network's light with the texture model's refit buys as the target: E_recon-L (Eq. 9) on a trained "
+        "network's own light averaged with L-hat fitted with the PCA texture model through the network's normals and "
+        "uv (`loss.recon_L_target=sh_network_texture`, `loss.recon_L_network` the network; no truth, not the paper's; "
+        "the lighting section's `network_NAME_texture` rows: nearer the truth on the face than either alone), against "
+        "the same setting with L-hat",
+    ),
     "loss.recon_L_scale=sh_pseudo": (
         "the target at L-hat's per-face scale",
         "Its shape or its scale: the same texture-model target scaled per face and channel to L-hat's mean shading "

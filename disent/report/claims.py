@@ -449,6 +449,7 @@ SOURCE_WORDS = {  # target_source's rows, short, for the figure
     "true_pixels_normals_albedo": "truth's shape",
     **{f"oracle_mix_{m}": f"dose {m}" for m in ("0.25", "0.5", "0.75")},
     **{f"network_{m}": f"{m}'s light" for m in ("explicit", "implicit")},
+    **{f"network_{m}_texture": f"{m}'s light + refit" for m in ("explicit", "implicit")},
 }
 
 
@@ -468,9 +469,13 @@ def target_source(where: str) -> str | None:
         return f"oracle_mix_{picks['loss.recon_L_oracle_mix']}" if target == "sh_pseudo" else None
     texture = "texture_model_lhat_scale" if scale == "sh_pseudo" else "texture_model"
     network = f"network_{picks.get('loss.recon_L_network', 'explicit')}"  # a shipped model's row
-    return {"sh_pseudo": "lhat", "sh_pseudo_eroded": "lhat_eroded", "sh_texture": texture, "sh_network": network}.get(
-        target
-    )
+    return {
+        "sh_pseudo": "lhat",
+        "sh_pseudo_eroded": "lhat_eroded",
+        "sh_texture": texture,
+        "sh_network": network,
+        "sh_network_texture": f"{network}_texture",
+    }.get(target)
 
 
 # what the albedo is set against (light_pattern_section): (point key, axis label, lower is better)

@@ -456,6 +456,7 @@ LHAT_WORDS = {
     "face": "**true face** inside M-hat",
     "network": "the network's",
     "matte": "M-hat inside its matte",
+    "eroded_matte": "M-hat eroded 1 px inside its matte",
     "-": "–",
 }
 
@@ -474,6 +475,8 @@ def lhat_source_name(key: str) -> str:
         return f"L-hat moved {share} of the way to the true light (`loss.recon_L_oracle_mix={share}`)"
     if key.startswith("network_"):
         name = key.split("_")[1]
+        if key.endswith("_texture"):
+            return f"{name} network's light and the texture model through its geometry (`sh_network_texture`)"
         return f"{name}: least squares over its albedo" if key.endswith("_refit") else f"{name} network's light"
     return "L-hat" + (" (the paper's E_recon-L target, Eq. 9)" if key == "lhat" else "")
 
@@ -601,7 +604,7 @@ def lhat_source_lines(src: dict) -> list[str]:
         f"{'coarse-fit normals' if larger == 'albedo' else 'constant albedo'}."
     )
     free = {k: e[k] for k in ("lhat_eroded", "texture_model") if k in e}
-    nets = {k.split("_")[1]: v for k, v in e.items() if k.startswith("network_") and not k.endswith("_refit")}
+    nets = {k.split("_")[1]: v for k, v in e.items() if k.startswith("network_") and k.count("_") == 1}
     if free and nets:
         best = min(free, key=free.get)
         below = all(v < free[best] for v in nets.values())
@@ -615,6 +618,14 @@ def lhat_source_lines(src: dict) -> list[str]:
             reading += (
                 ", and the least-squares light over a network's own albedo does not improve on the network's ("
                 + ", ".join(f"{n} {v:.4f}" for n, v in refits.items())
+                + ")"
+            )
+        if mixed := {n: e[f"network_{n}_texture"] for n in nets if f"network_{n}_texture" in e}:
+            nearer = all(mixed[n] < min(nets[n], free[best]) for n in mixed)
+            reading += (
+                "; averaged with the texture model's refit through its own normals and uv (`sh_network_texture`), "
+                f"a network's light {'gets nearer than either' if nearer else 'gets no nearer than both'} ("
+                + ", ".join(f"{n} {v:.4f}" for n, v in mixed.items())
                 + ")"
             )
         reading += "."
