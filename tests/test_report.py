@@ -169,6 +169,24 @@ def test_teaser_names_each_model_by_its_setting_seed_and_steps(tmp_path, monkeyp
     assert sum(f"run `{tmp_path / 'runs'}" in line for line in rep.lines) == 3  # the folder stays in the text
 
 
+def test_teaser_without_ladder_runs_shows_the_shipped_weights(tmp_path, monkeypatch):
+    """No ladder run of any model given: the teaser draws the shipped weights, each titled by the setting, seed and
+    steps of their manifest and named by their file."""
+    titles = []
+    monkeypatch.setattr(training, "image_grid", lambda rows, path, title: titles.append(title))
+    rep = report.Report(tmp_path / "reports", "")
+    rep.section("Teaser", report.sec_teaser, [], 2)
+    teasers = [t for t in titles if "SynthFaces test images" in t]
+    from disent.models.shipped import manifest
+
+    for name in ("baseline", "explicit", "implicit"):
+        e = manifest()[name]
+        rung = "+experiment=long" if e["steps"] == 10_000 else "(defaults)"  # the long rung's 10,000 steps
+        assert sum(f"shipped weights, {rung}, seed {e['cfg']['seed']}, {e['steps']:,} steps" in t for t in teasers)
+    assert len(teasers) == 3
+    assert "`disent/weights/implicit.pt`, trained in" in "\n".join(rep.lines)
+
+
 def test_records_outlive_the_run_folders(tmp_path):
     fake_suite(tmp_path / "runs")
     (tmp_path / "runs" / "1" / "checkpoints").mkdir()
