@@ -184,7 +184,10 @@ def test_teaser_without_ladder_runs_shows_the_shipped_weights(tmp_path, monkeypa
         rung = "+experiment=long" if e["steps"] == 10_000 else "(defaults)"  # the long rung's 10,000 steps
         assert sum(f"shipped weights, {rung}, seed {e['cfg']['seed']}, {e['steps']:,} steps" in t for t in teasers)
     assert len(teasers) == 3
-    assert "`disent/weights/implicit.pt`, trained in" in "\n".join(rep.lines)
+    text = "\n".join(rep.lines)
+    assert "`disent/weights/implicit.pt`, trained in" in text
+    normals = manifest()["explicit"]["metrics"]["normal_mean"]  # the normals table reads their manifest's metrics
+    assert f"| explicit | {normals:.2f} |" in text
 
 
 def test_records_outlive_the_run_folders(tmp_path):

@@ -199,6 +199,15 @@ def trained_as(source: Run | str) -> tuple[str, str]:
     return what, f"`disent/weights/{entry['file']}`, trained in `{entry['run']}`"
 
 
+def scores(source: Run | str):
+    """``key -> value`` of a run's metrics (:meth:`Run.value`) or a shipped model's (its manifest's)."""
+    if isinstance(source, Run):
+        return source.value
+    from disent.models.shipped import manifest
+
+    return manifest()[source]["metrics"].get
+
+
 def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
     from disent.eval.evaluate import decomposed_region
     from disent.eval.metrics import angular_error_deg
@@ -277,7 +286,7 @@ def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
     )
     rep.add("### Our normals against the pseudo-GT and the truth\n")
     rep.image(path, "normals")
-    rows = [(n, r) for n, r in chosen.items() if r.value("normal_mean") is not None]
+    rows = [(n, value) for n, r in chosen.items() if (value := scores(r))("normal_mean") is not None]
     if rows:
         rep.add(
             *table_head(
@@ -288,12 +297,12 @@ def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
                 "under 25° ours / pseudo",
             ),
         )
-        for n, r in rows:
+        for n, value in rows:
             rep.add(
-                f"| {n} | {r.value('normal_mean'):.2f} | {r.value('trivial_normal_mean') or float('nan'):.2f} | "
-                f"{r.value('pseudo_normal_mean') or float('nan'):.2f} | "
-                f"{r.value('normal_under_25') or float('nan'):.3f} / "
-                f"{r.value('pseudo_normal_under_25') or float('nan'):.3f} |"
+                f"| {n} | {value('normal_mean'):.2f} | {value('trivial_normal_mean') or float('nan'):.2f} | "
+                f"{value('pseudo_normal_mean') or float('nan'):.2f} | "
+                f"{value('normal_under_25') or float('nan'):.3f} / "
+                f"{value('pseudo_normal_under_25') or float('nan'):.3f} |"
             )
         rep.add(
             "",
