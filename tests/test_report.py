@@ -1838,6 +1838,8 @@ def test_light_targets_pair_each_setting_with_its_l_hat_counterpart(tmp_path, mo
     at_lhat_scale_contrast = ev | {"albedo_si_mse": 0.0056, "light_contrast": 0.70, "light_pattern_corr": 0.91}
     at_lhat_scale_contrast |= {"light_contrast_ratio": 0.77}
     make_run(tmp_path / "runs", "texs1", seed=1, eval_=at_lhat_scale_contrast, extra=at_lhat_scale)
+    network = ("loss.recon_L_target=sh_network_texture", "loss.recon_L_network=implicit")  # the network comes along
+    make_run(tmp_path / "runs", "nettex", eval_=ev | {"albedo_si_mse": 0.007}, extra=network)
     monkeypatch.setattr(shipped, "manifest", lambda: {})
     lines = claims.light_target_lines(find_runs([tmp_path / "runs"]))
     rows = [line for line in lines if line.startswith("- ")]
@@ -1845,6 +1847,9 @@ def test_light_targets_pair_each_setting_with_its_l_hat_counterpart(tmp_path, mo
         "- `loss.recon_L_target=sh_texture` (explicit) against `(defaults)`: light on the face 0.0050 ± 0.0000 (n=2) "
         "-> 0.0050 ± 0.0000 (n=2); normals 12.40 ± 0.00 (n=2) -> 12.40 ± 0.00 (n=2) deg; albedo 0.0090 ± 0.0000 "
         "(n=2) -> 0.0062 ± 0.0000 (n=2), 0.72 -> 0.50 of the mean map's: meets the target (<= 0.5).",
+        "- `loss.recon_L_network=implicit loss.recon_L_target=sh_network_texture` (explicit) against `(defaults)`: "
+        "light on the face 0.0050 ± 0.0000 (n=2) -> 0.0050 (n=1); normals 12.40 ± 0.00 (n=2) -> 12.40 (n=1) deg; "
+        "albedo 0.0090 ± 0.0000 (n=2) -> 0.0070 (n=1), 0.72 -> 0.56 of the mean map's: misses the target (<= 0.5).",
         "- `loss.recon_L_scale=sh_pseudo loss.recon_L_target=sh_texture` (explicit) against "
         "`loss.recon_L_target=sh_texture`: light on the face 0.0050 ± 0.0000 (n=2) -> 0.0050 ± 0.0000 (n=2); light "
         "contrast 0.66 (n=1) -> 0.70 (n=1); its pattern 0.90 (n=1) -> 0.91 (n=1); normals 12.40 ± 0.00 (n=2) -> "
@@ -1859,6 +1864,7 @@ def test_light_targets_pair_each_setting_with_its_l_hat_counterpart(tmp_path, mo
     ]
     assert [line.split(":")[0] for line in lines if line.startswith(("What", "How", "Its"))] == [
         "What a better L-hat without truth buys",
+        "What a network's light with the texture model's refit buys as the target",
         "Its shape or its scale",
         "What a perfect L-hat buys",
         "How good L-hat must be",
