@@ -91,7 +91,7 @@ def test_report_on_fake_runs(tmp_path):
     md = report.build(out, roots=[tmp_path / "runs"], n_vis=2).read_text()
     assert "explicit+no_bws" in md and "failed" not in md.lower()
     assert "](eval/training.png)" in md and not (out / "figures" / "training.png").exists()  # shown, not redrawn
-    assert "no finished run with a checkpoint" in md  # no checkpoints in the fakes: a note, not a crash
+    assert "shipped weights" in md  # no ladder run among the fakes: the teaser draws the shipped weights
     assert "sh_variance.json" in md
 
 
@@ -188,6 +188,12 @@ def test_teaser_without_ladder_runs_shows_the_shipped_weights(tmp_path, monkeypa
     assert "`disent/weights/implicit.pt`, trained in" in text
     normals = manifest()["explicit"]["metrics"]["normal_mean"]  # the normals table reads their manifest's metrics
     assert f"| explicit | {normals:.2f} |" in text
+    # a teaser drawn from runs is published: without ladder runs it stays, the shipped weights do not replace it
+    published = "# disent report\n\n## Teaser\n\n**explicit** (`(defaults)`, seed 0, 1,200 steps; run `/x/e`)\n"
+    titles.clear()
+    rep = report.Report(tmp_path / "reports", published)
+    rep.section("Teaser", report.sec_teaser, [], 2)
+    assert titles == [] and "run `/x/e`" in "\n".join(rep.lines)
 
 
 def test_records_outlive_the_run_folders(tmp_path):

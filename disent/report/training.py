@@ -215,7 +215,9 @@ def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
 
     chosen = pick_runs(ladder_runs(runs))  # the paper's models as configured, side by side from the same runs
     missing = [m for m in MODELS if m not in chosen]
-    if len(missing) == len(MODELS) and set(MODELS) <= set(manifest()):  # no ladder run at all: the shipped weights
+    # no ladder run at all, and no teaser drawn from runs published: the shipped weights
+    from_runs = any("; run `" in block for block in rep.previous.get(rep.title, []))
+    if len(missing) == len(MODELS) and set(MODELS) <= set(manifest()) and not from_runs:
         chosen = {m: m for m in MODELS}
     elif missing:  # only notes: the published teaser stays
         rep.note(
