@@ -480,7 +480,10 @@ class Run:
     def light_oracle(self) -> bool:
         """E_recon-L's target draws on the scene's true light (``loss.recon_L_target=sh`` or an oracle dose
         ``loss.recon_L_oracle_mix`` > 0): a measurement of what a better L-hat buys, not the paper's model."""
-        return _get(self.cfg, "loss.recon_L_target") == "sh" or bool(_get(self.cfg, "loss.recon_L_oracle_mix", 0))
+        from disent.train import truth_readers
+
+        loss = OmegaConf.create({"weights": {}, **(_get(self.cfg, "loss") or {})})
+        return any(not r.startswith("loss.weights.") for r in truth_readers(loss))  # not a ceiling term
 
     @property
     def plain(self) -> bool:
@@ -653,7 +656,7 @@ def _composed(groups: tuple) -> dict:
         return OmegaConf.to_container(compose(config_name="config", overrides=list(groups)), resolve=True)
 
 
-def _typed(value) -> str:
+def typed(value) -> str:
     """A config value as an override writes it."""
     return "null" if value is None else str(value).lower() if isinstance(value, bool) else str(value)
 
@@ -682,7 +685,7 @@ def retyped_overrides(run: Run) -> list[str]:
     except (HydraException, OmegaConfBaseException):
         return sorted(str(o) for o in run.overrides)
     changes = config_changes(trained, today, SETTING_KEYS, idle_keys(run)).items()
-    return sorted(groups + [f"{k}={_typed(old)}" for k, (old, _) in changes if old is not ABSENT])
+    return sorted(groups + [f"{k}={typed(old)}" for k, (old, _) in changes if old is not ABSENT])
 
 
 @functools.lru_cache(maxsize=256)
@@ -706,7 +709,7 @@ def retyped_label(label: str) -> str:
             if not isinstance(node, dict) or part not in node:
                 return False
             node = node[part]
-        return _typed(node) == value
+        return typed(node) == value
 
     return " ".join(t for t in tokens if config_group(t) or not repeats_today(t)) or "(defaults)"
 

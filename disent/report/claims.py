@@ -31,7 +31,7 @@ from disent.report.tables import (
     table_head,
     verdict,
 )
-from disent.runs import Run, composed_config, group_by_setting, setting
+from disent.runs import Run, composed_config, group_by_setting, setting, typed
 
 # The trainable-models targets by rung: the default rung's absolute ones (TARGETS), the long rung's normals 15 %
 # better than the pseudo-GT they were supervised by (the paper's "beyond the morphable model" claim, with a margin)
@@ -491,14 +491,14 @@ def shipped_setting(name: str) -> str:
     manifest's config: the long rung where they ran its steps, E_recon-L's target and oracle dose where not L-hat's
     (a config older than those options trained on L-hat)."""
     from disent.models.shipped import manifest
+    from disent.train import ABSENT, config_changes
 
-    cfg, default = manifest()[name]["cfg"], composed_config(())
+    cfg = manifest()[name]["cfg"]
     long_steps = composed_config(("+experiment=long",))["train"]["max_steps"]
-    tokens = ["+experiment=long"] if cfg.get("train", {}).get("max_steps") == long_steps else []
-    for key in (k.split(".", 1)[1] for k in LIGHT_TARGET_KEYS):
-        if cfg.get("loss", {}).get(key) not in (None, default["loss"][key]):
-            tokens.append(f"loss.{key}={cfg['loss'][key]}")
-    return " ".join(tokens) or "(defaults)"
+    groups = ("+experiment=long",) if cfg.get("train", {}).get("max_steps") == long_steps else ()
+    changes = config_changes(cfg, composed_config(groups), LIGHT_TARGET_KEYS)  # an absent key: its ADDED_LATER value
+    overrides = [f"{k}={typed(old)}" for k, (old, _) in changes.items() if old is not ABSENT]
+    return " ".join([*groups, *overrides]) or "(defaults)"
 
 
 def light_pattern_section(rep: Report, runs: list[Run]) -> None:
