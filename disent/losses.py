@@ -251,6 +251,7 @@ TERM_SETTINGS = {
     "recon_L_oracle_mix": ("recon_L",),
     "recon_L_scale": ("recon_L",),
     "recon_L_network": ("recon_L",),
+    "recon_L_network_share": ("recon_L",),
     "bws_c": ("BWS", "recon_L"),
 }
 

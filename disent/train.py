@@ -68,7 +68,8 @@ NETWORK_TARGETS = ("sh_network", "sh_network_texture")  # the targets drawn thro
 
 def target_fit(cfg_loss):
     """The fit of E_recon-L's target from a batch (:data:`FITTED_TARGETS`), or None where the batch has it (L-hat,
-    the truth); ``loss.recon_L_network`` names the network of :data:`NETWORK_TARGETS`."""
+    the truth); ``loss.recon_L_network`` names the network of :data:`NETWORK_TARGETS`, and
+    ``loss.recon_L_network_share`` the refit's share in ``sh_network_texture``."""
     from functools import partial
 
     from disent.lighting import experiments
@@ -77,6 +78,8 @@ def target_fit(cfg_loss):
     if target not in FITTED_TARGETS:
         return None
     fit = getattr(experiments, FITTED_TARGETS[target])
+    if target == "sh_network_texture":
+        fit = partial(fit, share=cfg_loss.get("recon_L_network_share", ADDED_LATER["loss.recon_L_network_share"]))
     return partial(fit, network=cfg_loss.get("recon_L_network", "explicit")) if target in NETWORK_TARGETS else fit
 
 
@@ -282,9 +285,10 @@ def check_config(cfg) -> None:
     ):
         if value not in allowed:
             raise ConfigError(f"{key}={value!r}; choose from {', '.join(allowed)}")
-    mix = cfg.loss.get("recon_L_oracle_mix", 0.0)
-    if isinstance(mix, bool) or not isinstance(mix, (int, float)) or not 0 <= mix <= 1:
-        raise ConfigError(f"loss.recon_L_oracle_mix={mix!r}: must be a number in [0, 1]")
+    for key in ("recon_L_oracle_mix", "recon_L_network_share"):
+        share = cfg.loss.get(key, ADDED_LATER[f"loss.{key}"])
+        if isinstance(share, bool) or not isinstance(share, (int, float)) or not 0 <= share <= 1:
+            raise ConfigError(f"loss.{key}={share!r}: must be a number in [0, 1]")
     if cfg.loss.get("recon_L_target") in NETWORK_TARGETS:
         network = cfg.loss.get("recon_L_network", "explicit")
         from disent.lighting.experiments import trained_network
@@ -346,6 +350,7 @@ ADDED_LATER = {
     "loss.recon_L_oracle_mix": 0.0,
     "loss.recon_L_scale": "target",
     "loss.recon_L_network": "explicit",
+    "loss.recon_L_network_share": 0.6,
     "model.decoder_convs": 1,
     **{f"loss.weights.{t}": 0.0 for t in L.TRUTH},
 }

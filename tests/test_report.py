@@ -1889,6 +1889,14 @@ def test_target_source_names_the_lighting_row_of_a_settings_e_recon_l_target():
     assert claims.target_source("loss.recon_L_network=implicit loss.recon_L_target=sh_network") == "network_implicit"
     both = "loss.recon_L_network=implicit loss.recon_L_target=sh_network_texture"
     assert claims.target_source(both) == "network_implicit_texture"
+    assert claims.target_source(f"{both} loss.recon_L_network_share=0.6") == "network_implicit_texture"
+    assert claims.target_source(f"{both} loss.recon_L_network_share=0.4") is None  # the rows are at 0.6
+    where = f"{both} loss.recon_L_network_share=0.4 loss.lhat_gray=true"  # the network and its share come along
+    assert ablations.setting_picks(where, "loss.recon_L_target=sh_network_texture") == [
+        "loss.recon_L_target=sh_network_texture",
+        "loss.recon_L_network=implicit",
+        "loss.recon_L_network_share=0.4",
+    ]
     truth = "true_pixels_normals_albedo"  # the truth's shape, at whichever scale
     assert claims.target_source("+experiment=long loss.recon_L_target=sh") == truth
     assert claims.target_source("loss.recon_L_oracle_mix=1.0 loss.recon_L_target=sh_texture") == truth

@@ -255,10 +255,14 @@ def test_fitted_lhat_targets_are_fitted_once_per_training_image(tmp_path, monkey
     assert drawn == ["implicit", "implicit"] and all(
         r["recon_L"] > 0 for r in records(tmp_path / "n") if "recon_L" in r
     )
-    drawn.clear()  # sh_network_texture: the same, through its own fit
-    monkeypatch.setattr(E, "network_texture_lhat", lambda batch, network: drawn.append(network) or fake(batch))
+    drawn.clear()  # sh_network_texture: the same, through its own fit, at loss.recon_L_network_share
+    monkeypatch.setattr(E, "network_texture_lhat", lambda b, network, share: drawn.append((network, share)) or fake(b))
     run(cfg_of(*TINY, "train.max_steps=2", "loss.recon_L_target=sh_network_texture"), tmp_path / "nt")
-    assert drawn == ["explicit", "explicit"]
+    assert drawn == [("explicit", 0.6), ("explicit", 0.6)]
+    drawn.clear()
+    overrides = ("train.max_steps=2", "loss.recon_L_target=sh_network_texture", "loss.recon_L_network_share=0.25")
+    run(cfg_of(*TINY, *overrides), tmp_path / "nt25")
+    assert drawn == [("explicit", 0.25), ("explicit", 0.25)]
 
 
 def test_network_target_is_the_named_networks_own_light():
@@ -295,6 +299,14 @@ def test_network_texture_target_averages_the_networks_light_with_its_texture_ref
         torch.testing.assert_close(network_texture_lhat(b, name, share=1), refit)
         torch.testing.assert_close(network_texture_lhat(b, name, share=0.6), 0.6 * refit + 0.4 * out["sh"])
         assert not torch.allclose(refit, out["sh"], atol=1e-2)  # the two differ: the share matters
+
+
+def test_the_refit_share_has_one_default():
+    """loss.recon_L_network_share's default (conf/loss/default.yaml), the lighting tool's (NETWORK_TEXTURE_SHARE) and
+    the share of runs from before the key (ADDED_LATER) are one number."""
+    from disent.lighting.experiments import NETWORK_TEXTURE_SHARE
+
+    assert cfg_of().loss.recon_L_network_share == NETWORK_TEXTURE_SHARE == T.ADDED_LATER["loss.recon_L_network_share"]
 
 
 def test_validation_records_normal_errors_and_psnr(tmp_path):
@@ -401,6 +413,7 @@ def test_learning_rate_schedules():
         ("loss.recon_L_target=lhat", "loss.recon_L_target='lhat'; choose from sh_pseudo, sh_pseudo_eroded, sh_texture"),
         ("loss.recon_L_scale=sh", "loss.recon_L_scale='sh'; choose from target, sh_pseudo"),
         ("loss.recon_L_oracle_mix=1.5", r"loss.recon_L_oracle_mix=1.5: must be a number in \[0, 1\]"),
+        ("loss.recon_L_network_share=-0.1", r"loss.recon_L_network_share=-0.1: must be a number in \[0, 1\]"),
         ("device=tpu", "device='tpu'; choose from cpu, cuda, cuda:N"),
         ("device=cpu:1", "device='cpu:1'; choose from"),
     ],

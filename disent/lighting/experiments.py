@@ -476,9 +476,8 @@ def network_lhat(batch: dict, network: str = "explicit") -> torch.Tensor:
     return trained_network(str(network))(batch["image"].float().clamp(0, 1))["sh"].to(batch["image"].dtype)
 
 
-# network_texture_lhat's share of the texture model's refit in its light, the rest the network's own light: chosen
-# on the train split's first 256 faces (shipped implicit, light on the face: 0.0034 / 0.0029 / 0.0026 / 0.0025 /
-# 0.0025 at shares 0.25 / 0.4 / 0.5 / 0.6 / 0.75; the refit alone 0.0034, the network alone 0.0044)
+# network_texture_lhat's share of the texture model's refit in its light: loss.recon_L_network_share's default
+# (conf/loss/default.yaml says how it was chosen; tests hold the two equal)
 NETWORK_TEXTURE_SHARE = 0.6
 
 

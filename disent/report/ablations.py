@@ -163,12 +163,12 @@ LIGHT_TARGETS = {
 def setting_picks(where: str, key: str) -> list[str]:
     """The overrides of the setting ``where`` that ``key`` names: the override itself, or any value of a key ending
     in ``=`` (``loss.recon_L_oracle_mix=`` picks ``loss.recon_L_oracle_mix=0.5``); a network's target brings the
-    network's name (``loss.recon_L_network=``) with it."""
+    network's name and the refit's share (``loss.recon_L_network=``, ``loss.recon_L_network_share=``) with it."""
     from disent.train import NETWORK_TARGETS
 
     picks = [t for t in where.split() if t == key or (key.endswith("=") and t.startswith(key))]
     if picks and key.partition("=")[2] in NETWORK_TARGETS:
-        picks += [t for t in where.split() if t.startswith("loss.recon_L_network=")]
+        picks += [t for t in where.split() if t.startswith(("loss.recon_L_network=", "loss.recon_L_network_share="))]
     return picks
 
 

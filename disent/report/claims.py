@@ -437,7 +437,13 @@ def light_target_lines(runs: list[Run]) -> list[str]:
     return out
 
 
-LIGHT_TARGET_KEYS = ("loss.recon_L_target", "loss.recon_L_oracle_mix", "loss.recon_L_scale", "loss.recon_L_network")
+LIGHT_TARGET_KEYS = (
+    "loss.recon_L_target",
+    "loss.recon_L_oracle_mix",
+    "loss.recon_L_scale",
+    "loss.recon_L_network",
+    "loss.recon_L_network_share",
+)
 RUNGS = ("+experiment=long",)  # a setting's budget override, kept apart from its target
 
 
@@ -456,7 +462,9 @@ SOURCE_WORDS = {  # target_source's rows, short, for the figure
 def target_source(where: str) -> str | None:
     """The row of the lighting section's ``lhat_sources.json`` that is E_recon-L's target under the setting ``where``
     (L-hat, L-hat eroded, the texture model at its own or L-hat's scale, an oracle dose; the truth's shape for the
-    true light or a full dose), or None where the setting changes anything else."""
+    true light or a full dose), or None where the setting changes anything else (a refit at another share too)."""
+    from disent.train import ADDED_LATER
+
     tokens = [t for t in where.split() if t not in (*RUNGS, "(defaults)")]
     picks = dict(t.split("=", 1) for t in tokens if "=" in t)
     if len(picks) != len(tokens) or any(k not in LIGHT_TARGET_KEYS for k in picks):
@@ -469,6 +477,9 @@ def target_source(where: str) -> str | None:
         return f"oracle_mix_{picks['loss.recon_L_oracle_mix']}" if target == "sh_pseudo" else None
     texture = "texture_model_lhat_scale" if scale == "sh_pseudo" else "texture_model"
     network = f"network_{picks.get('loss.recon_L_network', 'explicit')}"  # a shipped model's row
+    share = ADDED_LATER["loss.recon_L_network_share"]
+    if float(picks.get("loss.recon_L_network_share", share)) != share:
+        return None  # the table's refit rows are at the default share
     return {
         "sh_pseudo": "lhat",
         "sh_pseudo_eroded": "lhat_eroded",
