@@ -1878,6 +1878,27 @@ def test_light_targets_pair_each_setting_with_its_l_hat_counterpart(tmp_path, mo
     assert claims.light_target_lines([]) == []
 
 
+def test_a_target_drawn_from_a_run_names_what_that_run_was(tmp_path):
+    """A network target drawn from a run folder (an iterated target) says what that run trained at."""
+    ev = {"trivial_albedo_si_mse": 0.0125, "light_shading_si_mse": 0.005, "normal_mean": 12.4, "albedo_si_mse": 0.009}
+    first = ("loss.recon_L_target=sh_network_texture", "loss.recon_L_network=implicit")
+    net = make_run(tmp_path / "nets", "first", seed=3, eval_=ev, extra=first)
+    make_run(tmp_path / "runs", "paper", eval_=ev)
+    second = (
+        "loss.recon_L_target=sh_network_texture",
+        f"loss.recon_L_network={net}",
+        "loss.recon_L_network_share=0.35",
+    )
+    make_run(tmp_path / "runs", "second", eval_=ev | {"albedo_si_mse": 0.006}, extra=second)
+    rows = [line for line in claims.light_target_lines(find_runs([tmp_path / "runs"])) if line.startswith("- ")]
+    assert len(rows) == 1 and f"loss.recon_L_network={net}" in rows[0] and "against `(defaults)`" in rows[0]
+    assert rows[0].endswith(
+        " Its network: the explicit model trained at "
+        "`loss.recon_L_network=implicit loss.recon_L_target=sh_network_texture`, seed 3."
+    )
+    assert claims.network_run_words("loss.recon_L_network=implicit") == ""  # a shipped name: nothing to add
+
+
 def test_target_source_names_the_lighting_row_of_a_settings_e_recon_l_target():
     assert claims.target_source("(defaults)") == claims.target_source("+experiment=long") == "lhat"
     assert claims.target_source("loss.recon_L_target=sh_pseudo_eroded") == "lhat_eroded"

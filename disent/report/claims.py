@@ -430,11 +430,22 @@ def light_target_lines(runs: list[Run]) -> list[str]:
             lines.append(
                 f"- `{where}` ({model}) against `{base}`: light on the face {light}; normals {normals} deg; albedo "
                 f"{albedo}, {share[0]:.2f} -> {share[1]:.2f} of the mean map's: "
-                f"{'meets' if share[1] <= goal else 'misses'} the target (<= {goal})."
+                f"{'meets' if share[1] <= goal else 'misses'} the target (<= {goal}).{network_run_words(where)}"
             )
         if lines:
             out += [f"{intro}, test split, mean ± std over seeds:\n", *lines, ""]
     return out
+
+
+def network_run_words(where: str) -> str:
+    """Where the setting ``where`` names a run folder as E_recon-L's network (``loss.recon_L_network=PATH``, a target
+    drawn from a network that was itself trained on a target): what that run was, as a sentence; else nothing."""
+    for t in where.split():
+        path = Path(t.partition("=")[2])
+        if t.startswith("loss.recon_L_network=") and (path / ".hydra" / "config.yaml").is_file():
+            run = Run.load(path)
+            return f" Its network: the {run.model} model trained at `{setting(run, drop_model=True)}`, seed {run.seed}."
+    return ""
 
 
 LIGHT_TARGET_KEYS = (
