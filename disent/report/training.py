@@ -185,12 +185,15 @@ def sec_ceiling(rep: Report, runs: list[Run]) -> None:
     )
 
 
+RUN_ORIGIN = "run `"  # how a teaser drawn from a run names where it was trained: sec_teaser looks for it
+
+
 def trained_as(source: Run | str) -> tuple[str, str]:
     """What a teaser's model is (its setting, seed and steps) and where it was trained, for a run or the name of a
     shipped model (its manifest: the config, steps and run folder it was trained in)."""
     if isinstance(source, Run):
         what = f"`{setting(source, drop_model=True)}`, seed {source.seed}, {source.value('steps') or 0:,.0f} steps"
-        return what, f"run `{source.origin}`"
+        return what, f"{RUN_ORIGIN}{source.origin}`"
     from disent.models.shipped import manifest
     from disent.report.claims import shipped_setting
 
@@ -216,7 +219,7 @@ def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
     chosen = pick_runs(ladder_runs(runs))  # the paper's models as configured, side by side from the same runs
     missing = [m for m in MODELS if m not in chosen]
     # no ladder run at all, and no teaser drawn from runs published: the shipped weights
-    from_runs = any("; run `" in block for block in rep.previous.get(rep.title, []))
+    from_runs = any(f"; {RUN_ORIGIN}" in block for block in rep.previous.get(rep.title, []))
     if len(missing) == len(MODELS) and set(MODELS) <= set(manifest()) and not from_runs:
         chosen = {m: m for m in MODELS}
     elif missing:  # only notes: the published teaser stays
