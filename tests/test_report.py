@@ -814,6 +814,11 @@ def test_budget_check_names_each_missed_target(tmp_path):
     text = budget_check([r for r in oracle if r.path.name == "d"])  # meets them fed the truth: says so
     assert "meets every target" in text and "fed the true light" in text and "not the paper's model" in text
     assert "fed the true light" not in budget_check([r for r in oracle if r.path.name == "a"])
+    drawn = ("loss.recon_L_target=sh_network_texture", "loss.recon_L_network=implicit")  # no truth, not the paper's
+    runs = find_runs([make_run(tmp_path, "e", eval_=good, extra=drawn).parent])
+    text = budget_check([r for r in runs if r.path.name == "e"])
+    assert "meets every target" in text and "`loss.recon_L_target=sh_network_texture`; no truth" in text
+    assert "paper's L-hat" not in budget_check([r for r in runs if r.path.name == "a"])
 
 
 def test_targets_section_reads_each_rung_against_its_own_targets(tmp_path):
