@@ -136,6 +136,27 @@ def recon_L(
     M-hat, which ignores the SH directions a face's normal cone cannot tell apart (there the
     least-squares L-hat is noise).
     """
+    target, mask, normal = (
+        target_light(batch, target, scale, oracle_mix, gray),
+        batch["mask_pseudo"],
+        batch["normal_pseudo"],
+    )
+    if c is not None:
+        mean = (sh_shading(normal, target) * mask).sum((0, 2, 3)) / mask.sum().clamp_min(1e-8)  # [C]
+        target = target * (c / mean.clamp_min(1e-3))[None, :, None]
+    target = target.detach()
+    if space == "coefficients":
+        return F.mse_loss(out["sh"], target)
+    if space != "shading":
+        raise ValueError(f"recon_L space must be 'shading' or 'coefficients', got {space!r}")
+    return masked_mean(sh_shading(normal, out["sh"] - target).pow(2), mask)  # Eq. 4 is linear in L
+
+
+def target_light(
+    batch, target: str = "sh_pseudo", scale: str = "target", oracle_mix: float = 0.0, gray: bool = False
+) -> torch.Tensor:
+    """``[B, C, 9]``: E_recon-L's target light of ``batch`` before BWS's scale c (:func:`recon_L` says what each
+    argument chooses): the light the network is taught, as the evaluation scores it (``target_light_*``)."""
     if target not in RECON_L_TARGETS:
         raise ValueError(f"loss.recon_L_target must be one of {', '.join(RECON_L_TARGETS)}, got {target!r}")
     if target not in batch:
@@ -153,15 +174,7 @@ def recon_L(
     if gray:
         face = face_shading_mean(normal, target, mask)  # [B, C]
         target = target * (face.mean(1, keepdim=True) / face.clamp_min(1e-3))[:, :, None]
-    if c is not None:
-        mean = (sh_shading(normal, target) * mask).sum((0, 2, 3)) / mask.sum().clamp_min(1e-8)  # [C]
-        target = target * (c / mean.clamp_min(1e-3))[None, :, None]
-    target = target.detach()
-    if space == "coefficients":
-        return F.mse_loss(out["sh"], target)
-    if space != "shading":
-        raise ValueError(f"recon_L space must be 'shading' or 'coefficients', got {space!r}")
-    return masked_mean(sh_shading(normal, out["sh"] - target).pow(2), mask)  # Eq. 4 is linear in L
+    return target
 
 
 def smooth_A(out, batch):

@@ -83,6 +83,22 @@ def target_fit(cfg_loss):
     return partial(fit, network=cfg_loss.get("recon_L_network", "explicit")) if target in NETWORK_TARGETS else fit
 
 
+def target_light_of(cfg_loss):
+    """``batch -> [B, C, 9]``: E_recon-L's target light of a run's setting (:func:`disent.losses.target_light`, its
+    fitted target drawn as the trainer draws it, :func:`target_fit`), which the evaluation scores on the test faces
+    (``target_light_*``); None for the paper's L-hat as it is, scored as ``pseudo_light_*``."""
+    target, mix = cfg_loss.get("recon_L_target", "sh_pseudo"), cfg_loss.get("recon_L_oracle_mix", 0.0)
+    gray, scale = cfg_loss.get("lhat_gray", False), cfg_loss.get("recon_L_scale", "target")
+    if target == "sh_pseudo" and not mix and not gray:
+        return None
+    fit = target_fit(cfg_loss)
+
+    def light(batch: dict) -> torch.Tensor:
+        return L.target_light({**batch, target: fit(batch)} if fit else batch, target, scale, mix, gray)
+
+    return light
+
+
 def with_fitted_lhat(batch: dict, idx, cache: dict, target: str, fit) -> dict:
     """``batch`` with ``target``, E_recon-L's target under ``loss.recon_L_target=target``: ``fit`` (:func:`target_fit`)
     of each image, L-hat with the texture model, on M-hat eroded or a network's light, made the first time its data
@@ -239,14 +255,15 @@ def trivial_baselines(train) -> dict | None:
 
 def evaluate(model, cfg, n: int, trivial: dict | None) -> dict:
     """Test metrics on the first ``n`` test images (disent.eval.evaluate), on the CPU, with the trivial
-    baselines ``trivial`` (:func:`trivial_baselines`) scored on the same images where the data has ground truth."""
+    baselines ``trivial`` (:func:`trivial_baselines`) and the setting's E_recon-L target (:func:`target_light_of`)
+    scored on the same images where the data has ground truth."""
     from disent.eval.evaluate import evaluate_model, model_outputs
     from disent.eval.metrics import reconstruction_metrics
 
     test = make_dataset(cfg.data, "test", cfg.data.get("test_size"))
     model = model.to("cpu")
     if "normal" in test[0]:
-        return evaluate_model(model, test, limit=n, trivial=trivial)
+        return evaluate_model(model, test, limit=n, trivial=trivial, light_target=target_light_of(cfg.loss))
     out, gt, ips = model_outputs(model, test, limit=n)  # real photos: no intrinsic ground truth
     rec = reconstruction_metrics(out["recon"].clamp(0, 1), gt["image"])
     return {**{f"recon_{k}": v for k, v in rec.items()}, "infer_images_per_s": ips, "n_eval": len(gt["image"])}

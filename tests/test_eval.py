@@ -117,6 +117,32 @@ def test_perfect_model_scores_perfectly():
     assert m["matte_iou"] == m["pseudo_matte_iou"] and 0.3 < m["matte_iou"] < 0.95
 
 
+def test_the_taught_light_is_scored_as_the_networks_own():
+    """``light_target``: E_recon-L's target scored exactly as a network's own light would be (``target_*``): a model
+    that draws the target as its light scores it so; the true light scores perfectly; nothing without it."""
+    ds = FakeFaces("test", size=6)
+    assert not any(k.startswith("target_") for k in evaluate_model(OracleModel(ds), ds, limit=6))
+    noise = 0.3 * torch.randn(6, 3, 9, generator=torch.Generator().manual_seed(0))
+
+    def bent(gt):  # the true light, its coefficients moved (items in order)
+        return gt["sh"] + noise[: len(gt["sh"])]
+
+    class Bent(OracleModel):  # the perfect model but for its light, the bent one
+        def forward(self, image):
+            out = super().forward(image)
+            index = [next(i for i, it in enumerate(self.items) if torch.equal(it["image"], im)) for im in image]
+            return {**out, "sh": out["sh"] + noise[index]}
+
+    taught = evaluate_model(OracleModel(ds), ds, limit=6, light_target=bent)
+    own = evaluate_model(Bent(ds), ds, limit=6)
+    keys = ("light_shading_si_mse", "sh_error_shown", "sh_error_hidden", "light_pattern_corr", "light_log_error")
+    for k in keys:
+        assert taught[f"target_{k}"] == pytest.approx(own[k])
+    assert taught["target_light_shading_si_mse"] > 1e-3 and taught["light_shading_si_mse"] < 1e-12  # its own is true
+    true = evaluate_model(OracleModel(ds), ds, limit=6, light_target=lambda gt: gt["sh"])
+    assert true["target_light_shading_si_mse"] < 1e-10 and true["target_light_pattern_corr"] == pytest.approx(1)
+
+
 def test_normal_error_binned_by_the_pseudo_gts_own_error():
     from disent.eval.evaluate import PSEUDO_ERROR_BINS, normal_metrics
 

@@ -1994,6 +1994,41 @@ def test_light_pattern_section_reads_the_albedo_against_the_targets_pattern(tmp_
     assert any(line.startswith("| `shipped` | default | 1.000 | 1.00 | 0.000 |") for line in rep.lines)
 
 
+def test_a_target_without_a_lighting_row_is_placed_by_its_runs_own_scores(tmp_path, monkeypatch):
+    """A network target the lighting table has no row for (a run's network, another share) takes the target's
+    pattern, magnitude and log error its runs scored themselves (``target_light_*``), named by whose light it is;
+    without those scores, or where the setting changes more than the target, it has no row."""
+    import disent.models.shipped as shipped
+    from disent import report
+
+    monkeypatch.setattr(shipped, "manifest", lambda: {})
+    ev = {"trivial_albedo_si_mse": 0.0125, "albedo_si_mse": 0.0093, "light_shading_si_mse": 0.005}
+    first = ("loss.recon_L_target=sh_network_texture", "loss.recon_L_network=implicit")
+    net = make_run(tmp_path / "nets", "first", eval_=ev, extra=first)
+    second = (
+        "loss.recon_L_target=sh_network_texture",
+        f"loss.recon_L_network={net}",
+        "loss.recon_L_network_share=0.35",
+    )
+    own = {"target_light_pattern_corr": 0.975, "target_light_contrast_ratio": 0.95, "target_light_log_error": 0.07}
+    for seed in (0, 1):
+        make_run(tmp_path / "runs", f"second{seed}", seed=seed, eval_=ev | own | {"albedo_si_mse": 0.006}, extra=second)
+    make_run(tmp_path / "runs", "unscored", eval_=ev, extra=first[:1] + ("loss.recon_L_network_share=0.4",))
+    make_run(tmp_path / "runs", "more", eval_=ev | own, extra=second + ("loss.lhat_gray=true",))
+    (tmp_path / "lighting").mkdir()
+    (tmp_path / "lighting" / "lhat_sources.json").write_text(json.dumps({"rows": {"lhat": {"pattern_corr": 0.89}}}))
+    rep = report.Report(tmp_path)
+    points = []
+    monkeypatch.setattr(claims, "albedo_rank_reading", lambda p: points.extend(p) or "")
+    claims.light_pattern_section(rep, find_runs([tmp_path / "runs"]))
+    rows = [line for line in rep.lines if line.startswith("| `loss.")]
+    assert len(rows) == 1 and rows[0].startswith(f"| `{' '.join(sorted(second))}` | default | 0.975 | 0.95 | 0.070 |")
+    assert [p["name"] for p in points] == ["explicit run's light + refit (0.35)"]
+    assert claims.drawn_target_words("loss.recon_L_target=sh_network loss.recon_L_network=implicit") == (
+        "implicit's light"
+    )
+
+
 def test_albedo_rank_reading_ranks_the_albedo_against_each_measure_per_rung():
     """+1 where the better value always goes with the better albedo: a higher target pattern, a lower log error."""
 

@@ -215,7 +215,8 @@ def test_training_sees_the_seeded_data_order_with_and_without_prefetch(tmp_path,
 def test_fitted_lhat_targets_are_fitted_once_per_training_image(tmp_path, monkeypatch):
     """loss.recon_L_target=sh_texture (or sh_pseudo_eroded, sh_network): each step's batch carries its images'
     texture-model L-hat (or L-hat on M-hat eroded, a network's light), fitted the first time an image comes (two
-    epochs of 8 images: 8 fits, none in the second epoch), in the batch's order."""
+    epochs of 8 images: 8 fits, none in the second epoch), in the batch's order; the evaluation draws it once more
+    for the test faces it scores the target on (``target_light_*``)."""
     import disent.lighting.experiments as E
 
     fitted = []
@@ -239,30 +240,44 @@ def test_fitted_lhat_targets_are_fitted_once_per_training_image(tmp_path, monkey
     rescaled, real = [], L.rescaled  # loss.recon_L_scale=sh_pseudo: each step's target is taken to L-hat's scale
     monkeypatch.setattr(L, "rescaled", lambda light, reference, *a: rescaled.append(1) or real(light, reference, *a))
     run(cfg_of(*TINY, "train.epochs=2", "train.max_steps=null", "loss.recon_L_target=sh_texture"), tmp_path / "own")
-    assert fitted == [4, 4] and all(r["recon_L"] > 0 for r in records(tmp_path / "own") if "recon_L" in r)
+    assert fitted == [4, 4, 4] and all(r["recon_L"] > 0 for r in records(tmp_path / "own") if "recon_L" in r)
+    scored = json.loads((tmp_path / "own" / "eval.json").read_text())
+    assert scored["target_light_shading_si_mse"] > 0 and "target_light_pattern_corr" in scored
     assert not rescaled
     overrides = ("train.max_steps=2", "loss.recon_L_target=sh_texture", "loss.recon_L_scale=sh_pseudo")
     run(cfg_of(*TINY, *overrides), tmp_path / "lhat_scale")
-    assert len(rescaled) == 2
+    assert len(rescaled) == 3  # two steps and the evaluation
     eroded = []  # loss.recon_L_target=sh_pseudo_eroded: L-hat on M-hat eroded, fitted once per image as well
     monkeypatch.setattr(E, "eroded_lhat", lambda batch: eroded.append(len(batch["image"])) or fake(batch))
     run(cfg_of(*TINY, "train.epochs=2", "train.max_steps=null", "loss.recon_L_target=sh_pseudo_eroded"), tmp_path / "e")
-    assert eroded == [4, 4] and all(r["recon_L"] > 0 for r in records(tmp_path / "e") if "recon_L" in r)
+    assert eroded == [4, 4, 4] and all(r["recon_L"] > 0 for r in records(tmp_path / "e") if "recon_L" in r)
     drawn = []  # loss.recon_L_target=sh_network: the named network's light of each image, drawn once per image
     monkeypatch.setattr(E, "network_lhat", lambda batch, network: drawn.append(network) or fake(batch))
     overrides = ("train.epochs=2", "train.max_steps=null", "loss.recon_L_target=sh_network")
     run(cfg_of(*TINY, *overrides, "loss.recon_L_network=implicit"), tmp_path / "n")
-    assert drawn == ["implicit", "implicit"] and all(
-        r["recon_L"] > 0 for r in records(tmp_path / "n") if "recon_L" in r
-    )
+    assert drawn == ["implicit"] * 3 and all(r["recon_L"] > 0 for r in records(tmp_path / "n") if "recon_L" in r)
     drawn.clear()  # sh_network_texture: the same, through its own fit, at loss.recon_L_network_share
     monkeypatch.setattr(E, "network_texture_lhat", lambda b, network, share: drawn.append((network, share)) or fake(b))
     run(cfg_of(*TINY, "train.max_steps=2", "loss.recon_L_target=sh_network_texture"), tmp_path / "nt")
-    assert drawn == [("explicit", 0.6), ("explicit", 0.6)]
+    assert drawn == [("explicit", 0.6)] * 3
     drawn.clear()
     overrides = ("train.max_steps=2", "loss.recon_L_target=sh_network_texture", "loss.recon_L_network_share=0.25")
     run(cfg_of(*TINY, *overrides), tmp_path / "nt25")
-    assert drawn == [("explicit", 0.25), ("explicit", 0.25)]
+    assert drawn == [("explicit", 0.25)] * 3
+
+
+def test_the_evaluation_scores_the_target_a_setting_teaches():
+    """target_light_of: nothing for the paper's L-hat (scored as pseudo_*); an oracle dose is L-hat moved toward the
+    truth, as E_recon-L sees it before BWS's scale; a fitted target is drawn through its fit."""
+    from disent.data import SynthFaces, get_batch
+
+    assert T.target_light_of(cfg_of().loss) is None
+    b = get_batch(SynthFaces("test", size=3), range(3))
+    dose = T.target_light_of(cfg_of("loss.recon_L_oracle_mix=0.5").loss)(b)
+    torch.testing.assert_close(dose, L.oracle_mixed(b["sh_pseudo"], b["sh"], b["normal_pseudo"], b["mask_pseudo"], 0.5))
+    assert not torch.allclose(dose, b["sh_pseudo"])
+    texture = T.target_light_of(cfg_of("loss.recon_L_target=sh_texture").loss)(b)
+    torch.testing.assert_close(texture, __import__("disent.lighting.experiments").lighting.experiments.texture_lhat(b))
 
 
 def test_network_target_is_the_named_networks_own_light():

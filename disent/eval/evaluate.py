@@ -219,7 +219,9 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     ``light_contrast_ratio`` (its magnitude), and ``light_log_error``, what both leave wrong (the squared difference
     of the centred log shadings as a share of the truth's spread); ``shading_contrast``, ``shading_pattern_corr``,
     ``shading_contrast_ratio`` and ``shading_log_error``: the same for the model's own shading (its normals too)
-    against the true shading.
+    against the true shading. ``target_light_shading_si_mse``, ``target_sh_error_shown`` and ``_hidden`` and
+    ``target_light_*``: the same for E_recon-L's target where the evaluation is handed one (``sh_target`` in ``gt``,
+    :func:`evaluate_model`'s ``light_target``).
     ``matte_iou``: the matte's IoU with the true face region ``mask_face`` (the skin a 3DMM covers: what the matte's
     supervision M-hat estimates; not hair, ears or neck), and ``pseudo_matte_iou`` M-hat's own, both cut at 0.5
     (:func:`~disent.eval.metrics.mask_iou`; higher is better); ``matte_soft_edge`` and the rest of
@@ -270,12 +272,17 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
         m["sh_error"] = sh_error(out["sh"], gt["sh"])
         m["pseudo_sh_error"] = sh_error(gt["sh_pseudo"], gt["sh"])
         m["sh_error_coefficients"] = sh_error(out["sh"], gt["sh"], reduction="coefficients")
-        # the light as this face shows it: its shading through the true normals (Eq. 4), which leaves out
-        # the SH directions a face's normals cannot reveal; per image and channel scale-invariant
-        for name, sh in (("light_shading_si_mse", out["sh"]), ("pseudo_light_shading_si_mse", gt["sh_pseudo"])):
-            m[name] = light_shading_si_mse(sh, gt["sh"], gt["normal"], region)
-        # the coefficients split by what the face shows: only the shown part is identifiable from an image
-        for prefix, sh in (("", out["sh"]), ("pseudo_", gt["sh_pseudo"])):
+        # the network's light, L-hat and the target it was taught where that is not L-hat (sh_target), each as
+        # this face shows it: its shading through the true normals (Eq. 4), which leaves out the SH directions a
+        # face's normals cannot reveal; per image and channel scale-invariant
+        lights = {
+            "": out["sh"],
+            "pseudo_": gt["sh_pseudo"],
+            **({"target_": gt["sh_target"]} if "sh_target" in gt else {}),
+        }
+        for prefix, sh in lights.items():
+            m[f"{prefix}light_shading_si_mse"] = light_shading_si_mse(sh, gt["sh"], gt["normal"], region)
+            # the coefficients split by what the face shows: only the shown part is identifiable from an image
             split = sh_error_shown_hidden(sh, gt["sh"], gt["normal"], region)
             m[f"{prefix}sh_error_shown"], m[f"{prefix}sh_error_hidden"] = split["shown"], split["hidden"]
             agree = shading_contrast(sh, gt["sh"], gt["normal"], region)
@@ -333,12 +340,18 @@ def uv_metrics(out: dict, gt: dict, region: torch.Tensor) -> dict:
     }
 
 
-def evaluate_model(model, dataset, limit: int = 256, batch_size: int = 64, trivial: dict | None = None) -> dict:
+def evaluate_model(
+    model, dataset, limit: int = 256, batch_size: int = 64, trivial: dict | None = None, light_target=None
+) -> dict:
     """All test metrics of ``model`` on the first ``limit`` items of ``dataset`` plus ``infer_images_per_s``;
-    with ``trivial`` (:func:`disent.eval.trivial.dataset_means`) the ``trivial_*`` baselines on the same images."""
+    with ``trivial`` (:func:`disent.eval.trivial.dataset_means`) the ``trivial_*`` baselines on the same images;
+    with ``light_target`` (``batch -> [B, C, 9]``, :func:`disent.train.target_light_of`) the light it was taught,
+    scored as its own (``target_*``)."""
     from disent.eval.trivial import trivial_metrics
 
     out, gt, ips = model_outputs(model, dataset, limit, batch_size)
+    if light_target is not None and "sh" in out:
+        gt["sh_target"] = light_target(gt).float()
     m = {**metrics_from_outputs(out, gt), "infer_images_per_s": ips, "n_eval": len(gt["image"])}
     if trivial is None:
         return m

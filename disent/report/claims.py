@@ -470,16 +470,32 @@ SOURCE_WORDS = {  # target_source's rows, short, for the figure
 }
 
 
+def only_light_target(where: str) -> bool:
+    """Whether the setting ``where`` changes E_recon-L's target alone (:data:`LIGHT_TARGET_KEYS`) and its rung."""
+    tokens = [t for t in where.split() if t not in (*RUNGS, "(defaults)")]
+    return all("=" in t and t.split("=", 1)[0] in LIGHT_TARGET_KEYS for t in tokens)
+
+
+def drawn_target_words(where: str) -> str:
+    """A short name, for the figure, of a network target the lighting table has no row for: whose light (a shipped
+    model's, or a run's: :func:`network_run_words`), with the refit and its share where they are."""
+    picks = dict(t.split("=", 1) for t in where.split() if t.startswith("loss.recon_L_"))
+    network = picks.get("loss.recon_L_network", "explicit")
+    whose = f"{Run.load(network).model} run" if network_run_words(where) else network
+    refit = picks.get("loss.recon_L_target") == "sh_network_texture"
+    share = f" ({picks['loss.recon_L_network_share']})" if "loss.recon_L_network_share" in picks else ""
+    return f"{whose}'s light" + (f" + refit{share}" if refit else "")
+
+
 def target_source(where: str) -> str | None:
     """The row of the lighting section's ``lhat_sources.json`` that is E_recon-L's target under the setting ``where``
     (L-hat, L-hat eroded, the texture model at its own or L-hat's scale, an oracle dose; the truth's shape for the
     true light or a full dose), or None where the setting changes anything else (a refit at another share too)."""
     from disent.train import ADDED_LATER
 
-    tokens = [t for t in where.split() if t not in (*RUNGS, "(defaults)")]
-    picks = dict(t.split("=", 1) for t in tokens if "=" in t)
-    if len(picks) != len(tokens) or any(k not in LIGHT_TARGET_KEYS for k in picks):
+    if not only_light_target(where):
         return None
+    picks = dict(t.split("=", 1) for t in where.split() if t.startswith("loss."))
     target, scale = picks.get("loss.recon_L_target", "sh_pseudo"), picks.get("loss.recon_L_scale", "target")
     mix = float(picks.get("loss.recon_L_oracle_mix", 0))
     if target == "sh" or mix == 1:
@@ -525,7 +541,7 @@ def shipped_setting(name: str) -> str:
 
 def light_pattern_section(rep: Report, runs: list[Run]) -> None:
     """The albedo against its E_recon-L target's pattern, magnitude and log error (the lighting section's
-    ``lhat_sources.json``), the network's own light's (``light_pattern_corr``, ``light_contrast_ratio``,
+    ``lhat_sources.json``, else its runs' own ``target_light_*``), the network's own light's (``light_pattern_corr``, ``light_contrast_ratio``,
     ``light_log_error``) and its shading's log error (``shading_log_error``), one row per setting that changes the
     target alone (:func:`target_source`), explicit, at each rung; with a figure and the rank correlations
     (:func:`albedo_rank_reading`). Nothing without that file."""
@@ -533,15 +549,19 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
     if not sources:
         return
     net_keys = ("light_pattern_corr", "light_contrast_ratio", "light_log_error", "shading_log_error")
+    own_keys = {f"target_light_{k}": k for k in ("pattern_corr", "contrast_ratio", "log_error")}
     cap_key = "albedo_detailed_true_light_si_mse"  # I / S(N, L) with its N and the true L: what its normals allow
     rows, points, shipped_words = [], [], ""
     for (where, model), st in scored_spreads(
-        runs, ("albedo_si_mse", "trivial_albedo_si_mse", *net_keys, cap_key)
+        runs, ("albedo_si_mse", "trivial_albedo_si_mse", *net_keys, cap_key, *own_keys)
     ).items():
         shipped = where == "shipped"  # the shipped weights: one seed of their setting (the manifest's config)
         trained_at = shipped_setting(model) if shipped else where
         source = target_source(trained_at)
         row = sources["rows"].get(source or "")
+        if not row and not shipped and all(st[k] for k in own_keys) and only_light_target(where):
+            # no row for it (a network of a run folder, another share): its runs scored the target themselves
+            row, source = {v: st[k]["mean"] for k, v in own_keys.items()}, drawn_target_words(where)
         if model != "explicit" or not row or "pattern_corr" not in row or not st["trivial_albedo_si_mse"]:
             continue
         floor = st["trivial_albedo_si_mse"]["mean"]
@@ -600,7 +620,8 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
         "The albedo against its light: each setting above that changes E_recon-L's target alone (explicit), with "
         "the target's pattern, magnitude and log error (the lighting section's table: the correlation of its log "
         "shading with the truth's, the ratio of their spreads, and what both leave wrong; "
-        "`disent.eval.metrics.log_shading_agreement`), the same for the network's own light through the true normals "
+        "`disent.eval.metrics.log_shading_agreement`; a target the table has no row for, as its runs scored it on "
+        "the same test faces: `target_light_*`), the same for the network's own light through the true normals "
         "(`light_pattern_corr`, `light_contrast_ratio`, `light_log_error`), and the log error of the network's own "
         "shading, its normals and light together, against the true shading (`shading_log_error`), mean ± std over "
         "seeds (– where its runs were scored before them); the albedo as a share of the mean map's. Test split."
