@@ -706,6 +706,8 @@ def print_eval(m: dict, run_dir) -> None:
             line += f"   pseudo-GT {m[pseudo]:.4g}{unit}" if pseudo and pseudo in m else ""
             if net == "sh_error" and "trivial_lhat_sh_error" in m:
                 line += f"   mean L-hat {m['trivial_lhat_sh_error']:.4g}"
+            if f"target_{net}" in m:  # the light E_recon-L taught it, where that is not L-hat (target_light_of)
+                line += f"   its target {m[f'target_{net}']:.4g}"
             if net in learned:
                 line += "   learned" if learned[net] else "   NOT learned (no better than the dataset mean)"
             if f"template_{net}" in m:  # the mean texture placed by the true uv: the face's placement, no identity

@@ -541,10 +541,11 @@ def shipped_setting(name: str) -> str:
 
 def light_pattern_section(rep: Report, runs: list[Run]) -> None:
     """The albedo against its E_recon-L target's pattern, magnitude and log error (the lighting section's
-    ``lhat_sources.json``, else its runs' own ``target_light_*``), the network's own light's (``light_pattern_corr``, ``light_contrast_ratio``,
-    ``light_log_error``) and its shading's log error (``shading_log_error``), one row per setting that changes the
-    target alone (:func:`target_source`), explicit, at each rung; with a figure and the rank correlations
-    (:func:`albedo_rank_reading`). Nothing without that file."""
+    ``lhat_sources.json``, else its runs' own ``target_light_*``), the network's own light's
+    (``light_pattern_corr``, ``light_contrast_ratio``, ``light_log_error``) and its shading's log error
+    (``shading_log_error``), one row per setting that changes the target alone (:func:`target_source`), explicit,
+    at each rung; with a figure and the rank correlations (:func:`albedo_rank_reading`). Nothing without that
+    file."""
     sources = load_json(rep.out / "lighting" / "lhat_sources.json")
     if not sources:
         return
