@@ -136,11 +136,8 @@ def recon_L(
     M-hat, which ignores the SH directions a face's normal cone cannot tell apart (there the
     least-squares L-hat is noise).
     """
-    target, mask, normal = (
-        target_light(batch, target, scale, oracle_mix, gray),
-        batch["mask_pseudo"],
-        batch["normal_pseudo"],
-    )
+    target = target_light(batch, target, scale, oracle_mix, gray)
+    mask, normal = batch["mask_pseudo"], batch["normal_pseudo"]
     if c is not None:
         mean = (sh_shading(normal, target) * mask).sum((0, 2, 3)) / mask.sum().clamp_min(1e-8)  # [C]
         target = target * (c / mean.clamp_min(1e-3))[None, :, None]
