@@ -39,13 +39,19 @@ from disent.runtime import Prefetcher, tune_malloc
 TRAIN_KEYS = ("image", "normal_pseudo", "mask_pseudo", "sh_pseudo", "uv_pseudo", "normal_uv_pseudo")
 
 
+def loss_setting(cfg_loss, key: str):
+    """``loss.<key>`` of a run's config; for a config from before the key existed, the value that trains as such a
+    run trained (:data:`ADDED_LATER`)."""
+    return cfg_loss.get(key, ADDED_LATER[f"loss.{key}"])
+
+
 def truth_readers(cfg_loss) -> list[str]:
     """The loss settings that read SynthFaces' true layers: a ceiling term that is on, or E_recon-L on the true light
     (``loss.recon_L_target=sh``, ``loss.recon_L_oracle_mix`` above 0)."""
     readers = [f"loss.weights.{t}" for t in L.TRUTH if cfg_loss.weights.get(t, 0)]
-    if cfg_loss.get("recon_L_target", "sh_pseudo") == "sh":
+    if loss_setting(cfg_loss, "recon_L_target") == "sh":
         readers.append("loss.recon_L_target=sh")
-    if cfg_loss.get("recon_L_oracle_mix", 0.0):
+    if loss_setting(cfg_loss, "recon_L_oracle_mix"):
         readers.append(f"loss.recon_L_oracle_mix={cfg_loss.recon_L_oracle_mix}")
     return readers
 
@@ -74,21 +80,21 @@ def target_fit(cfg_loss):
 
     from disent.lighting import experiments
 
-    target = cfg_loss.get("recon_L_target", "sh_pseudo")
+    target = loss_setting(cfg_loss, "recon_L_target")
     if target not in FITTED_TARGETS:
         return None
     fit = getattr(experiments, FITTED_TARGETS[target])
     if target == "sh_network_texture":
-        fit = partial(fit, share=cfg_loss.get("recon_L_network_share", ADDED_LATER["loss.recon_L_network_share"]))
-    return partial(fit, network=cfg_loss.get("recon_L_network", "explicit")) if target in NETWORK_TARGETS else fit
+        fit = partial(fit, share=loss_setting(cfg_loss, "recon_L_network_share"))
+    return partial(fit, network=loss_setting(cfg_loss, "recon_L_network")) if target in NETWORK_TARGETS else fit
 
 
 def target_light_of(cfg_loss):
     """``batch -> [B, C, 9]``: E_recon-L's target light of a run's setting (:func:`disent.losses.target_light`, its
     fitted target drawn as the trainer draws it, :func:`target_fit`), which the evaluation scores on the test faces
     (``target_light_*``); None for the paper's L-hat as it is, scored as ``pseudo_light_*``."""
-    target, mix = cfg_loss.get("recon_L_target", "sh_pseudo"), cfg_loss.get("recon_L_oracle_mix", 0.0)
-    gray, scale = cfg_loss.get("lhat_gray", False), cfg_loss.get("recon_L_scale", "target")
+    target, mix = loss_setting(cfg_loss, "recon_L_target"), loss_setting(cfg_loss, "recon_L_oracle_mix")
+    gray, scale = loss_setting(cfg_loss, "lhat_gray"), loss_setting(cfg_loss, "recon_L_scale")
     if target == "sh_pseudo" and not mix and not gray:
         return None
     fit = target_fit(cfg_loss)
@@ -184,15 +190,15 @@ def train_step(model, disc, opt_g, opt_d, batch, cfg_loss) -> dict:
         weights,
         energy_fake,
         cfg_loss.bws_c,
-        cfg_loss.get("lhat_white", True),
-        cfg_loss.get("lhat_gray", False),
-        cfg_loss.get("recon_L_space", "shading"),
-        cfg_loss.get("recon_p", 2),
-        cfg_loss.get("recon_fg_p", 2),
-        cfg_loss.get("matte_p", 2),
-        cfg_loss.get("recon_L_target", "sh_pseudo"),
-        cfg_loss.get("recon_L_oracle_mix", 0.0),
-        cfg_loss.get("recon_L_scale", "target"),
+        loss_setting(cfg_loss, "lhat_white"),
+        loss_setting(cfg_loss, "lhat_gray"),
+        loss_setting(cfg_loss, "recon_L_space"),
+        loss_setting(cfg_loss, "recon_p"),
+        loss_setting(cfg_loss, "recon_fg_p"),
+        loss_setting(cfg_loss, "matte_p"),
+        loss_setting(cfg_loss, "recon_L_target"),
+        loss_setting(cfg_loss, "recon_L_oracle_mix"),
+        loss_setting(cfg_loss, "recon_L_scale"),
     )
     if disc is not None:
         energy_real = disc.energy(batch["image"])
@@ -297,17 +303,17 @@ def check_config(cfg) -> None:
     for key, value, allowed in (
         ("train.optimizer", t.get("optimizer", "rmsprop"), OPTIMIZERS),
         ("train.schedule", t.get("schedule", "epoch_decay"), SCHEDULES),
-        ("loss.recon_L_target", cfg.loss.get("recon_L_target", "sh_pseudo"), L.RECON_L_TARGETS),
-        ("loss.recon_L_scale", cfg.loss.get("recon_L_scale", "target"), L.RECON_L_SCALES),
+        ("loss.recon_L_target", loss_setting(cfg.loss, "recon_L_target"), L.RECON_L_TARGETS),
+        ("loss.recon_L_scale", loss_setting(cfg.loss, "recon_L_scale"), L.RECON_L_SCALES),
     ):
         if value not in allowed:
             raise ConfigError(f"{key}={value!r}; choose from {', '.join(allowed)}")
     for key in ("recon_L_oracle_mix", "recon_L_network_share"):
-        share = cfg.loss.get(key, ADDED_LATER[f"loss.{key}"])
+        share = loss_setting(cfg.loss, key)
         if isinstance(share, bool) or not isinstance(share, (int, float)) or not 0 <= share <= 1:
             raise ConfigError(f"loss.{key}={share!r}: must be a number in [0, 1]")
-    if cfg.loss.get("recon_L_target") in NETWORK_TARGETS:
-        network = cfg.loss.get("recon_L_network", "explicit")
+    if loss_setting(cfg.loss, "recon_L_target") in NETWORK_TARGETS:
+        network = loss_setting(cfg.loss, "recon_L_network")
         from disent.lighting.experiments import trained_network
 
         try:
@@ -363,6 +369,8 @@ ADDED_LATER = {
     "loss.recon_fg_p": 2,
     "loss.matte_p": 2,
     "loss.lhat_gray": False,
+    "loss.lhat_white": True,
+    "loss.recon_L_space": "shading",
     "loss.recon_L_target": "sh_pseudo",
     "loss.recon_L_oracle_mix": 0.0,
     "loss.recon_L_scale": "target",
@@ -561,7 +569,7 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
         )
 
     keys = train_keys(cfg.loss)
-    target, fit = cfg.loss.get("recon_L_target", "sh_pseudo"), target_fit(cfg.loss)  # where the trainer fits it
+    target, fit = loss_setting(cfg.loss, "recon_L_target"), target_fit(cfg.loss)  # where the trainer fits it
     fitted_lights = {}  # data index -> its fitted E_recon-L target
 
     def make_batch(s):  # on the CPU; the prefetch thread runs it

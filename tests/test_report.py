@@ -1901,7 +1901,15 @@ def test_a_target_drawn_from_a_run_names_what_that_run_was(tmp_path):
         " Its network: the explicit model trained at "
         "`loss.recon_L_network=implicit loss.recon_L_target=sh_network_texture`, seed 3."
     )
-    assert claims.network_run_words("loss.recon_L_network=implicit") == ""  # a shipped name: nothing to add
+    assert claims.network_run_words("loss.recon_L_network=implicit", []) == ""  # a shipped name: nothing to add
+    # the network's folder deleted (a new machine): its record, kept with the report's runs, still says what it was
+    record = record_run(Run.load(net), tmp_path / "records")
+    shutil.rmtree(net)
+    runs = find_runs([tmp_path / "runs", record.parent])
+    assert claims.network_run(f"loss.recon_L_network={net}", runs).seed == 3
+    assert rows[0] in claims.light_target_lines(runs)
+    assert claims.drawn_target_words(" ".join(second), runs) == "explicit run's light + refit (0.35)"
+    assert claims.network_run(f"loss.recon_L_network={net}", []) is None  # neither the folder nor its record
 
 
 def test_target_source_names_the_lighting_row_of_a_settings_e_recon_l_target():
@@ -2024,7 +2032,7 @@ def test_a_target_without_a_lighting_row_is_placed_by_its_runs_own_scores(tmp_pa
     rows = [line for line in rep.lines if line.startswith("| `loss.")]
     assert len(rows) == 1 and rows[0].startswith(f"| `{' '.join(sorted(second))}` | default | 0.975 | 0.95 | 0.070 |")
     assert [p["name"] for p in points] == ["explicit run's light + refit (0.35)"]
-    assert claims.drawn_target_words("loss.recon_L_target=sh_network loss.recon_L_network=implicit") == (
+    assert claims.drawn_target_words("loss.recon_L_target=sh_network loss.recon_L_network=implicit", []) == (
         "implicit's light"
     )
 

@@ -208,6 +208,7 @@ def bws_study(runs, dataset, n: int = 64) -> dict:
     """:func:`bws_stats` for every finished run of the explicit/implicit models, with its BWS setting and batch size."""
     from disent.eval.ablation import budget
     from disent.runs import load_models
+    from disent.train import loss_setting
 
     rows, used = [], []
     batch = next(iter(batches(dataset, n, n)))
@@ -229,7 +230,7 @@ def bws_study(runs, dataset, n: int = 64) -> dict:
                 "model": r.model,
                 "seed": r.seed,
                 "bws": bws,
-                "lhat_white": bool(loss.get("lhat_white", True)),
+                "lhat_white": bool(loss_setting(loss, "lhat_white")),
                 "batch_size": bs,
                 "steps": steps,
                 "normal_mean": (r.eval or {}).get("normal_mean"),  # test split: is the model trained at all?

@@ -73,6 +73,8 @@ def budget_check(explicit: list[Run]) -> str:
     """:func:`budget_misses` as the caption under an ablation table: where the full explicit model misses a
     target, the ablation differences at that budget are not testable verdicts; where it meets them on an E_recon-L
     target that is not the paper's L-hat (the truth's, or one drawn without truth), the caption says so."""
+    from disent.train import loss_setting
+
     misses = budget_misses(explicit)
     if misses is None:
         return "_Budget check: no finished full explicit run at this budget; verdicts not testable._\n"
@@ -86,9 +88,7 @@ def budget_check(explicit: list[Run]) -> str:
             "_Budget check: the full explicit model meets every target at this budget, fed the true light through "
             "E_recon-L's target (an oracle setting, not the paper's model)._\n"
         )
-    if other := sorted(
-        {(r.cfg.get("loss") or {}).get("recon_L_target", "sh_pseudo") for r in explicit} - {"sh_pseudo"}
-    ):
+    if other := sorted({loss_setting(r.cfg.get("loss") or {}, "recon_L_target") for r in explicit} - {"sh_pseudo"}):
         return (
             "_Budget check: the full explicit model meets every target at this budget, trained on another E_recon-L "
             f"target than the paper's L-hat (`loss.recon_L_target={', '.join(other)}`; no truth, not the paper's "

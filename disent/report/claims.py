@@ -430,22 +430,34 @@ def light_target_lines(runs: list[Run]) -> list[str]:
             lines.append(
                 f"- `{where}` ({model}) against `{base}`: light on the face {light}; normals {normals} deg; albedo "
                 f"{albedo}, {share[0]:.2f} -> {share[1]:.2f} of the mean map's: "
-                f"{'meets' if share[1] <= goal else 'misses'} the target (<= {goal}).{network_run_words(where)}"
+                f"{'meets' if share[1] <= goal else 'misses'} the target (<= {goal}).{network_run_words(where, runs)}"
             )
         if lines:
             out += [f"{intro}, test split, mean ± std over seeds:\n", *lines, ""]
     return out
 
 
-def network_run_words(where: str) -> str:
-    """Where the setting ``where`` names a run folder as E_recon-L's network (``loss.recon_L_network=PATH``, a target
-    drawn from a network that was itself trained on a target): what that run was, as a sentence; else nothing."""
+def network_run(where: str, runs: list[Run]) -> Run | None:
+    """The run whose folder the setting ``where`` names as E_recon-L's network (``loss.recon_L_network=PATH``, a
+    target drawn from a network that was itself trained on a target): that folder's run among ``runs`` (the record
+    of a folder since deleted included), else the folder itself; None for a shipped model's name."""
     for t in where.split():
-        path = Path(t.partition("=")[2])
-        if t.startswith("loss.recon_L_network=") and (path / ".hydra" / "config.yaml").is_file():
-            run = Run.load(path)
-            return f" Its network: the {run.model} model trained at `{setting(run, drop_model=True)}`, seed {run.seed}."
-    return ""
+        if t.startswith("loss.recon_L_network="):
+            path = Path(t.partition("=")[2])
+            found = [r for r in runs if r.origin in (path, path.resolve())]
+            if found:
+                return found[0]
+            return Run.load(path) if (path / ".hydra" / "config.yaml").is_file() else None
+    return None
+
+
+def network_run_words(where: str, runs: list[Run]) -> str:
+    """What the run folder ``where`` names as E_recon-L's network (:func:`network_run`) was, as a sentence; else
+    nothing."""
+    run = network_run(where, runs)
+    if run is None:
+        return ""
+    return f" Its network: the {run.model} model trained at `{setting(run, drop_model=True)}`, seed {run.seed}."
 
 
 LIGHT_TARGET_KEYS = (
@@ -476,12 +488,12 @@ def only_light_target(where: str) -> bool:
     return all("=" in t and t.split("=", 1)[0] in LIGHT_TARGET_KEYS for t in tokens)
 
 
-def drawn_target_words(where: str) -> str:
+def drawn_target_words(where: str, runs: list[Run]) -> str:
     """A short name, for the figure, of a network target the lighting table has no row for: whose light (a shipped
-    model's, or a run's: :func:`network_run_words`), with the refit and its share where they are."""
+    model's, or a run's: :func:`network_run`), with the refit and its share where they are."""
     picks = dict(t.split("=", 1) for t in where.split() if t.startswith("loss.recon_L_"))
-    network = picks.get("loss.recon_L_network", "explicit")
-    whose = f"{Run.load(network).model} run" if network_run_words(where) else network
+    run = network_run(where, runs)
+    whose = f"{run.model} run" if run else picks.get("loss.recon_L_network", "explicit")
     refit = picks.get("loss.recon_L_target") == "sh_network_texture"
     share = f" ({picks['loss.recon_L_network_share']})" if "loss.recon_L_network_share" in picks else ""
     return f"{whose}'s light" + (f" + refit{share}" if refit else "")
@@ -562,7 +574,7 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
         row = sources["rows"].get(source or "")
         if not row and not shipped and all(st[k] for k in own_keys) and only_light_target(where):
             # no row for it (a network of a run folder, another share): its runs scored the target themselves
-            row, source = {v: st[k]["mean"] for k, v in own_keys.items()}, drawn_target_words(where)
+            row, source = {v: st[k]["mean"] for k, v in own_keys.items()}, drawn_target_words(where, runs)
         if model != "explicit" or not row or "pattern_corr" not in row or not st["trivial_albedo_si_mse"]:
             continue
         floor = st["trivial_albedo_si_mse"]["mean"]
