@@ -2262,3 +2262,27 @@ def test_face_attributes_are_the_labels_the_dataset_gives_its_items():
     attrs = SynthFaces("val", seed=0).get_batch(range(5))["attrs"]
     for a in ("smiling", "beard", "eyeglasses", "senior"):
         assert labels["val"][a].tolist() == attrs[a].bool().tolist(), a
+
+
+def test_unoverlap_moves_point_labels_apart_and_keeps_the_highest_in_place():
+    """Six labels of nearly one point: afterwards no two texts overlap, the highest has not moved, and each still
+    points at its own point."""
+    from matplotlib.text import Text
+
+    plt = document.pyplot()
+    fig, ax = plt.subplots()
+    points = [(0.5, 0.5 + 0.001 * i) for i in range(6)]
+    labels = [
+        ax.annotate(f"label {i}", p, textcoords="offset points", xytext=(4, 3), arrowprops={"arrowstyle": "-"})
+        for i, p in enumerate(points)
+    ]
+    fig.tight_layout()
+    renderer = fig.canvas.get_renderer()
+    boxes = lambda: [Text.get_window_extent(t, renderer) for t in labels]  # noqa: E731
+    assert any(a.overlaps(b) for i, a in enumerate(boxes()) for b in boxes()[i + 1 :])
+    document.unoverlap(ax, labels)
+    after = boxes()
+    assert not any(a.overlaps(b) for i, a in enumerate(after) for b in after[i + 1 :])
+    assert labels[-1].xyann == (4, 3) and all(t.xyann[1] < 3 for t in labels[:-1])
+    assert [t.xy for t in labels] == points
+    plt.close(fig)

@@ -17,7 +17,7 @@ from disent.report.ablations import (
     claim_skin,
     setting_picks,
 )
-from disent.report.document import Report, load_json, pyplot
+from disent.report.document import Report, load_json, pyplot, unoverlap
 from disent.report.tables import (
     EDIT_WORKS,
     MIN_SEEDS,
@@ -604,8 +604,12 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
         return
     caps = normals_caps(points)
     plt = pyplot()
-    fig, axes = plt.subplots(1, len(ALBEDO_AGAINST), figsize=(15, 4.2), sharey=True)
+    fig, axes = plt.subplots(1, len(ALBEDO_AGAINST), figsize=(15, 4.6), sharey=True)
+    rect = (0, 0.07, 1, 1)  # the legend below the panels
+    labels_of = []  # each panel's point labels
     for ax, (key, label, lower) in zip(axes, ALBEDO_AGAINST):
+        labels = []
+        labels_of.append(labels)
         for (rung, marker), colour in zip((("default", "o"), ("long", "s")), ("C0", "C1")):
             if rung in caps:
                 ax.axhline(caps[rung], color=colour, lw=0.8, ls=":", label=f"{rung} rung: its normals, the true light")
@@ -617,18 +621,27 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
                     [p["share"]["std"] for p in here],
                 )
                 ax.errorbar(x, y, e, fmt=marker, color=colour, capsize=3, label=f"{rung} rung")
-            for p in here:
+            labels += [
                 ax.annotate(
-                    p["name"], (p[key], p["share"]["mean"]), textcoords="offset points", xytext=(4, 3), fontsize=7
+                    p["name"],
+                    (p[key], p["share"]["mean"]),
+                    textcoords="offset points",
+                    xytext=(4, 3),
+                    fontsize=7,
+                    arrowprops={"arrowstyle": "-", "lw": 0.4, "color": "0.5", "shrinkA": 0, "shrinkB": 2},
                 )
+                for p in here
+            ]
         ax.axhline(TARGETS["albedo_share_of_trivial"], color="k", lw=0.8, ls="--", label="albedo target")
         ax.set_xlabel(label)
         ax.grid(alpha=0.3)
         if lower:
             ax.invert_xaxis()  # better to the right on every panel
     axes[0].set_ylabel("albedo si-MSE / mean map's")
-    # the rightmost panel's upper right stays empty: the worst albedo goes with the worst shading
-    axes[-1].legend(loc="upper right", fontsize=8)
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="lower center", ncol=5, fontsize=8)
+    fig.tight_layout(rect=rect)  # the final layout, before the labels are moved apart in it
+    for ax, labels in zip(axes, labels_of):
+        unoverlap(ax, labels)
     rep.add(
         "The albedo against its light: each setting above that changes E_recon-L's target alone (explicit), with "
         "the target's pattern, magnitude and log error (the lighting section's table: the correlation of its log "
@@ -654,7 +667,9 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
         *sorted(rows, key=lambda r: (r.split(" | ")[1], r.split(" | ")[2])),
         "",
     )
-    rep.figure(fig, "albedo_vs_light_pattern.png", "the albedo against its target's pattern and its network's errors")
+    rep.figure(
+        fig, "albedo_vs_light_pattern.png", "the albedo against its target's pattern and its network's errors", rect
+    )
     rep.add(albedo_rank_reading(points), normals_cap_reading(points, caps), "")
 
 

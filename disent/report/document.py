@@ -20,6 +20,29 @@ def pyplot():
     return plt
 
 
+def unoverlap(ax, labels, pad_pt: float = 1.0) -> None:
+    """Move the point labels ``labels`` (``ax.annotate`` with ``textcoords="offset points"``) down, from the highest
+    one, until no two texts overlap; each keeps its line to its point."""
+    from matplotlib.text import Text
+
+    fig = ax.figure
+    renderer = fig.canvas.get_renderer()
+    to_pt = 72 / fig.dpi
+
+    def box(label):  # the text alone, not its line to the point
+        label.update_positions(renderer)
+        return Text.get_window_extent(label, renderer)
+
+    placed = []
+    for label in sorted(labels, key=lambda t: -box(t).y0):
+        here = box(label)
+        while hit := next((b for b in placed if here.overlaps(b)), None):
+            x, y = label.xyann
+            label.xyann = (x, y - (here.y1 - hit.y0) * to_pt - pad_pt)
+            here = box(label)
+        placed.append(here)
+
+
 def load_json(path: Path):
     try:
         return json.loads(Path(path).read_text())
@@ -56,9 +79,10 @@ class Report:
     def image(self, path: Path, alt: str) -> None:
         self.lines.append(f"![{alt}]({rel_path(path, self.out)})\n")
 
-    def figure(self, fig, name: str, alt: str) -> None:
-        """Lay out ``fig``, save it as ``figures/<name>``, close it and show it here."""
-        fig.tight_layout()
+    def figure(self, fig, name: str, alt: str, rect=(0, 0, 1, 1)) -> None:
+        """Lay out ``fig`` (its axes inside ``rect``, a share of the figure: room for a figure legend), save it as
+        ``figures/<name>``, close it and show it here."""
+        fig.tight_layout(rect=rect)
         path = self.fig / name
         fig.savefig(path, dpi=120)
         pyplot().close(fig)
