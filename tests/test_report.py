@@ -1954,6 +1954,9 @@ def test_light_pattern_section_reads_the_albedo_against_the_targets_pattern(tmp_
         truth |= {"light_log_error": 0.067, "shading_log_error": 0.27, "albedo_detailed_true_light_si_mse": 0.008}
         make_run(tmp_path / "runs", f"oracle{seed}", seed=seed, eval_=truth, extra=("loss.recon_L_target=sh",))
     make_run(tmp_path / "runs", "gray", eval_=ev, extra=("loss.lhat_gray=true",))  # not a target: no row
+    implicit = ev | {"albedo_si_mse": 0.0075, "albedo_detailed_true_light_si_mse": 0.001}  # its own point, no cap
+    make_run(tmp_path / "runs", "implicit", model="implicit", eval_=implicit, extra=("loss.recon_L_target=sh",))
+    make_run(tmp_path / "runs", "baseline", model="baseline", eval_=ev)  # no light: no row
     runs = find_runs([tmp_path / "runs"])
     rep = report.Report(tmp_path)
     claims.light_pattern_section(rep, runs)
@@ -1966,11 +1969,16 @@ def test_light_pattern_section_reads_the_albedo_against_the_targets_pattern(tmp_
     (tmp_path / "lighting" / "lhat_sources.json").write_text(json.dumps({"rows": rows}))
     claims.light_pattern_section(rep, runs)
     text = "\n".join(rep.lines)
-    assert "| `(defaults)` | default | 0.893 | 1.03 | – | 0.935 ± 0.007 (n=2) | – | – | – | 0.74 ± 0.00 (n=2) |" in text
     assert (
-        "| `loss.recon_L_target=sh` | default | 1.000 | 1.00 | 0.000 | 0.970 ± 0.000 (n=2) | 0.89 ± 0.00 (n=2) | "
-        "0.067 ± 0.000 (n=2) | 0.270 ± 0.000 (n=2) | 0.66" in text
+        "| `(defaults)` | explicit | default | 0.893 | 1.03 | – | 0.935 ± 0.007 (n=2) | – | – | – | 0.74 ± 0.00 (n=2) |"
+        in text
     )
+    assert (
+        "| `loss.recon_L_target=sh` | explicit | default | 1.000 | 1.00 | 0.000 | 0.970 ± 0.000 (n=2) | "
+        "0.89 ± 0.00 (n=2) | 0.067 ± 0.000 (n=2) | 0.270 ± 0.000 (n=2) | 0.66" in text
+    )
+    assert "| `loss.recon_L_target=sh` | implicit | default | 1.000 | 1.00 | 0.000 | – | – | – | – | 0.60" in text
+    assert "baseline" not in text
     assert "lhat_gray" not in text and (tmp_path / "figures" / "albedo_vs_light_pattern.png").exists()
     assert "Rank agreement" not in text  # two settings: too few to rank
     # the normals' cap: only the oracle runs were scored with it (0.008 / 0.0125); no long-rung runs
@@ -1991,7 +1999,9 @@ def test_light_pattern_section_reads_the_albedo_against_the_targets_pattern(tmp_
     monkeypatch.setattr(claims, "albedo_rank_reading", lambda points: ranked.extend(points) or "")
     rep = report.Report(tmp_path)
     claims.light_pattern_section(rep, runs)
-    shipped_row = "| `shipped` | long | 0.893 | 1.03 | – | 0.950 (n=1) | 0.86 (n=1) | 0.146 (n=1) | 0.236 (n=1) | "
+    shipped_row = (
+        "| `shipped` | explicit | long | 0.893 | 1.03 | – | 0.950 (n=1) | 0.86 (n=1) | 0.146 (n=1) | 0.236 (n=1) | "
+    )
     assert shipped_row + "0.63 ± 0.00 (n=1) |" in rep.lines
     assert "one seed of `+experiment=long` as their manifest's config reads" in "\n".join(rep.lines)
     assert sorted(p["name"] for p in ranked) == ["L-hat", "truth's shape"]
@@ -1999,7 +2009,7 @@ def test_light_pattern_section_reads_the_albedo_against_the_targets_pattern(tmp_
     cfg |= {"train": {"max_steps": 1200}, "loss": {"recon_L_target": "sh"}}
     rep = report.Report(tmp_path)
     claims.light_pattern_section(rep, runs)
-    assert any(line.startswith("| `shipped` | default | 1.000 | 1.00 | 0.000 |") for line in rep.lines)
+    assert any(line.startswith("| `shipped` | explicit | default | 1.000 | 1.00 | 0.000 |") for line in rep.lines)
 
 
 def test_a_target_without_a_lighting_row_is_placed_by_its_runs_own_scores(tmp_path, monkeypatch):
@@ -2030,7 +2040,9 @@ def test_a_target_without_a_lighting_row_is_placed_by_its_runs_own_scores(tmp_pa
     monkeypatch.setattr(claims, "albedo_rank_reading", lambda p: points.extend(p) or "")
     claims.light_pattern_section(rep, find_runs([tmp_path / "runs"]))
     rows = [line for line in rep.lines if line.startswith("| `loss.")]
-    assert len(rows) == 1 and rows[0].startswith(f"| `{' '.join(sorted(second))}` | default | 0.975 | 0.95 | 0.070 |")
+    assert len(rows) == 1 and rows[0].startswith(
+        f"| `{' '.join(sorted(second))}` | explicit | default | 0.975 | 0.95 | 0.070 |"
+    )
     assert [p["name"] for p in points] == ["explicit run's light + refit (0.35)"]
     assert claims.drawn_target_words("loss.recon_L_target=sh_network loss.recon_L_network=implicit", []) == (
         "implicit's light"

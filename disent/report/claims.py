@@ -536,6 +536,9 @@ ALBEDO_AGAINST = (
 )
 
 
+MODEL_MARKERS = {"explicit": None, "implicit": "none"}  # light_pattern_section's models: filled, hollow markers
+
+
 def shipped_setting(name: str) -> str:
     """The setting the shipped weights ``name`` trained at, in :func:`target_source`'s terms, read off their
     manifest's config: the long rung where they ran its steps, E_recon-L's target and oracle dose where not L-hat's
@@ -564,18 +567,18 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
     net_keys = ("light_pattern_corr", "light_contrast_ratio", "light_log_error", "shading_log_error")
     own_keys = {f"target_light_{k}": k for k in ("pattern_corr", "contrast_ratio", "log_error")}
     cap_key = "albedo_detailed_true_light_si_mse"  # I / S(N, L) with its N and the true L: what its normals allow
-    rows, points, shipped_words = [], [], ""
+    rows, points, shipped = [], [], {}
     for (where, model), st in scored_spreads(
         runs, ("albedo_si_mse", "trivial_albedo_si_mse", *net_keys, cap_key, *own_keys)
     ).items():
-        shipped = where == "shipped"  # the shipped weights: one seed of their setting (the manifest's config)
-        trained_at = shipped_setting(model) if shipped else where
+        # the shipped weights: one seed of their setting (the manifest's config)
+        trained_at = shipped_setting(model) if where == "shipped" else where
         source = target_source(trained_at)
         row = sources["rows"].get(source or "")
-        if not row and not shipped and all(st[k] for k in own_keys) and only_light_target(where):
+        if not row and where != "shipped" and all(st[k] for k in own_keys) and only_light_target(where):
             # no row for it (a network of a run folder, another share): its runs scored the target themselves
             row, source = {v: st[k]["mean"] for k, v in own_keys.items()}, drawn_target_words(where, runs)
-        if model != "explicit" or not row or "pattern_corr" not in row or not st["trivial_albedo_si_mse"]:
+        if model not in MODEL_MARKERS or not row or "pattern_corr" not in row or not st["trivial_albedo_si_mse"]:
             continue
         floor = st["trivial_albedo_si_mse"]["mean"]
         share = {k: st["albedo_si_mse"][k] / floor for k in ("mean", "std")}
@@ -583,17 +586,22 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
         mean = {k: st[k] and st[k]["mean"] for k in net_keys}
         name = SOURCE_WORDS.get(source, source)
         cap = st[cap_key] and st[cap_key]["mean"] / floor
-        if shipped:
-            shipped_words = (
-                f" `shipped`: the shipped explicit weights, one seed of `{trained_at}` as their manifest's config "
-                "reads (`python -m disent.models.shipped explicit --add-metrics`), a row of the table only."
-            )
+        if where == "shipped":
+            shipped[model] = trained_at
         else:  # the figure and the ranks: one point per setting (the shipped seed is one of its runs)
             points.append(
-                {"rung": rung, "name": name, "share": share, "target_pattern": row["pattern_corr"], "cap": cap, **mean}
+                {
+                    "model": model,
+                    "rung": rung,
+                    "name": name,
+                    "share": share,
+                    "target_pattern": row["pattern_corr"],
+                    "cap": cap,
+                    **mean,
+                }  # fmt: skip
             )
         rows.append(
-            f"| `{where}` | {rung} | {row['pattern_corr']:.3f} | {row['contrast_ratio']:.2f} | "
+            f"| `{where}` | {model} | {rung} | {row['pattern_corr']:.3f} | {row['contrast_ratio']:.2f} | "
             f"{fmt_value(row.get('log_error'), '.3f')} | "
             + " | ".join(
                 spread_text(st[k], f) if st[k] else "–" for k, f in zip(net_keys, (".3f", ".2f", ".3f", ".3f"))
@@ -602,10 +610,11 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
         )
     if not rows:
         return
-    caps = normals_caps(points)
+    explicit = [p for p in points if p["model"] == "explicit"]  # the readings below: one model's settings
+    caps = normals_caps(explicit)
     plt = pyplot()
     fig, axes = plt.subplots(1, len(ALBEDO_AGAINST), figsize=(15, 4.6), sharey=True)
-    rect = (0, 0.07, 1, 1)  # the legend below the panels
+    rect = (0, 0.1, 1, 1)  # the legend below the panels
     labels_of = []  # each panel's point labels
     for ax, (key, label, lower) in zip(axes, ALBEDO_AGAINST):
         labels = []
@@ -613,14 +622,16 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
         for (rung, marker), colour in zip((("default", "o"), ("long", "s")), ("C0", "C1")):
             if rung in caps:
                 ax.axhline(caps[rung], color=colour, lw=0.8, ls=":", label=f"{rung} rung: its normals, the true light")
-            here = [p for p in points if p["rung"] == rung and p[key] is not None]
-            if here:
+            for model, fill in MODEL_MARKERS.items():
+                here = [p for p in points if (p["rung"], p["model"]) == (rung, model) and p[key] is not None]
+                if not here:
+                    continue
                 x, y, e = (
                     [p[key] for p in here],
                     [p["share"]["mean"] for p in here],
                     [p["share"]["std"] for p in here],
                 )
-                ax.errorbar(x, y, e, fmt=marker, color=colour, capsize=3, label=f"{rung} rung")
+                ax.errorbar(x, y, e, fmt=marker, color=colour, mfc=fill or colour, capsize=3, label=f"{rung}, {model}")
             labels += [
                 ax.annotate(
                     p["name"],
@@ -630,7 +641,8 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
                     fontsize=7,
                     arrowprops={"arrowstyle": "-", "lw": 0.4, "color": "0.5", "shrinkA": 0, "shrinkB": 2},
                 )
-                for p in here
+                for p in points
+                if p["rung"] == rung and p[key] is not None
             ]
         ax.axhline(TARGETS["albedo_share_of_trivial"], color="k", lw=0.8, ls="--", label="albedo target")
         ax.set_xlabel(label)
@@ -638,12 +650,13 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
         if lower:
             ax.invert_xaxis()  # better to the right on every panel
     axes[0].set_ylabel("albedo si-MSE / mean map's")
-    fig.legend(*axes[0].get_legend_handles_labels(), loc="lower center", ncol=5, fontsize=8)
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="lower center", ncol=4, fontsize=8)
     fig.tight_layout(rect=rect)  # the final layout, before the labels are moved apart in it
     for ax, labels in zip(axes, labels_of):
         unoverlap(ax, labels)
     rep.add(
-        "The albedo against its light: each setting above that changes E_recon-L's target alone (explicit), with "
+        "The albedo against its light: each setting above that changes E_recon-L's target alone (explicit, and "
+        "the implicit model where it trained on one of them: hollow in the figure), with "
         "the target's pattern, magnitude and log error (the lighting section's table: the correlation of its log "
         "shading with the truth's, the ratio of their spreads, and what both leave wrong; "
         "`disent.eval.metrics.log_shading_agreement`; a target the table has no row for, as its runs scored it on "
@@ -651,9 +664,15 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
         "(`light_pattern_corr`, `light_contrast_ratio`, `light_log_error`), and the log error of the network's own "
         "shading, its normals and light together, against the true shading (`shading_log_error`), mean ± std over "
         "seeds (– where its runs were scored before them); the albedo as a share of the mean map's. Test split."
-        f"{shipped_words}\n",
+        + "".join(
+            f" `shipped` ({model}): the shipped {model} weights, one seed of `{at}` as their manifest's config reads "
+            f"(`python -m disent.models.shipped {model} --add-metrics`), a row of the table only."
+            for model, at in shipped.items()
+        )
+        + "\n",
         *table_head(
             "setting",
+            "model",
             "rung",
             "target: pattern",
             "target: magnitude",
@@ -664,13 +683,13 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
             "network's shading: log error",
             "albedo / mean map's",
         ),
-        *sorted(rows, key=lambda r: (r.split(" | ")[1], r.split(" | ")[2])),
+        *sorted(rows, key=lambda r: (r.split(" | ")[2], r.split(" | ")[1], r.split(" | ")[3])),  # rung, model, pattern
         "",
     )
     rep.figure(
         fig, "albedo_vs_light_pattern.png", "the albedo against its target's pattern and its network's errors", rect
     )
-    rep.add(albedo_rank_reading(points), normals_cap_reading(points, caps), "")
+    rep.add(albedo_rank_reading(explicit), normals_cap_reading(explicit, caps), "")
 
 
 def normals_caps(points: list[dict]) -> dict:
@@ -697,8 +716,8 @@ def normals_cap_reading(points: list[dict], caps: dict) -> str:
         parts.append(part + ")")
     return (
         "What the networks' normals allow: the detailed albedo I / S(N, L) with each network's own normals under the "
-        "true light (`albedo_detailed_true_light_si_mse`, the mean over the rung's settings above, dotted in the "
-        f"figure), a share of the mean map's: {'; '.join(parts)}. Where it is short of the target (<= {goal}), a "
+        "true light (`albedo_detailed_true_light_si_mse`, the mean over the rung's explicit settings above, dotted in "
+        f"the figure), a share of the mean map's: {'; '.join(parts)}. Where it is short of the target (<= {goal}), a "
         "better light alone is not expected to bring the albedo there at that budget; the normals must improve too.\n"
     )
 
@@ -719,9 +738,8 @@ def albedo_rank_reading(points: list[dict]) -> str:
     if not parts:
         return ""
     return (
-        "Rank agreement (Spearman's correlation, +1 where the better value always goes with the better albedo): "
-        + "; ".join(parts)
-        + ".\n"
+        "Rank agreement over the explicit settings (Spearman's correlation, +1 where the better value always goes "
+        "with the better albedo): " + "; ".join(parts) + ".\n"
     )
 
 
