@@ -854,6 +854,47 @@ def test_targets_section_reads_each_rung_against_its_own_targets(tmp_path):
     assert any("No run of the long rung" in line for line in rep.lines)
 
 
+def test_settings_off_the_ladder_that_meet_every_target_without_truth_are_named(tmp_path):
+    """Off the ladder, a setting's runs count where they meet every target of their rung without the truth; the
+    ladder itself, oracle lights, ablations, the baseline and settings with a budget of their own are left out."""
+    good = {
+        "normal_mean": 9.2,
+        "pseudo_normal_mean": 11.5,
+        "recon_face_psnr": 28.8,
+        "albedo_si_mse": 0.0058,
+        "trivial_albedo_si_mse": 0.0125,
+    }
+    target = ("+experiment=long", "loss.recon_L_target=sh_network_texture", "loss.recon_L_network=implicit")
+    for seed in range(2):
+        make_run(
+            tmp_path, f"i{seed}", "implicit", seed=seed, eval_={**good, "normal_mean": 9.1 + seed / 5}, extra=target
+        )
+        make_run(tmp_path, f"e{seed}", seed=seed, eval_={**good, "albedo_si_mse": 0.0066}, extra=target)  # 0.53
+    make_run(tmp_path, "ladder", eval_=good, extra=("+experiment=long",))  # on the ladder: its own table
+    make_run(tmp_path, "oracle", eval_=good, extra=("+experiment=long", "loss.recon_L_target=sh"))
+    make_run(tmp_path, "ablated", eval_=good, ablations=("no_adv",), extra=target)
+    make_run(tmp_path, "own", eval_=good, extra=("+experiment=long", "train.max_steps=5750"))  # no rung
+    make_run(tmp_path, "gray", eval_={**good, "normal_mean": 12.6}, extra=("loss.lhat_gray=true",))  # default rung
+    lines = claims.without_truth_lines(find_runs([tmp_path]))
+    assert lines[0].startswith("Off the ladder: of the 3 other setting(s)") and "1 meet(s) every target" in lines[0]
+    assert lines[1:] == [
+        f"- `{' '.join(sorted(target))}` (implicit, long rung): normals 9.20 ± 0.14 (n=2) deg, face PSNR "
+        "28.80 ± 0.00 (n=2) dB, albedo 0.46 of the mean map's.",
+        "",
+    ]
+    assert claims.rung_of("+experiment=long loss.lhat_gray=true") == "long"
+    assert claims.rung_of("loss.lhat_gray=true") == "default"
+    assert claims.rung_of("+experiment=long train.max_steps=5750") is claims.rung_of("+experiment=smoke") is None
+    runs = find_runs([tmp_path])
+    explicit = [r for r in runs if r.path.name.startswith("e")]
+    assert claims.rung_misses("long", explicit) == ["default rung's albedo 0.53 of the mean map's (<= 0.5)"]
+    assert claims.rung_misses("default", explicit) == ["albedo 0.53 of the mean map's (<= 0.5)"]
+    assert claims.rung_misses(None, explicit) is None
+    met = claims.without_truth_lines([r for r in runs if r.path.name.startswith(("e", "gray"))])
+    assert met == [met[0]] and met[0].endswith("none meets every target of its rung.\n")
+    assert claims.without_truth_lines([r for r in runs if r.path.name == "ladder"]) == []
+
+
 def test_targets_section_sets_the_albedo_beside_the_placed_mean_texture(tmp_path):
     """The template table: each albedo scoring beside the placed mean texture's and the mean map's, for the settings
     whose runs were scored with the template; runs scored before it get no row."""
