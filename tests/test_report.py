@@ -879,7 +879,7 @@ def test_settings_off_the_ladder_that_meet_every_target_without_truth_are_named(
     assert lines[0].startswith("Off the ladder: of the 3 other setting(s)") and "1 meet(s) every target" in lines[0]
     assert lines[1:] == [
         f"- `{' '.join(sorted(target))}` (implicit, long rung): normals 9.20 ± 0.14 (n=2) deg, face PSNR "
-        "28.80 ± 0.00 (n=2) dB, albedo 0.46 of the mean map's.",
+        "28.80 ± 0.00 (n=2) dB, albedo 0.0058 ± 0.0000 (n=2), 0.464 of the mean map's.",
         "",
     ]
     assert claims.rung_of("+experiment=long loss.lhat_gray=true") == "long"

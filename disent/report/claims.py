@@ -76,7 +76,8 @@ def without_truth_lines(runs: list[Run]) -> list[str]:
         return []
     meets = [
         f"- `{where}` ({model}, {rung} rung): normals {spread_text(seed_spread(rs, 'normal_mean'))} deg, face PSNR "
-        f"{spread_text(seed_spread(rs, 'recon_face_psnr'))} dB, albedo {albedo_share(rs):.2f} of the mean map's."
+        f"{spread_text(seed_spread(rs, 'recon_face_psnr'))} dB, albedo "
+        f"{spread_text(seed_spread(rs, 'albedo_si_mse'), '.4f')}, {albedo_share(rs):.3f} of the mean map's."
         for (where, model), (rung, rs) in sorted(scored.items())
         if rung_misses(rung, rs) == []
     ]
