@@ -51,8 +51,8 @@ def truth_readers(cfg_loss) -> list[str]:
     readers = [f"loss.weights.{t}" for t in L.TRUTH if cfg_loss.weights.get(t, 0)]
     if loss_setting(cfg_loss, "recon_L_target") == "sh":
         readers.append("loss.recon_L_target=sh")
-    if loss_setting(cfg_loss, "recon_L_oracle_mix"):
-        readers.append(f"loss.recon_L_oracle_mix={cfg_loss.recon_L_oracle_mix}")
+    if mix := loss_setting(cfg_loss, "recon_L_oracle_mix"):
+        readers.append(f"loss.recon_L_oracle_mix={mix}")
     return readers
 
 
