@@ -436,6 +436,8 @@ def test_template_is_the_mean_uv_albedo_placed_by_the_true_uv():
     own, other = (trivial_metrics(means, default_collate([ds[i]])) for i in (0, 7))
     for key in TEMPLATE_KEYS:
         assert own[f"template_{key}"] < 1e-12 < 1e-4 < other[f"template_{key}"]
+    # the mean UV map of one face is its own UV map: exact on it, off on a face of another pose and shape
+    assert own["trivial_uv_error"] < 1e-6 < 1e-3 < other["trivial_uv_error"]
     fake = FakeFaces("test", size=2)  # no UV-space albedo: no template
     plain = dataset_means(fake, n=2)
     assert "albedo_uv" not in plain
@@ -542,6 +544,10 @@ def test_uv_metrics_score_the_uv_map_and_the_uv_space_normals_apart():
     assert shifted["uv_error"] == pytest.approx(0.05, rel=1e-5)
     assert shifted["normal_at_true_uv_mean"] == pytest.approx(exact["normal_at_true_uv_mean"], abs=1e-6)
     assert abs(shifted["normal_mean"] - exact["normal_mean"]) > 0.1
+    # E_UV's target, scored as the model's UV map is: the distance a model whose UV map were the pseudo one would have
+    pseudo = metrics(gt["uv_pseudo"])
+    assert exact["pseudo_uv_error"] == pseudo["uv_error"] == pseudo["pseudo_uv_error"] > 0.001
+    assert "normal_at_true_uv_mean" not in metrics_from_outputs({"uv": gt["uv"]}, gt)  # no UV-space normals
 
 
 def test_region_depth_counts_rings_from_the_edge_of_a_square():

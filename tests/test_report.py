@@ -2339,3 +2339,46 @@ def test_unoverlap_moves_point_labels_apart_and_keeps_the_highest_in_place():
     assert labels[-1].xyann == (4, 3) and all(t.xyann[1] < 3 for t in labels[:-1])
     assert [t.xy for t in labels] == points
     plt.close(fig)
+
+
+def test_concordance_counts_pairs_ordered_alike():
+    """Pairs ordered alike count, opposite ones do not, ties in x are left out, and a missing y is skipped."""
+    pairs = [((0.1, 9.0), (0.2, 10.0)), ((0.1, 9.0), (0.3, 8.0)), ((0.2, 1.0), (0.2, 2.0)), ((0.1, None), (0.2, 1.0))]
+    assert training.concordance(pairs) == (1, 2)
+
+
+def test_uv_by_seed_reads_each_runs_uv_map_against_its_baselines(tmp_path):
+    """The implicit runs' UV maps: a table row per scored run (explicit and unscored runs left out), each run's
+    E_UV at step 1,000 from its log, the counts against the pseudo and mean UV maps, the seed's span over settings,
+    and the pairs of one setting where the smaller UV error goes with the smaller normal error."""
+    base = {"trivial_uv_error": 0.14, "pseudo_uv_error": 0.044}
+    arms = {  # (setting, seed): (uv error, normals, albedo, E_UV logged)
+        ("a", 0): (0.02, 9.2, 0.0070, 0.002),
+        ("a", 2): (0.22, 9.9, 0.0080, 0.035),
+        ("b", 0): (0.03, 9.3, 0.0060, 0.003),
+        ("b", 2): (0.20, 9.1, 0.0065, 0.030),  # the one pair whose normals go against its UV error
+    }
+    for (arm, seed), (uv, normal, albedo, loss) in arms.items():
+        extra = ("+experiment=smoke",) + (("loss.weights.UV=2",) if arm == "b" else ())
+        ev = {"uv_error": uv, "normal_mean": normal, "albedo_si_mse": albedo, "normal_at_true_uv_mean": 8.0, **base}
+        d = make_run(tmp_path, f"{arm}{seed}", "implicit", seed=seed, eval_=ev, extra=extra)
+        rows = [{"step": s, "total": 1.0, "UV": loss} for s in range(0, 1501, 25)]
+        (d / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    make_run(tmp_path, "e0", "explicit", eval_={"normal_mean": 9.0}, extra=("+experiment=smoke",))
+    make_run(tmp_path, "i9", "implicit", seed=9, eval_={"normal_mean": 9.0}, extra=("+experiment=smoke",))
+    rep = report.Report(tmp_path / "reports")
+    training.sec_uv_by_seed(rep, find_runs([tmp_path]))
+    text = "\n".join(rep.lines)
+    rows = [line for line in rep.lines if line.startswith("| ") and not line.startswith("| setting")]
+    assert len(rows) == 4
+    assert "| 2 | 0.0350 | 0.0350 | 0.220 | 9.90 |" in text
+    assert "Of 4 runs, 2 draw a UV map nearer the truth than the pseudo UV" in text
+    assert "2 one farther from it than the dataset-mean UV map (0.140)" in text
+    assert "seed 0: 0.020-0.030 over 2; seed 2: 0.200-0.220 over 2" in text
+    assert "In 1 of 2 pairs of runs of one setting, the run with the smaller UV error has the smaller normal" in text
+    assert "in 6 of 6 pairs of runs the one with the smaller E_UV at step 1,000 ends with the smaller UV error" in text
+    assert (tmp_path / "reports" / "figures" / "uv_by_seed.png").is_file()
+
+    rep = report.Report(tmp_path / "none")  # no scored implicit run: a note, no figure
+    training.sec_uv_by_seed(rep, [r for r in find_runs([tmp_path]) if r.model == "explicit"])
+    assert rep.lines[0].startswith(document.MISSING) and not (tmp_path / "none" / "figures" / "uv_by_seed.png").exists()

@@ -226,6 +226,7 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     supervision M-hat estimates; not hair, ears or neck), and ``pseudo_matte_iou`` M-hat's own, both cut at 0.5
     (:func:`~disent.eval.metrics.mask_iou`; higher is better); ``matte_soft_edge`` and the rest of
     :func:`matte_edge_metrics`: where the matte is soft, and whether it is M-hat's expectation there.
+    ``uv_error`` and the rest of :func:`uv_metrics` where the model draws a UV map (the implicit model).
     """
     m = {}
     face = face_mask(gt["matte"])
@@ -293,7 +294,7 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
         m["matte_iou"] = mask_iou(out["matte"], gt["mask_face"])
         m["pseudo_matte_iou"] = mask_iou(gt["mask_pseudo"], gt["mask_face"])
         m.update(matte_edge_metrics(out["matte"], gt))
-    if {"uv", "normal_uv"} <= set(out) and "uv" in gt:
+    if "uv" in out and "uv" in gt:
         m.update(uv_metrics(out, gt, region))
     return m
 
@@ -325,19 +326,24 @@ def matte_edge_metrics(matte: torch.Tensor, gt: dict) -> dict:
 
 def uv_metrics(out: dict, gt: dict, region: torch.Tensor) -> dict:
     """The implicit model's two steps, scored apart on ``region`` (:func:`decomposed_region`): ``uv_error``, the
-    distance of its UV map from the true one (UV units: the texture square is 1 wide), and
+    distance of its UV map from the true one (UV units: the texture square is 1 wide), and, with UV-space normals,
     ``normal_at_true_uv_mean``, the angular error of its UV-space normals looked up at the true UV.  Normals
-    right at the true UV but wrong at its own say the UV map failed; wrong at both, the UV-space normals did."""
+    right at the true UV but wrong at its own say the UV map failed; wrong at both, the UV-space normals did.
+    ``pseudo_uv_error``: the same distance for the UV map that supervised it (E_UV's target, Sec. 4.2)."""
     from disent.losses import masked_mean
     from disent.models.implicit import sample_uv
     from disent.render import unit
 
-    distance = (out["uv"] - gt["uv"].to(out["uv"].dtype)).norm(dim=1, keepdim=True)  # [B,1,H,W]
-    looked_up = unit(sample_uv(out["normal_uv"], gt["uv"].to(out["normal_uv"].dtype)))
-    return {
-        "uv_error": masked_mean(distance, region.to(distance.dtype)).item(),
-        "normal_at_true_uv_mean": normal_angular_error(looked_up, gt["normal"], region)["mean"],
-    }
+    def distance(uv):  # [B,2,H,W] -> mean over the region of the per-pixel distance from the true uv
+        return masked_mean((uv - gt["uv"].to(uv.dtype)).norm(dim=1, keepdim=True), region.to(uv.dtype)).item()
+
+    m = {"uv_error": distance(out["uv"])}
+    if "uv_pseudo" in gt:
+        m["pseudo_uv_error"] = distance(gt["uv_pseudo"])
+    if "normal_uv" in out:
+        looked_up = unit(sample_uv(out["normal_uv"], gt["uv"].to(out["normal_uv"].dtype)))
+        m["normal_at_true_uv_mean"] = normal_angular_error(looked_up, gt["normal"], region)["mean"]
+    return m
 
 
 def evaluate_model(

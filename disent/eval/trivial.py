@@ -12,6 +12,8 @@ A layer counts as learned only where the network beats its trivial baseline:
   placed on each test face through its true uv.  It knows where the face's features are and nothing of whose face it
   is; an albedo that beats the mean map but not the template has learned the face's placement, not its identity
   (``template_albedo_si_mse``, ``template_albedo_colour_si_mse``, ``template_albedo_global_si_mse``);
+* uv, where the data carry it: the dataset-mean UV map (per pixel mean over face pixels), scored by the same
+  distance from the true uv as the implicit model's UV map (``trivial_uv_error``);
 * matte: the mean train face region (``mask_face``, the share of training faces whose skin covers each pixel),
   scored by the same IoU as the network's matte;
 * light: the mean true SH light, scored by the same scale-aligned SH error; beside it, for context,
@@ -58,6 +60,7 @@ KEYS = (
     "shading_contrast_ratio",
     "shading_log_error",
     "matte_iou",
+    "uv_error",
 )
 
 
@@ -65,16 +68,19 @@ KEYS = (
 def dataset_means(dataset, n: int = N_IMAGES, batch_size: int = 256) -> dict:
     """``normal [3,H,W]``, ``albedo [3,H,W]``, ``sh [C,9]``: the constant estimates, from the first
     ``n`` items of ``dataset`` (which must carry ``normal``, ``albedo``, ``sh`` and ``matte``); ``sh_pseudo``, the
-    template's ``albedo_uv [3,R,R]`` and the face region's mean ``mask_face [1,H,W]`` where the items carry them."""
+    template's ``albedo_uv [3,R,R]``, the face region's mean ``mask_face [1,H,W]`` and the mean UV map ``uv [2,H,W]``
+    (over face pixels, like the albedo) where the items carry them."""
     from disent.eval.evaluate import batches
 
     optional = ("sh_pseudo", "albedo_uv", "mask_face")
-    sums = {"normal": 0.0, "albedo": 0.0, "weight": 0.0, "sh": 0.0, **{k: 0.0 for k in optional}}
+    sums = {"normal": 0.0, "albedo": 0.0, "uv": 0.0, "weight": 0.0, "sh": 0.0, **{k: 0.0 for k in optional}}
     count = 0
     for b in batches(dataset, batch_size, n):
         face = face_mask(b["matte"].double())
         sums["normal"] = sums["normal"] + (b["normal"].double() * face).sum(0)
         sums["albedo"] = sums["albedo"] + (b["albedo"].double() * face).sum(0)
+        if "uv" in b:
+            sums["uv"] = sums["uv"] + (b["uv"].double() * face).sum(0)
         sums["weight"] = sums["weight"] + face.sum(0)
         sums["sh"] = sums["sh"] + b["sh"].double().sum(0)
         for k in optional:
@@ -89,6 +95,8 @@ def dataset_means(dataset, n: int = N_IMAGES, batch_size: int = 256) -> dict:
     mean_albedo = sums["albedo"].sum((1, 2)) / sums["weight"].sum().clamp_min(1)  # [C], where no face ever is
     albedo = torch.where(covered, sums["albedo"] / sums["weight"].clamp_min(1), mean_albedo[:, None, None])
     means = {"normal": normal.float(), "albedo": albedo.float(), "sh": (sums["sh"] / count).float(), "n": count}
+    if torch.is_tensor(sums["uv"]):  # the texture's centre where no face ever is
+        means["uv"] = torch.where(covered, sums["uv"] / sums["weight"].clamp_min(1), torch.tensor(0.5)).float()
     for k in optional:
         if torch.is_tensor(sums[k]):
             means[k] = (sums[k] / count).float()
@@ -97,8 +105,8 @@ def dataset_means(dataset, n: int = N_IMAGES, batch_size: int = 256) -> dict:
 
 def trivial_outputs(means: dict, batch: int) -> dict:
     """The constant estimates as a model's outputs for ``batch`` images, and the shading they make (Eq. 4); the
-    mean face region as the matte where ``means`` has it."""
-    out = {k: means[k].expand(batch, *means[k].shape) for k in ("normal", "albedo", "sh")}
+    mean face region as the matte and the mean UV map where ``means`` has them."""
+    out = {k: means[k].expand(batch, *means[k].shape) for k in ("normal", "albedo", "sh", "uv") if k in means}
     if "mask_face" in means:
         out["matte"] = means["mask_face"].expand(batch, *means["mask_face"].shape)
     return {**out, "shading": sh_shading(out["normal"], out["sh"])}

@@ -36,7 +36,14 @@ from disent.report.document import PROVENANCE, Report, kept_provenance, provenan
 from disent.report.lighting import sec_lighting
 from disent.report.tables import table_head
 from disent.report.tools import sec_methods, sec_photos, sec_sh_variance, sec_stability
-from disent.report.training import sec_ceiling, sec_learning_curves, sec_recipe, sec_runs, sec_teaser
+from disent.report.training import (
+    sec_ceiling,
+    sec_learning_curves,
+    sec_recipe,
+    sec_runs,
+    sec_teaser,
+    sec_uv_by_seed,
+)
 from disent.runs import RUN_ROOTS, find_runs, publish, record_run, tool_folder
 
 
@@ -140,6 +147,7 @@ SECTIONS = {  # name (--sections): title, builder, its inputs; in the report's o
         ("Lighting stability: SH variance (supplement protocol)", sec_sh_variance, ("eval_dir",)),
         ("Ablations", sec_ablation, ("runs",)),
         ("Stability where methods fail", sec_stability, ("eval_dir",)),
+        ("Stability across seeds: the implicit model's UV map", sec_uv_by_seed, ("runs",)),
         ("Training recipe: leave-one-out", sec_recipe, ("runs",)),
         ("Learning curves", sec_learning_curves, ("runs",)),
         ("Real photos: the domain gap", sec_photos, ("out",)),

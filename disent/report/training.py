@@ -527,3 +527,183 @@ def sec_learning_curves(rep: Report, runs: list[Run]) -> None:
         "_A layer counts as learned only below its dashed line (the dataset-mean map or light, "
         "`disent.eval.trivial`); the dotted line is the pseudo ground truth that supervised it._\n"
     )
+
+
+# ----------------------------------------------------------------------------- the implicit model's UV map by seed
+
+UV_EARLY_STEP = 1000  # E_UV's training loss read around this step (+-250): by then a seed's UV map has learned or not
+
+
+def logged_mean(run: Run, key: str, lo: float, hi: float) -> float | None:
+    """The mean of the training log's ``key`` over the steps ``lo`` to ``hi``; None where none was logged."""
+    vals = [r[key] for r in run.metrics if lo <= r.get("step", -1) <= hi and isinstance(r.get(key), (int, float))]
+    return float(np.mean(vals)) if vals else None
+
+
+def concordance(pairs: list[tuple]) -> tuple[int, int]:
+    """Of the pairs ``((x1, y1), (x2, y2))`` with ``x1 != x2``, how many order ``y`` as they order ``x``, and how
+    many there are: (concordant, compared)."""
+    compared = [((a[0] - b[0]) * (a[1] - b[1])) for a, b in pairs if a[0] != b[0] and None not in (a[1], b[1])]
+    return sum(d > 0 for d in compared), len(compared)
+
+
+def within_setting_pairs(groups: dict, x: str, y: str) -> list[tuple]:
+    """Every pair of runs of one setting as ``((x, y), (x, y))`` from their eval.json."""
+    return [
+        ((a.eval[x], a.eval.get(y)), (b.eval[x], b.eval.get(y)))
+        for rs in groups.values()
+        for i, a in enumerate(rs)
+        for b in rs[i + 1 :]
+    ]
+
+
+def data_baseline(runs: list[Run], key: str) -> float | None:
+    """A baseline that depends on the test faces alone (``trivial_uv_error``, ``pseudo_uv_error``), from the runs
+    scored with it: their median (None where none was)."""
+    vals = [r.eval[key] for r in runs if isinstance(r.eval.get(key), (int, float))]
+    return float(np.median(vals)) if vals else None
+
+
+def plot_uv_by_seed(groups: dict, baselines: dict, path: Path) -> None:
+    """Left: E_UV's training loss against the step, a line per run coloured by its UV map's test error; right: that
+    error against the normals' error, a marker per setting, with the mean and pseudo UV maps' errors as lines."""
+    plt = pyplot()
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.4))
+    errors = [r.eval["uv_error"] for rs in groups.values() for r in rs]
+    norm = plt.Normalize(0, max(max(errors), baselines.get("trivial") or 0))
+    cmap = plt.get_cmap("viridis")
+    markers = "osD^v<>ph*"
+    for i, (label, rs) in enumerate(groups.items()):
+        for r in rs:
+            pts = [(m["step"], m["UV"]) for m in r.metrics if isinstance(m.get("UV"), (int, float))]
+            if pts:
+                left.plot(*zip(*pts), color=cmap(norm(r.eval["uv_error"])), lw=0.8, alpha=0.8)
+        right.scatter(
+            [r.eval["uv_error"] for r in rs],
+            [r.eval["normal_mean"] for r in rs],
+            marker=markers[i % len(markers)],
+            color=f"C{i % 10}",
+            label=label,
+        )
+        for r in rs:
+            right.annotate(
+                f"s{r.seed}",
+                (r.eval["uv_error"], r.eval["normal_mean"]),
+                fontsize=7,
+                xytext=(3, 2),
+                textcoords="offset points",
+            )
+    left.set_yscale("log")
+    left.set_xlabel("training step")
+    left.set_ylabel("E_UV, training loss (MSE to the pseudo UV)")
+    fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=left, label="its UV map's test error")
+    for key, style, name in (("trivial", "--", "dataset-mean UV map"), ("pseudo", ":", "pseudo UV (its supervision)")):
+        if baselines.get(key) is not None:
+            right.axvline(baselines[key], color="k", ls=style, lw=1, label=name)
+    right.set_xlabel("UV map's test error (UV units)")
+    right.set_ylabel("normal error (deg)")
+    right.legend(fontsize=6, loc="upper left")
+    for ax in (left, right):
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def sec_uv_by_seed(rep: Report, runs: list[Run]) -> None:
+    """Why the implicit model's seeds spread: whether its UV map learned (its test error against the dataset-mean UV
+    map and the pseudo UV), read against its normals and albedo, and when in training it was decided."""
+    uv = [r for r in runs if r.model == "implicit" and r.status == "ok" and r.eval and "uv_error" in r.eval]
+    if not uv:
+        rep.note("no finished implicit run scored its UV map (`uv_error` in eval.json).")
+        return
+    groups: dict = {}
+    for r in sorted(uv, key=lambda r: (setting(r, drop_model=True), str(r.seed))):
+        groups.setdefault(setting(r, drop_model=True), []).append(r)
+    base = {"trivial": data_baseline(uv, "trivial_uv_error"), "pseudo": data_baseline(uv, "pseudo_uv_error")}
+    rep.add(
+        "The implicit model draws its normals and albedo through its UV map (Fig. 2b), which E_UV (Sec. 4.2) pulls "
+        "towards the morphable model's UV map. *UV error*: the mean distance of its UV map from the true one on the "
+        "scored pixels (UV units, the texture square is 1 wide; `disent.eval.evaluate.uv_metrics`), beside the "
+        "dataset-mean UV map's (`trivial_uv_error`) and the pseudo UV's, its supervision (`pseudo_uv_error`); "
+        f"*E_UV at step {UV_EARLY_STEP:,}*: its training loss, the mean of the logged values within 250 steps of "
+        "it, and at the end (the last 1,000 steps); *normals at the true UV*: its UV-space normals looked up where "
+        "the true UV points. Test split, every finished implicit run with a scored UV map, by setting and seed.\n"
+    )
+    if None in base.values():
+        rep.add(
+            "_The baselines (`trivial_uv_error`, `pseudo_uv_error`) are in no run's eval.json yet: score a run "
+            "again (`python -m disent.eval.evaluate RUN`)._\n"
+        )
+    path = rep.fig / "uv_by_seed.png"
+    plot_uv_by_seed(groups, base, path)
+    rep.image(path, "the implicit model's UV map by seed")
+    rep.add(
+        *table_head(
+            "setting",
+            "seed",
+            f"E_UV at step {UV_EARLY_STEP:,}",
+            "E_UV at the end",
+            "UV error",
+            "normals (deg)",
+            "normals at the true UV (deg)",
+            "albedo si-MSE",
+        )
+    )
+    for label, rs in groups.items():
+        for r in rs:
+            end = max((m.get("step", 0) for m in r.metrics), default=0)
+            cells = (
+                logged_mean(r, "UV", UV_EARLY_STEP - 250, UV_EARLY_STEP + 250),
+                logged_mean(r, "UV", end - 1000, end),
+                r.eval["uv_error"],
+                r.eval.get("normal_mean"),
+                r.eval.get("normal_at_true_uv_mean"),
+                r.eval.get("albedo_si_mse"),
+            )
+            rep.add(
+                f"| {label} | {r.seed} | "
+                + " | ".join(fmt_value(v, f) for v, f in zip(cells, (".4f", ".4f", ".3f", ".2f", ".2f", ".4f")))
+                + " |"
+            )
+    rep.add("")
+    rep.add(uv_by_seed_reading(groups, base) + "\n")
+
+
+def uv_by_seed_reading(groups: dict, base: dict) -> str:
+    """The section's findings in words, each computed from the runs."""
+    runs = [r for rs in groups.values() for r in rs]
+    text = []
+    if base["trivial"] is not None and base["pseudo"] is not None:
+        better = [r for r in runs if r.eval["uv_error"] < base["pseudo"]]
+        worse = [r for r in runs if r.eval["uv_error"] > base["trivial"]]
+        text.append(
+            f"Of {len(runs)} runs, {len(better)} draw a UV map nearer the truth than the pseudo UV that supervised "
+            f"it ({base['pseudo']:.3f}), {len(worse)} one farther from it than the dataset-mean UV map "
+            f"({base['trivial']:.3f}): a UV layer that has not learned."
+        )
+    by_seed: dict = {}
+    for r in runs:
+        by_seed.setdefault(r.seed, []).append(r.eval["uv_error"])
+    spans = [f"seed {s}: {min(v):.3f}-{max(v):.3f} over {len(v)}" for s, v in sorted(by_seed.items()) if len(v) > 1]
+    if spans:
+        text.append(
+            "The seed, that is the initial weights and the order of the batches, decides it across settings "
+            f"(UV error per seed, over its settings: {'; '.join(spans)})."
+        )
+    for y, what in (("normal_mean", "normal error"), ("albedo_si_mse", "albedo error")):
+        agree, n = concordance(within_setting_pairs(groups, "uv_error", y))
+        if n:
+            text.append(
+                f"In {agree} of {n} pairs of runs of one setting, the run with the smaller UV error has the smaller "
+                f"{what}."
+            )
+    early = [(logged_mean(r, "UV", UV_EARLY_STEP - 250, UV_EARLY_STEP + 250), r.eval["uv_error"]) for r in runs]
+    early = [e for e in early if e[0] is not None]
+    agree, n = concordance([(a, b) for i, a in enumerate(early) for b in early[i + 1 :]])
+    if n:
+        text.append(
+            f"It is settled early: in {agree} of {n} pairs of runs the one with the smaller E_UV at step "
+            f"{UV_EARLY_STEP:,} ends with the smaller UV error."
+        )
+    return " ".join(text)
