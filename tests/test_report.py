@@ -2370,14 +2370,23 @@ def test_uv_by_seed_reads_each_runs_uv_map_against_its_baselines(tmp_path):
     training.sec_uv_by_seed(rep, find_runs([tmp_path]))
     text = "\n".join(rep.lines)
     rows = [line for line in rep.lines if line.startswith("| ") and not line.startswith("| setting")]
-    assert len(rows) == 4
+    assert len(rows) == 4 + 2  # a row per run, then one per setting
     assert "| 2 | 0.0350 | 0.0350 | 0.220 | 9.90 |" in text
     assert "Of 4 runs, 2 draw a UV map nearer the truth than the pseudo UV" in text
     assert "2 one farther from it than the dataset-mean UV map (0.140)" in text
     assert "seed 0: 0.020-0.030 over 2; seed 2: 0.200-0.220 over 2" in text
     assert "In 1 of 2 pairs of runs of one setting, the run with the smaller UV error has the smaller normal" in text
     assert "in 6 of 6 pairs of runs the one with the smaller E_UV at step 1,000 ends with the smaller UV error" in text
+    assert "| +experiment=smoke | 0.120 ± 0.141 (n=2) | 1 of 2 | 9.55 ± 0.49 (n=2) |" in text  # by setting
     assert (tmp_path / "reports" / "figures" / "uv_by_seed.png").is_file()
+
+    runs = find_runs([tmp_path])  # the glance counts the ladder's runs alone: setting b is off it
+    assert tables.ladder_runs(runs) and training.uv_glance_lines(runs, tables.ladder_runs(runs)) == [
+        "The implicit model's UV map: 1 of its 2 scored ladder runs draw one farther from the truth than the "
+        "dataset-mean UV map (0.140) (seed(s) 2), with normals 9.90 (n=1) deg against 9.20 (n=1) for the others; "
+        "the section *Stability across seeds* shows when and why.\n"
+    ]
+    assert training.uv_glance_lines([r for r in runs if r.model == "explicit"], tables.ladder_runs(runs)) == []
 
     rep = report.Report(tmp_path / "none")  # no scored implicit run: a note, no figure
     training.sec_uv_by_seed(rep, [r for r in find_runs([tmp_path]) if r.model == "explicit"])

@@ -32,6 +32,7 @@ from disent.report.tables import (
     table_head,
     verdict,
 )
+from disent.report.training import uv_glance_lines
 from disent.runs import Run, composed_config, group_by_setting, setting, typed
 
 # The trainable-models targets by rung: the default rung's absolute ones (TARGETS), the long rung's normals 15 %
@@ -163,6 +164,7 @@ def sec_targets(rep: Report, runs: list[Run]) -> None:
             *template_rows,
             "",
         )
+    rep.add(*uv_glance_lines(runs, ladder_runs(runs)))
     rep.add(*without_truth_lines(runs), *albedo_cause_lines(runs), *light_target_lines(runs))
     light_pattern_section(rep, runs)
     if light_rows := rep.rows_kept(LIGHT_HEAD[0], light_table(groups), key=2):

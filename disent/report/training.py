@@ -668,6 +668,24 @@ def sec_uv_by_seed(rep: Report, runs: list[Run]) -> None:
             )
     rep.add("")
     rep.add(uv_by_seed_reading(groups, base) + "\n")
+    rep.add(
+        "By setting, mean ± std over its seeds (*UV maps not learned*: the runs whose UV error is above the "
+        "dataset-mean UV map's):\n",
+        *table_head("setting", "UV error", "UV maps not learned", "normals (deg)", "albedo si-MSE", "face PSNR (dB)"),
+    )
+    for label, rs in groups.items():
+        lost = "–" if base["trivial"] is None else sum(r.eval["uv_error"] > base["trivial"] for r in rs)
+        cells = [
+            spread_text(seed_spread(rs, k), f)
+            for k, f in (
+                ("uv_error", ".3f"),
+                ("normal_mean", ".2f"),
+                ("albedo_si_mse", ".4f"),
+                ("recon_face_psnr", ".2f"),
+            )
+        ]
+        rep.add(f"| {label} | {cells[0]} | {lost} of {len(rs)} | " + " | ".join(cells[1:]) + " |")
+    rep.add("")
 
 
 def uv_by_seed_reading(groups: dict, base: dict) -> str:
@@ -707,3 +725,25 @@ def uv_by_seed_reading(groups: dict, base: dict) -> str:
             f"{UV_EARLY_STEP:,} ends with the smaller UV error."
         )
     return " ".join(text)
+
+
+def uv_glance_lines(runs: list[Run], ladder: list[Run]) -> list[str]:
+    """One sentence for the glance: how many of the ``ladder``'s implicit runs drew a UV map no nearer the truth
+    than the dataset-mean UV map (its error read off ``runs``' evaluations), and their normals beside the others'."""
+    base = data_baseline([r for r in runs if r.eval], "trivial_uv_error")
+    scored = [r for r in ladder if r.model == "implicit" and "uv_error" in (r.eval or {})]
+    if base is None or not scored:
+        return []
+    lost = [r for r in scored if r.eval["uv_error"] > base]
+    kept = [r for r in scored if r not in lost]
+    words = (
+        f"The implicit model's UV map: {len(lost)} of its {len(scored)} scored ladder runs draw one farther from the "
+        f"truth than the dataset-mean UV map ({base:.3f})"
+    )
+    if lost and kept:
+        words += (
+            f" (seed(s) {', '.join(str(r.seed) for r in lost)}), with normals "
+            f"{spread_text(seed_spread(lost, 'normal_mean'))} deg against "
+            f"{spread_text(seed_spread(kept, 'normal_mean'))} for the others"
+        )
+    return [words + "; the section *Stability across seeds* shows when and why.\n"]
