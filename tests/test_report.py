@@ -2359,7 +2359,7 @@ def test_uv_by_seed_reads_each_runs_uv_map_against_its_baselines(tmp_path):
         ("b", 2): (0.20, 9.1, 0.0065, 0.030),  # the one pair whose normals go against its UV error
     }
     for (arm, seed), (uv, normal, albedo, loss) in arms.items():
-        extra = ("+experiment=smoke",) + (("loss.weights.UV=2",) if arm == "b" else ())
+        extra = ("+experiment=smoke",) + (("loss.weights.Ni=5",) if arm == "b" else ())
         ev = {"uv_error": uv, "normal_mean": normal, "albedo_si_mse": albedo, "normal_at_true_uv_mean": 8.0, **base}
         d = make_run(tmp_path, f"{arm}{seed}", "implicit", seed=seed, eval_=ev, extra=extra)
         rows = [{"step": s, "total": 1.0, "UV": loss} for s in range(0, 1501, 25)]
@@ -2374,7 +2374,7 @@ def test_uv_by_seed_reads_each_runs_uv_map_against_its_baselines(tmp_path):
     assert "| 2 | 0.0350 | 0.0350 | 0.220 | 9.90 |" in text
     assert "Of 4 runs, 2 draw a UV map nearer the truth than the pseudo UV" in text
     assert "2 one farther from it than the dataset-mean UV map (0.140)" in text
-    assert "seed 0: 0.020-0.030 over 2; seed 2: 0.200-0.220 over 2" in text
+    assert "weight 1, seed 0: 0.020-0.030 over 2; weight 1, seed 2: 0.200-0.220 over 2" in text
     assert "In 1 of 2 pairs of runs of one setting, the run with the smaller UV error has the smaller normal" in text
     assert "in 6 of 6 pairs of runs the one with the smaller E_UV at step 1,000 ends with the smaller UV error" in text
     assert "| +experiment=smoke | 0.120 ± 0.141 (n=2) | 1 of 2 | 9.55 ± 0.49 (n=2) |" in text  # by setting
@@ -2382,9 +2382,9 @@ def test_uv_by_seed_reads_each_runs_uv_map_against_its_baselines(tmp_path):
 
     runs = find_runs([tmp_path])  # the glance counts the ladder's runs alone: setting b is off it
     assert tables.ladder_runs(runs) and training.uv_glance_lines(runs, tables.ladder_runs(runs)) == [
-        "The implicit model's UV map: 1 of its 2 scored ladder runs draw one farther from the truth than the "
-        "dataset-mean UV map (0.140) (seed(s) 2), with normals 9.90 (n=1) deg against 9.20 (n=1) for the others; "
-        "the section *Stability across seeds* shows when and why.\n"
+        "The implicit model's UV map, scored ladder runs whose UV map is farther from the truth than the "
+        "dataset-mean UV map (0.140): `+experiment=smoke` 1 of 2 (seed(s) 2: normals 9.90 (n=1) deg against "
+        "9.20 (n=1) for the others). The section *Stability across seeds* shows when and why.\n"
     ]
     assert training.uv_glance_lines([r for r in runs if r.model == "explicit"], tables.ladder_runs(runs)) == []
 

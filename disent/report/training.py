@@ -700,14 +700,19 @@ def uv_by_seed_reading(groups: dict, base: dict) -> str:
             f"it ({base['pseudo']:.3f}), {len(worse)} one farther from it than the dataset-mean UV map "
             f"({base['trivial']:.3f}): a UV layer that has not learned."
         )
-    by_seed: dict = {}
+    by_seed: dict = {}  # (E_UV's weight, seed): UV errors over the settings
     for r in runs:
-        by_seed.setdefault(r.seed, []).append(r.eval["uv_error"])
-    spans = [f"seed {s}: {min(v):.3f}-{max(v):.3f} over {len(v)}" for s, v in sorted(by_seed.items()) if len(v) > 1]
+        weight = ((r.cfg.get("loss") or {}).get("weights") or {}).get("UV")
+        by_seed.setdefault((weight, r.seed), []).append(r.eval["uv_error"])
+    spans = [
+        f"weight {w:g}, seed {s}: {min(v):.3f}-{max(v):.3f} over {len(v)}"
+        for (w, s), v in sorted(by_seed.items(), key=lambda kv: (str(kv[0][0]), str(kv[0][1])))
+        if len(v) > 1 and w is not None
+    ]
     if spans:
         text.append(
-            "The seed, that is the initial weights and the order of the batches, decides it across settings "
-            f"(UV error per seed, over its settings: {'; '.join(spans)})."
+            "At one weight of E_UV, the seed (the initial weights and the order of the batches) decides it across "
+            f"settings (UV error per seed, over its settings: {'; '.join(spans)})."
         )
     for y, what in (("normal_mean", "normal error"), ("albedo_si_mse", "albedo error")):
         agree, n = concordance(within_setting_pairs(groups, "uv_error", y))
@@ -728,22 +733,30 @@ def uv_by_seed_reading(groups: dict, base: dict) -> str:
 
 
 def uv_glance_lines(runs: list[Run], ladder: list[Run]) -> list[str]:
-    """One sentence for the glance: how many of the ``ladder``'s implicit runs drew a UV map no nearer the truth
-    than the dataset-mean UV map (its error read off ``runs``' evaluations), and their normals beside the others'."""
+    """One sentence for the glance: at each rung, how many of the ``ladder``'s implicit runs drew a UV map no nearer
+    the truth than the dataset-mean UV map (its error read off ``runs``' evaluations), and their normals beside the
+    others'."""
     base = data_baseline([r for r in runs if r.eval], "trivial_uv_error")
-    scored = [r for r in ladder if r.model == "implicit" and "uv_error" in (r.eval or {})]
-    if base is None or not scored:
+    groups: dict = {}
+    for r in ladder:
+        if r.model == "implicit" and "uv_error" in (r.eval or {}):
+            groups.setdefault(setting(r, drop_model=True), []).append(r)
+    if base is None or not groups:
         return []
-    lost = [r for r in scored if r.eval["uv_error"] > base]
-    kept = [r for r in scored if r not in lost]
-    words = (
-        f"The implicit model's UV map: {len(lost)} of its {len(scored)} scored ladder runs draw one farther from the "
-        f"truth than the dataset-mean UV map ({base:.3f})"
-    )
-    if lost and kept:
-        words += (
-            f" (seed(s) {', '.join(str(r.seed) for r in lost)}), with normals "
-            f"{spread_text(seed_spread(lost, 'normal_mean'))} deg against "
-            f"{spread_text(seed_spread(kept, 'normal_mean'))} for the others"
-        )
-    return [words + "; the section *Stability across seeds* shows when and why.\n"]
+    parts = []
+    for label, rs in sorted(groups.items()):
+        lost = [r for r in rs if r.eval["uv_error"] > base]
+        kept = [r for r in rs if r not in lost]
+        part = f"`{label}` {len(lost)} of {len(rs)}"
+        if lost and kept:
+            part += (
+                f" (seed(s) {', '.join(str(r.seed) for r in lost)}: normals "
+                f"{spread_text(seed_spread(lost, 'normal_mean'))} deg against "
+                f"{spread_text(seed_spread(kept, 'normal_mean'))} for the others)"
+            )
+        parts.append(part)
+    return [
+        "The implicit model's UV map, scored ladder runs whose UV map is farther from the truth than the "
+        f"dataset-mean UV map ({base:.3f}): {'; '.join(parts)}. The section *Stability across seeds* shows when "
+        "and why.\n"
+    ]
