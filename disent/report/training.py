@@ -627,7 +627,7 @@ def sec_uv_by_seed(rep: Report, runs: list[Run]) -> None:
         "scored pixels (UV units, the texture square is 1 wide; `disent.eval.evaluate.uv_metrics`), beside the "
         "dataset-mean UV map's (`trivial_uv_error`) and the pseudo UV's, its supervision (`pseudo_uv_error`); "
         f"*E_UV at step {UV_EARLY_STEP:,}*: its training loss, the mean of the logged values within 250 steps of "
-        "it, and at the end (the last 1,000 steps); *normals at the true UV*: its UV-space normals looked up where "
+        "it, and at the end (its last 250 steps); *normals at the true UV*: its UV-space normals looked up where "
         "the true UV points. Test split, every finished implicit run with a scored UV map, by setting and seed.\n"
     )
     if None in base.values():
@@ -655,7 +655,7 @@ def sec_uv_by_seed(rep: Report, runs: list[Run]) -> None:
             end = max((m.get("step", 0) for m in r.metrics), default=0)
             cells = (
                 logged_mean(r, "UV", UV_EARLY_STEP - 250, UV_EARLY_STEP + 250),
-                logged_mean(r, "UV", end - 1000, end),
+                logged_mean(r, "UV", end - 250, end),
                 r.eval["uv_error"],
                 r.eval.get("normal_mean"),
                 r.eval.get("normal_at_true_uv_mean"),
