@@ -593,8 +593,9 @@ def plot_uv_by_seed(groups: dict, baselines: dict, path: Path) -> None:
                 xytext=(3, 2),
                 textcoords="offset points",
             )
+    left.set_xscale("log")  # a stalled UV map stalls in its first few hundred steps, at every budget
     left.set_yscale("log")
-    left.set_xlabel("training step")
+    left.set_xlabel("training step (log scale)")
     left.set_ylabel("E_UV, training loss (MSE to the pseudo UV)")
     fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=left, label="its UV map's test error")
     for key, style, name in (("trivial", "--", "dataset-mean UV map"), ("pseudo", ":", "pseudo UV (its supervision)")):
@@ -602,11 +603,11 @@ def plot_uv_by_seed(groups: dict, baselines: dict, path: Path) -> None:
             right.axvline(baselines[key], color="k", ls=style, lw=1, label=name)
     right.set_xlabel("UV map's test error (UV units)")
     right.set_ylabel("normal error (deg)")
-    right.legend(fontsize=6, loc="upper left")
+    right.legend(fontsize=6, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2, frameon=False)
     for ax in (left, right):
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight")  # the legend under the panel is not clipped
     plt.close(fig)
 
 
