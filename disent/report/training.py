@@ -15,6 +15,7 @@ from disent.report.tables import (
     INFER_SPEED_KEY,
     MODELS,
     TRAIN_SPEED_KEY,
+    by_setting_and_model,
     fmt_value,
     is_recipe_run,
     ladder_runs,
@@ -564,6 +565,13 @@ def data_baseline(runs: list[Run], key: str) -> float | None:
     return float(np.median(vals)) if vals else None
 
 
+def uv_groups(runs: list[Run]) -> dict:
+    """``{setting: runs}`` of the finished implicit runs that scored their UV map, in order of setting and seed."""
+    uv = [r for r in runs if r.model == "implicit" and r.status == "ok" and "uv_error" in (r.eval or {})]
+    uv.sort(key=lambda r: (setting(r, drop_model=True), str(r.seed)))
+    return {where: rs for (where, _), rs in by_setting_and_model(uv).items()}
+
+
 def plot_uv_by_seed(groups: dict, baselines: dict, path: Path) -> None:
     """Left: E_UV's training loss against the step, a line per run coloured by its UV map's test error; right: that
     error against the normals' error, a marker per setting, with the mean and pseudo UV maps' errors as lines."""
@@ -614,13 +622,11 @@ def plot_uv_by_seed(groups: dict, baselines: dict, path: Path) -> None:
 def sec_uv_by_seed(rep: Report, runs: list[Run]) -> None:
     """Why the implicit model's seeds spread: whether its UV map learned (its test error against the dataset-mean UV
     map and the pseudo UV), read against its normals and albedo, and when in training it was decided."""
-    uv = [r for r in runs if r.model == "implicit" and r.status == "ok" and r.eval and "uv_error" in r.eval]
-    if not uv:
+    groups = uv_groups(runs)
+    if not groups:
         rep.note("no finished implicit run scored its UV map (`uv_error` in eval.json).")
         return
-    groups: dict = {}
-    for r in sorted(uv, key=lambda r: (setting(r, drop_model=True), str(r.seed))):
-        groups.setdefault(setting(r, drop_model=True), []).append(r)
+    uv = [r for rs in groups.values() for r in rs]
     base = {"trivial": data_baseline(uv, "trivial_uv_error"), "pseudo": data_baseline(uv, "pseudo_uv_error")}
     rep.add(
         "The implicit model draws its normals and albedo through its UV map (Fig. 2b), which E_UV (Sec. 4.2) pulls "
@@ -738,10 +744,7 @@ def uv_glance_lines(runs: list[Run], ladder: list[Run]) -> list[str]:
     the truth than the dataset-mean UV map (its error read off ``runs``' evaluations), and their normals beside the
     others'."""
     base = data_baseline([r for r in runs if r.eval], "trivial_uv_error")
-    groups: dict = {}
-    for r in ladder:
-        if r.model == "implicit" and "uv_error" in (r.eval or {}):
-            groups.setdefault(setting(r, drop_model=True), []).append(r)
+    groups = uv_groups(ladder)
     if base is None or not groups:
         return []
     parts = []
