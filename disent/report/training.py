@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import shutil
+from itertools import combinations
 from pathlib import Path
 
 import numpy as np
@@ -553,8 +554,7 @@ def within_setting_pairs(groups: dict, x: str, y: str) -> list[tuple]:
     return [
         ((a.eval[x], a.eval.get(y)), (b.eval[x], b.eval.get(y)))
         for rs in groups.values()
-        for i, a in enumerate(rs)
-        for b in rs[i + 1 :]
+        for a, b in combinations(rs, 2)
     ]
 
 
@@ -568,8 +568,8 @@ def data_baseline(runs: list[Run], key: str) -> float | None:
 def uv_groups(runs: list[Run]) -> dict:
     """``{setting: runs}`` of the finished implicit runs that scored their UV map, in order of setting and seed."""
     uv = [r for r in runs if r.model == "implicit" and r.status == "ok" and "uv_error" in (r.eval or {})]
-    uv.sort(key=lambda r: (setting(r, drop_model=True), str(r.seed)))
-    return {where: rs for (where, _), rs in by_setting_and_model(uv).items()}
+    groups = by_setting_and_model(sorted(uv, key=lambda r: str(r.seed)))  # each run's setting read once
+    return {where: groups[where, model] for where, model in sorted(groups)}
 
 
 def plot_uv_by_seed(groups: dict, baselines: dict, path: Path) -> None:
@@ -730,7 +730,7 @@ def uv_by_seed_reading(groups: dict, base: dict) -> str:
             )
     early = [(logged_mean(r, "UV", UV_EARLY_STEP - 250, UV_EARLY_STEP + 250), r.eval["uv_error"]) for r in runs]
     early = [e for e in early if e[0] is not None]
-    agree, n = concordance([(a, b) for i, a in enumerate(early) for b in early[i + 1 :]])
+    agree, n = concordance(list(combinations(early, 2)))
     if n:
         text.append(
             f"It is settled early: in {agree} of {n} pairs of runs the one with the smaller E_UV at step "
