@@ -71,6 +71,27 @@ def test_ablation_table_mean_std(tmp_path):
     assert "0.03 ± 0.014" in md and f"train.max_steps={steps}" in md and "experiment=smoke" in md
 
 
+def test_a_seed_run_twice_is_one_seed_not_two(tmp_path):
+    """Runs of one setting and seed (trained again at another revision) are replicates: averaged into one value
+    per seed, the count says seeds and runs; the same seed number under another setting is another seed."""
+    smoke = ("+experiment=smoke",)
+    for name, seed, err in (("a0", 0, 10.0), ("b0", 0, 12.0), ("a1", 1, 17.0)):
+        make_run(tmp_path, name, "explicit", seed=seed, eval_={"normal_mean": err}, extra=smoke)
+    make_run(tmp_path, "i0", "implicit", seed=0, eval_={"normal_mean": 14.0}, extra=smoke)
+    runs = {r.path.name: r for r in find_runs([tmp_path])}
+    explicit = [runs[k] for k in ("a0", "b0", "a1")]
+    st = tables.seed_spread(explicit, "normal_mean")
+    assert st["n"] == 2 and st["runs"] == 3 and st["mean"] == pytest.approx(14.0)  # seeds 11 and 17
+    assert st["std"] == pytest.approx(math.sqrt(18.0))
+    assert tables.spread_text(st) == "14.00 ± 4.24 (n=2; 3 runs)" and tables.seeds_cell(explicit) == "2 (3 runs)"
+    pooled = tables.seed_spread([*explicit, runs["i0"]], "normal_mean")  # implicit seed 0 is not explicit's
+    assert pooled["n"] == 3 and pooled["mean"] == pytest.approx((11.0 + 17.0 + 14.0) / 3)
+    once = tables.seed_spread([runs["a0"], runs["a1"]], "normal_mean")
+    assert tables.spread_text(once) == "13.50 ± 4.95 (n=2)" and tables.seeds_cell([runs["a0"], runs["a1"]]) == "2"
+    row = {r["variant"]: r for r in ablation_table(explicit)["rows"]}["explicit"]
+    assert row["seeds"] == [0, 1] and row["runs"] == 3 and row["normal_mean"]["n"] == 2
+
+
 def test_training_stability_rates(tmp_path):
     fake_suite(tmp_path)
     rows = training_stability(find_runs([tmp_path]))["rows"]

@@ -11,7 +11,7 @@ import argparse
 import json
 import math
 
-from disent.runs import RUN_ROOTS, Run, find_runs
+from disent.runs import RUN_ROOTS, Run, find_runs, setting
 
 # (key in eval.json, column title, lower is better)
 COLUMNS = (
@@ -43,6 +43,28 @@ def mean_std(values) -> dict | None:
     m = sum(v) / len(v)
     s = math.sqrt(sum((x - m) ** 2 for x in v) / (len(v) - 1)) if len(v) > 1 else 0.0
     return {"mean": m, "std": s, "n": len(v)}
+
+
+def seed_key(run, i: int):
+    """What makes ``run`` (the ``i``-th of a list) one seed of one setting: its setting with its model
+    (:func:`disent.runs.setting`) and its seed.  Runs sharing it are replicates (the same setting trained again at
+    another revision or on another machine), not more seeds; a run without a seed is its own."""
+    seed = getattr(run, "seed", None)
+    return ("seed", setting(run), seed) if isinstance(run, Run) and seed is not None else ("run", i)
+
+
+def seed_mean_std(runs, key: str) -> dict | None:
+    """:func:`mean_std` of ``key`` over the seeds of ``runs``, each seed's replicates (:func:`seed_key`) averaged
+    into one value.  ``runs``: how many runs gave a value (>= ``n``)."""
+    by_seed: dict = {}
+    for i, r in enumerate(runs):
+        v = r.value(key)
+        if isinstance(v, (int, float)) and math.isfinite(v):
+            by_seed.setdefault(seed_key(r, i), []).append(v)
+    st = mean_std([sum(v) / len(v) for v in by_seed.values()])
+    if st is not None:
+        st["runs"] = sum(map(len, by_seed.values()))
+    return st
 
 
 def _dig(cfg, dotted):
@@ -82,7 +104,7 @@ def ablation_table(runs: list[Run]) -> dict:
         ok = [r for r in rs if r.status == "ok"]
         row = {
             "variant": v,
-            "seeds": sorted(r.seed for r in ok if r.seed is not None),
+            "seeds": sorted({r.seed for r in ok if r.seed is not None}),
             "runs": len(rs),
             "failed": {
                 s: sum(r.status == s for r in rs)
@@ -91,8 +113,8 @@ def ablation_table(runs: list[Run]) -> dict:
             },
         }
         for key, _, _ in COLUMNS:
-            row[key] = mean_std([r.value(key) for r in ok])
-        row["train_images_per_s"] = mean_std([r.value("images_per_s") for r in ok])
+            row[key] = seed_mean_std(ok, key)
+        row["train_images_per_s"] = seed_mean_std(ok, "images_per_s")
         rows.append(row)
     return {"rows": rows, "budget": budget(runs)}
 
@@ -132,7 +154,7 @@ def to_markdown(table: dict) -> str:
         lines.append(f"| {r['variant']} | {seeds} | " + " | ".join(cells) + " |")
     b = ", ".join(f"{k}={v}" for k, v in table["budget"].items()) or "not recorded in the run configs"
     caption = (
-        f"Mean ± std over seeds (finished runs / all runs). Budget: {b}. "
+        f"Mean ± std over seeds, a seed's repeated runs averaged (seeds of the finished runs / all runs). Budget: {b}. "
         "Errors against SynthFaces ground truth on the test split; SH error after per-image scale alignment; "
         "pseudo-GT err is the pseudo normals' own error on the same pixels."
     )

@@ -28,6 +28,7 @@ from disent.report.tables import (
     measured_setting,
     on_the_ladder,
     seed_spread,
+    seeds_cell,
     spread_text,
     table_head,
     verdict,
@@ -118,7 +119,7 @@ def sec_targets(rep: Report, runs: list[Run]) -> None:
             misses = rung_misses(rung_of(where), rs)
             misses = ["(no targets at this setting)"] if misses is None else misses
         rows.append(
-            f"| `{where}` | {model} | {len(rs)} | {spread_text(normal)} | "
+            f"| `{where}` | {model} | {seeds_cell(rs)} | {spread_text(normal)} | "
             f"{fmt_value(normal and floor and floor['mean'], '.2f')} / {fmt_value(pseudo and pseudo['mean'], '.2f')} | "
             f"{spread_text(psnr)} | "
             f"{fmt_value(share, '.2f')} | {'; '.join(misses) if misses else ('none' if model != 'baseline' else '–')} |"

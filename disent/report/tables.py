@@ -27,8 +27,9 @@ EDIT_WORKS = 0.5  # an edit works where at least this share of the edited faces 
 
 
 def seed_spread(runs: list[Run], key: str) -> dict | None:
-    """Mean, std and count over ``runs`` of one metric (:func:`disent.eval.ablation.mean_std`)."""
-    return _ablation.mean_std([r.value(key) for r in runs])
+    """Mean, std and count over the seeds of ``runs`` of one metric, a seed's repeated runs averaged
+    (:func:`disent.eval.ablation.seed_mean_std`)."""
+    return _ablation.seed_mean_std(runs, key)
 
 
 def table_head(*columns: str) -> tuple[str, str]:
@@ -41,13 +42,26 @@ def fmt_value(value, fmt: str) -> str:
 
 
 def spread_text(st, fmt=".2f", count: bool = True) -> str:
-    """``mean ± std (n=N)`` of a :func:`seed_spread`; without the count where the table has a seeds column."""
+    """``mean ± std (n=N)`` of a :func:`seed_spread` (``n=N; R runs`` where some seed ran more than once); without
+    the count where the table has a seeds column."""
     if st is None:
         return "–"
-    n = f" (n={st['n']})" if count else ""
+    n = f" (n={seeds_text(st)})" if count else ""
     if st["n"] == 1:
         return f"{st['mean']:{fmt}}{n}"
     return f"{st['mean']:{fmt}} ± {st['std']:{fmt}}{n}"
+
+
+def seeds_text(st) -> str:
+    """The seed count of a :func:`seed_spread`, with the runs behind it where a seed ran more than once."""
+    runs = st.get("runs", st["n"])
+    return f"{st['n']}; {runs} runs" if runs > st["n"] else str(st["n"])
+
+
+def seeds_cell(runs: list[Run]) -> str:
+    """A table's seeds cell: how many seeds ``runs`` hold, and how many runs where some seed ran more than once."""
+    seeds = len({_ablation.seed_key(r, i) for i, r in enumerate(runs)})
+    return f"{seeds} ({len(runs)} runs)" if len(runs) > seeds else str(seeds)
 
 
 def measured_setting(info: dict, loaded: dict | None = None) -> str | None:
