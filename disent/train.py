@@ -179,9 +179,17 @@ def build_discriminator(model) -> Discriminator:
     return Discriminator(model.resolution, layers=model.layers)
 
 
-def train_step(model, disc, opt_g, opt_d, batch, cfg_loss) -> dict:
-    """One simultaneous generator/discriminator update; returns every term (detached floats later)."""
+def loss_weights(cfg_loss, step: int) -> dict:
+    """``loss.weights`` at ``step``: ``loss.early_weights`` in place of theirs for the first ``loss.early_steps``."""
     weights = dict(cfg_loss.weights)
+    if step < loss_setting(cfg_loss, "early_steps"):
+        weights.update(loss_setting(cfg_loss, "early_weights") or {})
+    return weights
+
+
+def train_step(model, disc, opt_g, opt_d, batch, cfg_loss, step: int = 0) -> dict:
+    """One simultaneous generator/discriminator update at ``step``; returns every term (detached floats later)."""
+    weights = loss_weights(cfg_loss, step)
     out = model(batch["image"])
     energy_fake = disc.energy(out["recon"]) if disc is not None else None
     losses = L.generator_losses(
@@ -308,6 +316,13 @@ def check_config(cfg) -> None:
     ):
         if value not in allowed:
             raise ConfigError(f"{key}={value!r}; choose from {', '.join(allowed)}")
+    whole("loss.early_steps", loss_setting(cfg.loss, "early_steps"), minimum=0)
+    early = loss_setting(cfg.loss, "early_weights") or {}
+    for term, w in early.items():
+        if term not in cfg.loss.weights:
+            raise ConfigError(f"loss.early_weights.{term}: no such term; terms are {', '.join(cfg.loss.weights)}")
+        if isinstance(w, bool) or not isinstance(w, (int, float)) or not (math.isfinite(w) and w >= 0):
+            raise ConfigError(f"loss.early_weights.{term}={w!r}: must be a finite number >= 0")
     for key in ("recon_L_oracle_mix", "recon_L_network_share"):
         share = loss_setting(cfg.loss, key)
         if isinstance(share, bool) or not isinstance(share, (int, float)) or not 0 <= share <= 1:
@@ -376,6 +391,8 @@ ADDED_LATER = {
     "loss.recon_L_scale": "target",
     "loss.recon_L_network": "explicit",
     "loss.recon_L_network_share": 0.6,
+    "loss.early_steps": 0,
+    "loss.early_weights": {},
     "model.decoder_convs": 1,
     **{f"loss.weights.{t}": 0.0 for t in L.TRUTH},
 }
@@ -601,7 +618,7 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
             with torch.autocast(
                 device.type, dtype=torch.bfloat16, enabled=t.get("amp", False)
             ):  # shading stays float32
-                losses = train_step(model, disc, opt_g, opt_d, batch, cfg.loss)
+                losses = train_step(model, disc, opt_g, opt_d, batch, cfg.loss, step)
             if "nonfinite" in losses:
                 raise NonFiniteLoss(
                     f"loss term {', '.join(repr(k) for k in losses['nonfinite'])} is not finite at step {step} "

@@ -332,6 +332,26 @@ def test_a_few_steps_on_one_batch_lower_the_loss(name):
     assert totals[-1] < 0.8 * totals[0], totals
 
 
+def test_early_weights_replace_a_terms_weight_for_the_first_steps_only():
+    """``loss.early_weights`` trains a term at its early weight while step < ``loss.early_steps``, then at
+    ``loss.weights``: with the model held still (lr 0), the objective at an early step exceeds a later one's by
+    exactly the weight's difference times the term."""
+    from disent.train import loss_weights
+
+    cfg = compose_cfg("model=implicit", "+ablation=no_adv", "+loss.early_weights.UV=10", "loss.early_steps=5")
+    late = dict(cfg.loss.weights)
+    assert loss_weights(cfg.loss, 4) == {**late, "UV": 10} and loss_weights(cfg.loss, 5) == late
+    assert loss_weights(compose_cfg("model=implicit").loss, 0) == dict(compose_cfg("model=implicit").loss.weights)
+    torch.manual_seed(0)
+    model = build_model(model_cfg("implicit")).eval()  # batch statistics fixed: the two passes see one model
+    opt = torch.optim.SGD(model.parameters(), lr=0.0)
+    b = fake_batch(4)
+    early, later = (train_step(model, None, opt, None, b, cfg.loss, step) for step in (0, 5))
+    assert early["UV"].item() == pytest.approx(later["UV"].item()) and later["UV"].item() > 0
+    gap = early["total"].item() - later["total"].item()
+    assert gap == pytest.approx((10 - late["UV"]) * later["UV"].item(), rel=1e-4)
+
+
 def test_adversarial_step_updates_generator_and_discriminator_from_their_own_losses():
     torch.manual_seed(0)
     cfg = compose_cfg("model=explicit")
