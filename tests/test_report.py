@@ -2368,6 +2368,15 @@ def test_concordance_counts_pairs_ordered_alike():
     assert training.concordance(pairs) == (1, 2)
 
 
+def test_uv_weight_text_names_an_early_weight_of_e_uv(tmp_path):
+    """Runs that trained E_UV at another weight for their first steps are not read as runs of the later weight."""
+    loss = {"weights": {"UV": 1.0}, "early_weights": {"UV": 10.0}, "early_steps": 300}
+    assert training.uv_weight_text(Run(tmp_path, cfg={"loss": loss})) == "10 for 300 steps, then 1"
+    assert training.uv_weight_text(Run(tmp_path, cfg={"loss": {**loss, "early_steps": 0}})) == "1"
+    assert training.uv_weight_text(Run(tmp_path, cfg={"loss": {"weights": {"UV": 10.0}}})) == "10"
+    assert training.uv_weight_text(Run(tmp_path, cfg={"loss": {"weights": {"recon": 1.0}}})) is None
+
+
 def test_uv_by_seed_reads_each_runs_uv_map_against_its_baselines(tmp_path):
     """The implicit runs' UV maps: a table row per scored run (explicit and unscored runs left out), each run's
     E_UV at step 1,000 from its log, the counts against the pseudo and mean UV maps, the seed's span over settings,

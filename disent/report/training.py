@@ -695,6 +695,16 @@ def sec_uv_by_seed(rep: Report, runs: list[Run]) -> None:
     rep.add("")
 
 
+def uv_weight_text(run: Run) -> str | None:
+    """E_UV's weight over ``run``'s training: ``1``, or ``10 for 300 steps, then 1`` (``loss.early_weights``)."""
+    loss = run.cfg.get("loss") or {}
+    weight = (loss.get("weights") or {}).get("UV")
+    if weight is None:
+        return None
+    early, steps = (loss.get("early_weights") or {}).get("UV"), loss.get("early_steps") or 0
+    return f"{early:g} for {steps:,} steps, then {weight:g}" if early is not None and steps else f"{weight:g}"
+
+
 def uv_by_seed_reading(groups: dict, base: dict) -> str:
     """The section's findings in words, each computed from the runs."""
     runs = [r for rs in groups.values() for r in rs]
@@ -707,12 +717,11 @@ def uv_by_seed_reading(groups: dict, base: dict) -> str:
             f"it ({base['pseudo']:.3f}), {len(worse)} one farther from it than the dataset-mean UV map "
             f"({base['trivial']:.3f}): a UV layer that has not learned."
         )
-    by_seed: dict = {}  # (E_UV's weight, seed): UV errors over the settings
+    by_seed: dict = {}  # (E_UV's weights over training, seed): UV errors over the settings
     for r in runs:
-        weight = ((r.cfg.get("loss") or {}).get("weights") or {}).get("UV")
-        by_seed.setdefault((weight, r.seed), []).append(r.eval["uv_error"])
+        by_seed.setdefault((uv_weight_text(r), r.seed), []).append(r.eval["uv_error"])
     spans = [
-        f"weight {w:g}, seed {s}: {min(v):.3f}-{max(v):.3f} over {len(v)}"
+        f"weight {w}, seed {s}: {min(v):.3f}-{max(v):.3f} over {len(v)}"
         for (w, s), v in sorted(by_seed.items(), key=lambda kv: (str(kv[0][0]), str(kv[0][1])))
         if len(v) > 1 and w is not None
     ]
