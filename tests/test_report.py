@@ -2377,6 +2377,27 @@ def test_uv_weight_text_names_an_early_weight_of_e_uv(tmp_path):
     assert training.uv_weight_text(Run(tmp_path, cfg={"loss": {"weights": {"recon": 1.0}}})) is None
 
 
+def test_an_early_weight_of_e_uv_is_read_beside_its_seed_at_one_weight(tmp_path):
+    """A run with an early E_UV weight is set beside the runs of its seed and rung at one weight throughout; another
+    seed's or rung's runs are not."""
+    smoke = ("+experiment=smoke",)
+    arms = {  # name: (seed, overrides, uv error)
+        "w1": (2, (), 0.24),
+        "w10": (2, ("loss.weights.UV=10",), 0.037),
+        "early": (2, ("+loss.early_weights.UV=10", "loss.early_steps=300"), 0.041),
+        "w1_seed0": (0, (), 0.05),
+        "w1_default_rung": (2, (), 0.3),
+    }
+    for name, (seed, extra, uv) in arms.items():
+        rung = () if name == "w1_default_rung" else smoke
+        make_run(tmp_path, name, "implicit", seed=seed, eval_={"uv_error": uv, "normal_mean": 10.0}, extra=rung + extra)
+    (line,) = training.early_weight_lines(find_runs([tmp_path]))
+    assert line == (
+        "`+experiment=smoke`, seed 2, weight 10 for 300 steps, then 1: UV error 0.041, normals 10.00 deg (against "
+        "weight 1 UV error 0.240, normals 10.00 deg, weight 10 UV error 0.037, normals 10.00 deg)"
+    )
+
+
 def test_uv_by_seed_reads_each_runs_uv_map_against_its_baselines(tmp_path):
     """The implicit runs' UV maps: a table row per scored run (explicit and unscored runs left out), each run's
     E_UV at step 1,000 from its log, the counts against the pseudo and mean UV maps, the seed's span over settings,

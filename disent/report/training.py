@@ -705,6 +705,33 @@ def uv_weight_text(run: Run) -> str | None:
     return f"{early:g} for {steps:,} steps, then {weight:g}" if early is not None and steps else f"{weight:g}"
 
 
+def early_weight_lines(runs: list[Run]) -> list[str]:
+    """Each run that trained E_UV at an early weight (``loss.early_weights``) beside the runs of its seed and setting
+    at one weight throughout (E_UV's weight apart): their UV error and normals."""
+
+    def cells(r):
+        return f"UV error {r.eval['uv_error']:.3f}, normals {fmt_value(r.eval.get('normal_mean'), '.2f')} deg"
+
+    lines = []
+    for r in runs:
+        if not (r.cfg.get("loss") or {}).get("early_steps"):
+            continue
+        where = setting(r, drop_model=True, drop=("loss.early_",))
+        same = [
+            o
+            for o in runs
+            if o.seed == r.seed
+            and not (o.cfg.get("loss") or {}).get("early_steps")
+            and setting(o, drop_model=True, drop=("loss.weights.UV=",)) == where
+        ]
+        others = ", ".join(f"weight {uv_weight_text(o)} {cells(o)}" for o in sorted(same, key=uv_weight_text))
+        lines.append(
+            f"`{where}`, seed {r.seed}, weight {uv_weight_text(r)}: {cells(r)}"
+            + (f" (against {others})" if others else "")
+        )
+    return lines
+
+
 def uv_by_seed_reading(groups: dict, base: dict) -> str:
     """The section's findings in words, each computed from the runs."""
     runs = [r for rs in groups.values() for r in rs]
@@ -730,6 +757,9 @@ def uv_by_seed_reading(groups: dict, base: dict) -> str:
             "At one weight of E_UV, the seed (the initial weights and the order of the batches) decides it across "
             f"settings (UV error per seed, over its settings: {'; '.join(spans)})."
         )
+    early = early_weight_lines(runs)
+    if early:
+        text.append(f"An early weight of E_UV, against the same seed at one weight throughout: {'; '.join(early)}.")
     for y, what in (("normal_mean", "normal error"), ("albedo_si_mse", "albedo error")):
         agree, n = concordance(within_setting_pairs(groups, "uv_error", y))
         if n:
