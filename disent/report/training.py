@@ -695,14 +695,20 @@ def sec_uv_by_seed(rep: Report, runs: list[Run]) -> None:
     rep.add("")
 
 
+def early_uv_weight(run: Run) -> tuple | None:
+    """``(weight, steps)``: E_UV's weight for ``run``'s first steps (``loss.early_weights``), None where it had none."""
+    loss = run.cfg.get("loss") or {}
+    early, steps = (loss.get("early_weights") or {}).get("UV"), loss.get("early_steps") or 0
+    return (early, steps) if early is not None and steps else None
+
+
 def uv_weight_text(run: Run) -> str | None:
     """E_UV's weight over ``run``'s training: ``1``, or ``10 for 300 steps, then 1`` (``loss.early_weights``)."""
-    loss = run.cfg.get("loss") or {}
-    weight = (loss.get("weights") or {}).get("UV")
+    weight = ((run.cfg.get("loss") or {}).get("weights") or {}).get("UV")
     if weight is None:
         return None
-    early, steps = (loss.get("early_weights") or {}).get("UV"), loss.get("early_steps") or 0
-    return f"{early:g} for {steps:,} steps, then {weight:g}" if early is not None and steps else f"{weight:g}"
+    early = early_uv_weight(run)
+    return f"{early[0]:g} for {early[1]:,} steps, then {weight:g}" if early else f"{weight:g}"
 
 
 def early_weight_lines(runs: list[Run]) -> list[str]:
@@ -713,15 +719,13 @@ def early_weight_lines(runs: list[Run]) -> list[str]:
         return f"UV error {r.eval['uv_error']:.3f}, normals {fmt_value(r.eval.get('normal_mean'), '.2f')} deg"
 
     lines = []
-    for r in runs:
-        if not (r.cfg.get("loss") or {}).get("early_steps"):
-            continue
+    for r in filter(early_uv_weight, runs):
         where = setting(r, drop_model=True, drop=("loss.early_",))
         same = [
             o
             for o in runs
             if o.seed == r.seed
-            and not (o.cfg.get("loss") or {}).get("early_steps")
+            and not early_uv_weight(o)
             and setting(o, drop_model=True, drop=("loss.weights.UV=",)) == where
         ]
         others = ", ".join(f"weight {uv_weight_text(o)} {cells(o)}" for o in sorted(same, key=uv_weight_text))
