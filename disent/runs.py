@@ -666,7 +666,8 @@ def retyped_overrides(run: Run) -> list[str]:
     (always ``model=``; ``+experiment=``, ``+ablation=``, ``loss=`` where not the default) and ``key=value`` for
     each setting that defines a run (``SETTING_KEYS``) whose value differs from what those choices give with
     today's ``conf/``: an override it was given, or a default changed since it trained; an override that repeats
-    today's default is none, and so is a loss weight the model has no term for (:func:`idle_keys`).
+    today's default is none, and so is a loss weight the model has no term for (:func:`idle_keys`); a key that
+    today's ``conf/`` lacks (an entry of ``loss.early_weights``) is written ``+key=value``, as Hydra takes it.
     Where today's ``conf/`` cannot compose its choices or its config cannot be
     resolved: its overrides as typed."""
     from hydra.errors import HydraException
@@ -685,7 +686,8 @@ def retyped_overrides(run: Run) -> list[str]:
     except (HydraException, OmegaConfBaseException):
         return sorted(str(o) for o in run.overrides)
     changes = config_changes(trained, today, SETTING_KEYS, idle_keys(run)).items()
-    return sorted(groups + [f"{k}={typed(old)}" for k, (old, _) in changes if old is not ABSENT])
+    added = lambda key, new: "+" * (new is ABSENT) + key  # noqa: E731 (a key today's conf/ lacks needs Hydra's +)
+    return sorted(groups + [f"{added(k, new)}={typed(old)}" for k, (old, new) in changes if old is not ABSENT])
 
 
 @functools.lru_cache(maxsize=256)

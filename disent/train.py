@@ -420,16 +420,26 @@ def idle_settings(cfg: dict | None) -> frozenset:
     """``loss.weights.T`` of each term the config's model cannot compute (it lacks the output the term needs,
     :data:`disent.losses.NEEDS`: E_recon-N for the baseline), and the loss settings that act only through such
     terms or terms weighted 0 (:func:`disent.losses.term_settings`: c without BWS and without the whitened L-hat
-    target, ``+ablation=no_bws``): they never reach training, so they do not define the run."""
+    target, ``+ablation=no_bws``), and an early weight (``loss.early_weights``) of a missing term, equal to the
+    term's weight or given no early steps (and ``loss.early_steps`` with no early weight left): they never reach
+    training, so they do not define the run."""
     model = (cfg or {}).get("model")
     if not isinstance(model, dict) or "name" not in model:
         return frozenset()
     outputs = _model_outputs(json.dumps(model, sort_keys=True))
     missing = {t for t, needed in L.NEEDS.items() if needed not in outputs}
     loss = cfg.get("loss") or {}
-    off = missing | {t for t, w in (loss.get("weights") or {}).items() if w == 0}
+    weights = loss.get("weights") or {}
+    off = missing | {t for t, w in weights.items() if w == 0}
     by_term = {k: ts for k, ts in L.term_settings(loss.get("lhat_white", True)).items() if off.issuperset(ts)}
-    return frozenset([f"loss.weights.{t}" for t in missing] + [f"loss.{k}" for k in by_term])
+    early = loss.get("early_weights") or {}  # an early weight of a missing term, or one its weight repeats, or none
+    idle_early = {t for t, w in early.items() if t in missing or w == weights.get(t) or not loss.get("early_steps")}
+    return frozenset(
+        [f"loss.weights.{t}" for t in missing]
+        + [f"loss.{k}" for k in by_term]
+        + [f"loss.early_weights.{t}" for t in idle_early]
+        + (["loss.early_steps"] if idle_early == set(early) else [])
+    )
 
 
 def config_changes(old: dict | None, new: dict, keys=RUN_DEFINING, ignore=frozenset()) -> dict:

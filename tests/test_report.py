@@ -1500,6 +1500,23 @@ def test_a_loss_weight_the_model_has_no_term_for_is_not_part_of_its_setting(tmp_
     assert list(alone) == ["(defaults)"]
 
 
+def test_an_early_weight_is_part_of_a_setting_only_where_it_reaches_training(tmp_path):
+    """``loss.early_weights`` is an empty map in conf/, so a run's early weight reads ``+key=value`` (what one types
+    to train it again); the explicit model has no E_UV, so its early UV weight is no part of its setting, and an early
+    weight given no early steps is none either."""
+    from disent.runs import setting
+
+    early = ("+loss.early_weights.UV=10", "loss.early_steps=300")
+    make_run(tmp_path, "implicit", "implicit", extra=early)
+    make_run(tmp_path, "explicit", "explicit", extra=early)
+    make_run(tmp_path, "no_steps", "implicit", extra=early[:1])
+    make_run(tmp_path, "same", "implicit", extra=("+loss.early_weights.UV=1", "loss.early_steps=300"))
+    runs = {r.path.name: r for r in find_runs([tmp_path])}
+    assert setting(runs["implicit"]) == "+loss.early_weights.UV=10 loss.early_steps=300 model=implicit"
+    assert setting(runs["explicit"]) == "model=explicit"
+    assert setting(runs["no_steps"]) == setting(runs["same"]) == "model=implicit"
+
+
 def test_time_to_accuracy_is_read_out_in_the_bench_section():
     tta = {
         "run": "/runs/x",
