@@ -1502,17 +1502,18 @@ def test_a_loss_weight_the_model_has_no_term_for_is_not_part_of_its_setting(tmp_
 
 def test_an_early_weight_is_part_of_a_setting_only_where_it_reaches_training(tmp_path):
     """``loss.early_weights`` is an empty map in conf/, so a run's early weight reads ``+key=value`` (what one types
-    to train it again); the explicit model has no E_UV, so its early UV weight is no part of its setting, and an early
-    weight given no early steps is none either."""
-    from disent.runs import setting
+    to train it again); the explicit model has no E_UV, so its early UV weight is no part of its setting, and neither
+    is an early weight given no early steps or one equal to the term's own weight."""
+    from disent.runs import composed_config, setting
 
-    early = ("+loss.early_weights.UV=10", "loss.early_steps=300")
+    weight = composed_config(("model=implicit",))["loss"]["weights"]["UV"]
+    early = (f"+loss.early_weights.UV={weight + 40:g}", "loss.early_steps=300")
     make_run(tmp_path, "implicit", "implicit", extra=early)
     make_run(tmp_path, "explicit", "explicit", extra=early)
     make_run(tmp_path, "no_steps", "implicit", extra=early[:1])
-    make_run(tmp_path, "same", "implicit", extra=("+loss.early_weights.UV=1", "loss.early_steps=300"))
+    make_run(tmp_path, "same", "implicit", extra=(f"+loss.early_weights.UV={weight:g}", "loss.early_steps=300"))
     runs = {r.path.name: r for r in find_runs([tmp_path])}
-    assert setting(runs["implicit"]) == "+loss.early_weights.UV=10 loss.early_steps=300 model=implicit"
+    assert setting(runs["implicit"]) == f"{early[0]} loss.early_steps=300 model=implicit"
     assert setting(runs["explicit"]) == "model=explicit"
     assert setting(runs["no_steps"]) == setting(runs["same"]) == "model=implicit"
 
@@ -2398,12 +2399,13 @@ def test_an_early_weight_of_e_uv_is_read_beside_its_seed_at_one_weight(tmp_path)
     """A run with an early E_UV weight is set beside the runs of its seed and rung at one weight throughout; another
     seed's or rung's runs are not."""
     smoke = ("+experiment=smoke",)
+    w1 = ("loss.weights.UV=1",)
     arms = {  # name: (seed, overrides, uv error)
-        "w1": (2, (), 0.24),
+        "w1": (2, w1, 0.24),
         "w10": (2, ("loss.weights.UV=10",), 0.037),
-        "early": (2, ("+loss.early_weights.UV=10", "loss.early_steps=300"), 0.041),
-        "w1_seed0": (0, (), 0.05),
-        "w1_default_rung": (2, (), 0.3),
+        "early": (2, (*w1, "+loss.early_weights.UV=10", "loss.early_steps=300"), 0.041),
+        "w1_seed0": (0, w1, 0.05),
+        "w1_default_rung": (2, w1, 0.3),
     }
     for name, (seed, extra, uv) in arms.items():
         rung = () if name == "w1_default_rung" else smoke
@@ -2442,7 +2444,8 @@ def test_uv_by_seed_reads_each_runs_uv_map_against_its_baselines(tmp_path):
     assert "| 2 | 0.0350 | 0.0350 | 0.220 | 9.90 |" in text
     assert "Of 4 runs, 2 draw a UV map nearer the truth than the pseudo UV" in text
     assert "2 one farther from it than the dataset-mean UV map (0.140)" in text
-    assert "weight 1, seed 0: 0.020-0.030 over 2; weight 1, seed 2: 0.200-0.220 over 2" in text
+    w = f"{composed_config(('model=implicit',))['loss']['weights']['UV']:g}"  # the runs' E_UV weight: conf's
+    assert f"weight {w}, seed 0: 0.020-0.030 over 2; weight {w}, seed 2: 0.200-0.220 over 2" in text
     assert "In 1 of 2 pairs of runs of one setting, the run with the smaller UV error has the smaller normal" in text
     assert "in 6 of 6 pairs of runs the one with the smaller E_UV at step 1,000 ends with the smaller UV error" in text
     assert "| +experiment=smoke | 0.120 ± 0.141 (n=2) | 1 of 2 | 9.55 ± 0.49 (n=2) |" in text  # by setting

@@ -720,7 +720,7 @@ def early_weight_lines(runs: list[Run]) -> list[str]:
 
     lines = []
     for r in filter(early_uv_weight, runs):
-        where = setting(r, drop_model=True, drop=("loss.early_",))
+        where = setting(r, drop_model=True, drop=("loss.early_", "loss.weights.UV="))
         same = [
             o
             for o in runs
