@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import copy
 import functools
+import io
 import json
 import math
 import os
@@ -649,11 +650,31 @@ def composed_config(groups: tuple) -> dict:
 
 
 @functools.lru_cache(maxsize=64)
-def _composed(groups: tuple) -> dict:
+def _composed(groups: tuple, conf_dir: str = str(CONF_DIR)) -> dict:
     from hydra import compose, initialize_config_dir
 
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+    with initialize_config_dir(config_dir=conf_dir, version_base="1.3"):
         return OmegaConf.to_container(compose(config_name="config", overrides=list(groups)), resolve=True)
+
+
+@functools.lru_cache(maxsize=8)
+def conf_at(revision: str) -> str | None:
+    """The folder of ``conf/`` as git revision ``revision`` had it (extracted once into a temporary folder), or
+    None where git cannot give it (no repository, an unknown revision)."""
+    import tarfile
+    import tempfile
+
+    root = CONF_DIR.parent
+    try:
+        tar = subprocess.run(
+            ["git", "-C", str(root), "archive", revision, "conf"], capture_output=True, check=True, timeout=60
+        ).stdout
+    except (OSError, subprocess.SubprocessError):
+        return None
+    out = Path(tempfile.mkdtemp(prefix=f"conf-{revision}-"))
+    with tarfile.open(fileobj=io.BytesIO(tar)) as t:
+        t.extractall(out, filter="data")
+    return str(out / "conf")
 
 
 def typed(value) -> str:
@@ -687,33 +708,73 @@ def retyped_overrides(run: Run) -> list[str]:
         return sorted(str(o) for o in run.overrides)
     changes = config_changes(trained, today, SETTING_KEYS, idle_keys(run)).items()
     added = lambda key, new: "+" * (new is ABSENT) + key  # noqa: E731 (a key today's conf/ lacks needs Hydra's +)
-    return sorted(groups + [f"{added(k, new)}={typed(old)}" for k, (old, new) in changes if old is not ABSENT])
+    return sorted(
+        groups + [f"{added(k, new)}={typed(as_type(old, new))}" for k, (old, new) in changes if old is not ABSENT]
+    )
+
+
+def as_type(value, like):
+    """``value`` as a float where ``like`` (today's value of its key) is one: ``loss.weights.UV=1`` typed on the
+    command line (an int) and ``UV: 1.0`` in a yaml train the same, so they are one setting."""
+    plain_int = isinstance(value, int) and not isinstance(value, bool)
+    return float(value) if plain_int and isinstance(like, float) else value
 
 
 @functools.lru_cache(maxsize=256)
-def retyped_label(label: str) -> str:
-    """A setting label (:func:`setting`) that a report published against the ``conf/`` of its day, read against
-    today's: each ``key=value`` that repeats what the label's config-group choices give today is dropped (a
-    default has changed to it since), so the label names the setting as :func:`setting` names it now.  Unchanged
-    where today's ``conf/`` cannot compose the choices."""
+def retyped_label(label: str, then: str | None = None, model: str | None = None) -> str:
+    """A setting label (:func:`setting`) that a report published against the ``conf/`` of git revision ``then``,
+    read against today's: each default changed since (under the label's config-group choices) that the label does
+    not set is added at its value then (``loss.weights.UV=1.0`` once E_UV's default moved to 10), where the run's
+    model uses it (``model``, or the label's ``model=``; unknown: where every model uses it); then each
+    ``key=value`` that repeats today's default is dropped (a default has changed to it since), so the label names
+    the setting as :func:`setting` names it now.  Unchanged where today's ``conf/`` cannot compose the choices;
+    without ``then`` (or where git cannot give it) only the second step."""
     from hydra.errors import HydraException
 
+    from disent.train import ABSENT, SETTING_KEYS, config_changes, idle_settings
+
     tokens = [t for t in label.split() if t != "(defaults)"]
+    groups = tuple(sorted(t for t in tokens if config_group(t)))
     try:
-        today = _composed(tuple(sorted(t for t in tokens if config_group(t))))
+        today = _composed(groups)
     except HydraException:
         return label
+    then_dir = conf_at(then) if then else None
+    if then_dir is not None:
+        given = {t.lstrip("+~").partition("=")[0] for t in tokens}
+        models = [model or next((t.split("=")[1] for t in tokens if t.startswith("model=")), None)]
+        if models == [None]:
+            models = sorted(p.stem for p in (CONF_DIR / "model").glob("*.yaml"))
+        try:
+            was = _composed(groups, then_dir)
+            unmodelled = tuple(g for g in groups if not g.startswith("model="))
+            idle = set().union(*(idle_settings(_composed(unmodelled + (f"model={m}",))) for m in models))
+        except HydraException:
+            was = None
+        for key, (old, new) in (config_changes(was, today, SETTING_KEYS, idle) if was else {}).items():
+            if key not in given and old is not ABSENT:
+                tokens.append(f"{'+' * (new is ABSENT)}{key}={typed(as_type(old, new))}")
+
+    def today_value(token: str):
+        node = today
+        for part in token.lstrip("+~").partition("=")[0].split("."):
+            if not isinstance(node, dict) or part not in node:
+                return ABSENT
+            node = node[part]
+        return node
 
     def repeats_today(token: str) -> bool:
-        key, _, value = token.lstrip("+~").partition("=")
-        node = today
-        for part in key.split("."):
-            if not isinstance(node, dict) or part not in node:
-                return False
-            node = node[part]
-        return typed(node) == value
+        value, node = token.partition("=")[2], today_value(token)
+        try:  # 10 typed and 10.0 in conf/: one value
+            return node is not ABSENT and typed(as_type(yaml.safe_load(value), node)) == typed(node)
+        except yaml.YAMLError:
+            return typed(node) == value
 
-    return " ".join(t for t in tokens if config_group(t) or not repeats_today(t)) or "(defaults)"
+    def added(token: str) -> str:  # a key today's conf/ lacks is typed +key=value
+        return "+" + token if token[0] not in "+~" and "=" in token and today_value(token) is ABSENT else token
+
+    kept = sorted(added(t) if not config_group(t) else t for t in tokens if config_group(t) or not repeats_today(t))
+    return " ".join(kept) or "(defaults)"
 
 
 def defining_overrides(run: Run, drop=SEED_FREE) -> list[str]:

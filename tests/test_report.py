@@ -3,6 +3,8 @@
 import json
 import math
 import shutil
+import subprocess
+from pathlib import Path
 
 import pytest
 import yaml
@@ -1518,6 +1520,22 @@ def test_an_early_weight_is_part_of_a_setting_only_where_it_reaches_training(tmp
     assert setting(runs["no_steps"]) == setting(runs["same"]) == "model=implicit"
 
 
+def test_a_weight_typed_as_an_int_is_the_setting_of_the_same_float_in_a_config(tmp_path):
+    """``loss.weights.UV=1`` on the command line (an int) and ``UV: 1.0`` in a config (a float) train the same run:
+    one setting, not two."""
+    from disent.runs import setting
+
+    weight = composed_config(("model=implicit",))["loss"]["weights"]["UV"]
+    make_run(tmp_path, "typed", "implicit", extra=(f"loss.weights.UV={int(weight) + 1}",))
+    d = make_run(tmp_path, "yaml", "implicit")
+    cfg = yaml.safe_load((d / ".hydra" / "config.yaml").read_text())
+    cfg["loss"]["weights"]["UV"] = float(int(weight) + 1)
+    (d / ".hydra" / "config.yaml").write_text(yaml.safe_dump(cfg))
+    runs = {r.path.name: r for r in find_runs([tmp_path])}
+    assert runs["typed"].cfg["loss"]["weights"]["UV"] == int(weight) + 1
+    assert setting(runs["typed"]) == setting(runs["yaml"]) == f"loss.weights.UV={float(int(weight) + 1)} model=implicit"
+
+
 def test_time_to_accuracy_is_read_out_in_the_bench_section():
     tta = {
         "run": "/runs/x",
@@ -1754,6 +1772,65 @@ def test_published_rows_under_a_default_since_changed_match_todays_rows(tmp_path
     rep.subsections_kept(0)
     headings = [line.split("\n")[0] for line in rep.lines if line.startswith("### ")]
     assert headings == ["### `+experiment=long`", "### `train.max_steps=7` ‡"]
+
+
+def test_published_rows_under_a_default_changed_away_name_the_default_of_their_day(tmp_path, monkeypatch):
+    """A row an earlier build published against a ``conf/`` whose E_UV weight was another (the provenance table
+    names its git revision) trained at that weight: kept, it reads ``loss.weights.UV=<then>`` for the implicit model
+    and stays as it was for the explicit one, which has no E_UV; a heading (no model) gains only what every model
+    uses; a value typed as an int matches the same float in conf/."""
+    import shutil
+
+    import disent.runs as runs_mod
+    from disent.runs import CONF_DIR, composed_config, retyped_label
+
+    today = composed_config(("model=implicit",))["loss"]["weights"]["UV"]
+    then = tmp_path / "conf"
+    shutil.copytree(CONF_DIR, then)
+    loss = then / "loss" / "default.yaml"
+    loss.write_text(loss.read_text().replace(f"  UV: {today}", f"  UV: {today + 3}", 1))
+    assert f"  UV: {today + 3}" in loss.read_text()
+    monkeypatch.setattr(runs_mod, "conf_at", lambda revision: str(then) if revision == "abc1234" else None)
+    was = f"loss.weights.UV={today + 3}"
+    assert retyped_label("(defaults)", "abc1234", "implicit") == was
+    assert retyped_label("(defaults)", "abc1234", "explicit") == "(defaults)"
+    assert retyped_label("model=implicit", "abc1234") == f"{was} model=implicit"
+    assert retyped_label("(defaults)", "abc1234") == "(defaults)"  # the baseline and explicit models have no E_UV
+    assert retyped_label(f"loss.weights.UV={int(today)}", "abc1234", "implicit") == "(defaults)"
+    assert retyped_label("(defaults)", "unknown", "implicit") == "(defaults)"  # git cannot give it: today's reading
+
+    head = "| model | setting | value |"
+    previous = "\n\n".join(
+        [
+            "# r\n\n| sections | built | from | regenerate |\n|---|---|---|---|\n| T | `abc1234`, now | runs | `cmd` |",
+            "## T\n",
+            "\n".join([head, "|---|---|---|", "| implicit | `(defaults)` | 1 |", "| explicit | `(defaults)` | 2 |"]),
+        ]
+    )
+    rep = report.Report(tmp_path / "out", previous)
+    assert rep.revisions == {"T": "abc1234"}
+
+    def sec_T(r):  # the section named T in the provenance table
+        r.add(*r.rows_kept(head, ["| explicit | `(defaults)` | 3 |"], key=2))
+
+    rep.section("T", sec_T)
+    assert f"| implicit ‡ | `{was}` | 1 |" in rep.lines and "| explicit | `(defaults)` | 3 |" in rep.lines
+    assert not any("| 2 |" in line for line in rep.lines)  # the explicit row is today's: replaced
+
+
+def test_conf_at_a_revision_is_that_revisions_conf():
+    """``conf_at``: the ``conf/`` folder of a git revision (where the checkout has its history), None for a revision
+    git does not know."""
+    from disent.runs import CONF_DIR, conf_at
+
+    head = conf_at("HEAD")
+    if head is None:
+        pytest.skip("no git history here")
+    committed = subprocess.run(
+        ["git", "-C", str(CONF_DIR.parent), "show", "HEAD:conf/config.yaml"], capture_output=True, text=True
+    ).stdout
+    assert (Path(head) / "config.yaml").read_text() == committed
+    assert conf_at("0000000000000000000000000000000000000000") is None
 
 
 def test_rows_kept_keys_on_the_cells_it_is_told(tmp_path):

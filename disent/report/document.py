@@ -8,7 +8,7 @@ import re
 import traceback
 from pathlib import Path
 
-from disent.runs import retyped_label
+from disent.runs import CONF_DIR, retyped_label
 
 
 def pyplot():
@@ -67,6 +67,8 @@ class Report:
         self.fig.mkdir(parents=True, exist_ok=True)
         self.lines: list[str] = []
         self.previous = published_sections(previous)  # what is published now, by section title
+        self.revisions = published_revisions(previous)  # the git revision whose conf/ each section's labels name
+        self.then: str | None = None  # that of the section being built
         self.title = ""  # the section being built
         self.kept_rows = 0  # rows of the published section kept by rows_kept in the section being built
 
@@ -92,7 +94,7 @@ class Report:
         """``## title`` and what ``fn`` adds.  Where ``fn`` finds only missing inputs (or fails) but the
         published report has content for the section, that content is kept, marked as such."""
         self.add(f"## {title}\n")
-        self.title, self.kept_rows = title, 0
+        self.title, self.kept_rows, self.then = title, 0, self.revisions.get(section_name(fn))
         start = len(self.lines)
         old = self.previous.get(title, [])
         if self.only is not None and section_name(fn) not in self.only and old:
@@ -122,9 +124,9 @@ class Report:
         not have.  Those are marked :data:`KEPT_ROW` (a note under the section says why)."""
         picked = range(key) if isinstance(key, int) else key
 
-        def key_of(line):
-            cells = line.strip().strip("|").split("|")
-            return tuple(retyped_cell(cells[i].replace(KEPT_ROW, "")) for i in picked if i < len(cells))
+        def key_of(line, then=None):
+            cells = retyped_cells(line.strip().strip("|").split("|"), then)
+            return tuple(cells[i].replace(KEPT_ROW, "").strip() for i in picked if i < len(cells))
 
         have = {key_of(r) for r in rows}
         kept = []
@@ -134,10 +136,10 @@ class Report:
                 kept += [
                     line
                     for line in lines[2:]
-                    if line.startswith("|") and key_of(line) not in have and not (unless and unless in line)
+                    if line.startswith("|") and key_of(line, self.then) not in have and not (unless and unless in line)
                 ]
         for i, line in enumerate(kept):
-            cells = [f" {retyped_cell(c)} " if c.strip().startswith("`") else c for c in line.split("|")]
+            cells = retyped_cells(line.split("|"), self.then)
             if KEPT_ROW not in cells[1]:
                 cells[1] = f"{cells[1].rstrip()} {KEPT_ROW} "
             kept[i] = "|".join(cells)
@@ -148,9 +150,9 @@ class Report:
         """Append the published ``###`` subsections of this section whose headings ``self.lines[start:]`` lack
         (an earlier build measured them on runs this build does not have), their headings marked :data:`KEPT_ROW`."""
 
-        def heading(block):
+        def heading(block, then=None):
             head = block.split("\n")[0].replace(KEPT_ROW, "").strip()
-            return f"### {retyped_cell(head[4:])}" if head.startswith("### `") else head
+            return f"### {retyped_cell(head[4:], then)}" if head.startswith("### `") else head
 
         have = {heading(line) for line in self.lines[start:] if line.startswith("### ")}
         groups: list[list[str]] = []
@@ -160,20 +162,34 @@ class Report:
             elif groups and not block.startswith(f"_{KEPT_ROW}:"):
                 groups[-1].append(block)
         for head, *body in groups:
-            if heading(head) not in have:
-                self.add(f"{heading(head)} {KEPT_ROW}\n", *body)
+            if (published := heading(head, self.then)) not in have:
+                self.add(f"{published} {KEPT_ROW}\n", *body)
                 self.kept_rows += 1
 
 
-def retyped_cell(cell: str) -> str:
-    """A table cell or heading that names a setting (```+experiment=long train.max_steps=10000```), read against
-    today's ``conf/`` (:func:`disent.runs.retyped_label`): a row an earlier build published under a default since
-    changed then matches the row this build writes for the same runs.  Any other cell, stripped."""
+def retyped_cell(cell: str, then: str | None = None, model: str | None = None) -> str:
+    """A table cell or heading that names a setting (```+experiment=long train.max_steps=10000```), published
+    against the ``conf/`` of git revision ``then``, read against today's (:func:`disent.runs.retyped_label`, for a
+    run of ``model``): a row an earlier build published under a default since changed then matches the row this
+    build writes for the same runs.  Any other cell, stripped."""
     text = cell.strip()
     inner = text[1:-1] if len(text) > 2 and text[0] == text[-1] == "`" else None
     if inner is None or not all("=" in w or w == "(defaults)" for w in inner.split()):
         return text
-    return f"`{retyped_label(inner)}`"
+    return f"`{retyped_label(inner, then, model)}`"
+
+
+def retyped_cells(cells: list[str], then: str | None) -> list[str]:
+    """A published table row's cells, each that names a setting read by :func:`retyped_cell` for the row's model
+    (a cell naming one, ``implicit`` or ``explicit+no_bws``; none: unknown); the other cells as they were."""
+    names = {p.stem for p in (CONF_DIR / "model").glob("*.yaml")}
+    model = next((m for c in cells if (m := c.replace(KEPT_ROW, "").strip().split("+")[0]) in names), None)
+    return [
+        f" {retyped_cell(c.replace(KEPT_ROW, ''), then, model)}{' ' + KEPT_ROW if KEPT_ROW in c else ''} "
+        if c.strip().startswith("`")
+        else c
+        for c in cells
+    ]
 
 
 MISSING, KEPT = "> **Missing:**", "> **Kept:**"
@@ -206,6 +222,18 @@ def kept_provenance(previous: str, rebuilt: list[str]) -> list[str]:
             command = re.sub(r" --compute| --sections [\w ]+", "", cells[3].strip("`"))
             kept.append(provenance_row(left, cells[1], cells[2], f"{command} --sections {' '.join(left)}"))
     return kept
+
+
+def published_revisions(markdown: str) -> dict[str, str]:
+    """``{section name: git revision}`` of the header's provenance table in a published report: the build whose
+    ``conf/`` the section's setting labels name (a kept row or section is read again at each build that writes its
+    section)."""
+    out = {}
+    for line in markdown.split("\n## ")[0].splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split(" | ")]
+        if line.startswith("| ") and len(cells) == len(PROVENANCE) and (m := re.match(r"`([0-9a-f]{7,40})`", cells[1])):
+            out.update({name: m.group(1) for name in cells[0].split(", ")})
+    return out
 
 
 def section_name(fn) -> str:
