@@ -44,7 +44,7 @@ from disent.report.training import (
     sec_teaser,
     sec_uv_by_seed,
 )
-from disent.runs import RUN_ROOTS, find_runs, publish, record_run, tool_folder
+from disent.runs import RUN_ROOTS, find_runs, publish, record_run, setting, tool_folder
 
 
 def _git_revision() -> str:
@@ -102,6 +102,7 @@ def build(
     published = out / name
     previous = published.read_text() if published.is_file() else ""
     rep = Report(out, previous, only=sections)
+    rep.measured = {(setting(r, drop_model=True), r.model) for r in runs} | {(setting(r), None) for r in runs}
     budget = _ablation.budget(runs)
     roots_arg = f" --roots {' '.join(map(str, roots))}" if roots else ""
     command = f"python -m disent.report{' --compute' if compute else ''}{roots_arg}" + (

@@ -69,6 +69,8 @@ class Report:
         self.previous = published_sections(previous)  # what is published now, by section title
         self.revisions = published_revisions(previous)  # the git revision whose conf/ each section's labels name
         self.then: str | None = None  # that of the section being built
+        self.measured: set[tuple[str, str | None]] = set()  # (setting apart from the model, model) of this build's
+        # runs, and (setting, None): a published row of one of them is no longer kept (this build chose its rows)
         self.title = ""  # the section being built
         self.kept_rows = 0  # rows of the published section kept by rows_kept in the section being built
 
@@ -138,6 +140,7 @@ class Report:
                     for line in lines[2:]
                     if line.startswith("|") and key_of(line, self.then) not in have and not (unless and unless in line)
                 ]
+        kept = [line for line in kept if not self.names_measured(retyped_cells(line.split("|"), self.then))]
         for i, line in enumerate(kept):
             cells = retyped_cells(line.split("|"), self.then)
             if KEPT_ROW not in cells[1]:
@@ -146,13 +149,20 @@ class Report:
         self.kept_rows += len(kept)
         return [*rows, *kept]
 
+    def names_measured(self, cells: list[str]) -> bool:
+        """Whether a row's cells name the setting of one of this build's runs, for the row's model (a cell that is a
+        model's name) or in a label that names the model itself."""
+        model = next((c.strip() for c in cells if c.strip() in model_names()), None)
+        labels = [c.strip()[1:-1] for c in cells if len(c.strip()) > 2 and c.strip()[0] == c.strip()[-1] == "`"]
+        return any((label, model) in self.measured or (label, None) in self.measured for label in labels)
+
     def subsections_kept(self, start: int) -> None:
         """Append the published ``###`` subsections of this section whose headings ``self.lines[start:]`` lack
         (an earlier build measured them on runs this build does not have), their headings marked :data:`KEPT_ROW`."""
 
-        def heading(block, then=None):
+        def heading(block, then=None, model=None):
             head = block.split("\n")[0].replace(KEPT_ROW, "").strip()
-            return f"### {retyped_cell(head[4:], then)}" if head.startswith("### `") else head
+            return f"### {retyped_cell(head[4:], then, model)}" if head.startswith("### `") else head
 
         have = {heading(line) for line in self.lines[start:] if line.startswith("### ")}
         groups: list[list[str]] = []
@@ -161,7 +171,9 @@ class Report:
                 groups.append([block])
             elif groups and not block.startswith(f"_{KEPT_ROW}:"):
                 groups[-1].append(block)
-        for head, *body in groups:
+        for head, *body in groups:  # a heading names no model: dropped where it reads as a heading of today's
+            if any(heading(head, self.then, m) in have for m in model_names()):
+                continue
             if (published := heading(head, self.then)) not in have:
                 self.add(f"{published} {KEPT_ROW}\n", *body)
                 self.kept_rows += 1
@@ -179,11 +191,15 @@ def retyped_cell(cell: str, then: str | None = None, model: str | None = None) -
     return f"`{retyped_label(inner, then, model)}`"
 
 
+def model_names() -> list[str]:
+    """The models ``conf/model/`` defines."""
+    return sorted(p.stem for p in (CONF_DIR / "model").glob("*.yaml"))
+
+
 def retyped_cells(cells: list[str], then: str | None) -> list[str]:
     """A published table row's cells, each that names a setting read by :func:`retyped_cell` for the row's model
     (a cell naming one, ``implicit`` or ``explicit+no_bws``; none: unknown); the other cells as they were."""
-    names = {p.stem for p in (CONF_DIR / "model").glob("*.yaml")}
-    model = next((m for c in cells if (m := c.replace(KEPT_ROW, "").strip().split("+")[0]) in names), None)
+    model = next((m for c in cells if (m := c.replace(KEPT_ROW, "").strip().split("+")[0]) in model_names()), None)
     return [
         f" {retyped_cell(c.replace(KEPT_ROW, ''), then, model)}{' ' + KEPT_ROW if KEPT_ROW in c else ''} "
         if c.strip().startswith("`")
