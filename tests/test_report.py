@@ -1823,16 +1823,22 @@ def test_published_rows_under_a_default_changed_away_name_the_default_of_their_d
     assert not any("| 1 |" in line for line in rep.lines) and not any(document.KEPT_ROW in x for x in rep.lines)
 
     # a heading names no model: one that reads as a heading of this build for some model is not kept
-    previous = previous.replace("## T\n", "## T\n\n### `+experiment=long`\n\nold\n\n### `train.max_steps=7`\n\nold")
+    previous = previous.replace(
+        "## T\n",
+        "## T\n\n"
+        + "\n\n".join(
+            f"### `{h}`\n\nold" for h in ("+experiment=long", f"loss.weights.UV={today}", "train.max_steps=7")
+        ),
+    )
     rep = report.Report(tmp_path / "out", previous)
 
     def sec_T(r):  # noqa: F811 (the same section, now with a subsection)
-        r.add(f"### `+experiment=long {was}`\n", "new\n")
-        r.subsections_kept(len(r.lines) - 2)
+        r.add(f"### `+experiment=long {was}`\n", "new\n", "### (defaults)\n", "new\n")  # (defaults) is unquoted
+        r.subsections_kept(len(r.lines) - 4)
 
     rep.section("T", sec_T)
     headings = [line.strip() for line in rep.lines if line.startswith("### ")]
-    assert headings == [f"### `+experiment=long {was}`", "### `train.max_steps=7` ‡"]
+    assert headings == [f"### `+experiment=long {was}`", "### (defaults)", "### `train.max_steps=7` ‡"]
 
 
 def test_conf_at_a_revision_is_that_revisions_conf():

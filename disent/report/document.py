@@ -162,7 +162,9 @@ class Report:
 
         def heading(block, then=None, model=None):
             head = block.split("\n")[0].replace(KEPT_ROW, "").strip()
-            return f"### {retyped_cell(head[4:], then, model)}" if head.startswith("### `") else head
+            if not head.startswith("### `"):
+                return head
+            return f"### {retyped_cell(head[4:], then, model)}".replace("`(defaults)`", "(defaults)")  # as written
 
         have = {heading(line) for line in self.lines[start:] if line.startswith("### ")}
         groups: list[list[str]] = []
