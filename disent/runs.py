@@ -630,6 +630,11 @@ SEED_FREE = ("seed=", "train.progress=", "train.time_limit_min=", "train.stop_st
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
 
 
+def model_names() -> list[str]:
+    """The models ``conf/model/`` defines."""
+    return sorted(p.stem for p in (CONF_DIR / "model").glob("*.yaml"))
+
+
 def config_group(override) -> bool:
     """An override that picks a config group of the run (``model=implicit``, ``+ablation=no_bws``), not a value
     and not Hydra's own (``hydra/launcher=``)."""
@@ -707,10 +712,16 @@ def retyped_overrides(run: Run) -> list[str]:
     except (HydraException, OmegaConfBaseException):
         return sorted(str(o) for o in run.overrides)
     changes = config_changes(trained, today, SETTING_KEYS, idle_keys(run)).items()
-    added = lambda key, new: "+" * (new is ABSENT) + key  # noqa: E731 (a key today's conf/ lacks needs Hydra's +)
-    return sorted(
-        groups + [f"{added(k, new)}={typed(as_type(old, new))}" for k, (old, new) in changes if old is not ABSENT]
-    )
+    return sorted(groups + [override_token(k, old, new) for k, (old, new) in changes if old is not ABSENT])
+
+
+def override_token(key: str, value, today) -> str:
+    """``key=value`` as one types it today, where ``today`` is the key's value in today's ``conf/``: ``+key=value``
+    where conf/ lacks the key (Hydra's form for adding one: an entry of ``loss.early_weights``), a whole number
+    written as a float where conf/ holds a float (:func:`as_type`)."""
+    from disent.train import ABSENT
+
+    return f"{'+' * (today is ABSENT)}{key}={typed(as_type(value, today))}"
 
 
 def as_type(value, like):
@@ -744,7 +755,7 @@ def retyped_label(label: str, then: str | None = None, model: str | None = None)
         given = {t.lstrip("+~").partition("=")[0] for t in tokens}
         models = [model or next((t.split("=")[1] for t in tokens if t.startswith("model=")), None)]
         if models == [None]:
-            models = sorted(p.stem for p in (CONF_DIR / "model").glob("*.yaml"))
+            models = model_names()
         try:
             was = _composed(groups, then_dir)
             unmodelled = tuple(g for g in groups if not g.startswith("model="))
@@ -753,7 +764,7 @@ def retyped_label(label: str, then: str | None = None, model: str | None = None)
             was = None
         for key, (old, new) in (config_changes(was, today, SETTING_KEYS, idle) if was else {}).items():
             if key not in given and old is not ABSENT:
-                tokens.append(f"{'+' * (new is ABSENT)}{key}={typed(as_type(old, new))}")
+                tokens.append(override_token(key, old, new))
 
     def today_value(token: str):
         node = today

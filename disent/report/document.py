@@ -8,7 +8,7 @@ import re
 import traceback
 from pathlib import Path
 
-from disent.runs import CONF_DIR, retyped_label
+from disent.runs import model_names, retyped_label
 
 
 def pyplot():
@@ -191,11 +191,6 @@ def retyped_cell(cell: str, then: str | None = None, model: str | None = None) -
     if inner is None or not all("=" in w or w == "(defaults)" for w in inner.split()):
         return text
     return f"`{retyped_label(inner, then, model)}`"
-
-
-def model_names() -> list[str]:
-    """The models ``conf/model/`` defines."""
-    return sorted(p.stem for p in (CONF_DIR / "model").glob("*.yaml"))
 
 
 def retyped_cells(cells: list[str], then: str | None) -> list[str]:
