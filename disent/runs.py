@@ -630,9 +630,10 @@ SEED_FREE = ("seed=", "train.progress=", "train.time_limit_min=", "train.stop_st
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
 
 
-def model_names() -> list[str]:
+@functools.lru_cache(maxsize=1)
+def model_names() -> tuple[str, ...]:
     """The models ``conf/model/`` defines."""
-    return sorted(p.stem for p in (CONF_DIR / "model").glob("*.yaml"))
+    return tuple(sorted(p.stem for p in (CONF_DIR / "model").glob("*.yaml")))
 
 
 def config_group(override) -> bool:

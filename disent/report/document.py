@@ -126,33 +126,30 @@ class Report:
         not have.  Those are marked :data:`KEPT_ROW` (a note under the section says why)."""
         picked = range(key) if isinstance(key, int) else key
 
-        def key_of(line, then=None):
-            cells = retyped_cells(line.strip().strip("|").split("|"), then)
-            return tuple(cells[i].replace(KEPT_ROW, "").strip() for i in picked if i < len(cells))
+        def key_of(line):
+            cells = line.strip().strip("|").split("|")
+            return tuple(retyped_cell(cells[i].replace(KEPT_ROW, "")) for i in picked if i < len(cells))
 
         have = {key_of(r) for r in rows}
         kept = []
         for block in self.previous.get(self.title, []):
             lines = block.rstrip("\n").split("\n")
-            if lines[0] == head:
-                kept += [
-                    line
-                    for line in lines[2:]
-                    if line.startswith("|") and key_of(line, self.then) not in have and not (unless and unless in line)
-                ]
-        kept = [line for line in kept if not self.names_measured(retyped_cells(line.split("|"), self.then))]
-        for i, line in enumerate(kept):
-            cells = retyped_cells(line.split("|"), self.then)
-            if KEPT_ROW not in cells[1]:
-                cells[1] = f"{cells[1].rstrip()} {KEPT_ROW} "
-            kept[i] = "|".join(cells)
+            for line in lines[2:] if lines[0] == head else []:
+                if not line.startswith("|") or (unless and unless in line):
+                    continue
+                cells = retyped_cells(line.split("|"), self.then)  # its labels as today names them
+                if key_of("|".join(cells)) in have or self.names_measured(cells):
+                    continue
+                if KEPT_ROW not in cells[1]:
+                    cells[1] = f"{cells[1].rstrip()} {KEPT_ROW} "
+                kept.append("|".join(cells))
         self.kept_rows += len(kept)
         return [*rows, *kept]
 
     def names_measured(self, cells: list[str]) -> bool:
         """Whether a row's cells name the setting of one of this build's runs, for the row's model (a cell that is a
         model's name) or in a label that names the model itself."""
-        model = next((c.strip() for c in cells if c.strip() in model_names()), None)
+        model = found if (found := row_model(cells)) in model_names() else None  # not an ablation's row
         labels = [c.strip()[1:-1] for c in cells if len(c.strip()) > 2 and c.strip()[0] == c.strip()[-1] == "`"]
         return any((label, model) in self.measured or (label, None) in self.measured for label in labels)
 
@@ -193,10 +190,15 @@ def retyped_cell(cell: str, then: str | None = None, model: str | None = None) -
     return f"`{retyped_label(inner, then, model)}`"
 
 
+def row_model(cells: list[str]) -> str | None:
+    """The cell of a table row that names its model (``implicit``, ``explicit+no_bws``), None where none does."""
+    return next((m for c in cells if (m := c.replace(KEPT_ROW, "").strip()).split("+")[0] in model_names()), None)
+
+
 def retyped_cells(cells: list[str], then: str | None) -> list[str]:
     """A published table row's cells, each that names a setting read by :func:`retyped_cell` for the row's model
     (a cell naming one, ``implicit`` or ``explicit+no_bws``; none: unknown); the other cells as they were."""
-    model = next((m for c in cells if (m := c.replace(KEPT_ROW, "").strip().split("+")[0]) in model_names()), None)
+    model = (row_model(cells) or "").split("+")[0] or None
     return [
         f" {retyped_cell(c.replace(KEPT_ROW, ''), then, model)}{' ' + KEPT_ROW if KEPT_ROW in c else ''} "
         if c.strip().startswith("`")
