@@ -665,8 +665,10 @@ def _composed(groups: tuple, conf_dir: str = str(CONF_DIR)) -> dict:
 
 @functools.lru_cache(maxsize=8)
 def conf_at(revision: str) -> str | None:
-    """The folder of ``conf/`` as git revision ``revision`` had it (extracted once into a temporary folder), or
-    None where git cannot give it (no repository, an unknown revision)."""
+    """The folder of ``conf/`` as git revision ``revision`` had it (extracted once into a temporary folder that
+    is removed when the process exits), or None where git cannot give it (no repository, an unknown revision)."""
+    import atexit
+    import shutil
     import tarfile
     import tempfile
 
@@ -678,6 +680,7 @@ def conf_at(revision: str) -> str | None:
     except (OSError, subprocess.SubprocessError):
         return None
     out = Path(tempfile.mkdtemp(prefix=f"conf-{revision}-"))
+    atexit.register(shutil.rmtree, out, ignore_errors=True)
     with tarfile.open(fileobj=io.BytesIO(tar)) as t:
         t.extractall(out, filter="data")
     return str(out / "conf")

@@ -101,8 +101,8 @@ def build(
     recorded = sum(r.recorded_from is not None for r in runs)
     published = out / name
     previous = published.read_text() if published.is_file() else ""
-    rep = Report(out, previous, only=sections)
-    rep.measured = {(setting(r, drop_model=True), r.model) for r in runs} | {(setting(r), None) for r in runs}
+    measured = {(setting(r, drop_model=True), r.model) for r in runs} | {(setting(r), None) for r in runs}
+    rep = Report(out, previous, only=sections, measured=measured)
     budget = _ablation.budget(runs)
     roots_arg = f" --roots {' '.join(map(str, roots))}" if roots else ""
     command = f"python -m disent.report{' --compute' if compute else ''}{roots_arg}" + (

@@ -60,7 +60,7 @@ def rel_path(path: Path, out: Path) -> str:
 class Report:
     """Markdown assembled section by section; each section survives the others' failures."""
 
-    def __init__(self, out: Path, previous: str = "", only=None):
+    def __init__(self, out: Path, previous: str = "", only=None, measured=()):
         self.out = Path(out)
         self.only = set(only) if only else None  # section names (sec_NAME) to build; the others are kept
         self.fig = self.out / "figures"
@@ -69,8 +69,9 @@ class Report:
         self.previous = published_sections(previous)  # what is published now, by section title
         self.revisions = published_revisions(previous)  # the git revision whose conf/ each section's labels name
         self.then: str | None = None  # that of the section being built
-        self.measured: set[tuple[str, str | None]] = set()  # (setting apart from the model, model) of this build's
-        # runs, and (setting, None): a published row of one of them is no longer kept (this build chose its rows)
+        # (setting apart from the model, model) of this build's runs, and (setting, None): a published row of one
+        # of them is no longer kept (this build chose its rows)
+        self.measured: set[tuple[str, str | None]] = set(measured)
         self.title = ""  # the section being built
         self.kept_rows = 0  # rows of the published section kept by rows_kept in the section being built
 
