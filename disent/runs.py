@@ -806,6 +806,20 @@ def setting(run: Run, drop_model: bool = False, drop: tuple = ()) -> str:
     return " ".join(defining_overrides(run, SEED_FREE + (("model=",) if drop_model else ()) + drop)) or "(defaults)"
 
 
+def measured_setting(info: dict, loaded: dict | None = None) -> str | None:
+    """The setting of a run that a tool measured (its ``run`` folder and ``setting``), read against today's
+    ``conf/`` from the run's folder or record (``loaded``: runs by origin, records among them, so none is read
+    twice); ``shipped`` for a shipped model.  None where neither is left: the setting the tool wrote was read
+    against the ``conf/`` of its day, which may have changed since (its published rows are kept instead)."""
+    folder = Path(str(info.get("run", "")))
+    if info.get("setting") in (None, "shipped"):
+        return info.get("setting", "shipped")
+    run = (loaded or {}).get(folder.resolve())
+    if run is None and (folder / ".hydra" / "config.yaml").is_file():
+        run = Run.load(folder)
+    return setting(run, drop_model=True) if run is not None else None
+
+
 def idle_keys(run: Run) -> frozenset:
     """The settings ``run``'s model has no use for (:func:`disent.train.idle_settings`), computed once; none without
     a config."""

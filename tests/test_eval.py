@@ -47,16 +47,56 @@ def test_sh_variance_protocol_orders_estimators():
 
 def test_a_rerun_of_the_protocol_keeps_the_rows_it_does_not_measure_again():
     row = lambda v: {"mean": v, "relative": v, "sh_error": v}
-    info = lambda model, seed, setting="(defaults)": {"model": model, "setting": setting, "seed": seed, "run": "/x"}
-    old = {
-        "estimators": {"ls_pseudo": row(1.0), "e0": row(0.1), "e1": row(0.2), "old long": row(0.3)},
-        "runs": {"e0": info("explicit", 0), "e1": info("explicit", 1), "old long": info("explicit", 0, "long")},
+    info = lambda model, seed, setting="(defaults)", run="/gone": {
+        "model": model,
+        "setting": setting,
+        "seed": seed,
+        "run": f"{run}/{model}_{seed}_{setting}",
     }
-    new = {"estimators": {"ls_pseudo": row(1.0), "explicit s0 again": row(0.4)}, "runs": {}}
-    new["runs"]["explicit s0 again"] = info("explicit", 0)
+    old = {
+        "estimators": {"ls_pseudo": row(1.0), "e0": row(0.1), "e1": row(0.2), "old long": row(0.3), "r": row(0.5)},
+        "runs": {
+            "e0": info("explicit", 0),
+            "e1": info("explicit", 1),
+            "old long": info("explicit", 0, "long"),
+            "r": info("implicit", 0, run="/again"),  # the same folder measured again below
+        },
+    }
+    new = {"estimators": {"ls_pseudo": row(1.0), "explicit s0 again": row(0.4), "again": row(0.6)}, "runs": {}}
+    new["runs"]["explicit s0 again"] = info("explicit", 0, run="/elsewhere")
+    new["runs"]["again"] = {**info("implicit", 0, run="/again"), "setting": "renamed since"}
     kept = protocols.keep_rows(new, old)
-    assert set(kept["estimators"]) == {"ls_pseudo", "explicit s0 again", "e1", "old long"}  # e0 measured again
+    # r: the same folder, replaced; the other folders are gone and have no record, so their settings of the day
+    # cannot be read against today's conf/: e0 is not taken for today's run of the same label, and stays
+    assert set(kept["estimators"]) == {"ls_pseudo", "explicit s0 again", "again", "e0", "e1", "old long"}
     assert kept["runs"]["old long"]["setting"] == "long" and kept["estimators"]["e1"] == row(0.2)
+
+
+def test_a_kept_row_is_named_by_its_setting_today_so_a_changed_default_neither_merges_nor_replaces_it(tmp_path):
+    """A row measured before a default changed (E_UV x1, then the default) is labelled "(defaults)" in the old
+    JSON; today's "(defaults)" run of the same seed is another setting, so both rows stay, the old one renamed by
+    what its record reads today."""
+    from disent.runs import find_runs
+    from tests.test_report import make_run
+
+    x1 = make_run(tmp_path, "x1", "implicit", extra=("loss.weights.UV=1.0",), eval_={"recon_mse": 0.01})
+    x10 = make_run(tmp_path, "x10", "implicit", eval_={"recon_mse": 0.01})
+    row = lambda v: {"mean": v, "relative": v, "sh_error": v}
+    label = "implicit (defaults) seed 0"
+    old = {
+        "estimators": {label: row(0.1)},
+        "runs": {label: {"model": "implicit", "setting": "(defaults)", "seed": 0, "run": str(x1)}},
+    }
+    new = {"estimators": {label: row(0.2)}, "runs": {label: {**old["runs"][label], "run": str(x10)}}}
+    kept = protocols.keep_rows(new, old, {r.origin: r for r in find_runs([tmp_path])})
+    then = "implicit loss.weights.UV=1.0 seed 0"
+    assert kept["estimators"] == {label: row(0.2), then: row(0.1)}
+    assert kept["runs"][then]["setting"] == "loss.weights.UV=1.0" and kept["runs"][label]["run"] == str(x10)
+    # measured again under today's name (the same folder, or the same model, setting and seed): replaced
+    again = {"estimators": {then: row(0.3)}, "runs": {then: {**kept["runs"][then], "run": str(tmp_path / "x1b")}}}
+    assert protocols.keep_rows(again, kept, {r.origin: r for r in find_runs([tmp_path])})["estimators"][then] == row(
+        0.3
+    )
 
 
 def test_sh_variance_split_by_what_faces_show():

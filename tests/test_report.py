@@ -13,7 +13,7 @@ from disent import report
 from disent.eval.ablation import ablation_table, to_markdown
 from disent.eval.stability import training_stability
 from disent.report import ablations, benchmarks, claims, document, lighting, tables, tools, training
-from disent.runs import Run, composed_config, find_runs, group_by_setting, pick_runs, record_run
+from disent.runs import Run, composed_config, find_runs, group_by_setting, measured_setting, pick_runs, record_run
 
 
 def make_run(
@@ -1456,9 +1456,9 @@ def test_setting_is_what_one_types_today_to_train_the_run_again(tmp_path):
     assert setting(runs["c"], drop_model=True, drop=("ablation=",)) == "+experiment=smoke"
     # a tool's record of a run (edit.json, sh_variance.json) is read with the setting of today's conf/
     stale = {"run": str(b), "setting": "(defaults)"}
-    assert tables.measured_setting(stale) == setting(runs["b"], drop_model=True) != "(defaults)"
-    assert tables.measured_setting({"run": str(tmp_path / "gone"), "setting": "(defaults)"}) is None  # stale
-    assert tables.measured_setting({"run": "explicit", "setting": "shipped"}) == "shipped"
+    assert measured_setting(stale) == setting(runs["b"], drop_model=True) != "(defaults)"
+    assert measured_setting({"run": str(tmp_path / "gone"), "setting": "(defaults)"}) is None  # stale
+    assert measured_setting({"run": "explicit", "setting": "shipped"}) == "shipped"
 
 
 def test_bws_c_is_not_part_of_a_run_that_neither_uses_bws_nor_whitens_lhat(tmp_path):

@@ -223,18 +223,38 @@ def plot_sh_variance(result: dict, path) -> None:
     plt.close(fig)
 
 
-def keep_rows(new: dict, old: dict) -> dict:
-    """``new`` with the trained models' rows of ``old`` that it does not measure again (the same model, setting
-    and seed, or the same name): measurements of runs whose folders are gone survive a re-run."""
-    runs = new.get("runs") or {}
+def row_name(info: dict) -> str:
+    """The name of a trained model's row: its model, setting and seed."""
+    return f"{info['model']} {info['setting']} seed {info['seed']}"
+
+
+def keep_rows(new: dict, old: dict, loaded: dict | None = None) -> dict:
+    """``new`` with the trained models' rows of ``old`` that it does not measure again: measurements of runs whose
+    folders are gone survive a re-run.  An old row's setting is read against today's ``conf/`` from its run's
+    folder or record (``loaded``: runs by origin; :func:`disent.runs.measured_setting`) and the row renamed by it,
+    so that a default changed since neither merges it with today's runs of the same old label nor lets them
+    replace it.  Measured again: the same run folder, or the same model, setting (today's) and seed; a row whose
+    setting cannot be read today keeps that of its day, and its folder's name joins its name where that is taken."""
+    from disent.runs import measured_setting
+
+    runs = dict(new.get("runs") or {})
+    folders = {str(Path(i["run"]).resolve()) for i in runs.values()}
     measured = {(i["model"], i["setting"], i["seed"]) for i in runs.values()}
-    kept = {
-        name: info
-        for name, info in (old.get("runs") or {}).items()
-        if name not in new["estimators"] and (info["model"], info["setting"], info["seed"]) not in measured
-    }
-    estimators = {**new["estimators"], **{name: old["estimators"][name] for name in kept if name in old["estimators"]}}
-    return {**new, "estimators": estimators, "runs": {**runs, **kept}}
+    estimators = dict(new["estimators"])
+    for name, info in (old.get("runs") or {}).items():
+        today = measured_setting(info, loaded)
+        if name not in old["estimators"] or str(Path(info["run"]).resolve()) in folders:
+            continue
+        if today is not None:
+            if (info["model"], today, info["seed"]) in measured:
+                continue
+            info = {**info, "setting": today}
+            measured.add((info["model"], today, info["seed"]))
+        mine = row_name(info) if today is not None else name
+        if mine in estimators:
+            mine = f"{mine} ({Path(info['run']).name})"
+        estimators[mine], runs[mine] = old["estimators"][name], info
+    return {**new, "estimators": estimators, "runs": runs}
 
 
 def main(argv=None):
@@ -260,7 +280,8 @@ def main(argv=None):
         default=None,
         metavar="JSON",
         help="a published sh_variance.json (reports/eval/): its rows of trained models not measured again here "
-        "are kept (their run folders may be gone); a model of the same model, setting and seed is replaced",
+        "are kept (their run folders may be gone), each named by its setting read today from its folder or from "
+        "its record beside the JSON (reports/runs/); a model of the same model, setting and seed is replaced",
     )
     a = p.parse_args(argv)
     torch.manual_seed(0)
@@ -272,7 +293,7 @@ def main(argv=None):
         for r in find_runs(a.roots or RUN_ROOTS):
             if r.status == "ok" and r.checkpoint and r.plain and r.model != "baseline":  # the baseline has no light
                 info = {"model": r.model, "setting": setting(r, drop_model=True), "seed": r.seed, "run": str(r.path)}
-                runs[f"{info['model']} {info['setting']} seed {info['seed']}"] = (r, info)
+                runs[row_name(info)] = (r, info)
         models = {name: load_run(r.path)[0] for name, (r, _) in runs.items()}
     else:
         models = load_models(a.runs if a.runs is not None else find_runs(a.roots or RUN_ROOTS))
@@ -285,7 +306,9 @@ def main(argv=None):
     if runs:  # which trained model each network row is, for the report's verdict over seeds
         res["runs"] = {name: info for name, (_, info) in runs.items()}
     if a.keep is not None:
-        res = keep_rows(res, json.loads(a.keep.read_text()))
+        records = a.keep.resolve().parent.parent / "runs"  # reports/runs/: the records of runs whose folders are gone
+        loaded = {r.origin: r for r in find_runs([*(a.roots or RUN_ROOTS), records])}
+        res = keep_rows(res, json.loads(a.keep.read_text()), loaded)
     out = tool_folder("eval", a.out)
     (out / "sh_variance.json").write_text(json.dumps(res, indent=1))
     plot_sh_variance(res, out / "sh_variance.png")

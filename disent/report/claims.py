@@ -25,7 +25,6 @@ from disent.report.tables import (
     fmt_value,
     ladder_runs,
     machines,
-    measured_setting,
     on_the_ladder,
     seed_spread,
     seeds_cell,
@@ -34,7 +33,7 @@ from disent.report.tables import (
     verdict,
 )
 from disent.report.training import uv_glance_lines
-from disent.runs import Run, composed_config, group_by_setting, setting, typed
+from disent.runs import Run, composed_config, group_by_setting, measured_setting, setting, typed
 
 # The trainable-models targets by rung: the default rung's absolute ones (TARGETS), the long rung's normals 15 %
 # better than the pseudo-GT they were supervised by (the paper's "beyond the morphable model" claim, with a margin)

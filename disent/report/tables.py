@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from disent.eval import ablation as _ablation
 from disent.runs import Run, defining_overrides, machine_text, setting
 
@@ -62,20 +60,6 @@ def seeds_cell(runs: list[Run]) -> str:
     """A table's seeds cell: how many seeds ``runs`` hold, and how many runs where some seed ran more than once."""
     seeds = len({_ablation.seed_key(r, i) for i, r in enumerate(runs)})
     return f"{seeds} ({len(runs)} runs)" if len(runs) > seeds else str(seeds)
-
-
-def measured_setting(info: dict, loaded: dict | None = None) -> str | None:
-    """The setting of a run that a tool measured (its ``run`` folder and ``setting``), read against today's
-    ``conf/`` from the run's folder or record (``loaded``: the report's runs by origin, so none is read twice);
-    ``shipped`` for a shipped model.  None where neither is left: the setting the tool wrote was read against
-    the ``conf/`` of its day, which may have changed since (its published rows are kept instead)."""
-    folder = Path(str(info.get("run", "")))
-    if info.get("setting") in (None, "shipped"):
-        return info.get("setting", "shipped")
-    run = (loaded or {}).get(folder.resolve())
-    if run is None and (folder / ".hydra" / "config.yaml").is_file():
-        run = Run.load(folder)
-    return setting(run, drop_model=True) if run is not None else None
 
 
 def on_the_ladder(run: Run) -> bool:
