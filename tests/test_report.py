@@ -2,6 +2,7 @@
 
 import json
 import math
+import re
 import shutil
 import subprocess
 from pathlib import Path
@@ -192,6 +193,20 @@ def test_teaser_names_each_model_by_its_setting_seed_and_steps(tmp_path, monkeyp
     assert sum(f"run `{tmp_path / 'runs'}" in line for line in rep.lines) == 3  # the folder stays in the text
 
 
+def test_shipped_weights_are_named_by_every_setting_they_differ_in_from_todays_conf(monkeypatch):
+    """Shipped weights trained before a default changed (E_UV x1 at the long rung, then x10): their full setting
+    names the old value, as a run's does; in the light-target terms only the rung and the target count."""
+    from disent.models import shipped
+
+    cfg = composed_config(("+experiment=long", "model=implicit", "loss.weights.UV=0.5", "loss.recon_L_target=sh"))
+    monkeypatch.setattr(shipped, "manifest", lambda folder=None: {"m": {"cfg": cfg, "run": "/gone/m"}})
+    assert claims.shipped_setting("m", full=True) == "+experiment=long loss.recon_L_target=sh loss.weights.UV=0.5"
+    assert claims.shipped_setting("m") == "+experiment=long loss.recon_L_target=sh"
+    cfg = composed_config(("model=implicit",))
+    monkeypatch.setattr(shipped, "manifest", lambda folder=None: {"m": {"cfg": cfg, "run": "/gone/m"}})
+    assert claims.shipped_setting("m", full=True) == claims.shipped_setting("m") == "(defaults)"
+
+
 def test_teaser_without_ladder_runs_shows_the_shipped_weights(tmp_path, monkeypatch):
     """No ladder run of any model given: the teaser draws the shipped weights, each titled by the setting, seed and
     steps of their manifest and named by their file."""
@@ -205,7 +220,8 @@ def test_teaser_without_ladder_runs_shows_the_shipped_weights(tmp_path, monkeypa
     for name in ("baseline", "explicit", "implicit"):
         e = manifest()[name]
         rung = "+experiment=long" if e["steps"] == 10_000 else "(defaults)"  # the long rung's 10,000 steps
-        assert sum(f"shipped weights, {rung}, seed {e['cfg']['seed']}, {e['steps']:,} steps" in t for t in teasers)
+        title = rf"^{name} \(shipped weights, {re.escape(rung)}( [^,]+)?, seed {e['cfg']['seed']}, {e['steps']:,} steps"
+        assert sum(bool(re.search(title, t)) for t in teasers) == 1
     assert len(teasers) == 3
     text = "\n".join(rep.lines)
     assert "`disent/weights/implicit.pt`, trained in" in text

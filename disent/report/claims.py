@@ -588,19 +588,30 @@ ALBEDO_AGAINST = (
 MODEL_MARKERS = {"explicit": None, "implicit": "none"}  # light_pattern_section's models: filled, hollow markers
 
 
-def shipped_setting(name: str) -> str:
-    """The setting the shipped weights ``name`` trained at, in :func:`target_source`'s terms, read off their
-    manifest's config: the long rung where they ran its steps, E_recon-L's target and oracle dose where not L-hat's
-    (a config older than those options trained on L-hat)."""
+def shipped_run(name: str) -> Run:
+    """The shipped weights ``name`` as a run (their manifest's config; the folder they trained in): at the long
+    rung where they ran its steps."""
     from disent.models.shipped import manifest
+
+    entry = manifest()[name]
+    long_steps = composed_config(("+experiment=long",))["train"]["max_steps"]
+    rung = ["+experiment=long"] if entry["cfg"].get("train", {}).get("max_steps") == long_steps else []
+    return Run(path=Path(entry["run"]), cfg=entry["cfg"], overrides=rung)
+
+
+def shipped_setting(name: str, full: bool = False) -> str:
+    """The setting the shipped weights ``name`` trained at: in :func:`target_source`'s terms (the long rung where
+    they ran its steps, E_recon-L's target and oracle dose where not L-hat's; a config older than those options
+    trained on L-hat), or with ``full`` every setting that defines a run, as :func:`disent.runs.setting` reads
+    a run today."""
     from disent.train import ABSENT, config_changes
 
-    cfg = manifest()[name]["cfg"]
-    long_steps = composed_config(("+experiment=long",))["train"]["max_steps"]
-    groups = ("+experiment=long",) if cfg.get("train", {}).get("max_steps") == long_steps else ()
-    changes = config_changes(cfg, composed_config(groups), LIGHT_TARGET_KEYS)  # an absent key: its ADDED_LATER value
+    run = shipped_run(name)
+    if full:
+        return setting(run, drop_model=True)
+    changes = config_changes(run.cfg, composed_config(tuple(run.overrides)), LIGHT_TARGET_KEYS)  # absent: ADDED_LATER
     overrides = [f"{k}={typed(old)}" for k, (old, _) in changes.items() if old is not ABSENT]
-    return " ".join([*groups, *overrides]) or "(defaults)"
+    return " ".join([*run.overrides, *overrides]) or "(defaults)"
 
 
 def light_pattern_section(rep: Report, runs: list[Run]) -> None:

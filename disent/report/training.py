@@ -200,7 +200,8 @@ def trained_as(source: Run | str) -> tuple[str, str]:
     from disent.report.claims import shipped_setting
 
     entry = manifest()[source]
-    what = f"shipped weights, `{shipped_setting(source)}`, seed {entry['cfg'].get('seed')}, {entry['steps']:,} steps"
+    seed, steps = entry["cfg"].get("seed"), entry["steps"]
+    what = f"shipped weights, `{shipped_setting(source, full=True)}`, seed {seed}, {steps:,} steps"
     return what, f"`disent/weights/{entry['file']}`, trained in `{entry['run']}`"
 
 
