@@ -12,10 +12,11 @@ from disent.report.document import pyplot
 
 
 def image_grid(rows: list[tuple[str, torch.Tensor]], path: Path, title: str) -> None:
-    """One row per named ``[N,C,H,W]`` tensor, N columns."""
+    """One row per named ``[N,C,H,W]`` tensor, N columns; the title wrapped to the figure's width."""
     plt = pyplot()
     n = rows[0][1].shape[0]
-    fig, axes = plt.subplots(len(rows), n, figsize=(1.2 * n + 1, 1.2 * len(rows)), squeeze=False)
+    width = 1.2 * n + 1  # inches
+    fig, axes = plt.subplots(len(rows), n, figsize=(width, 1.2 * len(rows)), squeeze=False)
     for i, (name, t) in enumerate(rows):
         for j in range(n):
             ax = axes[i, j]
@@ -23,7 +24,7 @@ def image_grid(rows: list[tuple[str, torch.Tensor]], path: Path, title: str) -> 
             ax.set_xticks([]), ax.set_yticks([])
             if j == 0:
                 ax.set_ylabel(name, fontsize=7)
-    fig.suptitle(title, fontsize=8)
+    fig.suptitle(wrapped(title, int(width * 15)), fontsize=8)  # about 15 characters an inch at 8 pt
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
