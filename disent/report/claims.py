@@ -596,7 +596,7 @@ def shipped_run(name: str) -> Run:
     entry = manifest()[name]
     long_steps = composed_config(("+experiment=long",))["train"]["max_steps"]
     rung = ["+experiment=long"] if entry["cfg"].get("train", {}).get("max_steps") == long_steps else []
-    return Run(path=Path(entry["run"]), cfg=entry["cfg"], overrides=rung)
+    return Run(path=Path(entry.get("run") or name), cfg=entry["cfg"], overrides=rung)
 
 
 def shipped_setting(name: str, full: bool = False) -> str:
