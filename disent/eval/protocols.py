@@ -242,18 +242,18 @@ def keep_rows(new: dict, old: dict, loaded: dict | None = None) -> dict:
     measured = {(i["model"], i["setting"], i["seed"]) for i in runs.values()}
     estimators = dict(new["estimators"])
     for name, info in (old.get("runs") or {}).items():
-        today = measured_setting(info, loaded)
         if name not in old["estimators"] or str(Path(info["run"]).resolve()) in folders:
             continue
+        today = measured_setting(info, loaded)
         if today is not None:
             if (info["model"], today, info["seed"]) in measured:
                 continue
             info = {**info, "setting": today}
             measured.add((info["model"], today, info["seed"]))
-        mine = row_name(info) if today is not None else name
-        if mine in estimators:
-            mine = f"{mine} ({Path(info['run']).name})"
-        estimators[mine], runs[mine] = old["estimators"][name], info
+        key = row_name(info) if today is not None else name
+        if key in estimators:
+            key = f"{key} ({Path(info['run']).name})"
+        estimators[key], runs[key] = old["estimators"][name], info
     return {**new, "estimators": estimators, "runs": runs}
 
 
