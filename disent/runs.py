@@ -58,6 +58,12 @@ def git_revision() -> str:
     return f"revision: {rev}\n" + (f"uncommitted changes:\n{dirty}\n" if dirty else "clean\n")
 
 
+def head_revision() -> str | None:
+    """The git revision of the source tree (:func:`git_revision`), None outside a git checkout."""
+    rev = git_revision().splitlines()[0].removeprefix("revision: ")
+    return None if rev.startswith("unknown") else rev
+
+
 def write_git_revision(run_dir: Path) -> None:
     """``git.txt``: :func:`git_revision`."""
     (run_dir / "git.txt").write_text(git_revision())

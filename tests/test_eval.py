@@ -99,6 +99,30 @@ def test_a_kept_row_is_named_by_its_setting_today_so_a_changed_default_neither_m
     )
 
 
+def test_a_kept_row_of_a_run_gone_is_retyped_from_the_conf_its_json_was_written_against(tmp_path, monkeypatch):
+    """No folder, no record: the row's label is read against the conf/ of the revision the JSON names (E_UV was
+    another weight then), so it names that weight today; a JSON without a revision keeps its labels."""
+    import shutil
+
+    import disent.runs as runs_mod
+    from disent.runs import CONF_DIR, composed_config
+
+    today = composed_config(("model=implicit",))["loss"]["weights"]["UV"]
+    then = tmp_path / "conf"
+    shutil.copytree(CONF_DIR, then)
+    loss = then / "loss" / "default.yaml"
+    loss.write_text(loss.read_text().replace(f"  UV: {today}", f"  UV: {today + 5}", 1))
+    monkeypatch.setattr(runs_mod, "conf_at", lambda revision: str(then) if revision == "fed4321" else None)
+    row = {"mean": 0.1, "relative": 0.1, "sh_error": 0.1}
+    gone = {"model": "implicit", "setting": "(defaults)", "seed": 2, "run": str(tmp_path / "gone")}
+    old = {"estimators": {"implicit (defaults) seed 2": row}, "runs": {"implicit (defaults) seed 2": gone}}
+    new = {"estimators": {}, "runs": {}}
+    kept = protocols.keep_rows(new, {**old, "revision": "fed4321"})
+    name = f"implicit loss.weights.UV={today + 5} seed 2"
+    assert kept["estimators"] == {name: row} and kept["runs"][name]["setting"] == f"loss.weights.UV={today + 5}"
+    assert protocols.keep_rows(new, old)["estimators"] == old["estimators"]  # no revision: as labelled then
+
+
 def test_sh_variance_split_by_what_faces_show():
     """shown + hidden is the unbiased within-condition variance of the estimates scaled in shading (a share of
     ||true||^2), averaged over the conditions as sh_variance averages; estimates that differ within a condition

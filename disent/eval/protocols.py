@@ -233,9 +233,11 @@ def keep_rows(new: dict, old: dict, loaded: dict | None = None) -> dict:
     folders are gone survive a re-run.  An old row's setting is read against today's ``conf/`` from its run's
     folder or record (``loaded``: runs by origin; :func:`disent.runs.measured_setting`) and the row renamed by it,
     so that a default changed since neither merges it with today's runs of the same old label nor lets them
-    replace it.  Measured again: the same run folder, or the same model, setting (today's) and seed; a row whose
-    setting cannot be read today keeps that of its day, and its folder's name joins its name where that is taken."""
-    from disent.runs import measured_setting
+    replace it.  Measured again: the same run folder, or the same model, setting (today's) and seed.  A row
+    whose run is gone, folder and record, keeps its label, retyped from the ``conf/`` of the git revision that
+    ``old`` was written at (its ``revision``; :func:`disent.runs.retyped_label`), and its folder's name joins its
+    name where that is taken."""
+    from disent.runs import measured_setting, retyped_label
 
     runs = dict(new.get("runs") or {})
     folders = {str(Path(i["run"]).resolve()) for i in runs.values()}
@@ -250,7 +252,9 @@ def keep_rows(new: dict, old: dict, loaded: dict | None = None) -> dict:
                 continue
             info = {**info, "setting": today}
             measured.add((info["model"], today, info["seed"]))
-        key = row_name(info) if today is not None else name
+        elif old.get("revision"):
+            info = {**info, "setting": retyped_label(info["setting"], old["revision"], info["model"])}
+        key = row_name(info) if today is not None or old.get("revision") else name
         if key in estimators:
             key = f"{key} ({Path(info['run']).name})"
         estimators[key], runs[key] = old["estimators"][name], info
@@ -259,7 +263,7 @@ def keep_rows(new: dict, old: dict, loaded: dict | None = None) -> dict:
 
 def main(argv=None):
     from disent.data import SynthFaces
-    from disent.runs import RUN_ROOTS, find_runs, load_models, tool_folder
+    from disent.runs import RUN_ROOTS, find_runs, head_revision, load_models, tool_folder
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", default=None, help="output folder (default: outputs/eval/<date>/<time>-<pid>/)")
@@ -303,6 +307,7 @@ def main(argv=None):
     mean_light = dataset_means(SynthFaces(split="train", resolution=a.resolution, seed=0))["sh"]
     res = sh_variance_protocol(ds, models, a.limit, mean_light)
     res["split"], res["resolution"] = "lightbank", a.resolution
+    res["revision"] = head_revision()  # whose conf/ the rows' settings are read against (keep_rows)
     if runs:  # which trained model each network row is, for the report's verdict over seeds
         res["runs"] = {name: info for name, (_, info) in runs.items()}
     if a.keep is not None:
