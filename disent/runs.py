@@ -43,25 +43,25 @@ OmegaConf.register_new_resolver(
 )  # cached: jobs in worker processes reuse it
 
 
-def git_revision() -> str:
-    """``git rev-parse HEAD`` and ``git status --porcelain`` of the source tree, as ``git.txt`` holds them."""
-    src = Path(__file__).resolve().parent
-
-    def git(*args):
-        try:
-            return subprocess.run(["git", *args], cwd=src, capture_output=True, text=True, timeout=10).stdout.strip()
-        except (OSError, subprocess.SubprocessError):
-            return ""
-
-    rev = git("rev-parse", "HEAD") or "unknown (not a git checkout)"
-    dirty = git("status", "--porcelain", "--untracked-files=no")
-    return f"revision: {rev}\n" + (f"uncommitted changes:\n{dirty}\n" if dirty else "clean\n")
+def _git(*args) -> str:
+    """``git ARGS`` in the source tree's folder, its output stripped; "" where git or the checkout is missing."""
+    try:
+        src = Path(__file__).resolve().parent
+        return subprocess.run(["git", *args], cwd=src, capture_output=True, text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return ""
 
 
 def head_revision() -> str | None:
-    """The git revision of the source tree (:func:`git_revision`), None outside a git checkout."""
-    rev = git_revision().splitlines()[0].removeprefix("revision: ")
-    return None if rev.startswith("unknown") else rev
+    """``git rev-parse HEAD`` of the source tree, None outside a git checkout."""
+    return _git("rev-parse", "HEAD") or None
+
+
+def git_revision() -> str:
+    """:func:`head_revision` and ``git status --porcelain`` of the source tree, as ``git.txt`` holds them."""
+    rev = head_revision() or "unknown (not a git checkout)"
+    dirty = _git("status", "--porcelain", "--untracked-files=no")
+    return f"revision: {rev}\n" + (f"uncommitted changes:\n{dirty}\n" if dirty else "clean\n")
 
 
 def write_git_revision(run_dir: Path) -> None:

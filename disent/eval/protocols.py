@@ -247,14 +247,15 @@ def keep_rows(new: dict, old: dict, loaded: dict | None = None) -> dict:
         if name not in old["estimators"] or str(Path(info["run"]).resolve()) in folders:
             continue
         today = measured_setting(info, loaded)
-        if today is not None:
+        if today is None and old.get("revision"):
+            today = retyped_label(info["setting"], old["revision"], info["model"])
+        elif today is not None:
             if (info["model"], today, info["seed"]) in measured:
                 continue
-            info = {**info, "setting": today}
             measured.add((info["model"], today, info["seed"]))
-        elif old.get("revision"):
-            info = {**info, "setting": retyped_label(info["setting"], old["revision"], info["model"])}
-        key = row_name(info) if today is not None or old.get("revision") else name
+        if today is not None:
+            info = {**info, "setting": today}
+        key = name if today is None else row_name(info)
         if key in estimators:
             key = f"{key} ({Path(info['run']).name})"
         estimators[key], runs[key] = old["estimators"][name], info

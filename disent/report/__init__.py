@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import datetime as _dt
-import subprocess
 from pathlib import Path
 
 import torch
@@ -44,23 +43,7 @@ from disent.report.training import (
     sec_teaser,
     sec_uv_by_seed,
 )
-from disent.runs import RUN_ROOTS, find_runs, publish, record_run, setting, tool_folder
-
-
-def _git_revision() -> str:
-    try:
-        return (
-            subprocess.run(
-                ["git", "rev-parse", "--short", "HEAD"],
-                capture_output=True,
-                text=True,
-                timeout=10,
-                cwd=Path(__file__).parent,
-            ).stdout.strip()
-            or "unknown"
-        )
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
+from disent.runs import RUN_ROOTS, find_runs, head_revision, publish, record_run, setting, tool_folder
 
 
 def build(
@@ -113,7 +96,8 @@ def build(
         f"{', '.join(f'`{r}/`' for r in roots) or 'no root'}, {recorded} record(s); budget "
         f"{', '.join(f'{k}={v}' for k, v in budget.items()) or 'none recorded'}"
     )
-    built = f"`{_git_revision()}`, {_dt.datetime.now(_dt.timezone.utc).strftime('%Y-%m-%d %H:%M UTC')}"
+    revision = (head_revision() or "unknown")[:7]
+    built = f"`{revision}`, {_dt.datetime.now(_dt.timezone.utc).strftime('%Y-%m-%d %H:%M UTC')}"
     rep.add(
         "# disent report\n",
         "All numbers are measured on SynthFaces (its ground truth); nothing is copied from the paper except where "
