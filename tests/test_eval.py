@@ -101,7 +101,8 @@ def test_a_kept_row_is_named_by_its_setting_today_so_a_changed_default_neither_m
 
 def test_a_kept_row_of_a_run_gone_is_retyped_from_the_conf_its_json_was_written_against(tmp_path, monkeypatch):
     """No folder, no record: the row's label is read against the conf/ of the revision the JSON names (E_UV was
-    another weight then), so it names that weight today; a JSON without a revision keeps its labels."""
+    another weight then), so it names that weight today; a row's own revision goes before the JSON's; a row no
+    revision retypes keeps its label, marked so that a later JSON's revision does not retype it."""
     import shutil
 
     import disent.runs as runs_mod
@@ -120,7 +121,15 @@ def test_a_kept_row_of_a_run_gone_is_retyped_from_the_conf_its_json_was_written_
     kept = protocols.keep_rows(new, {**old, "revision": "fed4321"})
     name = f"implicit loss.weights.UV={today + 5} seed 2"
     assert kept["estimators"] == {name: row} and kept["runs"][name]["setting"] == f"loss.weights.UV={today + 5}"
-    assert protocols.keep_rows(new, old)["estimators"] == old["estimators"]  # no revision: as labelled then
+    unknown = protocols.keep_rows(new, old)  # no revision: as labelled then, and marked so
+    assert (
+        unknown["estimators"] == old["estimators"] and unknown["runs"]["implicit (defaults) seed 2"]["revision"] is None
+    )
+    again = protocols.keep_rows({**new, "revision": "fed4321"}, {**unknown, "revision": "fed4321"})
+    assert again["estimators"] == old["estimators"]  # a later JSON's revision does not retype it
+    own = {**old, "runs": {"implicit (defaults) seed 2": {**gone, "revision": "fed4321"}}}
+    assert protocols.keep_rows(new, own)["estimators"] == {name: row}  # the row's own revision retypes it
+    assert "revision" not in protocols.keep_rows(new, own)["runs"][name]  # now against today's conf/
 
 
 def test_sh_variance_split_by_what_faces_show():

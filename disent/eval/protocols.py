@@ -235,8 +235,9 @@ def keep_rows(new: dict, old: dict, loaded: dict | None = None) -> dict:
     so that a default changed since neither merges it with today's runs of the same old label nor lets them
     replace it.  Measured again: the same run folder, or the same model, setting (today's) and seed.  A row
     whose run is gone, folder and record, keeps its label, retyped from the ``conf/`` of the git revision that
-    ``old`` was written at (its ``revision``; :func:`disent.runs.retyped_label`), and its folder's name joins its
-    name where that is taken."""
+    ``old`` was written at (its ``revision``, or the row's own where it has one: a row no revision could retype
+    keeps its label and says so with ``revision: null``; :func:`disent.runs.retyped_label`), and its folder's name
+    joins its name where that is taken."""
     from disent.runs import measured_setting, retyped_label
 
     runs = dict(new.get("runs") or {})
@@ -246,15 +247,18 @@ def keep_rows(new: dict, old: dict, loaded: dict | None = None) -> dict:
     for name, info in (old.get("runs") or {}).items():
         if name not in old["estimators"] or str(Path(info["run"]).resolve()) in folders:
             continue
+        then = info.get("revision", old.get("revision"))  # whose conf/ the row's label was read against
         today = measured_setting(info, loaded)
-        if today is None and old.get("revision"):
-            today = retyped_label(info["setting"], old["revision"], info["model"])
+        if today is None and then:
+            today = retyped_label(info["setting"], then, info["model"])
         elif today is not None:
             if (info["model"], today, info["seed"]) in measured:
                 continue
             measured.add((info["model"], today, info["seed"]))
-        if today is not None:
-            info = {**info, "setting": today}
+        if today is None:  # as labelled then; not against the revision the new JSON names
+            info = {**info, "revision": then}
+        else:
+            info = {k: v for k, v in info.items() if k != "revision"} | {"setting": today}
         key = name if today is None else row_name(info)
         if key in estimators:
             key = f"{key} ({Path(info['run']).name})"
