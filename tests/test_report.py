@@ -119,6 +119,46 @@ def test_report_on_fake_runs(tmp_path):
     assert "sh_variance.json" in md
 
 
+def test_contents_links_each_section_by_githubs_heading_anchor():
+    """GitHub's anchors: punctuation dropped, spaces made hyphens, a repeated heading numbered; the claims'
+    subsections listed under their section, no other section's; headings inside code blocks are not headings."""
+    md = "\n".join(
+        [
+            "# disent report",
+            "## The paper's claims, measured",
+            "### 1. The network's normals go beyond the fit",
+            "## Benchmarks (`reports/bench*.json`)",
+            "### (defaults)",
+            "```",
+            "## not a heading",
+            "```",
+            "## Ablations",
+            "### (defaults)",
+        ]
+    )
+    assert document.contents(md) == [
+        "**Contents**\n\n"
+        "- [The paper's claims, measured](#the-papers-claims-measured)\n"
+        "  - [1. The network's normals go beyond the fit](#1-the-networks-normals-go-beyond-the-fit)\n"
+        "- [Benchmarks (`reports/bench*.json`)](#benchmarks-reportsbenchjson)\n"
+        "- [Ablations](#ablations)\n"
+    ]
+    seen = {}
+    assert [document.heading_anchor("(defaults)", seen) for _ in range(3)] == ["defaults", "defaults-1", "defaults-2"]
+
+
+def test_the_built_report_lists_every_section_once_in_its_contents(tmp_path):
+    fake_suite(tmp_path / "runs")
+    out = tmp_path / "reports"
+    for _ in range(2):  # built again over itself: one contents, not two
+        md = report.build(out, roots=[tmp_path / "runs"], n_vis=2).read_text()
+    head, _, _ = md.partition("\n## ")
+    assert head.count("**Contents**") == 1 and md.count("**Contents**") == 1
+    titles = [line[3:] for line in md.splitlines() if line.startswith("## ")]
+    assert titles == [title for title, _, _ in report.SECTIONS.values()]
+    assert all(f"- [{title}](#" in head for title in titles)
+
+
 def test_report_on_empty_folder(tmp_path):
     (tmp_path / "none").mkdir()
     path = report.build(tmp_path / "reports", roots=[tmp_path / "none"])

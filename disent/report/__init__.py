@@ -31,7 +31,15 @@ from disent.eval import ablation as _ablation
 from disent.report.ablations import sec_ablation
 from disent.report.benchmarks import sec_bench
 from disent.report.claims import sec_claims, sec_targets
-from disent.report.document import PROVENANCE, Report, kept_provenance, provenance_row, rel_path, section_name
+from disent.report.document import (
+    PROVENANCE,
+    Report,
+    contents,
+    kept_provenance,
+    provenance_row,
+    rel_path,
+    section_name,
+)
 from disent.report.lighting import sec_lighting
 from disent.report.tables import table_head
 from disent.report.tools import sec_methods, sec_photos, sec_sh_variance, sec_stability
@@ -114,8 +122,10 @@ def build(
         + "\n",
     )
     inputs = {"runs": runs, "eval_dir": eval_dir, "out": out, "n_vis": n_vis}
+    head = len(rep.lines)
     for title, fn, needs in SECTIONS.values():
         rep.section(title, fn, *(inputs[k] for k in needs))
+    rep.lines[head:head] = contents("\n".join(rep.lines))
     path = out / name
     path.write_text("\n".join(rep.lines) + "\n")
     return path

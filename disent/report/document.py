@@ -252,6 +252,35 @@ def published_revisions(markdown: str) -> dict[str, str]:
     return out
 
 
+def heading_anchor(title: str, seen: dict[str, int]) -> str:
+    """The anchor GitHub gives a Markdown heading: lower case, each character that is not a letter, digit,
+    ``_``, ``-`` or space dropped, spaces made ``-``; the n-th repeat of an anchor in a document gets ``-n``
+    (``seen``: the anchors so far, updated)."""
+    slug = re.sub(r"[^\w\- ]", "", title.strip().lower()).replace(" ", "-")
+    n = seen.get(slug, 0)
+    seen[slug] = n + 1
+    return slug if n == 0 else f"{slug}-{n}"
+
+
+def contents(markdown: str, open_sections=("The paper's claims, measured",)) -> list[str]:
+    """The report's contents: each section (``## ``) linked to its heading, and under the sections named in
+    ``open_sections`` their subsections (``### ``)."""
+    seen: dict[str, int] = {}
+    lines, section, fenced = ["**Contents**\n"], None, False
+    for line in markdown.splitlines():
+        fenced ^= line.startswith("```")
+        if fenced or not (m := re.match(r"(#{1,6}) (.+)", line)):
+            continue
+        level, title = len(m.group(1)), m.group(2).strip()
+        link = f"[{title}](#{heading_anchor(title, seen)})"
+        if level == 2:
+            section = title
+            lines.append(f"- {link}")
+        elif level == 3 and section in open_sections:
+            lines.append(f"  - {link}")
+    return ["\n".join(lines) + "\n"] if len(lines) > 1 else []
+
+
 def section_name(fn) -> str:
     """A section's name for ``--sections``: its function's, less ``sec_`` (``sec_claims``: ``claims``)."""
     return fn.__name__.removeprefix("sec_")
