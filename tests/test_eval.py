@@ -128,8 +128,9 @@ def test_a_kept_row_of_a_run_gone_is_retyped_from_the_conf_its_json_was_written_
     again = protocols.keep_rows({**new, "revision": "fed4321"}, {**unknown, "revision": "fed4321"})
     assert again["estimators"] == old["estimators"]  # a later JSON's revision does not retype it
     own = {**old, "runs": {"implicit (defaults) seed 2": {**gone, "revision": "fed4321"}}}
-    assert protocols.keep_rows(new, own)["estimators"] == {name: row}  # the row's own revision retypes it
-    assert "revision" not in protocols.keep_rows(new, own)["runs"][name]  # now against today's conf/
+    retyped = protocols.keep_rows(new, own)
+    assert retyped["estimators"] == {name: row}  # the row's own revision retypes it
+    assert "revision" not in retyped["runs"][name]  # now against today's conf/
 
 
 def test_sh_variance_split_by_what_faces_show():

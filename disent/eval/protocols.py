@@ -249,12 +249,12 @@ def keep_rows(new: dict, old: dict, loaded: dict | None = None) -> dict:
             continue
         then = info.get("revision", old.get("revision"))  # whose conf/ the row's label was read against
         today = measured_setting(info, loaded)
-        if today is None and then:
-            today = retyped_label(info["setting"], then, info["model"])
-        elif today is not None:
+        if today is not None:
             if (info["model"], today, info["seed"]) in measured:
                 continue
             measured.add((info["model"], today, info["seed"]))
+        elif then:  # its run is gone: its label read against then's conf/
+            today = retyped_label(info["setting"], then, info["model"])
         if today is None:  # as labelled then; not against the revision the new JSON names
             info = {**info, "revision": then}
         else:
