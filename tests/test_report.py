@@ -1052,6 +1052,55 @@ def test_ablation_claims_pair_each_ablation_with_the_full_model_and_gate_on_the_
     assert "no finished ablation runs" in "\n".join(rep.lines)
 
 
+def test_claims_open_with_each_verdict_at_the_ladders_rungs(tmp_path):
+    """The claims section opens with the verdicts of its tables at the ladder's rungs, a row per reading and a
+    column per rung and model: claim 4's cells are the ablation's difference, with its budget gate said under the
+    table; a setting off the ladder adds no cell, and a reading no rung can test is named, not listed."""
+    good = {"normal_mean": 11.0, "pseudo_normal_mean": 11.5, "recon_face_psnr": 26.5}
+    good |= {"albedo_si_mse": 0.005, "trivial_albedo_si_mse": 0.0127}
+    for seed in range(3):
+        make_run(tmp_path, f"full{seed}", seed=seed, eval_={**good, "normal_mean": 11.0 + 0.01 * seed})
+        make_run(tmp_path, f"base{seed}", "baseline", seed=seed, eval_={"recon_face_psnr": 24.0 + 0.01 * seed})
+        make_run(
+            tmp_path, f"nopn{seed}", ablations=["no_pseudo_normal"], seed=seed, eval_={**good, "normal_mean": 15.0}
+        )
+        make_run(
+            tmp_path, f"tv{seed}", seed=seed, eval_={**good, "normal_mean": 20.0}, extra=("loss.weights.smooth_A=0.5",)
+        )
+    runs = find_runs([tmp_path])
+    rep = report.Report(tmp_path, "")
+    claims.sec_claims(rep, runs, tmp_path / "eval")
+    text = "\n".join(rep.lines)
+    assert text.index("| claim | reading | explicit, `(defaults)` |") < text.index("### 1.")
+    assert "| 1 | normals closer to the truth than the pseudo-GT's | **confirmed** | – | – | – |" in rep.lines
+    assert "| 3 | face PSNR above the 265-d baseline's | **confirmed** | – | – | – |" in rep.lines
+    assert "| 4 | no_pseudo_normal: normals (deg) | **confirmed** | – | – | – |" in rep.lines
+    assert "refuted" not in text.split("### 1.")[0]  # the off-ladder setting's worse normals stay in its own rows
+    assert "Claim 4's cells" not in text  # the full model meets the targets: claim 4's verdicts are read
+    for r in runs:
+        if r.path.name.startswith("full"):
+            r.eval["recon_face_psnr"] = 25.0  # under the target; still above the baseline
+    rep = report.Report(tmp_path, "")
+    claims.sec_claims(rep, runs, tmp_path / "eval")
+    assert "| 4 | no_pseudo_normal: normals (deg) | **confirmed** | – | – | – |" in rep.lines  # the difference
+    assert any("`(defaults)` explicit: targets missed: 1 of 3" in line for line in rep.lines)
+
+    glance = tables.Glance()
+    glance.put("5", "senior by dmt", "+experiment=long", "implicit", claims.tally(["not testable (1 seed)"] * 2))
+    glance.put(
+        "5",
+        "beard by dmt",
+        "model=implicit +experiment=long",
+        "implicit",
+        claims.tally(["**confirmed**", "not resolved (within)", "**confirmed**"]),
+    )
+    glance.put("5", "beard by dmt", "+experiment=long loss.weights.UV=1.0", "explicit", "**refuted**")  # off the ladder
+    lines = glance.lines()
+    assert "| 5 | beard by dmt | – | – | – | **confirmed** 2, not resolved 1 of 3 |" in lines, lines
+    assert not any("| senior by dmt |" in line for line in lines)
+    assert "Not testable at either rung, so not listed: 5: senior by dmt.\n" in lines
+
+
 def test_an_ablation_stands_against_every_full_model_it_trains_as(tmp_path):
     """``+ablation=no_bws`` uses neither BWS nor the whitened L-hat, so c is idle for it: its runs stand against the
     full model at c = 0.3 as well as at the default c, and not against a full model that differs from them in a

@@ -12,6 +12,7 @@ from disent.images import on_matte, to_array
 from disent.report.document import Report, pyplot
 from disent.report.pictures import test_batch, wrapped
 from disent.report.tables import (
+    Glance,
     by_setting_and_model,
     fmt_value,
     is_recipe_run,
@@ -205,9 +206,11 @@ CLAIM_METRICS = {  # metric -> its label in the claims' tables
 HIGHER_IS_BETTER = ("recon_face_psnr", "recon_face_ssim")
 
 
-def claim_ablations(rep: Report, runs: list[Run]) -> None:
+def claim_ablations(rep: Report, runs: list[Run], glance: Glance | None = None) -> None:
     """Claim 4: each ablation of the explicit model against the full model at the same budget and setting, on the
-    metric where the paper says the ablated piece shows; a verdict only where the full model meets the targets."""
+    metric where the paper says the ablated piece shows; a verdict only where the full model meets the targets
+    (the differences at the ladder's rungs, and the gates, also put in ``glance``)."""
+    glance = glance or Glance()
     done = [r for r in runs if r.status == "ok" and r.eval and r.model == "explicit" and not r.ceiling]
     ablated: dict = {}  # (setting of the full model, ablation) -> runs
     for r in done:
@@ -252,6 +255,9 @@ def claim_ablations(rep: Report, runs: list[Run]) -> None:
             if a is None and b is None:  # runs scored before the metric existed
                 continue
             diff = verdict(a, b, "higher" if key in HIGHER_IS_BETTER else "lower")
+            glance.put("4", f"{ablation}: {CLAIM_METRICS[key]}", where, "explicit", diff)
+            if gate and (column := glance.column(where, "explicit")):
+                glance.gates[column] = gate.removeprefix("not testable (").removesuffix(")")
             reason_here = reason.format(light_target=light_target_name(where))
             rows.append(
                 f"| `{where}` | {ablation} | {reason_here} | {CLAIM_METRICS[key]} | {spread_text(a, '.4g')} | "

@@ -21,6 +21,7 @@ from disent.report.document import Report, load_json, pyplot, unoverlap
 from disent.report.tables import (
     EDIT_WORKS,
     MIN_SEEDS,
+    Glance,
     by_setting_and_model,
     fmt_value,
     ladder_runs,
@@ -896,6 +897,14 @@ def beyond_the_fit(groups: dict) -> list[str]:
     ]
 
 
+def tally(verdicts) -> str:
+    """Verdicts of several readings of one claim in one cell: each verdict (less its reason) and how many readings
+    give it, of all (``**confirmed** 3, not resolved 2 of 5``)."""
+    said = [v.split(" (")[0] for v in verdicts]
+    counts = {v: said.count(v) for v in dict.fromkeys(sorted(said))}
+    return ", ".join(f"{v} {n}" for v, n in counts.items()) + f" of {len(said)}"
+
+
 def lower_than_fixed(*pairs: tuple) -> str:
     """One verdict over ``(spread over seeds, a deterministic estimator's value)`` pairs: the network lower on
     each (:func:`verdict`), or ``mixed`` naming the verdicts where they differ."""
@@ -903,7 +912,7 @@ def lower_than_fixed(*pairs: tuple) -> str:
     return verdicts.pop() if len(verdicts) == 1 else "mixed: " + " / ".join(sorted(verdicts))
 
 
-def shown_variance_table(rep: Report, groups: dict, est: dict) -> list[str]:
+def shown_variance_table(rep: Report, groups: dict, est: dict, glance: Glance) -> list[str]:
     """Claim 2 on the light the faces show: per ``(model, setting)`` group of the SH-variance protocol's rows, the
     within-condition variance and the error in the SH directions a face shows
     (:func:`disent.eval.protocols.sh_variance_shown_hidden`), against L-hat's and the mean light's."""
@@ -919,12 +928,14 @@ def shown_variance_table(rep: Report, groups: dict, est: dict) -> list[str]:
         if not measured:
             continue
         var, err = (_ablation.mean_std([r[k] for r in measured]) for k in ("variance_shown", "sh_error_shown"))
+        said = lower_than_fixed((var, ls["variance_shown"]), (err, ls["sh_error_shown"]))
+        glance.put("2", "shown directions: variance and SH error below L-hat's", where, model, said)
         rows.append(
             f"| {model} | `{where}` | {spread_text(var, '.3f')} | {ls['variance_shown']:.3f} | "
             f"{mean_light.get('variance_shown', float('nan')):.3f} | {spread_text(err, '.3f')} | "
             f"{ls['sh_error_shown']:.3f} | "
             f"{mean_light.get('sh_error_shown', float('nan')):.3f} | "
-            f"{lower_than_fixed((var, ls['variance_shown']), (err, ls['sh_error_shown']))} |"
+            f"{said} |"
         )
     if not (rows := rep.rows_kept(head[0], rows, key=2)):
         return []
@@ -1018,7 +1029,6 @@ def background_lines(measured: list[tuple]) -> list[str]:
 def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
     """The paper's claims, each with its numbers (mean ± std over seeds, grouped by setting) and a verdict."""
     done = ladder_runs(runs)
-    loaded = {r.origin: r for r in runs}  # for the tools' records of these runs
     if not done:
         rep.note(
             "no finished runs of the plain models; train them (`python -m disent -m model=baseline,explicit,"
@@ -1033,6 +1043,24 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
         "default changed show the old value). Trained on: "
         f"{machines(done)}.\n"
     )
+    glance, at = Glance(), len(rep.lines)
+    try:
+        measured_claims(rep, runs, eval_dir, glance)
+    finally:  # the verdicts at a glance, above the tables they come from
+        if table := glance.lines():
+            rep.lines[at:at] = [
+                "At a glance: each claim's verdicts at the budget ladder's two rungs (the tables below give the "
+                "numbers, the settings off the ladder and why a cell is not testable; –: not measured there). "
+                "Claim 5's cells count its readings (the reader's and the reader-free ones of its own table at a "
+                "glance) by verdict.\n",
+                *table,
+            ]
+
+
+def measured_claims(rep: Report, runs: list[Run], eval_dir: Path, glance: Glance) -> None:
+    """The claims' sections, each table's verdicts at the ladder's rungs also put in ``glance``."""
+    done = ladder_runs(runs)
+    loaded = {r.origin: r for r in runs}  # for the tools' records of these runs
     head = table_head("setting", "model", "network normals (deg)", "pseudo-GT (deg)", "mean map (deg)", "verdict")
     groups: dict = {}
     for r in done:
@@ -1042,6 +1070,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
         if model not in ("explicit", "implicit"):
             continue
         net, pseudo, mean = (seed_spread(rs, k) for k in ("normal_mean", "pseudo_normal_mean", "trivial_normal_mean"))
+        glance.put("1", "normals closer to the truth than the pseudo-GT's", where, model, verdict(net, pseudo, "lower"))
         rows.append(
             f"| `{where}` | {model} | {spread_text(net)} | {spread_text(pseudo)} | {spread_text(mean)} | "
             f"{verdict(net, pseudo, 'lower')} |"
@@ -1068,10 +1097,12 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
         rows = []
         for (model, where), measured in sorted(groups.items()) if ls else ():
             rel, err = (_ablation.mean_std([r[k] for r in measured]) for k in ("relative", "sh_error"))
+            said = lower_than_fixed((rel, ls["relative"]), (err, ls["sh_error"]))
+            glance.put("2", "light bank: variance and SH error below L-hat's", where, model, said)
             rows.append(
                 f"| {model} | `{where}` | {spread_text(rel, '.3f')} | {ls['relative']:.3f} | "
                 f"{spread_text(err, '.3f')} | "
-                f"{ls['sh_error']:.3f} | {lower_than_fixed((rel, ls['relative']), (err, ls['sh_error']))} |"
+                f"{ls['sh_error']:.3f} | {said} |"
             )
         if rows := rep.rows_kept(head[0], rows, key=2):
             rep.add(
@@ -1081,7 +1112,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
                 *head,
                 *rows,
             )
-        rep.add("", *shown_variance_table(rep, groups, est))
+        rep.add("", *shown_variance_table(rep, groups, est, glance))
         if trivial:
             rep.add(
                 f"- The constant mean light scores SH error {trivial['mean']:.3f} on the test split: lower variance "
@@ -1112,6 +1143,14 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
         psnr = {m: seed_spread(by_model.get(m, []), "recon_face_psnr") for m in ("baseline", "explicit", "implicit")}
         ssim = {m: seed_spread(by_model.get(m, []), "recon_face_ssim") for m in ("baseline", "explicit", "implicit")}
         fine = {m: seed_spread(by_model.get(m, []), "albedo_fine_si_mse") for m in ("explicit", "implicit")}
+        for model in (m for m in ("explicit", "implicit") if m in by_model):
+            said = verdict(psnr[model], psnr["baseline"], "higher")
+            glance.put("3", "face PSNR above the 265-d baseline's", where, model, said)
+        if "implicit" in by_model:
+            said = verdict(ssim["implicit"], ssim["explicit"], "higher")
+            glance.put("3", "face SSIM above the explicit model's", where, "implicit", said)
+            said = verdict(fine["implicit"], fine["explicit"], "lower")
+            glance.put("3", "albedo details closer than the explicit model's", where, "implicit", said)
         rows.append(
             f"| `{where}` | {spread_text(psnr['baseline'])} | {spread_text(psnr['explicit'])} | "
             f"{spread_text(psnr['implicit'])} | "
@@ -1133,7 +1172,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
         *rep.rows_kept(head[0], rows),
     )
     rep.add("", "### 4. BWS prevents degenerate shading; each prior does what the paper says\n")
-    claim_ablations(rep, runs)
+    claim_ablations(rep, runs, glance)
     claim_skin(rep, runs)
     rep.add("### 5. Edits on the paper's manifolds change the attribute with less leakage than other manifolds\n")
     groups: dict = {}  # (model, setting) -> the edit results of its trained models (seeds)
@@ -1157,7 +1196,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
     )
     rows, idle, relit, relit_regions, relit_matte = [], [], [], [], []
     free = {reading: [] for reading in READER_FREE}
-    glance: dict = {}  # (model, setting, method, attribute) -> reading -> verdict
+    edits: dict = {}  # (model, setting, method, attribute) -> reading -> verdict
     for (model, where), results in sorted(groups.items()):
         drawn = {a: edit_rates(results, a) for a in {c["attribute"] for res in results for c in res["claims"]}}
 
@@ -1168,7 +1207,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
         found, cannot, said = manifold_rows(model, where, results, "gain_per_leak", "best_success", reader_works)
         rows += found
         for cell, text in said.items():
-            glance.setdefault((model, where, *cell), {})["gain per leakage (reader)"] = text
+            edits.setdefault((model, where, *cell), {})["gain per leakage (reader)"] = text
         for reading, (ceiling, score, best) in READER_FREE.items():
 
             def drawn_ceiling(attribute):  # the share of the true change the model's reconstructions draw
@@ -1189,7 +1228,7 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
             )
             free[reading] += found
             for cell, text in said.items():
-                glance.setdefault((model, where, *cell), {})[reading] = text
+                edits.setdefault((model, where, *cell), {})[reading] = text
         if cannot:
             ceiling = [
                 f"{a} {rates['truth reconstructed']['mean']:.2f} (truth {rates['truth']['mean']:.2f}"
@@ -1251,9 +1290,13 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
         f"| {model} | `{where}` | {method} | {attribute} | "
         + " | ".join(cells.get(r, "–").split(" (")[0] for r in readings)
         + " |"
-        for (model, where, method, attribute), cells in sorted(glance.items())
+        for (model, where, method, attribute), cells in sorted(edits.items())
         if any(not v.startswith(("not testable", "–")) for v in cells.values())
     ]
+    for (model, where, method, attribute), cells in sorted(edits.items()):
+        glance.put(
+            "5", f"{attribute} by {method}: the paper's manifolds leak less", where, model, tally(cells.values())
+        )
     if glance_rows := rep.rows_kept(glance_head[0], glance_rows, key=4):
         rep.add(
             "At a glance: the verdict of each reading of the claim (the tables below give the numbers, and why a "

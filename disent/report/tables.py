@@ -106,3 +106,52 @@ def by_setting_and_model(runs) -> dict:
     for r in runs:
         groups.setdefault((setting(r, drop_model=True), r.model), []).append(r)
     return groups
+
+
+LADDER_COLUMNS = tuple((rung, m) for rung in ("(defaults)", "+experiment=long") for m in ("explicit", "implicit"))
+
+
+class Glance:
+    """The verdicts the claims' tables give at the budget ladder's rungs, gathered as the tables are built, for one
+    table at the head of the claims section: a row per reading of a claim, a column per rung and model."""
+
+    def __init__(self):
+        self.cells: dict = {}  # (claim, reading) -> {(rung, model): verdict}
+        self.gates: dict = {}  # (rung, model) -> why a claim's verdicts there are not read (claim 4's budget gate)
+
+    @staticmethod
+    def column(where: str, model: str) -> tuple[str, str] | None:
+        """The ladder column of a table row's setting (``model=`` tokens dropped), None for any other setting."""
+        rest = " ".join(t for t in where.split() if not t.startswith("model=")) or "(defaults)"
+        return (rest, model) if (rest, model) in LADDER_COLUMNS else None
+
+    def put(self, claim: str, reading: str, where: str, model: str, text: str) -> None:
+        if column := self.column(where, model):
+            self.cells.setdefault((claim, reading), {})[column] = text
+
+    def lines(self) -> list[str]:
+        """The table (–: the reading is not measured at that rung), a sentence naming claim 4's budget gates and one
+        naming the readings no rung can test yet (left out of the table)."""
+        if not self.cells:
+            return []
+        head = table_head("claim", "reading", *(f"{m}, `{rung}`" for rung, m in LADDER_COLUMNS))
+        rows, idle = [], []
+        for (claim, reading), got in self.cells.items():
+            if all(v.startswith("not testable") for v in got.values()):
+                idle.append(f"{claim}: {reading}")
+                continue
+            rows.append(
+                f"| {claim} | {reading} | " + " | ".join(short_verdict(got.get(c, "–")) for c in LADDER_COLUMNS) + " |"
+            )
+        untested = f"Not testable at either rung, so not listed: {'; '.join(idle)}.\n"
+        gates = "; ".join(f"`{rung}` {model}: {why}" for (rung, model), why in self.gates.items())
+        gated = (
+            "Claim 4's cells give the ablation's *difference*; its verdicts are read only where the full model meets "
+            f"the default-run targets, and are not testable here: {gates}.\n"
+        )
+        return [*head, *rows, "", *([gated] if gates else []), *([untested] if idle else [])]
+
+
+def short_verdict(text: str) -> str:
+    """A verdict cell for the glance: *not resolved* without its standing reason (the tables say it)."""
+    return "not resolved" if text.startswith("not resolved (") else text
