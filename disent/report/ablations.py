@@ -116,6 +116,8 @@ ABLATION_CLAIMS = (
     ("no_adv", "the adversarial loss: realistic, sharp faces (Eq. 7)", "recon_face_ssim"),
     ("no_pseudo_normal", "the morphable model's normals guide N_e (Eq. 8)", "normal_mean"),
     ("no_pseudo_light", "{light_target} guides the light (Eq. 9)", "light_shading_si_mse"),
+    ("no_pseudo_light", "{light_target} guides the light where the face shows it (Eq. 9)", "sh_error_shown"),
+    ("no_pseudo_light", "{light_target} guides the light, hidden SH directions too (claim 2: a guess)", "sh_error"),
 )
 # E_recon-L targets other than the paper's L-hat: an override (one ending in "=" stands for each of its values,
 # setting_picks; {} in the words) -> its name in words (what no_pseudo_light takes away in a setting that names it),
@@ -202,6 +204,8 @@ CLAIM_METRICS = {  # metric -> its label in the claims' tables
     "recon_face_ssim": "face SSIM",
     "normal_mean": "normals (deg)",
     "light_shading_si_mse": "light on the face",
+    "sh_error_shown": "shown SH error",
+    "sh_error": "SH error, every direction",
 }
 HIGHER_IS_BETTER = ("recon_face_psnr", "recon_face_ssim")
 
@@ -252,7 +256,7 @@ def claim_ablations(rep: Report, runs: list[Run], glance: Glance | None = None) 
             if not rs:
                 continue
             a, b = seed_spread(full.get(where, []), key), seed_spread(rs, key)
-            if a is None and b is None:  # runs scored before the metric existed
+            if b is None or (a is None and full.get(where)):  # an arm's runs scored before the metric existed
                 continue
             diff = verdict(a, b, "higher" if key in HIGHER_IS_BETTER else "lower")
             glance.put("4", f"{ablation}: {CLAIM_METRICS[key]}", where, "explicit", diff)
