@@ -1125,7 +1125,7 @@ def test_no_pseudo_light_names_the_light_target_it_takes_away(tmp_path):
     between them)."""
     good = {"normal_mean": 12.0, "recon_face_psnr": 26.5, "albedo_si_mse": 0.005, "trivial_albedo_si_mse": 0.0127}
     for seed in range(3):
-        make_run(tmp_path, f"full{seed}", seed=seed, eval_={**good, "light_shading_si_mse": 0.005})
+        make_run(tmp_path, f"full{seed}", seed=seed, eval_={**good, "light_shading_si_mse": 0.005, "sh_error": 0.5})
         for name, light, target in (
             ("o", 0.003, "loss.recon_L_target=sh"),
             ("m", 0.004, "loss.recon_L_oracle_mix=0.5"),
@@ -1138,13 +1138,19 @@ def test_no_pseudo_light_names_the_light_target_it_takes_away(tmp_path):
             f"npl{seed}",
             ablations=["no_pseudo_light"],
             seed=seed,
-            eval_={**good, "light_shading_si_mse": 0.01},
+            eval_={**good, "light_shading_si_mse": 0.01, "sh_error": 0.375},
         )
     rep = report.Report(tmp_path, "")
     ablations.claim_ablations(rep, find_runs([tmp_path]))
     reasons = {
-        line.split("|")[1].strip(): line.split("|")[3].strip() for line in rep.lines if "| no_pseudo_light |" in line
+        line.split("|")[1].strip(): line.split("|")[3].strip()
+        for line in rep.lines
+        if "| no_pseudo_light |" in line and "| light on the face |" in line
     }
+    # the SH error: read against the full model scored with it; the other full models were scored before it
+    sh = [line for line in rep.lines if "| SH error, every direction |" in line]
+    assert len(sh) == 1 and sh[0].startswith("| `model=explicit` |") and "| 0.5 ± 0 (n=3) | 0.375 ± 0 (n=3) |" in sh[0]
+    assert "| **refuted** |" in sh[0]  # without E_recon-L lower here: the rule reads it either way
     assert reasons == {
         "`model=explicit`": "L-hat guides the light (Eq. 9)",
         "`loss.recon_L_target=sh model=explicit`": "the true light in L-hat's place guides the light (Eq. 9)",
