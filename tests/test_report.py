@@ -1818,27 +1818,39 @@ def test_background_diagnostic_sets_edits_through_the_background_against_the_fac
 
 
 def test_claim_two_reads_the_light_as_learned_only_where_the_face_shows_it(tmp_path):
-    """The shown/hidden line: each model's shown SH error over its seeds against the mean light's; confirmed only
-    with three seeds beyond the spread, and no line for runs scored before the split existed."""
+    """The shown/hidden table: each setting's and model's shown SH error over its seeds against the mean light's;
+    confirmed only with three seeds beyond the spread, each rung on its own row (and in the glance), and no table
+    for runs scored before the split existed."""
     from disent.report.claims import shown_hidden_lines
 
     light = {"trivial_sh_error_shown": 0.25, "trivial_sh_error_hidden": 0.14}
     light |= {"pseudo_sh_error_shown": 0.19, "pseudo_sh_error_hidden": 19.0}
     for seed, shown in enumerate((0.11, 0.12, 0.115)):
         ev = {"sh_error_shown": shown, "sh_error_hidden": 1.1} | light
-        make_run(tmp_path, f"e{seed}", "explicit", seed=seed, eval_=ev, extra=("+experiment=smoke",))
-    make_run(tmp_path, "i0", "implicit", eval_={"sh_error_shown": 0.3} | light, extra=("+experiment=smoke",))
-    make_run(tmp_path, "old", "explicit", seed=3, eval_={"sh_error": 0.5}, extra=("+experiment=smoke",))
-    (line,) = shown_hidden_lines(find_runs([tmp_path]))
-    assert "explicit 0.115 ± 0.005 (n=3) shown / 1.100 ± 0.000 (n=3) hidden" in line
-    assert "the mean light 0.250 ± 0.000 (n=4) shown" in line and "L-hat 0.190 ± 0.000 (n=4) shown" in line
-    assert "explicit **confirmed**, implicit not testable (1 seed(s); 3 needed)" in line
-    assert "Filled from the mean light" not in line  # no run scored with the completed light
-    assert shown_hidden_lines(find_runs([tmp_path / "old"])) == []
+        make_run(tmp_path, f"e{seed}", "explicit", seed=seed, eval_=ev)
+        ev = {"sh_error_shown": 0.3, "sh_error_hidden": 0.5} | light  # the same seeds at the long rung: worse
+        make_run(tmp_path, f"l{seed}", "explicit", seed=seed, eval_=ev, extra=("+experiment=long",))
+    make_run(tmp_path, "i0", "implicit", eval_={"sh_error_shown": 0.3} | light)
+    make_run(tmp_path, "old", "explicit", seed=3, eval_={"sh_error": 0.5})
+    glance = tables.Glance()
+    lines = shown_hidden_lines(find_runs([tmp_path]), glance)
+    assert "the mean light 0.250 shown / 0.140 hidden" in lines[0] and "L-hat 0.190 shown / 19.000 hidden" in lines[0]
+    rows = {tuple(c.strip() for c in line.split("|")[1:3]): line for line in lines if line.startswith("| `")}
+    assert "| 0.115 ± 0.005 (n=3) | 1.100 ± 0.000 (n=3) | – | **confirmed** |" in rows["`(defaults)`", "explicit"]
+    assert rows["`+experiment=long`", "explicit"].endswith("| **refuted** |")  # 0.3 against the mean light's 0.25
+    assert rows["`(defaults)`", "implicit"].endswith("| not testable (1 seed(s); 3 needed) |")
+    (cells,) = [v for (claim, _), v in glance.cells.items() if claim == "2"]
+    assert cells == {
+        ("(defaults)", "explicit"): "**confirmed**",
+        ("+experiment=long", "explicit"): "**refuted**",
+        ("(defaults)", "implicit"): "not testable (1 seed(s); 3 needed)",
+    }
+    assert shown_hidden_lines(find_runs([tmp_path / "old"]), glance) == []
     filled = {"sh_error_completed": 0.27, "pseudo_sh_error_completed": 0.29, "trivial_sh_error": 0.37}
     make_run(tmp_path, "c", "explicit", seed=4, eval_={"sh_error_shown": 0.1} | light | filled)
-    (line,) = shown_hidden_lines(find_runs([tmp_path]))
-    assert line.endswith("explicit 0.270 (n=1), against L-hat filled the same way 0.290 and the constant light 0.370.")
+    lines = shown_hidden_lines(find_runs([tmp_path]), tables.Glance())
+    assert "0.370 filled (itself)" in lines[0] and "L-hat 0.190 shown / 19.000 hidden / 0.290 filled" in lines[0]
+    assert any(line.startswith("| `(defaults)` | explicit |") and "| 0.270 (n=1) |" in line for line in lines)
 
 
 def test_published_rows_under_a_default_since_changed_match_todays_rows(tmp_path):

@@ -952,49 +952,51 @@ def shown_variance_table(rep: Report, groups: dict, est: dict, glance: Glance) -
     ]
 
 
-def shown_hidden_lines(runs: list[Run]) -> list[str]:
+def shown_hidden_lines(runs: list[Run], glance: Glance) -> list[str]:
     """Claim 2's reading of the SH error split by what a face shows (``sh_error_shown`` / ``sh_error_hidden``),
-    per model over the runs scored with it, beside the mean light and L-hat on the same images."""
+    per setting and model over the runs scored with it, beside the mean light and L-hat on the same images; the
+    verdict (shown error below the mean light's) also put in ``glance``."""
     scored = [r for r in runs if r.value("sh_error_shown") is not None]
     if not scored:
         return []
-    parts, learned = [], []
-    mean_light = seed_spread(scored, "trivial_sh_error_shown")
-    for label, rs, prefix in (
-        *((model, [r for r in scored if r.model == model], "") for model in ("explicit", "implicit")),
-        ("the mean light", scored, "trivial_"),
-        ("L-hat", scored, "pseudo_"),
-    ):
-        shown, hidden = (seed_spread(rs, f"{prefix}sh_error_{k}") for k in ("shown", "hidden"))
-        if shown is not None:
-            parts.append(f"{label} {spread_text(shown, '.3f')} shown / {spread_text(hidden, '.3f')} hidden")
-            if not prefix:
-                learned.append(f"{label} {verdict(shown, mean_light, 'lower')}")
-    completed = [r for r in scored if r.value("sh_error_completed") is not None]
-    filled = ", ".join(
-        f"{model} {spread_text(seed_spread(rs, 'sh_error_completed'), '.3f')}"
-        for model in ("explicit", "implicit")
-        if (rs := [r for r in completed if r.model == model])
+    head = table_head(
+        "setting",
+        "model",
+        "shown SH error",
+        "hidden SH error",
+        "filled from the mean light",
+        "learned: shown below the mean light's",
     )
-    if filled:
-        filled = (
-            f" Filled from the mean light (`sh_error_completed`, every setting scored with it; section *At a glance*): "
-            f"{filled}, against L-hat filled the same way "
-            f"{spread_text(seed_spread(completed, 'pseudo_sh_error_completed'), '.3f', count=False)} and the "
-            f"constant light {spread_text(seed_spread(completed, 'trivial_sh_error'), '.3f', count=False)}."
-        )
+    rows = []
+    for (where, model), rs in sorted(by_setting_and_model(scored).items()):
+        if model not in ("explicit", "implicit"):
+            continue
+        shown, hidden, filled = (seed_spread(rs, f"sh_error_{k}") for k in ("shown", "hidden", "completed"))
+        said = verdict(shown, seed_spread(rs, "trivial_sh_error_shown"), "lower")
+        glance.put("2", "light learned: shown SH error below the mean light's", where, model, said)
+        cells = (spread_text(v, ".3f") for v in (shown, hidden, filled))
+        rows.append(f"| `{where}` | {model} | " + " | ".join(cells) + f" | {said} |")
+
+    def mean(key):  # of a light that is the same for every run: the mean light's, L-hat's
+        return fmt_value((seed_spread(scored, key) or {}).get("mean"), ".3f")
+
+    fixed = (
+        f"the mean light {mean('trivial_sh_error_shown')} shown / {mean('trivial_sh_error_hidden')} hidden / "
+        f"{mean('trivial_sh_error')} filled (itself); L-hat {mean('pseudo_sh_error_shown')} shown / "
+        f"{mean('pseudo_sh_error_hidden')} hidden / {mean('pseudo_sh_error_completed')} filled"
+    )
     return [
-        "- The SH error split by what the face shows (`sh_error_shown` / `sh_error_hidden`, test split, relative to "
+        "The SH error split by what the face shows (`sh_error_shown` / `sh_error_hidden`, test split, relative to "
         "the true light; `disent.eval.metrics.sh_error_shown_hidden`): a face's normals cover part of the sphere, "
         "so the SH directions whose shading over the face carries under 1 % of the largest direction's energy (on "
         "frontal normals ambient, n_z and 3 n_z^2 - 1 are nearly collinear, as are n_y and n_y n_z) are hidden from "
-        "any image of it; the scale is read from the shading. "
-        + "; ".join(parts)
-        + ". A light counts as learned where its shown error beats the mean light's (over the seeds, beyond their "
-        "spread): "
-        + ", ".join(learned)
-        + "; the hidden part is a guess that only a prior (the mean light's) can make well."
-        + filled
+        "any image of it; the scale is read from the shading. A light counts as learned where its shown error beats "
+        "the mean light's (over the seeds, beyond their spread); the hidden part is a guess that only a prior (the "
+        "mean light's) can make well, so *filled* scores each light with its hidden part taken from the mean light "
+        f"(`sh_error_completed`; section *At a glance*). On the same images: {fixed}.\n",
+        *head,
+        *rows,
+        "",
     ]
 
 
@@ -1118,7 +1120,7 @@ def measured_claims(rep: Report, runs: list[Run], eval_dir: Path, glance: Glance
                 f"- The constant mean light scores SH error {trivial['mean']:.3f} on the test split: lower variance "
                 "than L-hat is not by itself evidence of a learned light (section *Lighting stability*)."
             )
-        rep.add(*shown_hidden_lines(done))
+        rep.add("", *shown_hidden_lines(done, glance))
         rep.add("")
     else:
         rep.note("`reports/eval/sh_variance.json`; run `python -m disent.eval.protocols` and publish it.")
