@@ -1072,10 +1072,10 @@ def measured_claims(rep: Report, runs: list[Run], eval_dir: Path, glance: Glance
         if model not in ("explicit", "implicit"):
             continue
         net, pseudo, mean = (seed_spread(rs, k) for k in ("normal_mean", "pseudo_normal_mean", "trivial_normal_mean"))
-        glance.put("1", "normals closer to the truth than the pseudo-GT's", where, model, verdict(net, pseudo, "lower"))
+        said = verdict(net, pseudo, "lower")
+        glance.put("1", "normals closer to the truth than the pseudo-GT's", where, model, said)
         rows.append(
-            f"| `{where}` | {model} | {spread_text(net)} | {spread_text(pseudo)} | {spread_text(mean)} | "
-            f"{verdict(net, pseudo, 'lower')} |"
+            f"| `{where}` | {model} | {spread_text(net)} | {spread_text(pseudo)} | {spread_text(mean)} | {said} |"
         )
     rep.add(
         "### 1. The network's normals go beyond the morphable-model fit that supervised them\n",
@@ -1145,23 +1145,20 @@ def measured_claims(rep: Report, runs: list[Run], eval_dir: Path, glance: Glance
         psnr = {m: seed_spread(by_model.get(m, []), "recon_face_psnr") for m in ("baseline", "explicit", "implicit")}
         ssim = {m: seed_spread(by_model.get(m, []), "recon_face_ssim") for m in ("baseline", "explicit", "implicit")}
         fine = {m: seed_spread(by_model.get(m, []), "albedo_fine_si_mse") for m in ("explicit", "implicit")}
-        for model in (m for m in ("explicit", "implicit") if m in by_model):
-            said = verdict(psnr[model], psnr["baseline"], "higher")
-            glance.put("3", "face PSNR above the 265-d baseline's", where, model, said)
+        above_baseline = {m: verdict(psnr[m], psnr["baseline"], "higher") for m in ("explicit", "implicit")}
+        sharper = verdict(ssim["implicit"], ssim["explicit"], "higher")
+        finer = verdict(fine["implicit"], fine["explicit"], "lower")
+        for m in ("explicit", "implicit"):
+            if m in by_model:
+                glance.put("3", "face PSNR above the 265-d baseline's", where, m, above_baseline[m])
         if "implicit" in by_model:
-            said = verdict(ssim["implicit"], ssim["explicit"], "higher")
-            glance.put("3", "face SSIM above the explicit model's", where, "implicit", said)
-            said = verdict(fine["implicit"], fine["explicit"], "lower")
-            glance.put("3", "albedo details closer than the explicit model's", where, "implicit", said)
+            glance.put("3", "face SSIM above the explicit model's", where, "implicit", sharper)
+            glance.put("3", "albedo details closer than the explicit model's", where, "implicit", finer)
         rows.append(
             f"| `{where}` | {spread_text(psnr['baseline'])} | {spread_text(psnr['explicit'])} | "
-            f"{spread_text(psnr['implicit'])} | "
-            f"{verdict(psnr['explicit'], psnr['baseline'], 'higher')} | "
-            f"{verdict(psnr['implicit'], psnr['baseline'], 'higher')} | "
-            f"{verdict(ssim['implicit'], ssim['explicit'], 'higher')} "
-            f"({' / '.join(spread_text(ssim[m], '.3f') for m in ('baseline', 'explicit', 'implicit'))}) | "
-            f"{verdict(fine['implicit'], fine['explicit'], 'lower')} "
-            f"({' / '.join(spread_text(fine[m], '.5f') for m in ('explicit', 'implicit'))}) |"
+            f"{spread_text(psnr['implicit'])} | {above_baseline['explicit']} | {above_baseline['implicit']} | "
+            f"{sharper} ({' / '.join(spread_text(ssim[m], '.3f') for m in ('baseline', 'explicit', 'implicit'))}) | "
+            f"{finer} ({' / '.join(spread_text(fine[m], '.5f') for m in ('explicit', 'implicit'))}) |"
         )
     rep.add(
         "### 3. The rendering models reconstruct better than the 265-d baseline; the implicit one more sharply\n",
