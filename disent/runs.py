@@ -461,6 +461,15 @@ class Run:
         """The run folder this run was trained in: its own path, or for a record the folder it was copied from."""
         return Path(self.recorded_from) if self.recorded_from else self.path.resolve()
 
+    @property
+    def revision(self) -> str | None:
+        """The git revision the run trained at (``git.txt``, :func:`git_revision`), None where it has none."""
+        try:
+            first = (self.path / "git.txt").read_text().split("\n", 1)[0]
+        except OSError:
+            return None
+        return first.removeprefix("revision: ").strip() if first.startswith("revision: ") else None
+
     # --------------------------------------------------------------- labels
     @property
     def model(self) -> str:

@@ -358,6 +358,25 @@ def test_sections_builds_only_the_named_sections(tmp_path):
         report.build(out, roots=[gone], n_vis=2, sections=["claims"])
 
 
+def test_replicates_set_the_gap_between_a_seeds_runs_beside_the_seed_spread(tmp_path):
+    """A seed trained again (another revision) is one seed in every table; the runs section says how far apart its
+    runs lie beside the spread across seeds, how many revisions trained them, and which seeds agree exactly."""
+    ev = {"recon_face_psnr": 26.0, "albedo_si_mse": 0.01}
+    for name, seed, normal, rev in (("a", 0, 12.0, "aaa"), ("b", 0, 12.25, "bbb"), ("c", 1, 13.0, "aaa")):
+        d = make_run(tmp_path, name, seed=seed, eval_={**ev, "normal_mean": normal})
+        (d / "git.txt").write_text(f"revision: {rev}\nclean\n")
+    for name in ("d", "e"):  # seed 2 twice, the same numbers, no git.txt
+        make_run(tmp_path, name, seed=2, eval_={**ev, "normal_mean": 14.0})
+    make_run(tmp_path, "f", "implicit", eval_={**ev, "normal_mean": 11.0})  # a setting with no seed run twice
+    lines = training.replicate_lines(find_runs([tmp_path]))
+    (row,) = [line for line in lines if line.startswith("| `")]
+    # seed means 12.125, 13, 14: std 0.94; the largest gap 0.25 (seed 0); revisions aaa, bbb; seed 2 agrees
+    assert (
+        row == "| `(defaults)` | explicit | 2 of 3 | 4 | 2 | 0.25 / 0.94 | 0.00 / 0.00 | 0.00000 / 0.00000 | 1 of 2 |"
+    )
+    assert training.replicate_lines(find_runs([tmp_path / "f"])) == []
+
+
 def test_run_status_callback_marks_nan(tmp_path):
     from hydra.core.utils import JobReturn, JobStatus
     from omegaconf import OmegaConf

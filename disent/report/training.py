@@ -70,6 +70,63 @@ def sec_runs(rep: Report, runs: list[Run]) -> None:
         "the pseudo mask, the model's own foreground; `sh_error` on the 27 SH coefficients, including the "
         "directions a face's normals cannot reveal._\n",
     )
+    rep.add(*replicate_lines(runs))
+
+
+REPLICATE_KEYS = (  # (metric, its label, format): what the replicate table compares
+    ("normal_mean", "normals (deg)", ".2f"),
+    ("recon_face_psnr", "face PSNR (dB)", ".2f"),
+    ("albedo_si_mse", "albedo si-MSE", ".5f"),
+)
+
+
+def replicate_lines(runs: list[Run]) -> list[str]:
+    """The settings with a seed trained more than once (at another revision or on another machine; every table
+    averages a seed's runs into one value): per setting and model, the largest gap between one seed's runs beside
+    the spread across seeds, and how many of those seeds gave the same numbers each time."""
+    done = [r for r in runs if r.status == "ok" and r.eval and r.seed is not None]
+    rows = []
+    for (where, model), rs in sorted(by_setting_and_model(done).items()):
+        seeds: dict = {}
+        for r in rs:
+            seeds.setdefault(r.seed, []).append(r)
+        again = [v for v in seeds.values() if len(v) > 1]
+        if not again:
+            continue
+        cells = []
+        for key, _, fmt in REPLICATE_KEYS:
+            values = [[x for r in v if (x := r.value(key)) is not None] for v in again]
+            gap = max((max(vs) - min(vs) for vs in values if len(vs) > 1), default=None)
+            spread = seed_spread(rs, key)
+            cells.append(f"{fmt_value(gap, fmt)} / {fmt_value(spread['std'] if spread else None, fmt)}")
+        same = sum(len({tuple(r.value(k) for k, _, _ in REPLICATE_KEYS) for r in v}) == 1 for v in again)
+        revisions = len({r.revision for v in again for r in v} - {None})
+        rows.append(
+            f"| `{where}` | {model} | {len(again)} of {len(seeds)} | {sum(map(len, again))} | {revisions} | "
+            + " | ".join(cells)
+            + f" | {same} of {len(again)} |"
+        )
+    if not rows:
+        return []
+    head = table_head(
+        "setting",
+        "model",
+        "seeds run again",
+        "their runs",
+        "revisions",
+        *(f"{label}: largest gap / seed spread" for _, label, _ in REPLICATE_KEYS),
+        "seeds whose runs agree to the last digit",
+    )
+    return [
+        "Replicates: seeds trained more than once (the same setting again at a later revision or on another "
+        "machine). Every table averages a seed's runs into one value; the largest gap between one seed's runs "
+        "beside the spread across seeds (std) says whether that hides a change the revisions made. *Revisions*: "
+        "how many git revisions trained them (a record without `git.txt` counts as none); a seed whose runs "
+        "agree to the last digit was trained the same way by each revision.\n",
+        *head,
+        *rows,
+        "",
+    ]
 
 
 CEILING_COLUMNS = (
