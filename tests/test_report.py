@@ -365,8 +365,8 @@ def test_replicates_set_the_gap_between_a_seeds_runs_beside_the_seed_spread(tmp_
     for name, seed, normal, rev in (("a", 0, 12.0, "aaa"), ("b", 0, 12.25, "bbb"), ("c", 1, 13.0, "aaa")):
         d = make_run(tmp_path, name, seed=seed, eval_={**ev, "normal_mean": normal})
         (d / "git.txt").write_text(f"revision: {rev}\nclean\n")
-    for name in ("d", "e"):  # seed 2 twice, the same numbers, no git.txt
-        make_run(tmp_path, name, seed=2, eval_={**ev, "normal_mean": 14.0})
+    for name, normal in (("d", 14.0), ("e", 14.0 + 1e-9)):  # seed 2 twice, the same up to float noise, no git.txt
+        make_run(tmp_path, name, seed=2, eval_={**ev, "normal_mean": normal})
     make_run(tmp_path, "f", "implicit", eval_={**ev, "normal_mean": 11.0})  # a setting with no seed run twice
     lines = training.replicate_lines(find_runs([tmp_path]))
     (row,) = [line for line in lines if line.startswith("| `")]

@@ -80,10 +80,18 @@ REPLICATE_KEYS = (  # (metric, its label, format): what the replicate table comp
 )
 
 
+AGREE = 1e-6  # a seed's runs agree where each metric matches to this relative tolerance (float noise)
+
+
+def numbers(run: Run) -> tuple:
+    """The run's values of :data:`REPLICATE_KEYS` (``nan`` where it has none)."""
+    return tuple(math.nan if (v := run.value(k)) is None else v for k, _, _ in REPLICATE_KEYS)
+
+
 def replicate_lines(runs: list[Run]) -> list[str]:
     """The settings with a seed trained more than once (at another revision or on another machine; every table
     averages a seed's runs into one value): per setting and model, the largest gap between one seed's runs beside
-    the spread across seeds, and how many of those seeds gave the same numbers each time."""
+    the spread across seeds, and how many of those seeds gave the same numbers each time (:data:`AGREE`)."""
     done = [r for r in runs if r.status == "ok" and r.eval and r.seed is not None]
     rows = []
     for (where, model), rs in sorted(by_setting_and_model(done).items()):
@@ -99,7 +107,10 @@ def replicate_lines(runs: list[Run]) -> list[str]:
             gap = max((max(vs) - min(vs) for vs in values if len(vs) > 1), default=None)
             spread = seed_spread(rs, key)
             cells.append(f"{fmt_value(gap, fmt)} / {fmt_value(spread['std'] if spread else None, fmt)}")
-        same = sum(len({tuple(r.value(k) for k, _, _ in REPLICATE_KEYS) for r in v}) == 1 for v in again)
+        same = sum(  # the revisions trained the seed the same way, up to float noise
+            all(math.isclose(a, b, rel_tol=AGREE) for vs in zip(*(numbers(r) for r in v)) for a in vs for b in vs)
+            for v in again
+        )
         revisions = len({r.revision for v in again for r in v} - {None})
         rows.append(
             f"| `{where}` | {model} | {len(again)} of {len(seeds)} | {sum(map(len, again))} | {revisions} | "
@@ -115,14 +126,14 @@ def replicate_lines(runs: list[Run]) -> list[str]:
         "their runs",
         "revisions",
         *(f"{label}: largest gap / seed spread" for _, label, _ in REPLICATE_KEYS),
-        "seeds whose runs agree to the last digit",
+        "seeds whose runs agree (to 6 digits)",
     )
     return [
         "Replicates: seeds trained more than once (the same setting again at a later revision or on another "
         "machine). Every table averages a seed's runs into one value; the largest gap between one seed's runs "
         "beside the spread across seeds (std) says whether that hides a change the revisions made. *Revisions*: "
         "how many git revisions trained them (a record without `git.txt` counts as none); a seed whose runs "
-        "agree to the last digit was trained the same way by each revision.\n",
+        "agree to 6 significant digits on every metric was trained the same way by each revision.\n",
         *head,
         *rows,
         "",
