@@ -83,9 +83,11 @@ REPLICATE_KEYS = (  # (metric, its label, format): what the replicate table comp
 AGREE = 1e-6  # a seed's runs agree where each metric matches to this relative tolerance (float noise)
 
 
-def numbers(run: Run) -> tuple:
-    """The run's values of :data:`REPLICATE_KEYS` (``nan`` where it has none)."""
-    return tuple(math.nan if (v := run.value(k)) is None else v for k, _, _ in REPLICATE_KEYS)
+def agree(runs: list[Run]) -> bool:
+    """Whether one seed's ``runs`` give each metric of :data:`REPLICATE_KEYS` as the first does, up to float noise
+    (:data:`AGREE`); a missing value agrees with nothing."""
+    first, *rest = ([math.nan if (v := r.value(k)) is None else v for k, _, _ in REPLICATE_KEYS] for r in runs)
+    return all(math.isclose(a, b, rel_tol=AGREE) for other in rest for a, b in zip(first, other))
 
 
 def replicate_lines(runs: list[Run]) -> list[str]:
@@ -107,10 +109,7 @@ def replicate_lines(runs: list[Run]) -> list[str]:
             gap = max((max(vs) - min(vs) for vs in values if len(vs) > 1), default=None)
             spread = seed_spread(rs, key)
             cells.append(f"{fmt_value(gap, fmt)} / {fmt_value(spread['std'] if spread else None, fmt)}")
-        same = sum(  # the revisions trained the seed the same way, up to float noise
-            all(math.isclose(a, b, rel_tol=AGREE) for vs in zip(*(numbers(r) for r in v)) for a in vs for b in vs)
-            for v in again
-        )
+        same = sum(agree(v) for v in again)  # seeds the revisions trained the same way
         revisions = len({r.revision for v in again for r in v} - {None})
         rows.append(
             f"| `{where}` | {model} | {len(again)} of {len(seeds)} | {sum(map(len, again))} | {revisions} | "
