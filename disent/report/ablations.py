@@ -244,13 +244,14 @@ def claim_ablations(rep: Report, runs: list[Run], glance: Glance | None = None) 
     rows = []
     for where in sorted({w for w, _ in ablated}):
         misses = budget_misses(full.get(where, []))
-        gate = (
-            "not testable (no full model)"
+        why = (  # the verdicts here are not read: why
+            "no full model"
             if misses is None
-            else f"not testable (targets missed: {len(misses)} of {len(TARGETS)})"
+            else f"targets missed: {len(misses)} of {len(TARGETS)}"
             if misses
             else None
         )
+        gate = why and f"not testable ({why})"
         for ablation, reason, key in ABLATION_CLAIMS:
             rs = ablated.get((where, ablation))
             if not rs:
@@ -260,8 +261,8 @@ def claim_ablations(rep: Report, runs: list[Run], glance: Glance | None = None) 
                 continue
             diff = verdict(a, b, "higher" if key in HIGHER_IS_BETTER else "lower")
             glance.put("4", f"{ablation}: {CLAIM_METRICS[key]}", where, "explicit", diff)
-            if gate and (column := glance.column(where, "explicit")):
-                glance.gates[column] = gate.removeprefix("not testable (").removesuffix(")")
+            if why and (column := glance.column(where, "explicit")):
+                glance.gates[column] = why
             reason_here = reason.format(light_target=light_target_name(where))
             rows.append(
                 f"| `{where}` | {ablation} | {reason_here} | {CLAIM_METRICS[key]} | {spread_text(a, '.4g')} | "
