@@ -57,11 +57,14 @@ def head_revision() -> str | None:
     return _git("rev-parse", "HEAD") or None
 
 
+GIT_LINE, NO_REVISION = "revision: ", "unknown (not a git checkout)"  # git.txt's first line: GIT_LINE + revision
+
+
 def git_revision() -> str:
     """:func:`head_revision` and ``git status --porcelain`` of the source tree, as ``git.txt`` holds them."""
-    rev = head_revision() or "unknown (not a git checkout)"
+    rev = head_revision() or NO_REVISION
     dirty = _git("status", "--porcelain", "--untracked-files=no")
-    return f"revision: {rev}\n" + (f"uncommitted changes:\n{dirty}\n" if dirty else "clean\n")
+    return f"{GIT_LINE}{rev}\n" + (f"uncommitted changes:\n{dirty}\n" if dirty else "clean\n")
 
 
 def write_git_revision(run_dir: Path) -> None:
@@ -468,7 +471,8 @@ class Run:
             first = (self.path / "git.txt").read_text().split("\n", 1)[0]
         except OSError:
             return None
-        return first.removeprefix("revision: ").strip() if first.startswith("revision: ") else None
+        rev = first.removeprefix(GIT_LINE).strip() if first.startswith(GIT_LINE) else None
+        return None if rev == NO_REVISION else rev
 
     # --------------------------------------------------------------- labels
     @property

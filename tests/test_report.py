@@ -368,6 +368,7 @@ def test_replicates_set_the_gap_between_a_seeds_runs_beside_the_seed_spread(tmp_
     for name, normal in (("d", 14.0), ("e", 14.0 + 1e-9)):  # seed 2 twice, the same up to float noise, no git.txt
         make_run(tmp_path, name, seed=2, eval_={**ev, "normal_mean": normal})
     make_run(tmp_path, "f", "implicit", eval_={**ev, "normal_mean": 11.0})  # a setting with no seed run twice
+    (tmp_path / "d" / "git.txt").write_text("revision: unknown (not a git checkout)\nclean\n")  # trained off git
     lines = training.replicate_lines(find_runs([tmp_path]))
     (row,) = [line for line in lines if line.startswith("| `")]
     # seed means 12.125, 13, 14: std 0.94; the largest gap 0.25 (seed 0); revisions aaa, bbb; seed 2 agrees
@@ -375,6 +376,7 @@ def test_replicates_set_the_gap_between_a_seeds_runs_beside_the_seed_spread(tmp_
         row == "| `(defaults)` | explicit | 2 of 3 | 4 | 2 | 0.25 / 0.94 | 0.00 / 0.00 | 0.00000 / 0.00000 | 1 of 2 |"
     )
     assert training.replicate_lines(find_runs([tmp_path / "f"])) == []
+    assert Run.load(tmp_path / "d").revision is None and Run.load(tmp_path / "a").revision == "aaa"
 
 
 def test_run_status_callback_marks_nan(tmp_path):
