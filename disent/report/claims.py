@@ -32,6 +32,7 @@ from disent.report.tables import (
     spread_text,
     table_head,
     verdict,
+    verdict_word,
 )
 from disent.report.training import uv_glance_lines
 from disent.runs import Run, composed_config, group_by_setting, measured_setting, setting, typed
@@ -900,7 +901,7 @@ def beyond_the_fit(groups: dict) -> list[str]:
 def tally(verdicts) -> str:
     """Verdicts of several readings of one claim in one cell: each verdict (less its reason) and how many readings
     give it, of all (``**confirmed** 3, not resolved 2 of 5``)."""
-    said = [v.split(" (")[0] for v in verdicts]
+    said = [verdict_word(v) for v in verdicts]
     counts = {v: said.count(v) for v in dict.fromkeys(sorted(said))}
     return ", ".join(f"{v} {n}" for v, n in counts.items()) + f" of {len(said)}"
 
@@ -1287,7 +1288,7 @@ def measured_claims(rep: Report, runs: list[Run], eval_dir: Path, glance: Glance
     glance_head = table_head("model", "setting", "method", "attribute", *readings)
     glance_rows = [  # the verdicts alone, where some reading has the seeds to give one
         f"| {model} | `{where}` | {method} | {attribute} | "
-        + " | ".join(cells.get(r, "–").split(" (")[0] for r in readings)
+        + " | ".join(verdict_word(cells.get(r, "–")) for r in readings)
         + " |"
         for (model, where, method, attribute), cells in sorted(edits.items())
         if any(not v.startswith(("not testable", "–")) for v in cells.values())

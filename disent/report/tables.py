@@ -152,6 +152,11 @@ class Glance:
         return [*head, *rows, "", *([gated] if gates else []), *([untested] if idle else [])]
 
 
+def verdict_word(text: str) -> str:
+    """A verdict less its reason (``not testable (2 seed(s); 3 needed)`` -> ``not testable``)."""
+    return text.split(" (")[0]
+
+
 def short_verdict(text: str) -> str:
     """A verdict cell for the glance: *not resolved* without its standing reason (the tables say it)."""
     return "not resolved" if text.startswith("not resolved (") else text
