@@ -1726,6 +1726,27 @@ def test_curve_label_shares_a_setting_across_seeds_and_names_a_gpu(tmp_path):
     assert curve_label(gpu) == "explicit: +experiment=long (NVIDIA H100 80GB HBM3)"
 
 
+def test_a_curve_ending_above_the_panel_is_marked_at_its_edge_with_its_value():
+    """A broken run whose final error lies above a learning-curve panel's y limit gets an arrow at the top edge
+    labelled with its value; a run inside the panel gets none; ends at nearly one x share a label."""
+    from disent.report.training import mark_off_chart
+
+    plt = document.pyplot()
+    fig, ax = plt.subplots()
+    ax.plot([0, 10], [20, 64.07])
+    ax.set_ylim(0, 51.2)
+    ax.set_xlim(0, 10)
+    assert mark_off_chart(ax, [(10, 64.07, "C0"), (10, 12.0, "C1"), (2, 80.89, "C2"), (9.8, 82.2, "C3")]) == [
+        80.89,
+        82.2,
+        64.07,
+    ]
+    labels = sorted(t.get_text() for t in ax.texts)
+    assert labels == ["64.1, 82.2", "80.9"]
+    assert all(t.xy[1] == 51.2 for t in ax.texts)  # the arrow points at the edge, not at the clipped value
+    plt.close(fig)
+
+
 def test_ood_section_says_where_a_uv_model_breaks(tmp_path):
     """The out-of-distribution table, and for a model with a UV map the step its normals break in, read where they
     break: the UV map, the UV-space normals looked up at the true UV, or both."""

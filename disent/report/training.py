@@ -486,6 +486,32 @@ def curve_label(run: Run) -> str:
     return f"{run.variant}: {setting(run, drop_model=True)}" + (f" ({gpu})" if gpu else "")
 
 
+def mark_off_chart(ax, ends: list[tuple[float, float, str]]) -> list[float]:
+    """An arrow at the top edge of ``ax``, labelled with the value, for each line end ``(x, y, colour)`` above the
+    panel's y limit: a run that broke far above the reference lines is named, not silently clipped. Ends within 5%
+    of the x range of each other share one label (``"64.1, 80.9"``). Returns the values marked."""
+    top, (x0, x1) = ax.get_ylim()[1], ax.get_xlim()
+    marked = sorted((x, y, c) for x, y, c in ends if y > top)
+    groups = []
+    for end in marked:
+        if groups and end[0] - groups[-1][-1][0] < 0.05 * (x1 - x0):
+            groups[-1].append(end)
+        else:
+            groups.append([end])
+    for group in groups:
+        ax.annotate(
+            ", ".join(f"{y:.3g}" for y in sorted(y for _, y, _ in group)),
+            xy=(float(np.mean([x for x, _, _ in group])), top),
+            xytext=(0, -14),
+            textcoords="offset points",
+            ha="center",
+            fontsize=7,
+            color=group[0][2],
+            arrowprops={"arrowstyle": "->", "color": group[0][2], "lw": 0.8},
+        )
+    return [y for _, y, _ in marked]
+
+
 def plot_learning_curves(runs: list[Run], path: Path, title: str = "", colour_by_setting: bool = False) -> bool:
     """Each accuracy of the ``val`` records against training images (top) and wall minutes (bottom), one
     line per run (a colour per model, or per model and setting; dash-dotted for a ceiling run), with the trivial
@@ -505,16 +531,16 @@ def plot_learning_curves(runs: list[Run], path: Path, title: str = "", colour_by
     for col, (key, trivial, pseudo, label) in enumerate(CURVE_PANELS):
         for row, x in enumerate(("images", "minutes")):
             ax = axes[row][col]
-            seen, finals = set(), []
+            seen, ends = set(), []
             for r, c in curves:
                 pts = [(v[x], v[key]) for v in c if v.get(key) is not None]
                 if not pts or (r.ceiling and key == "recon_face_psnr"):  # a ceiling does not train the reconstruction
                     continue
-                finals.append(pts[-1][1])
-                name = curve_label(r)
+                name, colour = curve_label(r), palette[kinds.index(kind(r)) % len(palette)]  # one colour each, up to 20
+                ends.append((*pts[-1], colour))
                 ax.plot(
                     *zip(*pts),
-                    color=palette[kinds.index(kind(r)) % len(palette)],  # one colour each, up to 20
+                    color=colour,
                     ls="-." if r.ceiling else "-",
                     lw=2.0 if trained_on_gpu(r) else 1.0,
                     label=None if name in seen else name,
@@ -529,8 +555,10 @@ def plot_learning_curves(runs: list[Run], path: Path, title: str = "", colour_by
                     lines.append(float(np.mean(vals)))
                     ax.axhline(lines[-1], color="k", ls=style, lw=1, label=name)
             if lines and key != "recon_face_psnr":  # the first steps' errors would squash the curves that matter;
-                top = max(lines)  # a run that ends far above the reference lines (it broke) stays in view, up to 3x
+                top = max(lines)  # a run that ends far above the reference lines (it broke) stays in view, up to 3x;
+                finals = [y for _, y, _ in ends]  # beyond that an arrow at the top edge names its final value
                 ax.set_ylim(top=max(1.5 * top, min(1.1 * max(finals, default=0), 3 * top)))
+                mark_off_chart(ax, ends)
             ax.set_xlabel("training images" if x == "images" else "training wall minutes")
             if x == "images":  # 250000 runs into its neighbours: 250k
                 ax.xaxis.set_major_formatter(lambda v, _: f"{v / 1000:g}k" if v else "0")
