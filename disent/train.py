@@ -750,13 +750,22 @@ def print_eval(m: dict, run_dir) -> None:
                 line += f"; placed mean texture {template:.4g}" + ("" if m[net] < template else " (NOT beaten)")
             print(line)
     if "normal_spread" in m:
-        from disent.eval.metrics import normals_collapsed
+        from disent.eval.metrics import normals_failure
 
-        flat = "   FLAT: the normals collapsed" if normals_collapsed(m) else ""
+        failure = {
+            "flat": "   FLAT: the normals collapsed",
+            "frame": "   FRAME: the shape learned in a rotated or mirrored frame",
+            "astray": "   ASTRAY: farther than the dataset mean",
+        }.get(normals_failure(m), "")
         print(
             f"  normals' spread about each face's mean  network {m['normal_spread']:.1f}deg   "
-            f"truth {m['true_normal_spread']:.1f}deg{flat}"
+            f"truth {m['true_normal_spread']:.1f}deg{failure}"
         )
+        if "normal_aligned_mean" in m:
+            print(
+                f"  normals after the best rotation or mirror of the frame  {m['normal_aligned_mean']:.2f}deg   "
+                f"(a {'rotation' if m['normal_aligned_det'] > 0 else 'mirror'} by {m['normal_aligned_angle']:.1f}deg)"
+            )
     if "sh_error_coefficients" in m and "trivial_sh_error_coefficients" in m:
         names = ("DC", "y", "z", "x", "xy", "yz", "3z2-1", "xz", "x2-y2")
         print("  light error by SH coefficient " + " ".join(f"{n:>6}" for n in names))

@@ -225,6 +225,28 @@ def test_normal_spread_is_zero_for_a_flat_map_and_blind_to_a_global_rotation():
         normal_spread(n, torch.zeros(2, 1, 6, 6))
 
 
+@pytest.mark.parametrize("deg", [0.0, 25.0, 70.0, 150.0])
+def test_aligned_normal_error_forgives_one_rotation_or_mirror_of_the_frame_and_names_it(deg):
+    from disent.eval.metrics import aligned_normal_error
+
+    n, mask = frontal_normals()
+    rotated = torch.einsum("ij,bjhw->bihw", _rot_x(deg), n)
+    got = aligned_normal_error(rotated, n, mask)
+    assert got["mean"] == pytest.approx(0.0, abs=1e-4)
+    assert got["angle"] == pytest.approx(deg, abs=1e-4) and got["det"] == 1.0
+    assert normal_angular_error(rotated, n, mask)["mean"] > 0.5 * deg  # the plain error sees the rotation
+    mirrored = rotated * torch.tensor([-1.0, 1.0, 1.0], dtype=torch.float64).view(1, 3, 1, 1)  # x -> -x
+    got = aligned_normal_error(mirrored, n, mask)
+    assert got["mean"] == pytest.approx(0.0, abs=1e-4) and got["det"] == -1.0
+    # noise that no one frame map explains stays: its aligned error matches its plain error (the best map is ~I)
+    noisy = torch.nn.functional.normalize(n + 0.2 * _normals(2, 24, 24, seed=3), dim=1)
+    plain, aligned = normal_angular_error(noisy, n, mask)["mean"], aligned_normal_error(noisy, n, mask)
+    assert aligned["mean"] == pytest.approx(plain, rel=0.05)
+    assert aligned["angle"] < 2.0
+    with pytest.raises(ValueError, match="no pixel"):
+        aligned_normal_error(n, n, torch.zeros_like(mask))
+
+
 def frontal_normals(B=2, H=24):
     """Unit normals of a camera-facing cap (n_z >= ~0.5), the share of the sphere a face shows, and its mask."""
     y, x = torch.meshgrid(torch.linspace(-0.8, 0.8, H), torch.linspace(-0.8, 0.8, H), indexing="ij")

@@ -1277,18 +1277,38 @@ def test_skin_albedos_set_one_model_per_setting_beside_the_truth(tmp_path, monke
     assert len(loaded) == 2 and f"{ablations.SKIN_CAPTION} (2 settings):\n" in redrawn
 
 
-def test_ablation_runs_whose_normals_collapsed_flat_are_named(tmp_path):
+def test_ablation_runs_whose_normals_failed_are_named_by_how(tmp_path):
+    """Flat (spread), another frame (worse than the mean map, nearer than it once the frame is aligned) and astray
+    (worse than the mean map either way, or scored before the frame check) each get their list; a run between the
+    pseudo-GT and the mean map, or scored before the spread and the floor were measured, is not a failure."""
     good = {"normal_mean": 12.0, "recon_face_psnr": 26.5, "albedo_si_mse": 0.005, "trivial_albedo_si_mse": 0.0127}
-    spread = {"normal_spread": 37.0, "true_normal_spread": 39.0}
-    make_run(tmp_path, "full", eval_={**good, **spread})
-    make_run(tmp_path, "kept", ablations=["no_pseudo_normal"], eval_={**good, **spread, "normal_mean": 20.0})
-    flat = {**good, "normal_spread": 1.5, "true_normal_spread": 39.0, "normal_mean": 82.0, "albedo_si_mse": 0.03}
+    good |= {"normal_spread": 37.0, "true_normal_spread": 39.0, "trivial_normal_mean": 17.0}
+    make_run(tmp_path, "full", eval_=good)
+    make_run(tmp_path, "kept", ablations=["no_pseudo_normal"], eval_={**good, "normal_mean": 16.0})
+    flat = {**good, "normal_spread": 1.5, "normal_mean": 82.0, "albedo_si_mse": 0.03}
     make_run(tmp_path, "flat", ablations=["no_pseudo_normal"], seed=1, eval_=flat)
-    make_run(tmp_path, "old", ablations=["no_bws"], eval_=good)  # evaluated before the spread was measured
+    turned = {**good, "normal_mean": 64.0, "normal_spread": 31.6}
+    frame = {"normal_aligned_mean": 11.0, "normal_aligned_angle": 58.0, "normal_aligned_det": -1.0}
+    make_run(tmp_path, "turned", ablations=["no_pseudo_normal"], seed=2, eval_={**turned, **frame})
+    make_run(tmp_path, "unchecked", ablations=["no_pseudo_normal"], seed=3, eval_=turned)
+    frame_far = {**frame, "normal_aligned_mean": 24.0, "normal_aligned_det": 1.0}
+    make_run(tmp_path, "far", ablations=["no_pseudo_normal"], seed=4, eval_={**turned, **frame_far})
+    make_run(tmp_path, "old", ablations=["no_bws"], eval_={"normal_mean": 12.0, "recon_face_psnr": 26.5})
     rep = report.Report(tmp_path, "")
     ablations.claim_ablations(rep, find_runs([tmp_path]))
-    listed = [line for line in rep.lines if line.startswith("- `")]
-    assert len(listed) == 1 and "flat`" in listed[0] and "spread 1.5 deg against 39.0" in listed[0], listed
+    lists, current = {}, None
+    for line in rep.lines:
+        if line.startswith("Runs whose normals"):
+            current = lists.setdefault(line.split(" (")[0].split(":")[0], [])
+        elif line.startswith("- `") and current is not None:
+            current.append(line)
+    assert len(lists) == 3, list(lists)
+    flat_list, frame_list, astray_list = lists.values()  # in NORMAL_FAILURES' order
+    assert len(flat_list) == 1 and "flat`" in flat_list[0] and "spread 1.5 deg against 39.0" in flat_list[0]
+    assert len(frame_list) == 1 and "turned`" in frame_list[0]
+    assert "64.0 deg off (the mean map's 17.0); 11.0 deg after a mirror by 58 deg" in frame_list[0]
+    assert [line.split("`")[1].rsplit("/", 1)[-1] for line in astray_list] == ["far", "unchecked"]
+    assert "24.0 deg after a rotation by 58 deg" in astray_list[0] and "after it: –" in astray_list[1]
 
 
 def test_ood_table_reports_where_each_estimator_breaks(tmp_path):

@@ -12,6 +12,7 @@ import torch
 from torch.utils.data import DataLoader, Subset
 
 from disent.eval.metrics import (
+    aligned_normal_error,
     angular_error_deg,
     completed_sh,
     light_shading_si_mse,
@@ -95,7 +96,9 @@ PSEUDO_ERROR_BINS = (0, 5, 10, 20, 180)  # degrees of the pseudo-GT's own error:
 def normal_metrics(normal: torch.Tensor, gt: dict) -> dict:
     """``normal_*``: the angular error of ``normal`` against the true normals; ``pseudo_normal_*``:
     the pseudo-GT's, on the same pixels (:func:`decomposed_region`); ``normal_spread`` and ``true_normal_spread``
-    (:func:`~disent.eval.metrics.normal_spread`); ``normal_mean_where_pseudo_LO_HI``, ``pseudo_normal_mean_...``
+    (:func:`~disent.eval.metrics.normal_spread`); ``normal_aligned_mean``, ``_angle`` and ``_det``: the error left
+    after the best rotation or mirror of the whole frame (:func:`~disent.eval.metrics.aligned_normal_error`);
+    ``normal_mean_where_pseudo_LO_HI``, ``pseudo_normal_mean_...``
     and ``share_...``: both errors, and the pixels' share, where the pseudo-GT errs by LO to HI degrees
     (:data:`PSEUDO_ERROR_BINS`)."""
     both = decomposed_region(gt)
@@ -106,6 +109,8 @@ def normal_metrics(normal: torch.Tensor, gt: dict) -> dict:
     # a collapse check: a model trained without E_recon-N can put one flat normal on every pixel (its albedo then
     # takes the shading); the spread about each image's mean normal shows it, beside the truth's
     m["normal_spread"], m["true_normal_spread"] = normal_spread(normal, both), normal_spread(gt["normal"], both)
+    # and a frame check: what is left once one rotation or mirror of the whole frame is forgiven
+    m.update({f"normal_aligned_{k}": v for k, v in aligned_normal_error(normal, gt["normal"], both).items()})
     # how the network goes beyond the fit: both errors on the pixels binned by the pseudo-GT's own error
     scored = both[:, 0] > 0.5
     errors = {

@@ -91,11 +91,49 @@ def normal_spread(normal: torch.Tensor, mask: torch.Tensor) -> float:
     return angle[w].mean().item()
 
 
+def aligned_normal_error(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> dict:
+    """The angular error left after the one orthogonal map Q of the normals' frame, shared by every masked pixel
+    of the batch, that best takes ``pred`` onto ``target`` (orthogonal Procrustes: Q = U V^T from the SVD of
+    sum t p^T over the pixels).  A rendering of SH order <= 2 cannot tell such a map of the normals from the
+    same map of the light (the degree-2 polynomials in N are closed under it), so the image alone cannot pin the
+    frame: without E_recon-N (Eq. 8) a network may learn the face's shape in a rotated or mirrored frame and still
+    reconstruct the image, held only by E_recon-L (Eq. 9) on its light.
+
+    Returns ``mean`` (degrees, pixels pooled), ``angle`` (degrees: the rotation of Q, or of -Q, a rotation too,
+    where Q mirrors) and ``det`` (+1: a rotation; -1: a mirror)."""
+    m = _mask(mask, pred)[:, 0]
+    if not m.any():
+        raise ValueError("aligned_normal_error: the mask selects no pixel")
+    p = F.normalize(pred.double(), dim=1, eps=1e-12).permute(0, 2, 3, 1)[m]  # [P, 3]
+    t = F.normalize(target.double(), dim=1, eps=1e-12).permute(0, 2, 3, 1)[m]
+    U, _, Vh = torch.linalg.svd(t.T @ p)
+    Q = U @ Vh  # argmax_Q sum t . Q p over orthogonal Q
+    det = torch.linalg.det(Q).sign().item()
+    proper = Q * det
+    angle = math.degrees(math.acos(max(-1.0, min(1.0, (proper.trace().item() - 1.0) / 2.0))))
+    err = torch.rad2deg(torch.acos((p @ Q.T * t).sum(1).clamp(-1.0, 1.0)))
+    return {"mean": err.mean().item(), "angle": angle, "det": det}
+
+
 def normals_collapsed(metrics: dict) -> bool:
     """Whether an evaluation's normals collapsed flat: its ``normal_spread`` under :data:`FLAT_SHARE` of its
     ``true_normal_spread`` (False where either was not measured)."""
     spread, truth = metrics.get("normal_spread"), metrics.get("true_normal_spread")
     return spread is not None and truth is not None and spread < FLAT_SHARE * truth
+
+
+def normals_failure(metrics: dict) -> str | None:
+    """How an evaluation's normals failed, or None: ``"flat"`` (:func:`normals_collapsed`), ``"frame"`` (farther
+    from the truth than the dataset-mean map, ``trivial_normal_mean``, but nearer than it once one rotation or
+    mirror of the whole frame is forgiven, ``normal_aligned_mean``: the face's shape learned in another frame) or
+    ``"astray"`` (farther than the mean map, not flat, and no frame map explains it, or none was measured)."""
+    if normals_collapsed(metrics):
+        return "flat"
+    error, floor = metrics.get("normal_mean"), metrics.get("trivial_normal_mean")
+    if error is None or floor is None or error <= floor:
+        return None
+    aligned = metrics.get("normal_aligned_mean")
+    return "frame" if aligned is not None and aligned < floor else "astray"
 
 
 def _win_size(H: int, W: int) -> int:
@@ -389,6 +427,8 @@ __all__ = [
     "normal_angular_error",
     "normal_spread",
     "normals_collapsed",
+    "aligned_normal_error",
+    "normals_failure",
     "FLAT_SHARE",
     "reconstruction_metrics",
     "scale_invariant_mse",

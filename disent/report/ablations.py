@@ -7,7 +7,7 @@ import json
 import re
 
 from disent.eval import ablation as _ablation
-from disent.eval.metrics import FLAT_SHARE, normals_collapsed
+from disent.eval.metrics import FLAT_SHARE, normals_failure
 from disent.images import on_matte, to_array
 from disent.report.document import Report, pyplot
 from disent.report.pictures import test_batch, wrapped
@@ -287,20 +287,44 @@ def claim_ablations(rep: Report, runs: list[Run], glance: Glance | None = None) 
         *rows,
         "",
     )
-    collapsed = [r for rs in ablated.values() for r in rs if normals_collapsed(r.eval)]
-    if collapsed:
-        rep.add(
-            f"Runs whose normals collapsed flat (their spread about each face's mean normal under {FLAT_SHARE:.0%} of "
-            "the truth's; the albedo then takes the shading, and the reconstruction can stay good):\n",
-            *(
-                f"- `{r.origin}` ({r.variant}, seed {r.seed}): spread {r.value('normal_spread'):.1f} deg against "
-                f"{r.value('true_normal_spread'):.1f}, normals {r.value('normal_mean'):.1f} deg off, albedo "
-                f"{r.value('albedo_si_mse'):.4f} against the mean map's "
-                f"{fmt_value(r.value('trivial_albedo_si_mse'), '.4f')}, face PSNR {r.value('recon_face_psnr'):.2f} dB"
-                for r in sorted(collapsed, key=lambda r: str(r.origin))
-            ),
-            "",
-        )
+    failed = {}  # reason -> runs (disent.eval.metrics.normals_failure)
+    for r in sorted((r for rs in ablated.values() for r in rs), key=lambda r: str(r.origin)):
+        if reason := normals_failure(r.eval):
+            failed.setdefault(reason, []).append(r)
+    for reason, runs in sorted(failed.items(), key=lambda kv: NORMAL_FAILURES.index(kv[0])):
+        rep.add(NORMAL_FAILURE_CAPTIONS[reason], *(_normal_failure_line(r, reason) for r in runs), "")
+
+
+NORMAL_FAILURES = ("flat", "frame", "astray")  # disent.eval.metrics.normals_failure's reasons, in the report's order
+NORMAL_FAILURE_CAPTIONS = {
+    "flat": f"Runs whose normals collapsed flat (their spread about each face's mean normal under {FLAT_SHARE:.0%} of "
+    "the truth's; the albedo then takes the shading, and the reconstruction can stay good):\n",
+    "frame": "Runs whose normals are farther from the truth than the dataset-mean map's but nearer once one rotation "
+    "or mirror of the whole frame is forgiven: the face's shape learned in another frame, which an SH light of order "
+    "2 turned with it renders alike, so the image cannot pin the frame; only the normals' supervision (Eq. 8) and "
+    "the light's (Eq. 9) can (`disent.eval.metrics.aligned_normal_error`):\n",
+    "astray": "Runs whose normals are farther from the truth than the dataset-mean map's without collapsing flat, "
+    "and which no rotation or mirror of the frame brings nearer than it (after it: – where the run was scored "
+    "before the frame check):\n",
+}
+
+
+def _normal_failure_line(r, reason: str) -> str:
+    """One run of a :data:`NORMAL_FAILURE_CAPTIONS` list: its normals' spread and error, what one map of the frame
+    leaves of the error where it was measured, and what the failure did to the albedo and the reconstruction."""
+    aligned = r.value("normal_aligned_mean")
+    if aligned is not None:
+        kind = "rotation" if r.value("normal_aligned_det") > 0 else "mirror"
+        frame = f"; {aligned:.1f} deg after a {kind} by {r.value('normal_aligned_angle'):.0f} deg"
+    else:
+        frame = "; after it: –" if reason == "astray" else ""
+    return (
+        f"- `{r.origin}` ({r.variant}, seed {r.seed}): spread {r.value('normal_spread'):.1f} deg against "
+        f"{r.value('true_normal_spread'):.1f}, normals {r.value('normal_mean'):.1f} deg off (the mean map's "
+        f"{fmt_value(r.value('trivial_normal_mean'), '.1f')}){frame}, "
+        f"albedo {r.value('albedo_si_mse'):.4f} against the mean map's "
+        f"{fmt_value(r.value('trivial_albedo_si_mse'), '.4f')}, face PSNR {r.value('recon_face_psnr'):.2f} dB"
+    )
 
 
 SKIN_METRICS = (  # (key, label, its floor's key or None): where each face's skin went (disent.eval.evaluate.bws_stats)
