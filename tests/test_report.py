@@ -1761,8 +1761,9 @@ def test_a_curve_ending_above_the_panel_is_marked_at_its_edge_with_its_value():
         82.2,
         64.07,
     ]
-    labels = sorted(t.get_text() for t in ax.texts)
-    assert labels == ["64.1, 82.2", "80.9"]
+    labels = {t.get_text(): t.get_color() for t in ax.texts}
+    assert sorted(labels) == ["64.1, 82.2", "80.9"]
+    assert labels["80.9"] == "C2" and labels["64.1, 82.2"] == "0.2"  # a shared label of two lines: neutral
     assert all(t.xy[1] == 51.2 for t in ax.texts)  # the arrow points at the edge, not at the clipped value
     plt.close(fig)
 

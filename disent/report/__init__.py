@@ -135,10 +135,9 @@ SECTIONS = {  # name (--sections): title, builder, its inputs; in the report's o
     section_name(fn): (title, fn, needs)
     for title, fn, needs in (
         ("At a glance: the targets", sec_targets, ("runs",)),
-        ("Runs", sec_runs, ("runs",)),
-        ("Floor and ceiling: what each layer can reach", sec_ceiling, ("runs",)),
-        ("The paper's claims, measured", sec_claims, ("runs", "eval_dir")),
         ("Teaser: input, recon, albedo, normal, shading, matte", sec_teaser, ("runs", "n_vis")),
+        ("The paper's claims, measured", sec_claims, ("runs", "eval_dir")),
+        ("Floor and ceiling: what each layer can reach", sec_ceiling, ("runs",)),
         ("Lighting stability: SH variance (supplement protocol)", sec_sh_variance, ("eval_dir",)),
         ("Ablations", sec_ablation, ("runs",)),
         ("Stability where methods fail", sec_stability, ("eval_dir",)),
@@ -149,6 +148,7 @@ SECTIONS = {  # name (--sections): title, builder, its inputs; in the report's o
         ("Methods on one plane: time against accuracy", sec_methods, ("eval_dir",)),
         ("Benchmarks (`reports/bench*.json`)", sec_bench, ("out",)),
         ("L-hat uncertainty and lighting model order", sec_lighting, ("out",)),
+        ("Runs", sec_runs, ("runs",)),  # every run read, last: the tables above cite it
     )
 }
 

@@ -489,7 +489,8 @@ def curve_label(run: Run) -> str:
 def mark_off_chart(ax, ends: list[tuple[float, float, str]]) -> list[float]:
     """An arrow at the top edge of ``ax``, labelled with the value, for each line end ``(x, y, colour)`` above the
     panel's y limit: a run that broke far above the reference lines is named, not silently clipped. Ends within 5%
-    of the x range of each other share one label (``"64.1, 80.9"``). Returns the values marked."""
+    of the x range of each other share one label (``"64.1, 80.9"``), in their colour where they share one, else dark
+    gray. Returns the values marked."""
     top, (x0, x1) = ax.get_ylim()[1], ax.get_xlim()
     marked = sorted((x, y, c) for x, y, c in ends if y > top)
     groups = []
@@ -499,6 +500,8 @@ def mark_off_chart(ax, ends: list[tuple[float, float, str]]) -> list[float]:
         else:
             groups.append([end])
     for group in groups:
+        colours = {c for _, _, c in group}
+        colour = colours.pop() if len(colours) == 1 else "0.2"  # ends of different lines: a neutral label
         ax.annotate(
             ", ".join(f"{y:.3g}" for y in sorted(y for _, y, _ in group)),
             xy=(float(np.mean([x for x, _, _ in group])), top),
@@ -506,8 +509,8 @@ def mark_off_chart(ax, ends: list[tuple[float, float, str]]) -> list[float]:
             textcoords="offset points",
             ha="center",
             fontsize=7,
-            color=group[0][2],
-            arrowprops={"arrowstyle": "->", "color": group[0][2], "lw": 0.8},
+            color=colour,
+            arrowprops={"arrowstyle": "->", "color": colour, "lw": 0.8},
         )
     return [y for _, y, _ in marked]
 
