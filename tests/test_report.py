@@ -1746,6 +1746,37 @@ def test_curve_label_shares_a_setting_across_seeds_and_names_a_gpu(tmp_path):
     assert curve_label(gpu) == "explicit: +experiment=long (NVIDIA H100 80GB HBM3)"
 
 
+def test_learning_curves_legend_names_each_model_or_each_setting(tmp_path, monkeypatch):
+    """Coloured by model (the ablations' figure), a model's runs at every rung share one colour and one legend
+    entry; coloured by setting, each setting has its own; the reference lines are in both."""
+    import matplotlib.figure
+
+    runs = []
+    for name, abl, rung in (
+        ("f0", (), "smoke"),
+        ("f1", (), "long"),
+        ("b0", ("no_bws",), "smoke"),
+        ("b1", ("no_bws",), "long"),
+    ):
+        d = make_run(tmp_path, name, ablations=abl, extra=(f"+experiment={rung}",))
+        vals = [{"normal_mean": 12.0 - i, "trivial_normal_mean": 17.0, "pseudo_normal_mean": 11.5} for i in range(3)]
+        recs = [{"step": 10 * (i + 1), "wall": 60.0 * (i + 1), "val": v} for i, v in enumerate(vals)]
+        (d / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in recs))
+        runs.append(Run.load(d))
+    legends = []
+    monkeypatch.setattr(
+        matplotlib.figure.Figure,
+        "legend",
+        lambda fig, handles, labels, **kw: legends.append((list(labels), [h.get_color() for h in handles])),
+    )
+    assert training.plot_learning_curves(runs, tmp_path / "by_model.png", colour_by_setting=False)
+    assert training.plot_learning_curves(runs, tmp_path / "by_setting.png", colour_by_setting=True)
+    (by_model, colours), (by_setting, _) = legends
+    assert by_model == ["explicit", "explicit+no_bws", "dataset mean", "pseudo-GT"]
+    assert len(set(colours[:2])) == 2
+    assert sorted(by_setting[:4]) == sorted(training.curve_label(r) for r in runs) and len(by_setting) == 6
+
+
 def test_a_curve_ending_above_the_panel_is_marked_at_its_edge_with_its_value():
     """A broken run whose final error lies above a learning-curve panel's y limit gets an arrow at the top edge
     labelled with its value; a run inside the panel gets none; ends at nearly one x share a label."""

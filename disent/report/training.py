@@ -517,8 +517,8 @@ def mark_off_chart(ax, ends: list[tuple[float, float, str]]) -> list[float]:
 
 def plot_learning_curves(runs: list[Run], path: Path, title: str = "", colour_by_setting: bool = False) -> bool:
     """Each accuracy of the ``val`` records against training images (top) and wall minutes (bottom), one
-    line per run (a colour per model, or per model and setting; dash-dotted for a ceiling run), with the trivial
-    (dataset-mean) baseline dashed and the pseudo-GT dotted."""
+    line per run (a colour and a legend entry per model, or per model and setting; dash-dotted for a ceiling run,
+    thick for a GPU run), with the trivial (dataset-mean) baseline dashed and the pseudo-GT dotted."""
     curves = [(r, val_curves(r)) for r in runs]
     curves = [(r, c) for r, c in curves if c]
     if not curves:
@@ -526,7 +526,7 @@ def plot_learning_curves(runs: list[Run], path: Path, title: str = "", colour_by
     plt = pyplot()
     fig, axes = plt.subplots(2, len(CURVE_PANELS), figsize=(4 * len(CURVE_PANELS), 6.4), squeeze=False)
 
-    def kind(r):  # what shares a colour: the model (and ablation), or each labelled line
+    def kind(r):  # what shares a colour and a legend entry: the model (and ablation), or each setting
         return curve_label(r) if colour_by_setting else r.variant.removesuffix("+ceiling")
 
     kinds = sorted({kind(r) for r, _ in curves})
@@ -539,7 +539,7 @@ def plot_learning_curves(runs: list[Run], path: Path, title: str = "", colour_by
                 pts = [(v[x], v[key]) for v in c if v.get(key) is not None]
                 if not pts or (r.ceiling and key == "recon_face_psnr"):  # a ceiling does not train the reconstruction
                     continue
-                name, colour = curve_label(r), palette[kinds.index(kind(r)) % len(palette)]  # one colour each, up to 20
+                name, colour = kind(r), palette[kinds.index(kind(r)) % len(palette)]  # one colour each, up to 20
                 ends.append((*pts[-1], colour))
                 ax.plot(
                     *zip(*pts),
@@ -607,7 +607,8 @@ def sec_learning_curves(rep: Report, runs: list[Run]) -> None:
                 if not is_recipe_run(r)
                 and (r.ablations or (r.model == "explicit" and r.plain and setting(r) in ablated))
             ],
-            "the ablations beside the full explicit model",
+            "the ablations beside the full explicit model, a colour each at every rung (the longer lines: the longer "
+            "rung)",
             False,
         ),
         (
