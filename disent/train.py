@@ -750,7 +750,7 @@ def print_eval(m: dict, run_dir) -> None:
                 line += f"; placed mean texture {template:.4g}" + ("" if m[net] < template else " (NOT beaten)")
             print(line)
     if "normal_spread" in m:
-        from disent.eval.metrics import normals_failure
+        from disent.eval.metrics import frame_map, normals_failure
 
         failure = {
             "flat": "   FLAT: the normals collapsed",
@@ -764,7 +764,7 @@ def print_eval(m: dict, run_dir) -> None:
         if "normal_aligned_mean" in m:
             print(
                 f"  normals after the best rotation or mirror of the frame  {m['normal_aligned_mean']:.2f}deg   "
-                f"(a {'rotation' if m['normal_aligned_det'] > 0 else 'mirror'} by {m['normal_aligned_angle']:.1f}deg)"
+                f"({frame_map(m)})"
             )
     if "sh_error_coefficients" in m and "trivial_sh_error_coefficients" in m:
         names = ("DC", "y", "z", "x", "xy", "yz", "3z2-1", "xz", "x2-y2")

@@ -556,3 +556,17 @@ def test_learned_layers_reads_the_matte_higher_is_better(capsys):
     T.print_eval({**m, "n_eval": 4, "recon_mse": 0.01, "recon_psnr": 20.0, "recon_ssim": 0.5}, "run")
     matte = next(line for line in capsys.readouterr().out.splitlines() if "matte" in line)
     assert "0.9" in matte and "0.7" in matte and "pseudo-GT 0.86" in matte and matte.endswith("learned")
+
+
+def test_print_eval_names_how_the_normals_failed(capsys):
+    """The run summary names a frame failure (worse than the mean map, nearer than it once the frame is aligned) and
+    prints the error left after the frame map; a learned normal map gets no failure word."""
+    m = {"n_eval": 4, "recon_mse": 0.01, "recon_psnr": 20.0, "recon_ssim": 0.5, "trivial_normal_mean": 17.0}
+    m |= {"normal_mean": 64.0, "normal_spread": 31.6, "true_normal_spread": 39.1}
+    m |= {"normal_aligned_mean": 11.0, "normal_aligned_angle": 58.2, "normal_aligned_det": 1.0}
+    T.print_eval(m, "run")
+    out = capsys.readouterr().out
+    assert "FRAME" in out and "11.00deg   (a rotation by 58 deg)" in out
+    T.print_eval({**m, "normal_mean": 9.6, "normal_aligned_mean": 9.5}, "run")
+    out = capsys.readouterr().out
+    assert not any(word in out for word in ("FRAME", "FLAT", "ASTRAY")) and "(a rotation by 58 deg)" in out

@@ -122,6 +122,12 @@ def normals_collapsed(metrics: dict) -> bool:
     return spread is not None and truth is not None and spread < FLAT_SHARE * truth
 
 
+def frame_map(metrics: dict) -> str:
+    """The best map of the normals' frame an evaluation measured, in words: ``"a rotation by 58 deg"``."""
+    kind = "rotation" if metrics["normal_aligned_det"] > 0 else "mirror"
+    return f"a {kind} by {metrics['normal_aligned_angle']:.0f} deg"
+
+
 def normals_failure(metrics: dict) -> str | None:
     """How an evaluation's normals failed, or None: ``"flat"`` (:func:`normals_collapsed`), ``"frame"`` (farther
     from the truth than the dataset-mean map, ``trivial_normal_mean``, but nearer than it once one rotation or
@@ -429,6 +435,7 @@ __all__ = [
     "normals_collapsed",
     "aligned_normal_error",
     "normals_failure",
+    "frame_map",
     "FLAT_SHARE",
     "reconstruction_metrics",
     "scale_invariant_mse",

@@ -7,7 +7,7 @@ import json
 import re
 
 from disent.eval import ablation as _ablation
-from disent.eval.metrics import FLAT_SHARE, normals_failure
+from disent.eval.metrics import FLAT_SHARE, frame_map, normals_failure
 from disent.images import on_matte, to_array
 from disent.report.document import Report, pyplot
 from disent.report.pictures import test_batch, wrapped
@@ -314,8 +314,7 @@ def _normal_failure_line(r, reason: str) -> str:
     leaves of the error where it was measured, and what the failure did to the albedo and the reconstruction."""
     aligned = r.value("normal_aligned_mean")
     if aligned is not None:
-        kind = "rotation" if r.value("normal_aligned_det") > 0 else "mirror"
-        frame = f"; {aligned:.1f} deg after a {kind} by {r.value('normal_aligned_angle'):.0f} deg"
+        frame = f"; {aligned:.1f} deg after {frame_map(r.eval)}"
     else:
         frame = "; after it: –" if reason == "astray" else ""
     return (
