@@ -1294,6 +1294,8 @@ def test_ablation_runs_whose_normals_failed_are_named_by_how(tmp_path):
     frame_far = {**frame, "normal_aligned_mean": 24.0, "normal_aligned_det": 1.0}
     make_run(tmp_path, "far", ablations=["no_pseudo_normal"], seed=4, eval_={**turned, **frame_far})
     make_run(tmp_path, "old", ablations=["no_bws"], eval_={"normal_mean": 12.0, "recon_face_psnr": 26.5})
+    unspread = {k: v for k, v in turned.items() if "spread" not in k}  # scored before the spread was measured
+    make_run(tmp_path, "unspread", ablations=["no_pseudo_normal"], seed=5, eval_=unspread)
     rep = report.Report(tmp_path, "")
     ablations.claim_ablations(rep, find_runs([tmp_path]))
     lists, current = {}, None
@@ -1307,8 +1309,9 @@ def test_ablation_runs_whose_normals_failed_are_named_by_how(tmp_path):
     assert len(flat_list) == 1 and "flat`" in flat_list[0] and "spread 1.5 deg against 39.0" in flat_list[0]
     assert len(frame_list) == 1 and "turned`" in frame_list[0]
     assert "64.0 deg off (the mean map's 17.0); 11.0 deg after a mirror by 58 deg" in frame_list[0]
-    assert [line.split("`")[1].rsplit("/", 1)[-1] for line in astray_list] == ["far", "unchecked"]
-    assert "24.0 deg after a rotation by 58 deg" in astray_list[0] and "after it: –" in astray_list[1]
+    assert [line.split("`")[1].rsplit("/", 1)[-1] for line in astray_list] == ["far", "unchecked", "unspread"]
+    assert "spread – deg against –, normals 64.0 deg off" in astray_list[2]
+    assert "24.0 deg after a rotation by 58 deg" in astray_list[0] and "after the best frame map –" in astray_list[1]
 
 
 def test_ood_table_reports_where_each_estimator_breaks(tmp_path):
@@ -1796,6 +1799,7 @@ def test_a_curve_ending_above_the_panel_is_marked_at_its_edge_with_its_value():
     assert sorted(labels) == ["64.1, 82.2", "80.9"]
     assert labels["80.9"] == "C2" and labels["64.1, 82.2"] == "0.2"  # a shared label of two lines: neutral
     assert all(t.xy[1] == 51.2 for t in ax.texts)  # the arrow points at the edge, not at the clipped value
+    assert {t.get_text(): t.get_ha() for t in ax.texts} == {"64.1, 82.2": "right", "80.9": "center"}  # runs inwards
     plt.close(fig)
 
 

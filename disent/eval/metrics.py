@@ -95,10 +95,10 @@ def aligned_normal_error(pred: torch.Tensor, target: torch.Tensor, mask: torch.T
     """The angular error left after the one orthogonal map Q of the normals' frame, shared by every masked pixel
     of the batch, that best takes ``pred`` onto ``target`` in least squares (orthogonal Procrustes: Q = U V^T from
     the SVD of sum t p^T over the pixels; least squares on the unit vectors, not the mean angle, so a map near the
-    identity can leave the mean angle a hair above the plain error).  A rendering of SH order <= 2 cannot tell such a map of the normals from the
-    same map of the light (the degree-2 polynomials in N are closed under it), so the image alone cannot pin the
-    frame: without E_recon-N (Eq. 8) a network may learn the face's shape in a rotated or mirrored frame and still
-    reconstruct the image, held only by E_recon-L (Eq. 9) on its light.
+    identity can leave the mean angle a hair above the plain error).  A rendering of SH order <= 2 cannot tell
+    such a map of the normals from the same map of the light (the degree-2 polynomials in N are closed under it),
+    so the image alone cannot pin the frame: without E_recon-N (Eq. 8) a network may learn the face's shape in a
+    rotated or mirrored frame and still reconstruct the image, held only by E_recon-L (Eq. 9) on its light.
 
     Returns ``mean`` (degrees, pixels pooled), ``angle`` (degrees: the rotation of Q, or of -Q, a rotation too,
     where Q mirrors) and ``det`` (+1: a rotation; -1: a mirror)."""

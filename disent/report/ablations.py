@@ -304,8 +304,7 @@ NORMAL_FAILURE_CAPTIONS = {
     "2 turned with it renders alike, so the image cannot pin the frame; only the normals' supervision (Eq. 8) and "
     "the light's (Eq. 9) can (`disent.eval.metrics.aligned_normal_error`):\n",
     "astray": "Runs whose normals are farther from the truth than the dataset-mean map's without collapsing flat, "
-    "and which no rotation or mirror of the frame brings nearer than it (after it: – where the run was scored "
-    "before the frame check):\n",
+    "and which no rotation or mirror of the frame brings nearer than it (–: scored before the frame check):\n",
 }
 
 
@@ -316,10 +315,11 @@ def _normal_failure_line(r, reason: str) -> str:
     if aligned is not None:
         frame = f"; {aligned:.1f} deg after {frame_map(r.eval)}"
     else:
-        frame = "; after it: –" if reason == "astray" else ""
+        frame = "; after the best frame map –" if reason == "astray" else ""
     return (
-        f"- `{r.origin}` ({r.variant}, seed {r.seed}): spread {r.value('normal_spread'):.1f} deg against "
-        f"{r.value('true_normal_spread'):.1f}, normals {r.value('normal_mean'):.1f} deg off (the mean map's "
+        f"- `{r.origin}` ({r.variant}, seed {r.seed}): spread {fmt_value(r.value('normal_spread'), '.1f')} deg "
+        f"against {fmt_value(r.value('true_normal_spread'), '.1f')}, normals {r.value('normal_mean'):.1f} deg off "
+        "(the mean map's "
         f"{fmt_value(r.value('trivial_normal_mean'), '.1f')}){frame}, "
         f"albedo {r.value('albedo_si_mse'):.4f} against the mean map's "
         f"{fmt_value(r.value('trivial_albedo_si_mse'), '.4f')}, face PSNR {r.value('recon_face_psnr'):.2f} dB"

@@ -502,12 +502,14 @@ def mark_off_chart(ax, ends: list[tuple[float, float, str]]) -> list[float]:
     for group in groups:
         colours = {c for _, _, c in group}
         colour = colours.pop() if len(colours) == 1 else "0.2"  # ends of different lines: a neutral label
+        x = float(np.mean([x for x, _, _ in group]))
+        side = (x - x0) / (x1 - x0)  # a label near a side of the panel runs inwards, not over the edge
         ax.annotate(
             ", ".join(f"{y:.3g}" for y in sorted(y for _, y, _ in group)),
-            xy=(float(np.mean([x for x, _, _ in group])), top),
+            xy=(x, top),
             xytext=(0, -14),
             textcoords="offset points",
-            ha="center",
+            ha="left" if side < 0.15 else "right" if side > 0.85 else "center",
             fontsize=7,
             color=colour,
             arrowprops={"arrowstyle": "->", "color": colour, "lw": 0.8},
