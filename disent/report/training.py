@@ -629,7 +629,8 @@ def sec_learning_curves(rep: Report, runs: list[Run]) -> None:
         return
     rep.add(
         "_A layer counts as learned only below its dashed line (the dataset-mean map or light, "
-        "`disent.eval.trivial`); the dotted line is the pseudo ground truth that supervised it._\n"
+        "`disent.eval.trivial`); the dotted line is the pseudo ground truth that supervised it. Thick lines: runs "
+        "trained on a GPU (their wall minutes are the GPU's); dash-dotted: the supervised ceiling._\n"
     )
 
 
