@@ -112,7 +112,7 @@ def aligned_normal_error(pred: torch.Tensor, target: torch.Tensor, mask: torch.T
     det = torch.linalg.det(Q).sign().item()
     proper = Q * det
     angle = math.degrees(math.acos(max(-1.0, min(1.0, (proper.trace().item() - 1.0) / 2.0))))
-    err = torch.rad2deg(torch.acos((p @ Q.T * t).sum(1).clamp(-1.0, 1.0)))
+    err = angular_error_deg(torch.einsum("ij,bjhw->bihw", Q, pred.double()), target.double())[m]
     return {"mean": err.mean().item(), "angle": angle, "det": det}
 
 

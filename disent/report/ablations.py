@@ -291,12 +291,12 @@ def claim_ablations(rep: Report, runs: list[Run], glance: Glance | None = None) 
     for r in sorted((r for rs in ablated.values() for r in rs), key=lambda r: str(r.origin)):
         if reason := normals_failure(r.eval):
             failed.setdefault(reason, []).append(r)
-    for reason, runs in sorted(failed.items(), key=lambda kv: NORMAL_FAILURES.index(kv[0])):
-        rep.add(NORMAL_FAILURE_CAPTIONS[reason], *(_normal_failure_line(r, reason) for r in runs), "")
+    for reason, caption in NORMAL_FAILURE_CAPTIONS.items():  # in the report's order
+        if reason in failed:
+            rep.add(caption, *(_normal_failure_line(r, reason) for r in failed[reason]), "")
 
 
-NORMAL_FAILURES = ("flat", "frame", "astray")  # disent.eval.metrics.normals_failure's reasons, in the report's order
-NORMAL_FAILURE_CAPTIONS = {
+NORMAL_FAILURE_CAPTIONS = {  # each reason of disent.eval.metrics.normals_failure
     "flat": f"Runs whose normals collapsed flat (their spread about each face's mean normal under {FLAT_SHARE:.0%} of "
     "the truth's; the albedo then takes the shading, and the reconstruction can stay good):\n",
     "frame": "Runs whose normals are farther from the truth than the dataset-mean map's but nearer once one rotation "
@@ -319,8 +319,7 @@ def _normal_failure_line(r, reason: str) -> str:
     return (
         f"- `{r.origin}` ({r.variant}, seed {r.seed}): spread {fmt_value(r.value('normal_spread'), '.1f')} deg "
         f"against {fmt_value(r.value('true_normal_spread'), '.1f')}, normals {r.value('normal_mean'):.1f} deg off "
-        "(the mean map's "
-        f"{fmt_value(r.value('trivial_normal_mean'), '.1f')}){frame}, "
+        f"(the mean map's {fmt_value(r.value('trivial_normal_mean'), '.1f')}){frame}, "
         f"albedo {r.value('albedo_si_mse'):.4f} against the mean map's "
         f"{fmt_value(r.value('trivial_albedo_si_mse'), '.4f')}, face PSNR {r.value('recon_face_psnr'):.2f} dB"
     )

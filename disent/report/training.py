@@ -541,7 +541,8 @@ def plot_learning_curves(runs: list[Run], path: Path, title: str = "", colour_by
                 pts = [(v[x], v[key]) for v in c if v.get(key) is not None]
                 if not pts or (r.ceiling and key == "recon_face_psnr"):  # a ceiling does not train the reconstruction
                     continue
-                name, colour = kind(r), palette[kinds.index(kind(r)) % len(palette)]  # one colour each, up to 20
+                name = kind(r)
+                colour = palette[kinds.index(name) % len(palette)]  # one colour each, up to 20
                 ends.append((*pts[-1], colour))
                 ax.plot(
                     *zip(*pts),
