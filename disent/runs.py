@@ -10,9 +10,11 @@ with the error of a failed one).  A running job holds ``.lock`` (:class:`RunLock
 Read: :class:`Run`, :func:`find_runs`, :func:`pick_runs`, :func:`load_models`.  Anything may be missing (a
 crashed or running job); readers return ``None`` or empty lists then, never raise.
 
-Kept: :func:`record_run` copies an ended run's record (everything above but its checkpoints and samples) into
-``reports/runs/``, with ``origin.txt`` naming the folder it came from, so that the report's tables and curves
-outlive the run folders; :func:`find_runs` reads a record like a run folder and prefers the folder itself.
+Kept: :func:`write_records` keeps each ended run as one row of ``reports/runs.jsonl`` (its config, overrides, eval,
+status, revision and machine, and its learning curve thinned to what the report draws; no weights, no path), so that
+the report's tables and curves outlive the run folders.  A run is named by a short stable id (:func:`run_id`, a hash
+of the folder it trained in), never by that folder; :func:`find_runs` reads a row like a run folder and prefers the
+folder itself.
 """
 
 from __future__ import annotations
@@ -177,13 +179,40 @@ def publish(folder, reports="reports") -> list[Path]:
     for p in files:
         target = dest / p.relative_to(folder)
         target.parent.mkdir(parents=True, exist_ok=True)
-        if tool == "bench" and p.suffix == ".json" and target.exists():  # the sections of this run replace theirs
-            merged = {**json.loads(target.read_text()), **json.loads(p.read_text())}
-            atomic_write(target, lambda f: f.write(json.dumps(merged, indent=2, sort_keys=True).encode()))
+        if p.suffix == ".png":  # pictures of faces: a 256-colour dithered palette keeps reports/ small
+            compact_png(p, target)
+        elif p.suffix == ".json":  # a run is named by its id in reports/, never by its folder
+            new = _rounded_all(portable_runs(json.loads(p.read_text())), EVAL_DIGITS)
+            if tool == "bench" and target.exists():  # the sections of this run replace theirs
+                new = {**json.loads(target.read_text()), **new}
+            atomic_write(target, lambda f: f.write(json.dumps(new, sort_keys=True, separators=(",", ":")).encode()))
         else:
             shutil.copyfile(p, target)
         written.append(target)
     return written
+
+
+PUBLISHED_WIDTH = 900  # px
+
+
+def compact_png(src: Path, dest: Path) -> None:
+    """``src`` written to ``dest`` as a PNG at most :data:`PUBLISHED_WIDTH` px wide (a tool figure's 64-px faces
+    keep every pixel) in 256 colours (a median-cut palette, Floyd-Steinberg dithered): about a quarter of its size;
+    a PNG that is one already is copied."""
+    from PIL import Image
+
+    with Image.open(src) as im:
+        if im.mode == "P":
+            if Path(src).resolve() != Path(dest).resolve():
+                shutil.copyfile(src, dest)
+            return
+        rgb = im.convert("RGB")
+    if rgb.width > PUBLISHED_WIDTH:
+        height = round(rgb.height * PUBLISHED_WIDTH / rgb.width)
+        rgb = rgb.resize((PUBLISHED_WIDTH, height), Image.Resampling.LANCZOS)
+    palette = rgb.quantize(colors=256, method=Image.Quantize.MEDIANCUT)
+    picture = rgb.quantize(palette=palette, dither=Image.Dither.FLOYDSTEINBERG)
+    atomic_write(dest, lambda f: picture.save(f, format="PNG", optimize=True))
 
 
 def drop_remeasured(folder: Path, dest: Path) -> None:
@@ -193,9 +222,8 @@ def drop_remeasured(folder: Path, dest: Path) -> None:
     def measured(root):
         found = {}
         for p in root.glob("*/edit.json"):
-            run = (_load_json(p) or {}).get("run")
-            if run and Path(str(run)).is_absolute():  # a run folder, not a shipped model's name
-                found.setdefault(str(Path(str(run)).resolve()), []).append(p.parent)
+            if ref := run_ref((_load_json(p) or {}).get("run")):  # a run, not a shipped model's name
+                found.setdefault(ref, []).append(p.parent)
         return found
 
     again = measured(folder)
@@ -384,9 +412,23 @@ class RunLock:
 
 # ----------------------------------------------------------------------------- reading runs
 RUN_ROOTS = ("outputs", "multirun")
-RECORD = (".hydra/config.yaml", ".hydra/overrides.yaml", ".hydra/hydra.yaml", "eval.json", "metrics.jsonl")
-RECORD += ("status.json", "machine.json", "git.txt")  # what a run folder says about itself, less its weights
-ORIGIN = "origin.txt"  # in a record: the run folder it was copied from
+RECORDS = "runs.jsonl"  # in reports/: one row per ended run the report has read (write_records)
+
+
+def run_id(origin) -> str:
+    """A run's short stable id: the first 6 hex digits of the SHA-1 of the folder it trained in (as a string)."""
+    import hashlib
+
+    return hashlib.sha1(str(origin).encode()).hexdigest()[:6]
+
+
+def run_ref(value) -> str | None:
+    """The run id that a tool's ``run`` field names: ``run:ID`` as published, or a run folder's path (an id is
+    computed from it); None for anything else (a shipped model's name)."""
+    text = str(value or "")
+    if text.startswith("run:"):
+        return text[4:]
+    return run_id(Path(text).resolve()) if text.startswith(("/", ".")) or os.sep in text else None
 
 
 def _load_yaml(path: Path):
@@ -441,7 +483,7 @@ class Run:
     machine: dict | None = None  # machine.json: what it trained on (runs of older versions lack it)
     retyped: list | None = None  # retyped_overrides, once computed
     idle: frozenset | None = None  # idle_keys, once computed
-    recorded_from: str | None = None  # origin.txt of a record (record_run): the run folder it was copied from
+    record: dict | None = None  # the row of reports/runs.jsonl this run was read from (None: a run folder)
 
     @classmethod
     def load(cls, path) -> "Run":
@@ -456,17 +498,43 @@ class Run:
             metrics=read_jsonl(p / "metrics.jsonl"),
             ended=_load_json(p / "status.json"),
             machine=_load_json(p / "machine.json"),
-            recorded_from=(p / ORIGIN).read_text().strip() if (p / ORIGIN).is_file() else None,
+        )
+
+    @classmethod
+    def from_record(cls, row: dict) -> "Run":
+        """A run as its row of ``reports/runs.jsonl`` (:func:`record_row`) keeps it."""
+        return cls(
+            path=Path(f"run:{row['id']}"),
+            cfg=row.get("config") or {},
+            overrides=row.get("overrides") or [],
+            choices=row.get("choices") or {},
+            eval=row.get("eval"),
+            metrics=row.get("curve") or [],
+            ended=row.get("ended"),
+            machine=row.get("machine"),
+            record=row,
         )
 
     @property
-    def origin(self) -> Path:
-        """The run folder this run was trained in: its own path, or for a record the folder it was copied from."""
-        return Path(self.recorded_from) if self.recorded_from else self.path.resolve()
+    def id(self) -> str:
+        """The run's short stable id (:func:`run_id` of the folder it trained in)."""
+        return self.record["id"] if self.record else run_id(self.path.resolve())
+
+    @property
+    def name(self) -> str:
+        """How a page names the run: its variant, seed and id (``explicit+no_bws s1 #3fa2c1``)."""
+        return f"{self.variant} s{self.seed} #{self.id}"
+
+    @property
+    def recipe(self) -> bool:
+        """A run of the training recipe's leave-one-out (ablations/recipe.sh writes them under a ``recipe/`` folder)."""
+        return bool(self.record.get("recipe")) if self.record else "recipe" in self.path.resolve().parts[:-1]
 
     @property
     def revision(self) -> str | None:
         """The git revision the run trained at (``git.txt``, :func:`git_revision`), None where it has none."""
+        if self.record:
+            return self.record.get("revision")
         try:
             first = (self.path / "git.txt").read_text().split("\n", 1)[0]
         except OSError:
@@ -548,6 +616,8 @@ class Run:
         (any other error), ``diverged`` (final total loss above 2x its first logged value),
         ``ok`` (evaluated) or ``incomplete`` (no eval.json: still running or killed)."""
         said = (self.ended or {}).get("status")
+        if self.record and "status" in self.record:  # read from the whole log when the row was written
+            return self.record["status"]
         if said in ("nan", "diverged", "failed"):
             return said
         losses = [r.get("total") for r in self.metrics if "total" in r]
@@ -608,40 +678,143 @@ class RunStatus(Callback):
         (out / "status.json").write_text(json.dumps(status))
 
 
-def find_runs(roots=RUN_ROOTS) -> list[Run]:
-    """Every run folder (one holding ``.hydra/config.yaml``) under ``roots``, sorted by the folder each run came
-    from (a record's origin), so that a run keeps its place in tables and figures once only its record is left; a run
-    found both as its folder and as a record (:func:`record_run`) is read once, from its folder."""
+def find_runs(roots=RUN_ROOTS, records=None) -> list[Run]:
+    """Every run folder (one holding ``.hydra/config.yaml``) under ``roots`` and every row of the records file
+    ``records`` (``reports/runs.jsonl``), sorted by run id, so that a run keeps its place in tables and figures once
+    only its row is left; a run found both as its folder and as a row is read once, from its folder."""
     found = set()
     for root in roots:
         root = Path(root)
         if root.is_dir():
             found.update(c.parent.parent for c in root.rglob(".hydra/config.yaml"))
-    runs = sorted((Run.load(p) for p in found), key=lambda r: (str(r.origin), r.recorded_from is not None))
-    folders = {r.origin for r in runs if r.recorded_from is None}
-    return [r for r in runs if r.recorded_from is None or r.origin not in folders]
+    runs = [Run.load(p) for p in found]
+    folders = {r.id for r in runs}
+    runs += [Run.from_record(row) for row in read_jsonl(records) if row["id"] not in folders] if records else []
+    return sorted(runs, key=lambda r: r.id)
+
+
+TRAIN_SPEED_KEY = "images_per_s"  # logged by every training step (metrics.jsonl)
+
+
+def run_speed(run: Run, key: str) -> float | None:
+    """Median of the values logged under ``key`` (training speed is logged per step; a record keeps the median of
+    its whole log), else eval.json's."""
+    if run.record and key == TRAIN_SPEED_KEY and run.record.get(key) is not None:
+        return float(run.record[key])
+    logged = sorted(r[key] for r in run.metrics if isinstance(r.get(key), (int, float)))
+    if logged:
+        return float(logged[len(logged) // 2])
+    v = run.value(key)
+    return None if v is None else float(v)
 
 
 # ----------------------------------------------------------------------------- records of ended runs
+CURVE_EVERY = 5  # of the training log's loss rows, every 5th is kept (each validation record is kept)
+CURVE_KEYS = ("step", "epoch", "wall", "minutes", "images_per_s", "total", "UV")  # what the report reads of a loss row
+CURVE_VAL_KEYS = (  # what the learning-curve figure draws of each validation record
+    *("normal_mean", "recon_face_psnr", "albedo_face_si_mse", "albedo_si_mse", "sh_error", "light_shading_si_mse"),
+)
+CURVE_REFERENCE_KEYS = (  # its reference lines, the same at every record (kept in the last one)
+    *("trivial_normal_mean", "pseudo_normal_mean", "trivial_albedo_si_mse", "trivial_sh_error", "pseudo_sh_error"),
+    *("trivial_light_shading_si_mse", "pseudo_light_shading_si_mse"),
+)
 
 
-def record_run(run: Run, records) -> Path:
-    """Copy the record of ``run`` (:data:`RECORD`) into ``records/<parent>-<name>/`` with ``origin.txt``, the
-    folder it came from; a record of the same folder is replaced, one of another folder keeps its name (the
-    new one gets the origin's hash).  Returns the record's folder."""
-    import hashlib
+EVAL_DIGITS = 7  # significant digits a record keeps of eval.json and a published JSON (replicates agree to 1e-6)
 
-    origin = str(run.origin)
-    name = f"{run.origin.parent.name}-{run.origin.name}"
-    dest = Path(records) / name
-    if (dest / ORIGIN).is_file() and (dest / ORIGIN).read_text().strip() != origin:
-        dest = dest.with_name(f"{name}-{hashlib.sha1(origin.encode()).hexdigest()[:6]}")
-    for rel in RECORD:
-        if (run.path / rel).is_file():
-            (dest / rel).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copyfile(run.path / rel, dest / rel)
-    (dest / ORIGIN).write_text(origin + "\n")
-    return dest
+
+def _rounded(x, digits: int = 5):
+    """A curve's value to ``digits`` significant digits (a figure draws no more)."""
+    return float(f"{x:.{digits}g}") if isinstance(x, float) and math.isfinite(x) else x
+
+
+def _rounded_all(value, digits: int):
+    """Every float in ``value`` (nested dicts and lists) to ``digits`` significant digits."""
+    if isinstance(value, dict):
+        return {k: _rounded_all(v, digits) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_rounded_all(v, digits) for v in value]
+    return _rounded(value, digits)
+
+
+def thinned_curve(metrics: list[dict]) -> list[dict]:
+    """The learning curve a record keeps: every validation record (the values the figure draws,
+    :data:`CURVE_VAL_KEYS`, and in the last one its reference lines, :data:`CURVE_REFERENCE_KEYS`), and of the loss
+    rows every :data:`CURVE_EVERY`-th and the last, with the keys the report reads (:data:`CURVE_KEYS`), each to 5
+    significant digits."""
+    losses = [i for i, r in enumerate(metrics) if not isinstance(r.get("val"), dict)]
+    vals = [i for i, r in enumerate(metrics) if isinstance(r.get("val"), dict)]
+    kept = set(losses[::CURVE_EVERY] + losses[-1:])
+    out = []
+    for i, r in enumerate(metrics):
+        row = {k: _rounded(r[k]) for k in CURVE_KEYS if k in r}
+        if i in vals:
+            keys = CURVE_VAL_KEYS + (CURVE_REFERENCE_KEYS if i == vals[-1] else ())
+            out.append({**row, "val": {k: _rounded(r["val"][k]) for k in keys if k in r["val"]}})
+        elif i in kept:
+            out.append(row)
+    return out
+
+
+def portable(value):
+    """``value`` with each run folder's path in it (a string) replaced by ``run:ID`` (:func:`run_id`): what a record
+    or a published file may say of another run."""
+    if isinstance(value, dict):
+        return {k: portable(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [portable(v) for v in value]
+    if isinstance(value, str) and value.startswith("/") and not value.startswith("/dev/"):
+        key, sep, path = value.rpartition("=")
+        return f"{key}{sep}run:{run_id(path)}" if sep else f"run:{run_id(value)}"
+    if isinstance(value, str) and "=/" in value:  # an override naming a folder: loss.recon_L_network=/path
+        key, _, path = value.partition("=")
+        return f"{key}=run:{run_id(path)}"
+    return value
+
+
+def portable_runs(value):
+    """A tool's JSON result with each ``run`` field that names a run folder replaced by ``run:ID`` (:func:`portable`):
+    what :func:`publish` copies into ``reports/``."""
+    if isinstance(value, dict):
+        return {k: portable(v) if k == "run" else portable_runs(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [portable_runs(v) for v in value]
+    return value
+
+
+def record_row(run: Run) -> dict:
+    """``run`` as one row of ``reports/runs.jsonl``: what it is (config, overrides, Hydra's group choices), how it
+    ended (status from its whole log, eval, the median training speed), where it trained (revision, machine), and
+    its learning curve thinned (:func:`thinned_curve`); paths become run ids (:func:`portable`)."""
+    return portable(
+        {
+            "id": run.id,
+            "model": run.model,
+            "seed": run.seed,
+            "status": run.status,
+            "revision": run.revision,
+            "recipe": run.recipe,
+            "overrides": [str(o) for o in run.overrides],
+            "choices": run.choices,
+            "config": run.cfg,
+            "eval": _rounded_all(run.eval, EVAL_DIGITS),
+            "ended": run.ended,
+            "machine": run.machine,
+            "images_per_s": run_speed(run, TRAIN_SPEED_KEY),
+            "curve": thinned_curve(run.metrics),
+        }
+    )
+
+
+def write_records(runs, path) -> int:
+    """Add the ended runs among ``runs`` (not ``incomplete``; run folders, not rows) to the records file ``path``,
+    replacing a row of the same id; the file stays sorted by id and is written atomically.  Returns the rows added."""
+    rows = {row["id"]: row for row in read_jsonl(path)}
+    new = [record_row(r) for r in runs if r.record is None and r.status != "incomplete"]
+    rows.update((row["id"], row) for row in new)
+    text = "".join(json.dumps(rows[k], sort_keys=True, separators=(",", ":")) + "\n" for k in sorted(rows))
+    atomic_write(Path(path), lambda f: f.write(text.encode()))
+    return len(new)
 
 
 # overrides that do not change what a run is (its seed, bookkeeping, the CPU time guard of a budget rung)
@@ -822,18 +995,19 @@ def setting(run: Run, drop_model: bool = False, drop: tuple = ()) -> str:
     """What a run is, apart from its seed (and its model, for comparisons across models): what one types today
     to train it again (:func:`defining_overrides`).  ``drop``: more override prefixes to leave out
     (``("ablation=",)``: the setting of the full model it ablates)."""
-    return " ".join(defining_overrides(run, SEED_FREE + (("model=",) if drop_model else ()) + drop)) or "(defaults)"
+    tokens = portable(defining_overrides(run, SEED_FREE + (("model=",) if drop_model else ()) + drop))
+    return " ".join(tokens) or "(defaults)"
 
 
 def measured_setting(info: dict, loaded: dict | None = None) -> str | None:
-    """The setting of a run that a tool measured (its ``run`` folder and ``setting``), read against today's
-    ``conf/`` from the run's folder or record (``loaded``: runs by origin, records among them, so none is read
-    twice); ``shipped`` for a shipped model.  None where neither is left: the setting the tool wrote was read
-    against the ``conf/`` of its day, which may have changed since (its published rows are kept instead)."""
-    folder = Path(str(info.get("run", "")))
+    """The setting of a run that a tool measured (its ``run``: a folder or ``run:ID``, and ``setting``), read
+    against today's ``conf/`` from the run's folder or record (``loaded``: runs by id, records among them, so none
+    is read twice); ``shipped`` for a shipped model.  None where neither is left."""
     if info.get("setting") in (None, "shipped"):
         return info.get("setting", "shipped")
-    run = (loaded or {}).get(folder.resolve())
+    ref = run_ref(info.get("run"))
+    run = (loaded or {}).get(ref)
+    folder = Path(str(info.get("run", "")))
     if run is None and (folder / ".hydra" / "config.yaml").is_file():
         run = Run.load(folder)
     return setting(run, drop_model=True) if run is not None else None

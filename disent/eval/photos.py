@@ -210,9 +210,10 @@ def apply_run(run_dir, records: list, out: Path, n_show: int = 8) -> dict:
     """Figures and gap numbers (``domain_gap_<tag>.json``) of one trained run on the photo records."""
     from disent.data import SynthFaces
     from disent.models import load_run
+    from disent.runs import run_id
 
     model, cfg = load_run(run_dir)
-    tag = f"{cfg.model.name}_" + ("shipped" if model.shipped else "-".join(Path(run_dir).resolve().parts[-2:]))
+    tag = f"{cfg.model.name}_" + ("shipped" if model.shipped else f"run-{run_id(Path(run_dir).resolve())}")
     res = int(cfg.data.resolution)
     if pg.load_cached(records[0])["image"].shape[0] != res:
         raise ValueError(f"run {run_dir} is at {res} px; rerun the photos at --resolution {res}")
@@ -266,7 +267,7 @@ def steps_text(budget: dict) -> str:
 def gap_table(gaps: list[dict]) -> list[str]:
     """The domain-gap table (Markdown lines) of ``gaps`` (:func:`apply_run`'s results, each with its ``tag``):
     each model on the photos and on SynthFaces, its normals and light beside the training set's constants."""
-    from disent.report import table_head
+    from disent.report.tables import table_head
 
     def read(net, const, d):  # the network's number, then the constant's, marked where the network is no better
         return f"{net:.{d}f}" if net < const else f"{net:.{d}f} (not better)"
@@ -312,7 +313,7 @@ def anatomy_table(gaps: list[dict]) -> list[str]:
     (sRGB-encoded: what a model reads without the decoding), on the photos with their crops magnified about the
     centre (:data:`ZOOMS`; 1 is the template's framing, which matches SynthFaces'), and on the photos
     colour-matched to SynthFaces (:func:`colour_matched`)."""
-    from disent.report import table_head
+    from disent.report.tables import table_head
 
     gaps = [g for g in gaps if "normal_vs_pseudo_deg" in g.get("anatomy", {}).get("synthfaces_test_grayscale", {})]
     if not gaps:

@@ -4,7 +4,6 @@ meets its targets."""
 from __future__ import annotations
 
 import json
-import re
 
 from disent.eval import ablation as _ablation
 from disent.eval.metrics import FLAT_SHARE, frame_map, normals_failure
@@ -16,13 +15,12 @@ from disent.report.tables import (
     by_setting_and_model,
     fmt_value,
     is_recipe_run,
-    machines,
     seed_spread,
     spread_text,
     table_head,
     verdict,
 )
-from disent.runs import Run, group_by_setting, joins, load_chosen, pick_runs, setting
+from disent.runs import Run, group_by_setting, joins, load_chosen, pick_runs, run_ref, setting
 
 # What the full explicit model must reach at a budget before ablations there can give verdicts: normal error
 # (deg, at most), face PSNR (dB, at least), albedo scale-invariant error (at most this share of the mean map's)
@@ -210,17 +208,17 @@ CLAIM_METRICS = {  # metric -> its label in the claims' tables
 HIGHER_IS_BETTER = ("recon_face_psnr", "recon_face_ssim")
 
 
-def claim_ablations(rep: Report, runs: list[Run], glance: Glance | None = None) -> None:
-    """Claim 4: each ablation of the explicit model against the full model at the same budget and setting, on the
-    metric where the paper says the ablated piece shows; a verdict only where the full model meets the targets
-    (the differences at the ladder's rungs, and the gates, also put in ``glance``)."""
-    glance = glance or Glance()
+def ablation_readings(runs: list[Run]) -> list[dict]:
+    """Claim 4's readings: each ablation of the explicit model against the full model at the same budget and
+    setting, on the metric where the paper says the ablated piece shows (:data:`ABLATION_CLAIMS`).  Each reading:
+    ``where``, ``ablation``, ``reason``, ``key``, ``full`` and ``ablated`` (seed spreads), ``runs`` (the ablated
+    runs), ``difference`` (the claims' rule) and ``gate`` (why its verdict is not read: the full model misses a
+    default-run target there, or there is none; None where it is read)."""
     done = [r for r in runs if r.status == "ok" and r.eval and r.model == "explicit" and not r.ceiling]
     ablated: dict = {}  # (setting of the full model, ablation) -> runs
     for r in done:
         if len(r.ablations) == 1 and not is_recipe_run(r):
-            where = setting(r, drop=("ablation=",))
-            ablated.setdefault((where, r.ablations[0]), []).append(r)
+            ablated.setdefault((setting(r, drop=("ablation=",)), r.ablations[0]), []).append(r)
     full: dict = {}
     for r in done:
         if r.plain and not is_recipe_run(r):
@@ -231,27 +229,11 @@ def claim_ablations(rep: Report, runs: list[Run], glance: Glance | None = None) 
         for label in full:
             if joined := [r for r in rs if joins(r, where, label)]:
                 ablated.setdefault((label, ablation), []).extend(joined)
-    head = table_head(
-        "setting",
-        "ablation",
-        "what the paper says the piece does",
-        "metric",
-        "full model",
-        "without it",
-        "difference",
-        "verdict",
-    )
-    rows = []
+    readings = []
     for where in sorted({w for w, _ in ablated}):
         misses = budget_misses(full.get(where, []))
-        why = (  # the verdicts here are not read: why
-            "no full model"
-            if misses is None
-            else f"targets missed: {len(misses)} of {len(TARGETS)}"
-            if misses
-            else None
-        )
-        gate = why and f"not testable ({why})"
+        gate = f"targets missed: {len(misses)} of {len(TARGETS)}" if misses else None
+        gate = "no full model" if misses is None else gate
         for ablation, reason, key in ABLATION_CLAIMS:
             rs = ablated.get((where, ablation))
             if not rs:
@@ -260,16 +242,39 @@ def claim_ablations(rep: Report, runs: list[Run], glance: Glance | None = None) 
             if b is None or (a is None and full.get(where)):  # an arm's runs scored before the metric existed
                 continue
             diff = verdict(a, b, "higher" if key in HIGHER_IS_BETTER else "lower")
-            glance.put("4", f"{ablation}: {CLAIM_METRICS[key]}", where, "explicit", diff)
-            if why and (column := glance.column(where, "explicit")):
-                glance.gates[column] = why
             reason_here = reason.format(light_target=light_target_name(where))
-            rows.append(
-                f"| `{where}` | {ablation} | {reason_here} | {CLAIM_METRICS[key]} | {spread_text(a, '.4g')} | "
-                f"{spread_text(b, '.4g')} | {diff} | {gate or diff} |"
+            readings.append(
+                dict(where=where, ablation=ablation, reason=reason_here, key=key, full=a, ablated=b, runs=rs)
+                | dict(difference=diff, gate=gate)
             )
+    return readings
+
+
+def gated_verdict(reading: dict) -> str:
+    """A claim-4 reading's verdict: its difference where the full model meets the targets, else not testable."""
+    return f"not testable ({reading['gate']})" if reading["gate"] else reading["difference"]
+
+
+def claim_ablations(rep: Report, runs: list[Run], glance: Glance | None = None) -> None:
+    """Claim 4's table (:func:`ablation_readings`); a verdict only where the full model meets the targets (the
+    differences at the ladder's rungs, and the gates, also put in ``glance``)."""
+    glance = glance or Glance()
+    columns = ("setting", "ablation", "what the paper says the piece does", "metric", "full model", "without it")
+    head = table_head(*columns, "difference", "verdict")
+    readings = ablation_readings(runs)
+    rows = []
+    for x in readings:
+        plain = f"difference {x['difference'].replace('**', '')}" if x["gate"] else x["difference"]  # not a verdict
+        glance.put("4", f"{x['ablation']}: {CLAIM_METRICS[x['key']]}", x["where"], "explicit", plain)
+        if x["gate"] and (column := glance.column(x["where"], "explicit")):
+            glance.gates[column] = x["gate"]
+        rows.append(
+            f"| `{x['where']}` | {x['ablation']} | {x['reason']} | {CLAIM_METRICS[x['key']]} | "
+            f"{spread_text(x['full'], '.4g')} | {spread_text(x['ablated'], '.4g')} | {x['difference']} | "
+            f"{gated_verdict(x)} |"
+        )
     # a row is its setting, ablation and metric (the paper's reason is words, which may be reworded)
-    if not (rows := rep.rows_kept(head[0], rows, key=(0, 1, 3))):
+    if not rows:
         rep.note(
             "no finished ablation runs of the explicit model; run the suite (`ablations/suite.sh`) and point the "
             "report at its folders."
@@ -288,7 +293,7 @@ def claim_ablations(rep: Report, runs: list[Run], glance: Glance | None = None) 
         "",
     )
     failed = {}  # reason -> runs (disent.eval.metrics.normals_failure)
-    for r in sorted((r for rs in ablated.values() for r in rs), key=lambda r: str(r.origin)):
+    for r in sorted({r.id: r for x in readings for r in x["runs"]}.values(), key=lambda r: r.id):
         if reason := normals_failure(r.eval):
             failed.setdefault(reason, []).append(r)
     for reason, caption in NORMAL_FAILURE_CAPTIONS.items():  # in the report's order
@@ -317,7 +322,7 @@ def _normal_failure_line(r, reason: str) -> str:
     else:
         frame = "; after the best frame map –" if reason == "astray" else ""
     return (
-        f"- `{r.origin}` ({r.variant}, seed {r.seed}): spread {fmt_value(r.value('normal_spread'), '.1f')} deg "
+        f"- {r.name}: spread {fmt_value(r.value('normal_spread'), '.1f')} deg "
         f"against {fmt_value(r.value('true_normal_spread'), '.1f')}, normals {r.value('normal_mean'):.1f} deg off "
         f"(the mean map's {fmt_value(r.value('trivial_normal_mean'), '.1f')}){frame}, "
         f"albedo {r.value('albedo_si_mse'):.4f} against the mean map's "
@@ -364,7 +369,7 @@ def claim_skin(rep: Report, runs: list[Run]) -> None:
         truth(f"true_{key}")
         for key in ("shading_albedo_tone_corr", "shading_albedo_brightness_corr", "albedo_ceiling_share")
     )
-    if not (rows := rep.rows_kept(head[0], rows, key=2)):
+    if not rows:
         rep.note(
             "no run scored for where the skin goes; rescore finished runs with `python -m disent.eval.evaluate RUN`."
         )
@@ -403,15 +408,14 @@ SKIN_CAPTION = (
     "The albedo of one run per setting (explicit; the run's folder in parentheses) on the first "
     f"{SKIN_FACES} test faces, where its own matte is above 0.5, beside the true albedo"
 )
-SKIN_SHOWN = re.compile(re.escape(SKIN_CAPTION) + r" \((\d+) settings\)")  # how many a published figure shows
 
 
 def plot_skin_albedos(rep: Report, groups: dict) -> None:
     """The albedo of one explicit run per setting of the skin table (:func:`pick_runs`; the shipped model for a
     setting whose runs left no checkpoint but include the shipped one) on the same test faces, beside the input and
     the true albedo, each where its matte is above 0.5: how BWS and its c set the albedo's brightness and where it
-    is pinned at 1.  Drawn where two settings or more have a model; a published figure is kept where this build has
-    models for fewer settings than it shows (its caption counts them) and not for every setting of the table."""
+    is pinned at 1.  Drawn where two settings or more have a model; else the committed figure is shown as an
+    earlier build's."""
     from disent.eval.evaluate import predict
     from disent.models.shipped import manifest
 
@@ -422,21 +426,13 @@ def plot_skin_albedos(rep: Report, groups: dict) -> None:
             continue
         if picked := pick_runs(rs, {r.variant for r in rs}):
             sources[where] = next(iter(picked.values()))
-        elif shipped_run and any(str(r.origin) == shipped_run for r in rs):
+        elif shipped_run and any(r.id == run_ref(shipped_run) for r in rs):
             sources[where] = "explicit"  # the shipped weights
-    # a published figure is redrawn only from as many settings as it shows, or from every setting of the table
-    previous = rep.previous.get(rep.title, [])
-    published = any("figures/skin_albedo.png" in line for line in previous)
-    caption = next((line for line in previous if line.startswith(SKIN_CAPTION)), SKIN_CAPTION + ":\n")
-    shown = max((int(m.group(1)) for line in previous if (m := SKIN_SHOWN.search(line))), default=None)
-    settings = sum(model == "explicit" for _, model in groups)
-    fewer = len(sources) < settings and (shown is None or len(sources) < shown)
-    if len(sources) < 2 or (published and fewer):
-        if published:
-            rep.add(caption)
-            rep.note(
-                f"the albedo by setting is kept from an earlier build: here {len(sources)} of the table's {settings} "
-                "settings have a model."
+    if len(sources) < 2:  # the checkpoints are gone: the committed figure stays, said to be an earlier build's
+        if (rep.fig / "skin_albedo.png").is_file():
+            rep.add(
+                f"{SKIN_CAPTION}; drawn by an earlier build from the checkpoints of one run per setting, which are "
+                "gone (each column's title names its setting and run):\n"
             )
             rep.image(rep.fig / "skin_albedo.png", "albedo by setting")
         return
@@ -448,7 +444,7 @@ def plot_skin_albedos(rep: Report, groups: dict) -> None:
     columns = [("input", batch["image"]), ("true albedo", on_matte(batch, "albedo"))]
     for where, model in models.items():
         out = predict(model, batch["image"])
-        shipped = " (shipped weights)" if isinstance(sources[where], str) else f" ({sources[where].path.name})"
+        shipped = " (shipped weights)" if isinstance(sources[where], str) else f" (#{sources[where].id})"
         columns.append((where + shipped, on_matte(out, "albedo")))
     plt = pyplot()
     fig, axes = plt.subplots(SKIN_FACES, len(columns), figsize=(1.15 * len(columns), 1.15 * SKIN_FACES + 0.9))
@@ -466,14 +462,11 @@ def sec_ablation(rep: Report, runs: list[Run]) -> None:
     override), so runs of different settings never share a mean."""
     kept = [r for r in runs if not is_recipe_run(r) and not r.ceiling]  # the ceiling has its own section
     groups, tables = group_by_setting(kept, drop=("ablation=",)), {}
-    start = len(rep.lines)
     for name, rs in sorted(groups.items()) or [("(defaults)", [])]:
         tables[name] = _ablation.ablation_table(rs)
         rep.add(f"### {name if name == '(defaults)' else f'`{name}`'}\n")
         rep.add(_ablation.to_markdown(tables[name]))
         rep.add(budget_check([r for r in rs if r.variant == "explicit" and r.status == "ok"]))
-        rep.add(f"_Trained on: {machines(rs)}._\n")
-    rep.subsections_kept(start)
     (rep.out / "ablation.json").write_text(
-        json.dumps(tables if len(tables) > 1 else next(iter(tables.values()), {}), indent=1)
+        json.dumps(tables if len(tables) > 1 else next(iter(tables.values()), {}), separators=(",", ":"))
     )

@@ -25,7 +25,6 @@ from disent.report.tables import (
     by_setting_and_model,
     fmt_value,
     ladder_runs,
-    machines,
     on_the_ladder,
     seed_spread,
     seeds_cell,
@@ -35,7 +34,7 @@ from disent.report.tables import (
     verdict_word,
 )
 from disent.report.training import uv_glance_lines
-from disent.runs import Run, composed_config, group_by_setting, measured_setting, setting, typed
+from disent.runs import Run, composed_config, group_by_setting, measured_setting, run_ref, setting, typed
 
 # The trainable-models targets by rung: the default rung's absolute ones (TARGETS), the long rung's normals 15 %
 # better than the pseudo-GT they were supervised by (the paper's "beyond the morphable model" claim, with a margin)
@@ -137,7 +136,7 @@ def sec_targets(rep: Report, runs: list[Run]) -> None:
         "learned only where it beats its floor, the dataset-mean map (its error beside it). Test split, mean ± std "
         "over seeds; the floor-and-ceiling section says what the same network reaches on the true layers.\n",
         *head,
-        *rep.rows_kept(head[0], rows, key=2),
+        *rows,
         "",
     )
     template_rows = [
@@ -154,7 +153,7 @@ def sec_targets(rep: Report, runs: list[Run]) -> None:
     head = table_head(
         "setting", "model", *(f"{label}: network / placed mean texture / mean map" for label in TEMPLATE_LABELS)
     )
-    if template_rows := rep.rows_kept(head[0], template_rows, key=2):
+    if template_rows:
         rep.add(
             "A stronger floor for the albedo: the *placed mean texture*, the mean train albedo in UV space put on each "
             "test face through its true uv (`disent.eval.trivial.template_albedo`). It knows where the face's eyes, "
@@ -169,7 +168,7 @@ def sec_targets(rep: Report, runs: list[Run]) -> None:
     rep.add(*uv_glance_lines(runs, ladder_runs(runs)))
     rep.add(*without_truth_lines(runs), *albedo_cause_lines(runs), *light_target_lines(runs))
     light_pattern_section(rep, runs)
-    if light_rows := rep.rows_kept(LIGHT_HEAD[0], light_table(groups), key=2):
+    if light_rows := light_table(groups):
         rep.add(
             "The light against its floor, the *constant light* (the mean train SH, the same for every face): on the "
             "face (the light's shading through the true normals, si-MSE against the true light's) and in its nine "
@@ -269,24 +268,40 @@ def completed_light_lines(runs: list[Run]) -> list[str]:
     ]
 
 
-def progression_figures(rep: Report, edit_dir: Path) -> None:
-    """The lambda progression of each attribute (``fig_<attribute>_progression.png`` of ``python -m disent.edit
-    measure``) for each shipped model whose measurement drew it, under one caption; nothing where none did."""
-    shown = [
-        (res.get("model", p.parent.name), fig)
-        for p in sorted(edit_dir.glob("*/edit.json"))
-        if (res := load_json(p)) and res.get("setting") == "shipped" and not res.get("background")
-        for fig in sorted(p.parent.glob("fig_*_progression.png"))
-    ]
-    if not shown:
-        return
-    rep.add(
+EDIT_FIGURES = (  # (file pattern of python -m disent.edit measure, caption)
+    (
+        "fig_*_progression.png",
         "The edits themselves, on the shipped models (`python -m disent.edit measure NAME`): four test faces without "
         "the attribute, their reconstruction, DMT along the paper's manifolds as lambda falls (a smaller lambda moves "
-        "further), the barycenter, and the generator's own face with the attribute on.\n"
-    )
-    for model, fig in shown:
-        rep.image(fig, f"{model}: {fig.stem[4:].replace('_', ' ')}")
+        "further), the barycenter, and the generator's own face with the attribute on.\n",
+    ),
+    (
+        "fig_*_manifolds.png",
+        "Each attribute edited on each manifold set of the shipped models, the paper's Fig. 5 for every attribute: "
+        "the same faces and strength, one row per set of codes traversed.\n",
+    ),
+    (
+        "fig_relight.png",
+        "Relighting on the shipped models, the paper's Fig. 8 on SynthFaces: each face given another face's light by "
+        "transfer (detailed albedo, Sec. 5.3), the shading ratio and the network's decode, beside the truth.\n",
+    ),
+)
+
+
+def progression_figures(rep: Report, edit_dir: Path) -> None:
+    """The figures of :data:`EDIT_FIGURES` that each shipped model's measurement drew, one caption each; nothing
+    where none did."""
+    shipped = [
+        (res.get("model", p.parent.name), p.parent)
+        for p in sorted(edit_dir.glob("*/edit.json"))
+        if (res := load_json(p)) and res.get("setting") == "shipped" and not res.get("background")
+    ]
+    for pattern, caption in EDIT_FIGURES:
+        shown = [(model, fig) for model, folder in shipped for fig in sorted(folder.glob(pattern))]
+        if shown:
+            rep.add(caption)
+        for model, fig in shown:
+            rep.image(fig, f"{model}: {fig.stem[4:].replace('_', ' ')}")
 
 
 # claim 5's reader-free readings: reading -> (the drawn share whose ceiling, the model's reconstructions of the true
@@ -494,10 +509,11 @@ def network_run(where: str, runs: list[Run]) -> Run | None:
     of a folder since deleted included), else the folder itself; None for a shipped model's name."""
     for t in where.split():
         if t.startswith("loss.recon_L_network="):
-            path = Path(t.partition("=")[2])
-            found = [r for r in runs if r.origin in (path, path.resolve())]
+            value = t.partition("=")[2]
+            found = [r for r in runs if r.id == run_ref(value)]
             if found:
                 return found[0]
+            path = Path(value)
             return Run.load(path) if (path / ".hydra" / "config.yaml").is_file() else None
     return None
 
@@ -938,7 +954,7 @@ def shown_variance_table(rep: Report, groups: dict, est: dict, glance: Glance) -
             f"{mean_light.get('sh_error_shown', float('nan')):.3f} | "
             f"{said} |"
         )
-    if not (rows := rep.rows_kept(head[0], rows, key=2)):
+    if not rows:
         return []
     return [
         "The same protocol on the light the faces show: a face's normals cover part of the sphere, so L-hat's "
@@ -966,7 +982,9 @@ def shown_hidden_lines(runs: list[Run], glance: Glance) -> list[str]:
         "shown SH error",
         "hidden SH error",
         "filled from the mean light",
+        "all 9 coefficients",
         "learned: shown below the mean light's",
+        "all 9 below the mean light's",
     )
     rows = []
     for (where, model), rs in sorted(by_setting_and_model(scored).items()):
@@ -974,16 +992,18 @@ def shown_hidden_lines(runs: list[Run], glance: Glance) -> list[str]:
             continue
         shown, hidden, filled = (seed_spread(rs, f"sh_error_{k}") for k in ("shown", "hidden", "completed"))
         said = verdict(shown, seed_spread(rs, "trivial_sh_error_shown"), "lower")
+        whole = verdict(seed_spread(rs, "sh_error"), seed_spread(rs, "trivial_sh_error"), "lower")
         glance.put("2", "light learned: shown SH error below the mean light's", where, model, said)
-        cells = (spread_text(v, ".3f") for v in (shown, hidden, filled))
-        rows.append(f"| `{where}` | {model} | " + " | ".join(cells) + f" | {said} |")
+        glance.put("2", "light learned: SH error, all 9 coefficients, below the mean light's", where, model, whole)
+        cells = (spread_text(v, ".3f") for v in (shown, hidden, filled, seed_spread(rs, "sh_error")))
+        rows.append(f"| `{where}` | {model} | " + " | ".join(cells) + f" | {said} | {whole} |")
 
     def mean(key):  # of a light that is the same for every run: the mean light's, L-hat's
         return fmt_value((seed_spread(scored, key) or {}).get("mean"), ".3f")
 
     fixed = (
         f"the mean light {mean('trivial_sh_error_shown')} shown / {mean('trivial_sh_error_hidden')} hidden / "
-        f"{mean('trivial_sh_error')} filled (itself); L-hat {mean('pseudo_sh_error_shown')} shown / "
+        f"{mean('trivial_sh_error')} filled and all 9 (itself); L-hat {mean('pseudo_sh_error_shown')} shown / "
         f"{mean('pseudo_sh_error_hidden')} hidden / {mean('pseudo_sh_error_completed')} filled"
     )
     return [
@@ -1029,8 +1049,9 @@ def background_lines(measured: list[tuple]) -> list[str]:
     ]
 
 
-def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
-    """The paper's claims, each with its numbers (mean ± std over seeds, grouped by setting) and a verdict."""
+def sec_claims(rep: Report, runs: list[Run], eval_dir: Path, glance: Glance | None = None) -> None:
+    """The paper's claims, each with its numbers (mean ± std over seeds, grouped by setting) and a verdict; the
+    verdicts at the ladder's rungs also go into ``glance`` (the front page's claims table reads them)."""
     done = ladder_runs(runs)
     if not done:
         rep.note(
@@ -1043,10 +1064,9 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
         "(std). Runs of the budget ladder only (the defaults, `+experiment=long`; no other override), grouped by "
         "their *setting*: what one types today to train them again, apart from the seed and the time guard (the "
         "config groups, and each run-defining value that differs from today's `conf/`, so runs trained before a "
-        "default changed show the old value). Trained on: "
-        f"{machines(done)}.\n"
+        "default changed show the old value). The machines that trained them: the runs page.\n"
     )
-    glance, at = Glance(), len(rep.lines)
+    glance, at = glance if glance is not None else Glance(), len(rep.lines)
     try:
         measured_claims(rep, runs, eval_dir, glance)
     finally:  # the verdicts at a glance, above the tables they come from
@@ -1060,10 +1080,42 @@ def sec_claims(rep: Report, runs: list[Run], eval_dir: Path) -> None:
             ]
 
 
+def edit_groups(edit_dir: Path, loaded: dict) -> tuple[dict, list]:
+    """The published edit results (``edit/*/edit.json``) by ``(model, setting)`` (its trained models, seeds), and
+    the ``--background`` diagnostics as ``(model, setting, result)``; ``loaded``: the runs by id, which name each
+    result's setting (:func:`disent.runs.measured_setting`)."""
+    groups: dict = {}
+    outside = []
+    for p in sorted(edit_dir.glob("*/edit.json")):
+        res = load_json(p)
+        where = measured_setting(res, loaded) if res and res.get("claims") else None
+        if where is not None and res.get("background"):
+            outside.append((res.get("model", p.parent.name), where, res))
+        elif where is not None:
+            groups.setdefault((res.get("model", p.parent.name), where), []).append(res)
+    return groups, outside
+
+
+def drawn_rates(results: list[dict]) -> dict:
+    """``{attribute: edit_rates}`` of one setting's edit results."""
+    return {a: edit_rates(results, a) for a in {c["attribute"] for res in results for c in res["claims"]}}
+
+
+def reader_rows(model: str, where: str, results: list[dict], drawn: dict) -> tuple[list[str], list[tuple], dict]:
+    """Claim 5 read by the attribute classifier (gain per leakage, :func:`manifold_rows`), where some manifold set
+    makes the edit and the model can draw the attribute at all (``drawn``: :func:`drawn_rates`)."""
+
+    def reader_works(attribute, success):
+        drawable = drawn[attribute].get("truth reconstructed")
+        return success >= EDIT_WORKS and not (drawable and drawable["mean"] < EDIT_WORKS)
+
+    return manifold_rows(model, where, results, "gain_per_leak", "best_success", reader_works)
+
+
 def measured_claims(rep: Report, runs: list[Run], eval_dir: Path, glance: Glance) -> None:
     """The claims' sections, each table's verdicts at the ladder's rungs also put in ``glance``."""
     done = ladder_runs(runs)
-    loaded = {r.origin: r for r in runs}  # for the tools' records of these runs
+    loaded = {r.id: r for r in runs}  # for the tools' records of these runs
     head = table_head("setting", "model", "network normals (deg)", "pseudo-GT (deg)", "mean map (deg)", "verdict")
     groups: dict = {}
     for r in done:
@@ -1081,7 +1133,7 @@ def measured_claims(rep: Report, runs: list[Run], eval_dir: Path, glance: Glance
     rep.add(
         "### 1. The network's normals go beyond the morphable-model fit that supervised them\n",
         *head,
-        *rep.rows_kept(head[0], rows, key=2),
+        *rows,
     )
     rep.add("", *beyond_the_fit(groups))
     rep.add("", "### 2. The network's light varies less across identities under one light than L-hat\n")
@@ -1107,7 +1159,7 @@ def measured_claims(rep: Report, runs: list[Run], eval_dir: Path, glance: Glance
                 f"{spread_text(err, '.3f')} | "
                 f"{ls['sh_error']:.3f} | {said} |"
             )
-        if rows := rep.rows_kept(head[0], rows, key=2):
+        if rows:
             rep.add(
                 "Relative variance and SH error on the light bank (`python -m disent.eval.protocols --every-run`), "
                 "mean ± std over the trained models of a setting, against L-hat's (a deterministic fit: no "
@@ -1169,21 +1221,13 @@ def measured_claims(rep: Report, runs: list[Run], eval_dir: Path, glance: Glance
         "scale-invariant error below a 2-px blur, eyes, brows, lips; the floor-and-ceiling section's *detail*), the "
         "layer the implicit model draws in UV space. Test split, mean ± std over seeds.\n",
         *head,
-        *rep.rows_kept(head[0], rows),
+        *rows,
     )
     rep.add("", "### 4. BWS prevents degenerate shading; each prior does what the paper says\n")
     claim_ablations(rep, runs, glance)
     claim_skin(rep, runs)
     rep.add("### 5. Edits on the paper's manifolds change the attribute with less leakage than other manifolds\n")
-    groups: dict = {}  # (model, setting) -> the edit results of its trained models (seeds)
-    outside = []  # the --background diagnostics: (model, setting, result)
-    for p in sorted((eval_dir.parent / "edit").glob("*/edit.json")):
-        res = load_json(p)
-        where = measured_setting(res, loaded) if res and res.get("claims") else None
-        if where is not None and res.get("background"):
-            outside.append((res.get("model", p.parent.name), where, res))
-        elif where is not None:
-            groups.setdefault((res.get("model", p.parent.name), where), []).append(res)
+    groups, outside = edit_groups(eval_dir.parent / "edit", loaded)
     head = table_head(
         "model",
         "setting",
@@ -1198,13 +1242,8 @@ def measured_claims(rep: Report, runs: list[Run], eval_dir: Path, glance: Glance
     free = {reading: [] for reading in READER_FREE}
     edits: dict = {}  # (model, setting, method, attribute) -> reading -> verdict
     for (model, where), results in sorted(groups.items()):
-        drawn = {a: edit_rates(results, a) for a in {c["attribute"] for res in results for c in res["claims"]}}
-
-        def reader_works(attribute, success):  # some set makes the edit, and the model can draw the attribute
-            drawable = drawn[attribute].get("truth reconstructed")
-            return success >= EDIT_WORKS and not (drawable and drawable["mean"] < EDIT_WORKS)
-
-        found, cannot, said = manifold_rows(model, where, results, "gain_per_leak", "best_success", reader_works)
+        drawn = drawn_rates(results)
+        found, cannot, said = reader_rows(model, where, results, drawn)
         rows += found
         for cell, text in said.items():
             edits.setdefault((model, where, *cell), {})["gain per leakage (reader)"] = text
@@ -1269,7 +1308,7 @@ def measured_claims(rep: Report, runs: list[Run], eval_dir: Path, glance: Glance
         "transfer - ratio under the soft rest, one scale per image",
     )
     rows, idle, relit, relit_regions, relit_matte = (
-        rep.rows_kept(h[0], r, key=k)
+        r
         for h, r, k in (
             (head, rows, 4),
             (idle_head, idle, 2),
@@ -1297,7 +1336,7 @@ def measured_claims(rep: Report, runs: list[Run], eval_dir: Path, glance: Glance
         glance.put(
             "5", f"{attribute} by {method}: the paper's manifolds leak less", where, model, tally(cells.values())
         )
-    if glance_rows := rep.rows_kept(glance_head[0], glance_rows, key=4):
+    if glance_rows:
         rep.add(
             "At a glance: the verdict of each reading of the claim (the tables below give the numbers, and why a "
             "cell is not testable), for the edits where some reading has the seeds and the edit to give one.\n",
@@ -1377,7 +1416,7 @@ def measured_claims(rep: Report, runs: list[Run], eval_dir: Path, glance: Glance
             f"best {READER_FREE[reading][0].replace('drawn share', 'drawn')}, of what the model draws",
             "verdict",
         )
-        if kept := rep.rows_kept(head[0], free[reading], key=4):
+        if kept := free[reading]:
             rep.add(text, *head, *kept, "")
     rep.add(*background_lines(outside))
     progression_figures(rep, eval_dir.parent / "edit")

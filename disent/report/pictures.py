@@ -8,7 +8,7 @@ from pathlib import Path
 import torch
 
 from disent.images import to_array
-from disent.report.document import pyplot
+from disent.report.document import pyplot, save_figure
 
 
 def image_grid(rows: list[tuple[str, torch.Tensor]], path: Path, title: str) -> None:
@@ -26,8 +26,7 @@ def image_grid(rows: list[tuple[str, torch.Tensor]], path: Path, title: str) -> 
                 ax.set_ylabel(name, fontsize=7)
     fig.suptitle(wrapped(title, int(width * 15)), fontsize=8)  # about 15 characters an inch at 8 pt
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def test_batch(n: int, resolution: int = 64):

@@ -3,20 +3,10 @@
 from __future__ import annotations
 
 from disent.eval import ablation as _ablation
-from disent.runs import Run, defining_overrides, machine_text, setting
+from disent.runs import TRAIN_SPEED_KEY, Run, defining_overrides, machine_text, run_speed, setting  # noqa: F401
 
 MODELS = ("baseline", "explicit", "implicit")
-TRAIN_SPEED_KEY = "images_per_s"  # logged by every training step (metrics.jsonl)
 INFER_SPEED_KEY = "infer_images_per_s"  # eval.json
-
-
-def run_speed(run: Run, key: str) -> float | None:
-    """Median of the values logged under ``key`` (training speed is logged per step), else eval.json's."""
-    logged = sorted(r[key] for r in run.metrics if isinstance(r.get(key), (int, float)))
-    if logged:
-        return float(logged[len(logged) // 2])
-    v = run.value(key)
-    return None if v is None else float(v)
 
 
 RUNG = ("model=", "+experiment=", "experiment=")  # a run of the budget ladder sets only these
@@ -97,7 +87,7 @@ def verdict(a, b, better: str) -> str:
 def is_recipe_run(run: Run) -> bool:
     """A run of the training recipe's leave-one-out (ablations/recipe.sh): a folder under a ``recipe/`` folder.
     Each changes a setting without an ``+ablation``, so it belongs in the recipe table, not among a model's seeds."""
-    return "recipe" in run.origin.parts[:-1]
+    return run.recipe
 
 
 def by_setting_and_model(runs) -> dict:

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from disent.eval import ablation as _ablation
-from disent.report.document import Report, load_json, rel_path
+from disent.report.document import Report, load_json
 from disent.report.tables import spread_text, table_head, verdict
 
 
@@ -66,7 +66,7 @@ def published_figure(rep: Report, path: Path, alt: str) -> None:
     if path.is_file():
         rep.image(path, alt)
     else:
-        rep.note(f"`{rel_path(path, rep.out)}` is missing; publish the tool folder that wrote the JSON beside it.")
+        rep.note(f"`{rep.link(path)}` is missing; publish the tool folder that wrote the JSON beside it.")
 
 
 def _stability_conditioning(rep: Report, cond: dict | None, eval_dir: Path) -> None:

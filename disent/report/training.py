@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from disent.images import on_matte, over_max
-from disent.report.document import Report, pyplot
+from disent.report.document import Report, pyplot, save_figure
 from disent.report.pictures import image_grid, test_batch
 from disent.report.tables import (
     INFER_SPEED_KEY,
@@ -26,7 +26,7 @@ from disent.report.tables import (
     spread_text,
     table_head,
 )
-from disent.runs import Run, load_chosen, pick_runs, setting
+from disent.runs import Run, load_chosen, machine_text, pick_runs, portable, setting
 
 ERROR_WHITE = 40.0  # degrees of angular error drawn white in the normals figure
 
@@ -55,13 +55,14 @@ def sec_runs(rep: Report, runs: list[Run]) -> None:
     def f(v):
         return "–" if v is None else f"{v:.4g}"
 
-    head = table_head("run", "variant", "seed", "status", "train img/s", "infer img/s", *cols)
+    head = table_head("run", "setting", "variant", "seed", "status", "machine", "train img/s", "infer img/s", *cols)
     rows = [
-        f"| `{r.origin}` | {r.variant} | {r.seed} | {r.status} | {f(run_speed(r, TRAIN_SPEED_KEY))} | "
+        f"| {r.id} | `{setting(r, drop_model=True)}` | {r.variant} | {r.seed} | {r.status} | "
+        f"{machine_text(r.machine) if r.machine else '–'} | {f(run_speed(r, TRAIN_SPEED_KEY))} | "
         f"{f(run_speed(r, INFER_SPEED_KEY))} | " + " | ".join(f(r.value(c)) for c in cols) + " |"
-        for r in runs
+        for r in sorted(runs, key=lambda r: (setting(r, drop_model=True), r.variant, str(r.seed), r.id))
     ]
-    rep.add(*head, *rep.rows_kept(head[0], rows, unless="| incomplete |"))  # a running job's row is not kept
+    rep.add(*head, *rows)
     rep.add(
         "",
         "_`trivial_*`: the dataset-mean normal map, albedo map and light on the same test images "
@@ -254,22 +255,19 @@ def sec_ceiling(rep: Report, runs: list[Run]) -> None:
     )
 
 
-RUN_ORIGIN = "run `"  # how a teaser drawn from a run names where it was trained: sec_teaser looks for it
-
-
 def trained_as(source: Run | str) -> tuple[str, str]:
     """What a teaser's model is (its setting, seed and steps) and where it was trained, for a run or the name of a
     shipped model (its manifest: the config, steps and run folder it was trained in)."""
     if isinstance(source, Run):
         what = f"`{setting(source, drop_model=True)}`, seed {source.seed}, {source.value('steps') or 0:,.0f} steps"
-        return what, f"{RUN_ORIGIN}{source.origin}`"
+        return what, f"run {source.name}"
     from disent.models.shipped import manifest
     from disent.report.claims import shipped_setting
 
     entry = manifest()[source]
     seed, steps = entry["cfg"].get("seed"), entry["steps"]
     what = f"shipped weights, `{shipped_setting(source, full=True)}`, seed {seed}, {steps:,} steps"
-    return what, f"`disent/weights/{entry['file']}`, trained in `{entry['run']}`"
+    return what, f"`disent/weights/{entry['file']}`, trained as run {portable(str(entry['run']))}"
 
 
 def scores(source: Run | str):
@@ -288,9 +286,7 @@ def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
 
     chosen = pick_runs(ladder_runs(runs))  # the paper's models as configured, side by side from the same runs
     missing = [m for m in MODELS if m not in chosen]
-    # no ladder run at all, and no teaser drawn from runs published: the shipped weights
-    from_runs = any(f"; {RUN_ORIGIN}" in block for block in rep.previous.get(rep.title, []))
-    if len(missing) == len(MODELS) and set(MODELS) <= set(manifest()) and not from_runs:
+    if len(missing) == len(MODELS) and set(MODELS) <= set(manifest()):  # no ladder run at all: the shipped weights
         chosen = {m: m for m in MODELS}
     elif missing:  # only notes: the published teaser stays
         rep.note(
@@ -397,7 +393,7 @@ RECIPE_COLUMNS = (
 def sec_recipe(rep: Report, runs: list[Run]) -> None:
     """The training recipe's leave-one-out table: run folders under a ``recipe/`` folder, one per variant
     (folder name), ``recipe/recipe`` the full recipe; each row changes one setting back (overrides column)."""
-    rows = {r.origin.name: r for r in runs if is_recipe_run(r) and r.eval}
+    rows = {r.id: r for r in runs if is_recipe_run(r) and r.eval}
     ref = rows.get("recipe")
     if ref is None:
         rep.note("no `recipe/recipe` run (ablations/recipe.sh writes the leave-one-out runs).")
@@ -581,8 +577,7 @@ def plot_learning_curves(runs: list[Run], path: Path, title: str = "", colour_by
         fig.suptitle(title, fontsize=9)
     fig.tight_layout(rect=(0, (0.2 * rows + 0.1) / (6.4 + 0.2 * rows), 1, 1))
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110, bbox_inches="tight")  # a legend wider than the panels (long settings) is not clipped
-    plt.close(fig)
+    save_figure(fig, path, dpi=110, bbox_inches="tight")  # a legend wider than the panels is not clipped
     return True
 
 
@@ -719,8 +714,7 @@ def plot_uv_by_seed(groups: dict, baselines: dict, path: Path) -> None:
     for ax in (left, right):
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110, bbox_inches="tight")  # the legend under the panel is not clipped
-    plt.close(fig)
+    save_figure(fig, path, dpi=110, bbox_inches="tight")  # the legend under the panel is not clipped
 
 
 def sec_uv_by_seed(rep: Report, runs: list[Run]) -> None:
