@@ -88,15 +88,13 @@ def test_a_kept_row_is_named_by_its_setting_today_so_a_changed_default_neither_m
         "runs": {label: {"model": "implicit", "setting": "(defaults)", "seed": 0, "run": str(x1)}},
     }
     new = {"estimators": {label: row(0.2)}, "runs": {label: {**old["runs"][label], "run": str(x10)}}}
-    kept = protocols.keep_rows(new, old, {r.origin: r for r in find_runs([tmp_path])})
+    kept = protocols.keep_rows(new, old, {r.id: r for r in find_runs([tmp_path])})
     then = "implicit loss.weights.UV=1.0 seed 0"
     assert kept["estimators"] == {label: row(0.2), then: row(0.1)}
     assert kept["runs"][then]["setting"] == "loss.weights.UV=1.0" and kept["runs"][label]["run"] == str(x10)
     # measured again under today's name (the same folder, or the same model, setting and seed): replaced
     again = {"estimators": {then: row(0.3)}, "runs": {then: {**kept["runs"][then], "run": str(tmp_path / "x1b")}}}
-    assert protocols.keep_rows(again, kept, {r.origin: r for r in find_runs([tmp_path])})["estimators"][then] == row(
-        0.3
-    )
+    assert protocols.keep_rows(again, kept, {r.id: r for r in find_runs([tmp_path])})["estimators"][then] == row(0.3)
 
 
 def test_a_kept_row_of_a_run_gone_is_retyped_from_the_conf_its_json_was_written_against(tmp_path, monkeypatch):

@@ -14,7 +14,7 @@ from disent import report
 from disent.eval.ablation import ablation_table, to_markdown
 from disent.eval.stability import training_stability
 from disent.report import ablations, benchmarks, claims, document, lighting, tables, tools, training
-from disent.runs import Run, composed_config, find_runs, group_by_setting, measured_setting, pick_runs, record_run
+from disent.runs import Run, composed_config, find_runs, group_by_setting, measured_setting, pick_runs, write_records
 
 
 def make_run(
@@ -104,21 +104,6 @@ def test_training_stability_rates(tmp_path):
     assert r[("explicit", True)]["nan_rate"] == 0.0 and r[("explicit", True)]["runs"] == 2
 
 
-def test_report_on_fake_runs(tmp_path):
-    fake_suite(tmp_path / "runs")
-    out = tmp_path / "reports"
-    (out / "eval").mkdir(parents=True)
-    (out / "eval" / "training.json").write_text(json.dumps(training_stability(find_runs([tmp_path / "runs"]))))
-    path = report.build(out, roots=[tmp_path / "runs"], n_vis=2)
-    assert "`eval/training.png` is missing" in path.read_text()  # the tool writes it beside its JSON
-    (out / "eval" / "training.png").write_bytes(b"png")
-    md = report.build(out, roots=[tmp_path / "runs"], n_vis=2).read_text()
-    assert "explicit+no_bws" in md and "failed" not in md.lower()
-    assert "](eval/training.png)" in md and not (out / "figures" / "training.png").exists()  # shown, not redrawn
-    assert "shipped weights" in md  # no ladder run among the fakes: the teaser draws the shipped weights
-    assert "sh_variance.json" in md
-
-
 def test_contents_links_each_section_by_githubs_heading_anchor():
     """GitHub's anchors: punctuation dropped, spaces made hyphens, a repeated heading numbered; the claims'
     subsections listed under their section, no other section's; headings inside code blocks are not headings."""
@@ -136,7 +121,7 @@ def test_contents_links_each_section_by_githubs_heading_anchor():
             "### (defaults)",
         ]
     )
-    assert document.contents(md) == [
+    assert document.contents(md, open_sections=("The paper's claims, measured",)) == [
         "**Contents**\n\n"
         "- [The paper's claims, measured](#the-papers-claims-measured)\n"
         "  - [1. The network's normals go beyond the fit](#1-the-networks-normals-go-beyond-the-fit)\n"
@@ -147,50 +132,11 @@ def test_contents_links_each_section_by_githubs_heading_anchor():
     assert [document.heading_anchor("(defaults)", seen) for _ in range(3)] == ["defaults", "defaults-1", "defaults-2"]
 
 
-def test_the_built_report_lists_every_section_once_in_its_contents(tmp_path):
-    fake_suite(tmp_path / "runs")
-    out = tmp_path / "reports"
-    for _ in range(2):  # built again over itself: one contents, not two
-        md = report.build(out, roots=[tmp_path / "runs"], n_vis=2).read_text()
-    head, _, _ = md.partition("\n## ")
-    assert head.count("**Contents**") == 1 and md.count("**Contents**") == 1
-    titles = [line[3:] for line in md.splitlines() if line.startswith("## ")]
-    assert titles == [title for title, _, _ in report.SECTIONS.values()]
-    assert all(f"- [{title}](#" in head for title in titles)
-
-
-def test_report_on_empty_folder(tmp_path):
-    (tmp_path / "none").mkdir()
-    path = report.build(tmp_path / "reports", roots=[tmp_path / "none"])
-    md = path.read_text()
-    assert md.count("**Missing:**") >= 6 and "No runs found" in md
-
-
-def test_missing_inputs_never_erase_published_sections(tmp_path):
-    fake_suite(tmp_path / "runs")
-    out = tmp_path / "reports"
-    first = report.build(out, roots=[tmp_path / "runs"], n_vis=2).read_text()
-    runs_before = document.published_sections(first)["Runs"]
-    assert any("explicit+no_bws" in line for line in runs_before)
-    (tmp_path / "empty").mkdir()
-    shutil.rmtree(out / "runs")  # no records of the runs either (test_records_outlive_the_run_folders)
-    second = report.build(out, roots=[tmp_path / "empty"], n_vis=2).read_text()
-    runs_after = document.published_sections(second)["Runs"]
-    assert runs_after[0].startswith("> **Kept:** as published before") and "no run folders" in runs_after[0]
-    assert runs_after[1:] == runs_before  # the published table, unchanged
-    third = report.build(out, roots=[tmp_path / "empty"], n_vis=2).read_text()
-    assert document.published_sections(third)["Runs"] == runs_after  # kept again, not nested
-    with pytest.raises(SystemExit):
-        report.main(["--out", str(out), "--roots", str(tmp_path / "nonexistent")])
-    assert (out / "README.md").read_text() == third
-
-
-def test_teaser_needs_the_three_ladder_models_or_keeps_the_published_one(tmp_path, monkeypatch):
+def test_teaser_needs_the_three_ladder_models(tmp_path, monkeypatch):
     """The teaser sets the paper's three models side by side: runs with another override (a loss weight) or only
-    some of the models leave the published teaser in place instead of replacing it with a partial one."""
+    some of the models draw no partial teaser; the page says which models are missing."""
     title = "Teaser: input, recon, albedo, normal, shading, matte"
     out = tmp_path / "reports"
-    published = f"# disent report\n\n## {title}\n\n![teaser explicit](figures/teaser_explicit.png)\n"
     ev = {"recon_mse": 0.02, "normal_mean": 20.0, "steps": 10}
     for name, extra in (("ladder", ()), ("weighted", ("loss.weights.recon_L=0.6",))):
         d = make_run(tmp_path / "runs", name, "explicit", eval_=ev, extra=extra)
@@ -199,12 +145,11 @@ def test_teaser_needs_the_three_ladder_models_or_keeps_the_published_one(tmp_pat
         (d / "status.json").write_text('{"status": "ok"}')
     loaded = []
     monkeypatch.setattr(training, "load_chosen", lambda chosen: loaded.append(chosen) or {})
-    rep = report.Report(out, published)
+    rep = report.Report(out)
     rep.section(title, report.sec_teaser, find_runs([tmp_path / "runs"]), 2)
     assert loaded == []  # no partial teaser drawn
     text = "\n".join(rep.lines)
-    assert "> **Kept:** as published before" in text and "`baseline`, `implicit`" in text
-    assert "![teaser explicit](figures/teaser_explicit.png)" in text and "weighted" not in text
+    assert "> **Missing:**" in text and "`baseline`, `implicit`" in text and "weighted" not in text
 
 
 def test_teaser_names_each_model_by_its_setting_seed_and_steps(tmp_path, monkeypatch):
@@ -225,12 +170,14 @@ def test_teaser_names_each_model_by_its_setting_seed_and_steps(tmp_path, monkeyp
     )
     titles = []
     monkeypatch.setattr(training, "image_grid", lambda rows, path, title: titles.append(title))
-    rep = report.Report(tmp_path / "reports", "")
+    rep = report.Report(tmp_path / "reports")
     rep.section("Teaser", report.sec_teaser, find_runs([tmp_path / "runs"]), 2)
     teasers = [t for t in titles if "SynthFaces test images" in t]
     assert len(teasers) == 3 and all("(defaults), seed 2, 1,200 steps" in t for t in teasers)
     assert not any(str(tmp_path) in t for t in titles)
-    assert sum(f"run `{tmp_path / 'runs'}" in line for line in rep.lines) == 3  # the folder stays in the text
+    assert not any(str(tmp_path) in line for line in rep.lines)  # runs are named by their ids, not their folders
+    ids = {r.id for r in find_runs([tmp_path / "runs"])}
+    assert sum(any(f"#{i})" in line for i in ids) for line in rep.lines) == 3
 
 
 def test_shipped_weights_are_named_by_every_setting_they_differ_in_from_todays_conf(monkeypatch):
@@ -252,7 +199,7 @@ def test_teaser_without_ladder_runs_shows_the_shipped_weights(tmp_path, monkeypa
     steps of their manifest and named by their file."""
     titles = []
     monkeypatch.setattr(training, "image_grid", lambda rows, path, title: titles.append(title))
-    rep = report.Report(tmp_path / "reports", "")
+    rep = report.Report(tmp_path / "reports")
     rep.section("Teaser", report.sec_teaser, [], 2)
     teasers = [t for t in titles if "SynthFaces test images" in t]
     from disent.models.shipped import manifest
@@ -264,98 +211,9 @@ def test_teaser_without_ladder_runs_shows_the_shipped_weights(tmp_path, monkeypa
         assert sum(bool(re.search(title, t)) for t in teasers) == 1
     assert len(teasers) == 3
     text = "\n".join(rep.lines)
-    assert "`disent/weights/implicit.pt`, trained in" in text
+    assert "`disent/weights/implicit.pt`, trained as run run:" in text and "/root" not in text
     normals = manifest()["explicit"]["metrics"]["normal_mean"]  # the normals table reads their manifest's metrics
     assert f"| explicit | {normals:.2f} |" in text
-    # a teaser drawn from runs is published: without ladder runs it stays, the shipped weights do not replace it
-    published = "# disent report\n\n## Teaser\n\n**explicit** (`(defaults)`, seed 0, 1,200 steps; run `/x/e`)\n"
-    titles.clear()
-    rep = report.Report(tmp_path / "reports", published)
-    rep.section("Teaser", report.sec_teaser, [], 2)
-    assert titles == [] and "run `/x/e`" in "\n".join(rep.lines)
-
-
-def test_records_outlive_the_run_folders(tmp_path):
-    fake_suite(tmp_path / "runs")
-    (tmp_path / "runs" / "1" / "checkpoints").mkdir()
-    (tmp_path / "runs" / "1" / "checkpoints" / "last.pt").write_bytes(b"weights")
-    out = tmp_path / "reports"
-    first = report.build(out, roots=[tmp_path / "runs"], n_vis=2).read_text()
-    recorded = sorted(p.name for p in (out / "runs").iterdir())
-    assert recorded == [f"runs-{k}" for k in "012345"]  # every ended run; "6" is still running
-    assert (out / "runs" / "runs-1" / "origin.txt").read_text().strip() == str((tmp_path / "runs" / "1").resolve())
-    assert not (out / "runs" / "runs-1" / "checkpoints").exists()  # weights are not kept
-    both = find_runs([tmp_path / "runs", out / "runs"])  # a run is read once, from its folder while there is one
-    assert len(both) == 7 and all(r.recorded_from is None for r in both)
-
-    shutil.rmtree(tmp_path / "runs")
-    (tmp_path / "empty").mkdir()
-    second = report.build(out, roots=[tmp_path / "empty"], n_vis=2).read_text()
-    rows_before, rows_after = (
-        {line for block in document.published_sections(md)["Runs"] for line in block.splitlines() if line[:3] == "| `"}
-        for md in (first, second)
-    )
-    running = {line for line in rows_before if line.startswith(f"| `{(tmp_path / 'runs' / '6').resolve()}`")}
-    assert len(running) == 1 and rows_after == rows_before - running  # the same rows, read from the records
-    assert "6 record(s)" in second
-
-    # a record of another folder with the same name is not replaced
-    twin = make_run(tmp_path / "elsewhere" / "runs", "1", "explicit", eval_={"recon_mse": 0.5})
-    record_run(find_runs([twin])[0], out / "runs")
-    assert len(list((out / "runs").glob("runs-1*"))) == 2
-    assert (out / "runs" / "runs-1" / "origin.txt").read_text().strip() == str((tmp_path / "runs" / "1").resolve())
-
-
-def test_runs_are_ordered_by_the_folder_they_came_from(tmp_path):
-    """A run keeps its place among the others when only its record is left: runs are sorted by their origin, not by
-    where their folder or record lies (here the record lies first by path, its origin last)."""
-    make_run(tmp_path / "b", "run1", eval_={"recon_mse": 0.1})
-    gone = make_run(tmp_path / "c", "run0", eval_={"recon_mse": 0.2})
-    record_run(find_runs([gone])[0], tmp_path / "a")
-    shutil.rmtree(gone)
-    runs = find_runs([tmp_path / "a", tmp_path / "b"])
-    assert [r.origin.name for r in runs] == ["run1", "run0"] and runs[1].recorded_from is not None
-
-
-def test_sections_builds_only_the_named_sections(tmp_path):
-    fake_suite(tmp_path / "runs")
-    out = tmp_path / "reports"
-    first = document.published_sections(report.build(out, roots=[tmp_path / "runs"], n_vis=2).read_text())
-    make_run(tmp_path / "runs", "7", "baseline", seed=1, eval_={"recon_mse": 0.02})
-    md = report.build(out, roots=[tmp_path / "runs"], n_vis=2, sections=["claims"]).read_text()
-    second = document.published_sections(md)
-    assert (
-        second["Runs"][0].startswith("> **Kept:** as published before; not rebuilt")
-        and second["Runs"][1:] == (first["Runs"])
-    )  # run 7 is not in the kept table
-    assert not second["The paper's claims, measured"][0].startswith("> **Kept:**")
-    assert "9 run(s)" not in md and "8 run(s)" in md
-
-    def provenance(md):  # {sections of a row: its regenerate command} of the header's table
-        rows = [line.split(" | ") for line in md.split("\n## ")[0].splitlines() if line.startswith("| ")]
-        return {r[0][2:]: r[3].strip(" |`") for r in rows[1:]}
-
-    everything = ", ".join(report.SECTIONS)
-    rest = ", ".join(s for s in report.SECTIONS if s != "claims")
-    assert list(provenance(md)) == ["claims", rest]  # this build's row, then the full build's less claims
-    assert provenance(md)["claims"].endswith("--sections claims")
-    assert provenance(md)[rest].endswith(f"--roots {tmp_path / 'runs'} --sections {rest.replace(',', '')}")
-    again = report.build(out, roots=[tmp_path / "runs"], n_vis=2, sections=["bench"]).read_text()
-    rows = provenance(again)
-    assert list(rows) == ["bench", "claims", rest.replace(", bench", "")]  # bench leaves the full build's row
-    assert rows["claims"].endswith("--sections claims") and list(rows.values()).count(rows["bench"]) == 1
-    third = provenance(report.build(out, roots=[tmp_path / "runs"], n_vis=2, sections=["claims", "bench"]).read_text())
-    assert list(third)[:1] == ["claims, bench"] and "claims" not in list(third)  # all rebuilt: the row goes
-    report.build(out, roots=[tmp_path / "runs"], n_vis=2, sections=["runs", "targets"])
-    fourth = provenance(report.build(out, roots=[tmp_path / "runs"], n_vis=2, sections=["targets"]).read_text())
-    assert "runs" in fourth and fourth["runs"].endswith("--roots " + str(tmp_path / "runs") + " --sections runs")
-    assert list(provenance(report.build(out, roots=[tmp_path / "runs"], n_vis=2).read_text())) == [everything]
-    with pytest.raises(SystemExit):
-        report.main(["--out", str(out), "--roots", str(tmp_path / "runs"), "--sections", "claim"])
-    gone = tmp_path / "gone"  # a missing run root stops only a build that reads runs
-    assert "## Runs" in report.build(out, roots=[gone], n_vis=2, sections=["bench"]).read_text()
-    with pytest.raises(FileNotFoundError, match="run root"):
-        report.build(out, roots=[gone], n_vis=2, sections=["claims"])
 
 
 def test_replicates_set_the_gap_between_a_seeds_runs_beside_the_seed_spread(tmp_path):
@@ -887,7 +745,7 @@ def test_ablation_section_keeps_runs_of_other_settings_apart(tmp_path):
         make_run(
             tmp_path, f"n{seed}", seed=seed, eval_={"recon_mse": 0.03, "normal_mean": 13.0}, extra=["model.norm=none"]
         )
-    rep = report.Report(tmp_path, "")
+    rep = report.Report(tmp_path)
     report.sec_ablation(rep, find_runs([tmp_path]))
     text = "\n".join(rep.lines)
     assert "### (defaults)" in text and "### `model.norm=none`" in text
@@ -940,7 +798,7 @@ def test_targets_section_reads_each_rung_against_its_own_targets(tmp_path):
         long = {**good, "normal_mean": 9.5, "albedo_si_mse": 0.008}
         make_run(tmp_path, f"li{seed}", "implicit", seed=seed, eval_=long, extra=("+experiment=long",))
     make_run(tmp_path, "b", "baseline", eval_={"recon_face_psnr": 24.0})
-    rep = report.Report(tmp_path, "")
+    rep = report.Report(tmp_path)
     report.sec_targets(rep, find_runs([tmp_path]))
     rows = {line.split("|")[1].strip() + line.split("|")[2].strip(): line for line in rep.lines if "| `" in line}
     assert rows["`(defaults)`explicit"].endswith("| 0.64 | albedo 0.64 of the mean map's (<= 0.5) |")
@@ -949,7 +807,7 @@ def test_targets_section_reads_each_rung_against_its_own_targets(tmp_path):
     assert rows["`+experiment=long`implicit"].endswith("| default rung's albedo 0.64 of the mean map's (<= 0.5) |")
     assert rows["`(defaults)`baseline"].endswith("| – | – / – | 24.00 (n=1) | – | – |")
     assert not any("No run of the long rung" in line for line in rep.lines)
-    rep = report.Report(tmp_path, "")
+    rep = report.Report(tmp_path)
     report.sec_targets(rep, [r for r in find_runs([tmp_path]) if not r.path.name.startswith("l")])
     assert any("No run of the long rung" in line for line in rep.lines)
 
@@ -1006,7 +864,7 @@ def test_targets_section_sets_the_albedo_beside_the_placed_mean_texture(tmp_path
     for seed in range(2):
         make_run(tmp_path, f"d{seed}", seed=seed, eval_={"normal_mean": 12.0, **scored})
     make_run(tmp_path, "old", model="implicit", eval_={"normal_mean": 12.0, "albedo_si_mse": 0.009})
-    rep = report.Report(tmp_path, "")
+    rep = report.Report(tmp_path)
     report.sec_targets(rep, find_runs([tmp_path]))
     rows = [line for line in rep.lines if line.startswith("| `(defaults)` | explicit | 0.0080 ± 0.0000 (n=2)")]
     assert rows == [
@@ -1025,7 +883,7 @@ def test_targets_section_sets_the_light_beside_the_constant_light_part_by_part(t
     for seed in range(2):
         make_run(tmp_path, f"d{seed}", seed=seed, eval_={"normal_mean": 12.0, **light, **floor})
     make_run(tmp_path, "old", model="implicit", eval_={"normal_mean": 12.0, "sh_error": 0.5})  # scored before the split
-    rep = report.Report(tmp_path, "")
+    rep = report.Report(tmp_path)
     report.sec_targets(rep, find_runs([tmp_path]))
     rows = [line for line in rep.lines if line.startswith("| `(defaults)` | explicit | 0.0040")]
     assert rows == [
@@ -1037,7 +895,7 @@ def test_targets_section_sets_the_light_beside_the_constant_light_part_by_part(t
     assert not any("completed by the mean light" in line for line in rep.lines)  # no run scored with it
     completed = {"sh_error_completed": 0.27, "pseudo_sh_error": 0.83, "pseudo_sh_error_completed": 0.29}
     make_run(tmp_path, "c", seed=5, extra=("loss.bws_c=0.3",), eval_={**light, **floor, **completed})
-    rep = report.Report(tmp_path, "")
+    rep = report.Report(tmp_path)
     report.sec_targets(rep, find_runs([tmp_path]))
     row = next(line for line in rep.lines if line.startswith("| `loss.bws_c=0.3` | explicit |"))
     assert row == (
@@ -1056,7 +914,7 @@ def test_ablation_claims_pair_each_ablation_with_the_full_model_and_gate_on_the_
             tmp_path, f"nopn{seed}", ablations=["no_pseudo_normal"], seed=seed, eval_={**good, "normal_mean": 15.0}
         )
     runs = find_runs([tmp_path])
-    rep = report.Report(tmp_path, "")
+    rep = report.Report(tmp_path)
     ablations.claim_ablations(rep, runs)
     row = next(line for line in rep.lines if "| no_pseudo_normal |" in line)
     assert "| 12.1 ± 0.1 (n=3) | 15 ± 0 (n=3) | **confirmed** | **confirmed** |" in row, row
@@ -1064,11 +922,11 @@ def test_ablation_claims_pair_each_ablation_with_the_full_model_and_gate_on_the_
     for r in runs:  # the same runs where the full model misses the normal target: measured, but no verdict
         if r.path.name.startswith("full"):
             r.eval["normal_mean"] += 1.0
-    rep = report.Report(tmp_path, "")
+    rep = report.Report(tmp_path)
     ablations.claim_ablations(rep, runs)
     row = next(line for line in rep.lines if "| no_pseudo_normal |" in line)
     assert row.endswith("| **confirmed** | not testable (targets missed: 1 of 3) |"), row
-    rep = report.Report(tmp_path, "")
+    rep = report.Report(tmp_path)
     ablations.claim_ablations(rep, [r for r in runs if r.path.name.startswith("full")])
     assert "no finished ablation runs" in "\n".join(rep.lines)
 
@@ -1089,7 +947,7 @@ def test_claims_open_with_each_verdict_at_the_ladders_rungs(tmp_path):
             tmp_path, f"tv{seed}", seed=seed, eval_={**good, "normal_mean": 20.0}, extra=("loss.weights.smooth_A=0.5",)
         )
     runs = find_runs([tmp_path])
-    rep = report.Report(tmp_path, "")
+    rep = report.Report(tmp_path)
     claims.sec_claims(rep, runs, tmp_path / "eval")
     text = "\n".join(rep.lines)
     assert text.index("| claim | reading | explicit, `(defaults)` |") < text.index("### 1.")
@@ -1101,9 +959,10 @@ def test_claims_open_with_each_verdict_at_the_ladders_rungs(tmp_path):
     for r in runs:
         if r.path.name.startswith("full"):
             r.eval["recon_face_psnr"] = 25.0  # under the target; still above the baseline
-    rep = report.Report(tmp_path, "")
+    rep = report.Report(tmp_path)
     claims.sec_claims(rep, runs, tmp_path / "eval")
-    assert "| 4 | no_pseudo_normal: normals (deg) | **confirmed** | – | – | – |" in rep.lines  # the difference
+    # gated: the cell is the ablation's difference, unbolded (not a verdict), and the gate is said under the table
+    assert "| 4 | no_pseudo_normal: normals (deg) | difference confirmed | – | – | – |" in rep.lines
     assert any("`(defaults)` explicit: targets missed: 1 of 3" in line for line in rep.lines)
 
     glance = tables.Glance()
@@ -1132,7 +991,7 @@ def test_an_ablation_stands_against_every_full_model_it_trains_as(tmp_path):
         make_run(tmp_path, f"c{seed}", seed=seed, eval_={**good, "shading_cast": 0.25}, extra=("loss.bws_c=0.3",))
         make_run(tmp_path, f"tv{seed}", seed=seed, eval_=good, extra=("loss.weights.smooth_A=0.5",))
         make_run(tmp_path, f"nobws{seed}", ablations=["no_bws"], seed=seed, eval_={**good, "shading_cast": 0.5})
-    rep = report.Report(tmp_path, "")
+    rep = report.Report(tmp_path)
     ablations.claim_ablations(rep, find_runs([tmp_path]))
     rows = {line.split("|")[1].strip(): line for line in rep.lines if "| shading cast |" in line}
     assert set(rows) == {"`model=explicit`", "`loss.bws_c=0.3 model=explicit`"}, rows
@@ -1161,7 +1020,7 @@ def test_no_pseudo_light_names_the_light_target_it_takes_away(tmp_path):
             seed=seed,
             eval_={**good, "light_shading_si_mse": 0.01, "sh_error": 0.375},
         )
-    rep = report.Report(tmp_path, "")
+    rep = report.Report(tmp_path)
     ablations.claim_ablations(rep, find_runs([tmp_path]))
     reasons = {
         line.split("|")[1].strip(): line.split("|")[3].strip()
@@ -1201,7 +1060,7 @@ def test_skin_table_keeps_settings_apart_and_quotes_the_truth(tmp_path):
             tmp_path, f"gray{seed}", seed=seed, eval_={**skin(0.1), **skin_metrics}, extra=("loss.lhat_gray=true",)
         )
     make_run(tmp_path, "old", seed=2, eval_={"normal_mean": 12.0}, extra=("loss.lhat_gray=true",))
-    rep = report.Report(tmp_path, "")
+    rep = report.Report(tmp_path)
     ablations.claim_skin(rep, find_runs([tmp_path]))
     rows = {line.split("|")[1].strip(): line for line in rep.lines if line.startswith("| `")}
     assert set(rows) == {"`(defaults)`", "`loss.lhat_gray=true`"}, rows
@@ -1211,7 +1070,7 @@ def test_skin_table_keeps_settings_apart_and_quotes_the_truth(tmp_path):
     assert "| 0.1 ± 0 (n=2) |" in rows["`loss.lhat_gray=true`"]
     assert "(the true shading: -0.02 and 0.08)" in "\n".join(rep.lines)
     assert "(the true albedo's: 0.001)" in "\n".join(rep.lines)
-    rep = report.Report(tmp_path / "none", "")
+    rep = report.Report(tmp_path / "none")
     ablations.claim_skin(rep, [r for r in find_runs([tmp_path]) if r.path.name == "old"])
     assert "no run scored for where the skin goes" in "\n".join(rep.lines)
 
@@ -1245,36 +1104,18 @@ def test_skin_albedos_set_one_model_per_setting_beside_the_truth(tmp_path, monke
 
     monkeypatch.setattr(ablations, "load_chosen", models)
     runs = find_runs([tmp_path / "runs"])
-    rep = report.Report(tmp_path / "out", "")
+    rep = report.Report(tmp_path / "out")
     ablations.claim_skin(rep, runs)
     assert loaded == [{"(defaults)": "paper", "loss.bws_c=0.3": "low_c"}]  # the setting without a checkpoint: none
     assert any("![albedo by setting](figures/skin_albedo.png)" in line for line in rep.lines)
     assert (tmp_path / "out" / "figures" / "skin_albedo.png").stat().st_size > 0
-    rep = report.Report(tmp_path / "one", "")
+    rep = report.Report(tmp_path / "one")
     ablations.claim_skin(rep, [r for r in runs if r.path.name != "low_c"])
     assert len(loaded) == 1 and not any("albedo by setting" in line for line in rep.lines)
-    published = "\n".join(["# disent report", "", "## claims", "", "![albedo by setting](figures/skin_albedo.png)", ""])
-    rep = report.Report(tmp_path / "out", published)  # a figure already published stays, with a note
-    rep.title = "claims"
+    rep = report.Report(tmp_path / "out")  # the checkpoints gone: the committed figure stays, said to be old
     ablations.claim_skin(rep, [r for r in runs if r.path.name != "low_c"])
     assert len(loaded) == 1 and "![albedo by setting](figures/skin_albedo.png)\n" in rep.lines
-    assert any("kept from an earlier build" in line for line in rep.lines)
-    assert ablations.SKIN_CAPTION + ":\n" in rep.lines  # still says what it shows
-
-    # a published figure of more settings than this build can draw stays; one of fewer is redrawn
-    def build(shown):
-        caption = f"{ablations.SKIN_CAPTION} ({shown} settings):"
-        md = "\n".join(["# disent report", "", "## claims", "", caption, "", "![albedo by setting](figures/x.png)", ""])
-        rep = report.Report(tmp_path / "out", md.replace("x.png", "skin_albedo.png"))
-        rep.title = "claims"
-        ablations.claim_skin(rep, runs)  # models for 2 of its 3 settings
-        return rep.lines
-
-    kept = build(3)
-    assert len(loaded) == 1 and f"{ablations.SKIN_CAPTION} (3 settings):\n" in kept
-    assert any("here 2 of the table's 3 settings have a model" in line for line in kept)
-    redrawn = build(1)
-    assert len(loaded) == 2 and f"{ablations.SKIN_CAPTION} (2 settings):\n" in redrawn
+    assert any(line.startswith(ablations.SKIN_CAPTION + "; drawn by an earlier build") for line in rep.lines)
 
 
 def test_ablation_runs_whose_normals_failed_are_named_by_how(tmp_path):
@@ -1296,22 +1137,32 @@ def test_ablation_runs_whose_normals_failed_are_named_by_how(tmp_path):
     make_run(tmp_path, "old", ablations=["no_bws"], eval_={"normal_mean": 12.0, "recon_face_psnr": 26.5})
     unspread = {k: v for k, v in turned.items() if "spread" not in k}  # scored before the spread was measured
     make_run(tmp_path, "unspread", ablations=["no_pseudo_normal"], seed=5, eval_=unspread)
-    rep = report.Report(tmp_path, "")
-    ablations.claim_ablations(rep, find_runs([tmp_path]))
+    rep = report.Report(tmp_path)
+    runs = find_runs([tmp_path])
+    ablations.claim_ablations(rep, runs)
     lists, current = {}, None
     for line in rep.lines:
         if line.startswith("Runs whose normals"):
             current = lists.setdefault(line.split(" (")[0].split(":")[0], [])
-        elif line.startswith("- `") and current is not None:
+        elif line.startswith("- ") and current is not None:
             current.append(line)
     assert len(lists) == 3, list(lists)
     flat_list, frame_list, astray_list = lists.values()  # in NORMAL_FAILURES' order
-    assert len(flat_list) == 1 and "flat`" in flat_list[0] and "spread 1.5 deg against 39.0" in flat_list[0]
-    assert len(frame_list) == 1 and "turned`" in frame_list[0]
+    folder = {f"#{r.id}": r.path.name for r in runs}  # a run is named by its variant, seed and id
+
+    def names(lines):
+        return [folder[re.search(r"#\w{6}", line).group(0)] for line in lines]
+
+    assert names(flat_list) == ["flat"] and "spread 1.5 deg against 39.0" in flat_list[0]
+    assert names(frame_list) == ["turned"] and frame_list[0].startswith("- explicit+no_pseudo_normal s2 #")
     assert "64.0 deg off (the mean map's 17.0); 11.0 deg after a mirror by 58 deg" in frame_list[0]
-    assert [line.split("`")[1].rsplit("/", 1)[-1] for line in astray_list] == ["far", "unchecked", "unspread"]
-    assert "spread – deg against –, normals 64.0 deg off" in astray_list[2]
-    assert "24.0 deg after a rotation by 58 deg" in astray_list[0] and "after the best frame map –" in astray_list[1]
+    assert sorted(names(astray_list)) == ["far", "unchecked", "unspread"]
+    by_name = dict(zip(names(astray_list), astray_list))
+    assert "spread – deg against –, normals 64.0 deg off" in by_name["unspread"]
+    assert (
+        "24.0 deg after a rotation by 58 deg" in by_name["far"] and "after the best frame map –" in by_name["unchecked"]
+    )
+    assert not any(str(tmp_path) in line for line in rep.lines)
 
 
 def test_ood_table_reports_where_each_estimator_breaks(tmp_path):
@@ -1383,18 +1234,18 @@ def test_ceiling_section_puts_the_trained_runs_between_floor_and_ceiling(tmp_pat
             "trivial_sh_error": 0.37,
         }
 
-    rep = report.Report(tmp_path, "")
+    rep = report.Report(tmp_path)
     report.sec_ceiling(rep, [])
     assert "no finished ceiling run" in "\n".join(rep.lines)
     for seed in (0, 1):
         make_run(tmp_path, f"t{seed}", seed=seed, eval_=ev(12.5 + seed, 0.010))
-    ceiling = make_run(tmp_path, "c", eval_=ev(9.9, 0.0063), extra=["loss=ceiling"])
+    ceiling = make_run(tmp_path, "c", eval_=ev(9.9, 0.0063), extra=["loss=ceiling"])  # runs come in id order
     (ceiling / "checkpoints").mkdir()
     (ceiling / "checkpoints" / "last.pt").write_bytes(b"")
     runs = find_runs([tmp_path])
-    assert [r.variant for r in runs] == ["explicit+ceiling", "explicit", "explicit"]
+    assert sorted(r.variant for r in runs) == ["explicit", "explicit", "explicit+ceiling"]
     assert pick_runs(runs) == {}  # a ceiling run is never picked as the paper's model (the others lack weights)
-    rep = report.Report(tmp_path, "")
+    rep = report.Report(tmp_path)
     report.sec_ceiling(rep, runs)
     lines = [line for line in rep.lines if line.startswith("| explicit")]
     floor = "| explicit | floor (dataset mean) | – | – | 17.00 | – | 0.0127 | 0.0066 | 0.0038 | 0.0160 | 0.370 |"
@@ -1452,7 +1303,7 @@ def test_edit_claims_are_read_over_the_seeds_of_a_setting(tmp_path):
     shipped = {"model": "explicit", "setting": "shipped", "claims": claims(2.0, 1.0, 0.6), "relight": []}
     (out / "edit" / "explicit" / "edit.json").write_text(json.dumps(shipped))
     make_run(tmp_path / "runs", "a", eval_={"normal_mean": 12.0, "pseudo_normal_mean": 11.5})
-    rep = report.Report(out, "")
+    rep = report.Report(out)
     report.sec_claims(rep, find_runs([tmp_path / "runs"]), out / "eval")
     rows = [line for line in rep.lines if line.startswith("| explicit |")]
     assert (
@@ -1485,7 +1336,7 @@ def test_an_edit_the_model_cannot_draw_gets_no_verdict_however_the_reader_reads_
     res = {"model": "baseline", "setting": "shipped", "claims": claims, "relight": [], "traversal": drawn}
     (d / "edit.json").write_text(json.dumps(res))
     make_run(tmp_path / "runs", "a", eval_={"normal_mean": 12.0, "pseudo_normal_mean": 11.5})
-    rep = report.Report(out, "")
+    rep = report.Report(out)
     report.sec_claims(rep, find_runs([tmp_path / "runs"]), out / "eval")
     assert (
         "| baseline | `shipped` | eyeglasses by dmt 1.00 | eyeglasses 0.00 (truth 0.70; 30% of the change drawn) |"
@@ -1513,7 +1364,7 @@ def test_light_claim_is_read_over_the_seeds_the_protocol_scored(tmp_path):
     runs["long"]["setting"] = "(defaults)"  # as written on its day; read again from its folder: +experiment=long
     (out / "eval" / "sh_variance.json").write_text(json.dumps({"estimators": est, "runs": runs}))
     make_run(tmp_path / "runs", "a", eval_={"normal_mean": 12.0, "pseudo_normal_mean": 11.5})
-    rep = report.Report(out, "")
+    rep = report.Report(out)
     report.sec_claims(rep, find_runs([tmp_path / "runs"]), out / "eval")
     rows = [line for line in rep.lines if line.startswith("| explicit |") and "0.800" in line]
     assert (
@@ -1529,7 +1380,7 @@ def test_light_claim_is_read_over_the_seeds_the_protocol_scored(tmp_path):
     for seed, var in enumerate((0.02, 0.03, 0.04)):
         est[f"e{seed}"] |= {"variance_shown": var, "sh_error_shown": 0.1}
     (out / "eval" / "sh_variance.json").write_text(json.dumps({"estimators": est, "runs": runs}))
-    rep = report.Report(out, "")
+    rep = report.Report(out)
     report.sec_claims(rep, find_runs([tmp_path / "runs"]), out / "eval")
     shown = [line for line in rep.lines if line.startswith("| explicit |") and "0.050" in line]
     assert shown == [
@@ -1541,7 +1392,7 @@ def test_light_claim_is_read_over_the_seeds_the_protocol_scored(tmp_path):
 def test_photo_section_marks_a_network_no_better_than_the_training_means(tmp_path):
     """The domain gap beside the training set's constants: normals worse than the mean map are marked, a light
     better than the mean L-hat is not; a missing input says which command makes it."""
-    rep = report.Report(tmp_path, "")
+    rep = report.Report(tmp_path)
     report.sec_photos(rep, tmp_path)
     assert "python -m disent.eval.photos" in "\n".join(rep.lines)
     dom = {
@@ -1564,7 +1415,7 @@ def test_photo_section_marks_a_network_no_better_than_the_training_means(tmp_pat
     }
     (tmp_path / "photos").mkdir()
     (tmp_path / "photos" / "domain_gap_explicit_shipped.json").write_text(json.dumps(gap))
-    rep = report.Report(tmp_path, "")
+    rep = report.Report(tmp_path)
     report.sec_photos(rep, tmp_path)
     row = next(line for line in rep.lines if line.startswith("| explicit (explicit_shipped) |") and "photos" in line)
     assert (
@@ -1702,39 +1553,6 @@ def test_time_to_accuracy_is_read_out_in_the_bench_section():
     text = benchmarks.time_to_accuracy_text(tta)
     assert "mean map after **1.1 training minutes** (step 150, 3,750 images; 17.20 against 17.50" in text
     assert "the pseudo-GT never (its 11.46 deg)" in text and "best 12.48 deg after 9.3 minutes" in text
-
-
-def test_rows_of_runs_that_left_no_record_are_kept_marked(tmp_path):
-    """A run whose folder and record are both gone keeps its published rows (marked), and a setting whose runs
-    are all gone keeps its published ablation table; nothing is counted twice once the runs come back."""
-    fake_suite(tmp_path / "runs")
-    lr = ("+experiment=smoke", "train.lr=0.01")
-    make_run(tmp_path / "other", "7", "explicit", eval_={"recon_mse": 0.05, "normal_mean": 25.0}, extra=lr)
-    out = tmp_path / "reports"
-    roots = [tmp_path / "runs", tmp_path / "other"]
-    first = report.build(out, roots=roots, n_vis=2).read_text()
-    assert "‡" not in first
-    gone = (tmp_path / "runs" / "3").resolve()
-    for folder in (tmp_path / "runs" / "3", out / "runs" / "runs-3", tmp_path / "other", out / "runs" / "other-7"):
-        shutil.rmtree(folder)
-    second = report.build(out, roots=[tmp_path / "runs"], n_vis=2).read_text()
-    runs = "\n".join(document.published_sections(second)["Runs"])
-    assert f"| `{gone}` ‡ | explicit+no_bws |" in runs and "_‡: as an earlier build published it" in runs
-    ablation = "\n".join(document.published_sections(second)["Ablations"])
-    assert "### `+experiment=smoke train.lr=0.01` ‡" in ablation and ablation.count("### ") == 2
-    third = report.build(out, roots=[tmp_path / "runs"], n_vis=2).read_text()
-    assert document.published_sections(third)["Runs"] == document.published_sections(second)["Runs"]  # kept, not nested
-    make_run(
-        tmp_path / "runs",
-        "3",
-        "explicit",
-        ["no_bws"],
-        eval_={"recon_mse": 0.03, "normal_mean": 30.0},
-        ips=700,
-        extra=("+experiment=smoke",),
-    )
-    fourth = "\n".join(document.published_sections(report.build(out, roots=[tmp_path / "runs"]).read_text())["Runs"])
-    assert f"`{gone}` |" in fourth and "‡ | explicit+no_bws" not in fourth  # measured again: one row, unmarked
 
 
 def test_curve_label_shares_a_setting_across_seeds_and_names_a_gpu(tmp_path):
@@ -1921,12 +1739,12 @@ def test_claim_two_reads_the_light_as_learned_only_where_the_face_shows_it(tmp_p
     for runs scored before the split existed."""
     from disent.report.claims import shown_hidden_lines
 
-    light = {"trivial_sh_error_shown": 0.25, "trivial_sh_error_hidden": 0.14}
+    light = {"trivial_sh_error_shown": 0.25, "trivial_sh_error_hidden": 0.14, "trivial_sh_error": 0.37}
     light |= {"pseudo_sh_error_shown": 0.19, "pseudo_sh_error_hidden": 19.0}
-    for seed, shown in enumerate((0.11, 0.12, 0.115)):
-        ev = {"sh_error_shown": shown, "sh_error_hidden": 1.1} | light
+    for seed, shown in enumerate((0.11, 0.12, 0.115)):  # over all 9 coefficients worse than the mean light
+        ev = {"sh_error_shown": shown, "sh_error_hidden": 1.1, "sh_error": 0.5 + 0.01 * seed} | light
         make_run(tmp_path, f"e{seed}", "explicit", seed=seed, eval_=ev)
-        ev = {"sh_error_shown": 0.3, "sh_error_hidden": 0.5} | light  # the same seeds at the long rung: worse
+        ev = {"sh_error_shown": 0.3, "sh_error_hidden": 0.5, "sh_error": 0.2} | light  # the long rung: the reverse
         make_run(tmp_path, f"l{seed}", "explicit", seed=seed, eval_=ev, extra=("+experiment=long",))
     make_run(tmp_path, "i0", "implicit", eval_={"sh_error_shown": 0.3} | light)
     make_run(tmp_path, "old", "explicit", seed=3, eval_={"sh_error": 0.5})
@@ -1934,159 +1752,30 @@ def test_claim_two_reads_the_light_as_learned_only_where_the_face_shows_it(tmp_p
     lines = shown_hidden_lines(find_runs([tmp_path]), glance)
     assert "the mean light 0.250 shown / 0.140 hidden" in lines[0] and "L-hat 0.190 shown / 19.000 hidden" in lines[0]
     rows = {tuple(c.strip() for c in line.split("|")[1:3]): line for line in lines if line.startswith("| `")}
-    assert "| 0.115 ± 0.005 (n=3) | 1.100 ± 0.000 (n=3) | – | **confirmed** |" in rows["`(defaults)`", "explicit"]
-    assert rows["`+experiment=long`", "explicit"].endswith("| **refuted** |")  # 0.3 against the mean light's 0.25
-    assert rows["`(defaults)`", "implicit"].endswith("| not testable (1 seed(s); 3 needed) |")
-    (cells,) = [v for (claim, _), v in glance.cells.items() if claim == "2"]
-    assert cells == {
+    assert (
+        "| 0.115 ± 0.005 (n=3) | 1.100 ± 0.000 (n=3) | – | 0.510 ± 0.010 (n=3) | **confirmed** | **refuted** |"
+        in rows["`(defaults)`", "explicit"]
+    )
+    assert rows["`+experiment=long`", "explicit"].endswith("| **refuted** | **confirmed** |")
+    assert rows["`(defaults)`", "implicit"].endswith("| not testable (1 seed(s); 3 needed) | not testable (no runs) |")
+    shown, whole = (v for (claim, _), v in glance.cells.items() if claim == "2")
+    assert shown == {
         ("(defaults)", "explicit"): "**confirmed**",
         ("+experiment=long", "explicit"): "**refuted**",
         ("(defaults)", "implicit"): "not testable (1 seed(s); 3 needed)",
     }
+    assert (
+        whole[("(defaults)", "explicit")] == "**refuted**"
+        and whole[("+experiment=long", "explicit")] == "**confirmed**"
+    )
     assert shown_hidden_lines(find_runs([tmp_path / "old"]), glance) == []
-    filled = {"sh_error_completed": 0.27, "pseudo_sh_error_completed": 0.29, "trivial_sh_error": 0.37}
+    filled = {"sh_error_completed": 0.27, "pseudo_sh_error_completed": 0.29}
     make_run(tmp_path, "c", "explicit", seed=4, eval_={"sh_error_shown": 0.1} | light | filled)
     lines = shown_hidden_lines(find_runs([tmp_path]), tables.Glance())
-    assert "0.370 filled (itself)" in lines[0] and "L-hat 0.190 shown / 19.000 hidden / 0.290 filled" in lines[0]
-    assert any(line.startswith("| `(defaults)` | explicit |") and "| 0.270 (n=1) |" in line for line in lines)
-
-
-def test_published_rows_under_a_default_since_changed_match_todays_rows(tmp_path):
-    """A row an earlier build published as ``+experiment=long train.max_steps=N`` where ``N`` is today's default
-    names the same runs as today's ``+experiment=long`` row: it is not kept beside it, and a kept row or ablation
-    heading is relabelled as today names its setting."""
-    from disent.runs import composed_config, retyped_label
-
-    steps = composed_config(("+experiment=long",))["train"]["max_steps"]
-    assert retyped_label(f"+experiment=long train.max_steps={steps}") == "+experiment=long"
     assert (
-        retyped_label(f"+experiment=long train.max_steps={steps + 1}")
-        == f"+experiment=long train.max_steps={steps + 1}"
+        "0.370 filled and all 9 (itself)" in lines[0] and "L-hat 0.190 shown / 19.000 hidden / 0.290 filled" in lines[0]
     )
-    lr = composed_config(())["train"]["lr"]
-    assert retyped_label(f"model=implicit train.lr={lr}") == "model=implicit"
-    assert retyped_label(f"train.lr={lr}") == "(defaults)" and retyped_label("(defaults)") == "(defaults)"
-    assert retyped_label(f"+ablation=no_such_thing train.lr={lr}") == f"+ablation=no_such_thing train.lr={lr}"
-
-    head = "| setting | value |"
-    previous = "\n\n".join(
-        [
-            "# r",
-            "## T\n",
-            "\n".join(
-                [
-                    head,
-                    "|---|---|",
-                    f"| `+experiment=long train.max_steps={steps}` | 1 |",  # today's +experiment=long
-                    f"| `model=explicit train.lr={lr} train.max_steps=7` | 2 |",  # runs gone: kept, relabelled
-                ]
-            ),
-            f"### `+experiment=long train.max_steps={steps}`\n\nold table",
-            f"### `train.lr={lr} train.max_steps=7`\n\nold table",
-        ]
-    )
-    rep = report.Report(tmp_path, previous)
-    rep.title = "T"
-    rows = rep.rows_kept(head, ["| `+experiment=long` | 3 |"])
-    assert rows == ["| `+experiment=long` | 3 |", "| `model=explicit train.max_steps=7` ‡ | 2 |"]
-    rep.add("### `+experiment=long`\n", "new table\n")
-    rep.subsections_kept(0)
-    headings = [line.split("\n")[0] for line in rep.lines if line.startswith("### ")]
-    assert headings == ["### `+experiment=long`", "### `train.max_steps=7` ‡"]
-
-
-def test_published_rows_under_a_default_changed_away_name_the_default_of_their_day(tmp_path, monkeypatch):
-    """A row an earlier build published against a ``conf/`` whose E_UV weight was another (the provenance table
-    names its git revision) trained at that weight: kept, it reads ``loss.weights.UV=<then>`` for the implicit model
-    and stays as it was for the explicit one, which has no E_UV; a heading (no model) gains only what every model
-    uses; a value typed as an int matches the same float in conf/."""
-    import shutil
-
-    import disent.runs as runs_mod
-    from disent.runs import CONF_DIR, composed_config, retyped_label
-
-    today = composed_config(("model=implicit",))["loss"]["weights"]["UV"]
-    then = tmp_path / "conf"
-    shutil.copytree(CONF_DIR, then)
-    loss = then / "loss" / "default.yaml"
-    loss.write_text(loss.read_text().replace(f"  UV: {today}", f"  UV: {today + 3}", 1))
-    assert f"  UV: {today + 3}" in loss.read_text()
-    monkeypatch.setattr(runs_mod, "conf_at", lambda revision: str(then) if revision == "abc1234" else None)
-    was = f"loss.weights.UV={today + 3}"
-    assert retyped_label("(defaults)", "abc1234", "implicit") == was
-    assert retyped_label("(defaults)", "abc1234", "explicit") == "(defaults)"
-    assert retyped_label("model=implicit", "abc1234") == f"{was} model=implicit"
-    assert retyped_label("(defaults)", "abc1234") == "(defaults)"  # the baseline and explicit models have no E_UV
-    assert retyped_label(f"loss.weights.UV={int(today)}", "abc1234", "implicit") == "(defaults)"
-    assert retyped_label("(defaults)", "unknown", "implicit") == "(defaults)"  # git cannot give it: today's reading
-
-    head = "| model | setting | value |"
-    previous = "\n\n".join(
-        [
-            "# r\n\n| sections | built | from | regenerate |\n|---|---|---|---|\n| T | `abc1234`, now | runs | `cmd` |",
-            "## T\n",
-            "\n".join([head, "|---|---|---|", "| implicit | `(defaults)` | 1 |", "| explicit | `(defaults)` | 2 |"]),
-        ]
-    )
-    rep = report.Report(tmp_path / "out", previous)
-    assert rep.revisions == {"T": "abc1234"}
-
-    def sec_T(r):  # the section named T in the provenance table
-        r.add(*r.rows_kept(head, ["| explicit | `(defaults)` | 3 |"], key=2))
-
-    rep.section("T", sec_T)
-    assert f"| implicit ‡ | `{was}` | 1 |" in rep.lines and "| explicit | `(defaults)` | 3 |" in rep.lines
-    assert not any("| 2 |" in line for line in rep.lines)  # the explicit row is today's: replaced
-
-    rep = report.Report(tmp_path / "out", previous)  # this build has runs of the implicit row's setting: not kept
-    rep.measured = {(was, "implicit")}
-    rep.section("T", sec_T)
-    assert not any("| 1 |" in line for line in rep.lines) and not any(document.KEPT_ROW in x for x in rep.lines)
-
-    # a heading names no model: one that reads as a heading of this build for some model is not kept
-    previous = previous.replace(
-        "## T\n",
-        "## T\n\n"
-        + "\n\n".join(
-            f"### `{h}`\n\nold" for h in ("+experiment=long", f"loss.weights.UV={today}", "train.max_steps=7")
-        ),
-    )
-    rep = report.Report(tmp_path / "out", previous)
-
-    def sec_T(r):  # noqa: F811 (the same section, now with a subsection)
-        r.add(f"### `+experiment=long {was}`\n", "new\n", "### (defaults)\n", "new\n")  # (defaults) is unquoted
-        r.subsections_kept(len(r.lines) - 4)
-
-    rep.section("T", sec_T)
-    headings = [line.strip() for line in rep.lines if line.startswith("### ")]
-    assert headings == [f"### `+experiment=long {was}`", "### (defaults)", "### `train.max_steps=7` ‡"]
-
-
-def test_conf_at_a_revision_is_that_revisions_conf():
-    """``conf_at``: the ``conf/`` folder of a git revision (where the checkout has its history), None for a revision
-    git does not know."""
-    from disent.runs import CONF_DIR, conf_at
-
-    head = conf_at("HEAD")
-    if head is None:
-        pytest.skip("no git history here")
-    committed = subprocess.run(
-        ["git", "-C", str(CONF_DIR.parent), "show", "HEAD:conf/config.yaml"], capture_output=True, text=True
-    ).stdout
-    assert (Path(head) / "config.yaml").read_text() == committed
-    assert conf_at("0000000000000000000000000000000000000000") is None
-
-
-def test_rows_kept_keys_on_the_cells_it_is_told(tmp_path):
-    """A published row whose key cells match a new row is replaced, even where a cell outside the key (words) was
-    reworded; a row whose key differs is kept and marked."""
-    head = "| setting | reason | metric | value |"
-    rows = ["| `a` | old words | m | 1 |", "| `b` | words | m | 2 |"]
-    rep = report.Report(tmp_path, "\n\n".join(["# r", "## T\n", "\n".join([head, "|---|---|---|---|", *rows])]))
-    rep.title = "T"
-    new = ["| `a` | new words | m | 3 |"]
-    assert rep.rows_kept(head, new, key=(0, 2)) == [*new, "| `b` ‡ | words | m | 2 |"]
-    assert len(rep.rows_kept(head, new, key=3)) == 3  # keyed on the words too, the old row stays beside the new
+    assert any(line.startswith("| `(defaults)` | explicit |") and "| 0.270 (n=1) |" in line for line in lines)
 
 
 def test_bws_section_reads_the_fixed_images_budget(tmp_path):
@@ -2106,11 +1795,11 @@ def test_bws_section_reads_the_fixed_images_budget(tmp_path):
         }
 
     fixed_steps = [row(b, bs, 400, 0.5) for b in (True, False) for bs in (1, 25)]
-    rep = report.Report(tmp_path, "")
+    rep = report.Report(tmp_path)
     tools._stability_bws(rep, {"rows": fixed_steps, "n": 8})
     assert "On the same" not in "\n".join(rep.lines)  # one budget only: nothing to read
     images = [row(True, 1, 10000, t) for t in (-0.1, 0.1)] + [row(False, 1, 10000, t) for t in (0.2, 0.3)]
-    rep = report.Report(tmp_path, "")
+    rep = report.Report(tmp_path)
     tools._stability_bws(rep, {"rows": fixed_steps + images, "n": 8})
     text = "\n".join(rep.lines)
     assert "On the same 10,000 images" in text
@@ -2297,20 +1986,21 @@ def test_a_target_drawn_from_a_run_names_what_that_run_was(tmp_path):
     )
     make_run(tmp_path / "runs", "second", eval_=ev | {"albedo_si_mse": 0.006}, extra=second)
     rows = [line for line in claims.light_target_lines(find_runs([tmp_path / "runs"])) if line.startswith("- ")]
-    assert len(rows) == 1 and f"loss.recon_L_network={net}" in rows[0] and "against `(defaults)`" in rows[0]
+    ref = f"loss.recon_L_network=run:{Run.load(net).id}"  # the network named by its run id, never by its folder
+    assert len(rows) == 1 and ref in rows[0] and str(tmp_path) not in rows[0] and "against `(defaults)`" in rows[0]
     assert rows[0].endswith(
         " Its network: the explicit model trained at "
         "`loss.recon_L_network=implicit loss.recon_L_target=sh_network_texture`, seed 3."
     )
     assert claims.network_run_words("loss.recon_L_network=implicit", []) == ""  # a shipped name: nothing to add
     # the network's folder deleted (a new machine): its record, kept with the report's runs, still says what it was
-    record = record_run(Run.load(net), tmp_path / "records")
+    write_records(find_runs([net.parent]), tmp_path / "runs.jsonl")
     shutil.rmtree(net)
-    runs = find_runs([tmp_path / "runs", record.parent])
-    assert claims.network_run(f"loss.recon_L_network={net}", runs).seed == 3
+    runs = find_runs([tmp_path / "runs"], tmp_path / "runs.jsonl")
+    assert claims.network_run(ref, runs).seed == 3
     assert rows[0] in claims.light_target_lines(runs)
     assert claims.drawn_target_words(" ".join(second), runs) == "explicit run's light + refit (0.35)"
-    assert claims.network_run(f"loss.recon_L_network={net}", []) is None  # neither the folder nor its record
+    assert claims.network_run(ref, []) is None  # neither the folder nor its record
 
 
 def test_target_source_names_the_lighting_row_of_a_settings_e_recon_l_target():
@@ -2441,9 +2131,8 @@ def test_a_target_without_a_lighting_row_is_placed_by_its_runs_own_scores(tmp_pa
     monkeypatch.setattr(claims, "albedo_rank_reading", lambda p: points.extend(p) or "")
     claims.light_pattern_section(rep, find_runs([tmp_path / "runs"]))
     rows = [line for line in rep.lines if line.startswith("| `loss.")]
-    assert len(rows) == 1 and rows[0].startswith(
-        f"| `{' '.join(sorted(second))}` | explicit | default | 0.975 | 0.95 | 0.070 |"
-    )
+    named = sorted(t if "network=" not in t else f"loss.recon_L_network=run:{Run.load(net).id}" for t in second)
+    assert len(rows) == 1 and rows[0].startswith(f"| `{' '.join(named)}` | explicit | default | 0.975 | 0.95 | 0.070 |")
     assert [p["name"] for p in points] == ["explicit run's light + refit (0.35)"]
     assert claims.drawn_target_words("loss.recon_L_target=sh_network loss.recon_L_network=implicit", []) == (
         "implicit's light"
@@ -2509,7 +2198,7 @@ def test_edit_claims_without_the_reader_read_the_drawn_share(tmp_path):
         for key in ("drawn_per_leak", "best_drawn", "drawn_face_per_leak", "best_drawn_face", "drawn_per_off_target"):
             c.pop(key)
     (out / "edit" / "explicit" / "edit.json").write_text(json.dumps(old))
-    rep = report.Report(out, "")
+    rep = report.Report(out)
     report.sec_claims(rep, find_runs([tmp_path / "runs"]), out / "eval")
 
     def table(column):
@@ -2564,14 +2253,14 @@ def test_claim_5_shows_the_shipped_models_progression_figures(tmp_path):
     (edit / "explicit_seed0_1200steps").mkdir()
     (edit / "explicit_seed0_1200steps" / "edit.json").write_text(json.dumps({"model": "explicit", "setting": "x"}))
     (edit / "explicit_seed0_1200steps" / "fig_beard_progression.png").write_bytes(b"png")
-    rep = report.Report(tmp_path / "reports", "")
+    rep = report.Report(tmp_path / "reports")
     claims.progression_figures(rep, edit)
     images = [line for line in rep.lines if line.startswith("![")]
     assert images == [
         "![explicit: beard progression](edit/explicit/fig_beard_progression.png)\n",
         "![explicit: smiling progression](edit/explicit/fig_smiling_progression.png)\n",
     ]
-    empty = report.Report(tmp_path / "other", "")
+    empty = report.Report(tmp_path / "other")
     claims.progression_figures(empty, tmp_path / "other" / "edit")
     assert empty.lines == []
 
@@ -2587,7 +2276,7 @@ def test_reconstruction_claim_reads_sharper_on_the_face_and_in_the_albedo_detail
             ev = {"recon_face_psnr": psnr + 0.01 * seed, "recon_face_ssim": ssim + 0.02 * seed}
             ev |= {"albedo_fine_si_mse": fine + 0.0001 * seed, "normal_mean": 12.0}
             make_run(tmp_path / "runs", f"{model[0]}{seed}", model, seed=seed, eval_=ev)
-    rep = report.Report(out, "")
+    rep = report.Report(out)
     report.sec_claims(rep, find_runs([tmp_path / "runs"]), out / "eval")
     row = next(line for line in rep.lines if line.startswith("| `(defaults)` | 24.10 ± 0.10 (n=3) |"))
     cells = [c.strip() for c in row.split("|")[1:-1]]
@@ -2783,3 +2472,18 @@ def test_uv_by_seed_reads_each_runs_uv_map_against_its_baselines(tmp_path):
     rep = report.Report(tmp_path / "none")  # no scored implicit run: a note, no figure
     training.sec_uv_by_seed(rep, [r for r in find_runs([tmp_path]) if r.model == "explicit"])
     assert rep.lines[0].startswith(document.MISSING) and not (tmp_path / "none" / "figures" / "uv_by_seed.png").exists()
+
+
+def test_conf_at_a_revision_is_that_revisions_conf():
+    """``conf_at``: the ``conf/`` folder of a git revision (where the checkout has its history), None for a revision
+    git does not know."""
+    from disent.runs import CONF_DIR, conf_at
+
+    head = conf_at("HEAD")
+    if head is None:
+        pytest.skip("no git history here")
+    committed = subprocess.run(
+        ["git", "-C", str(CONF_DIR.parent), "show", "HEAD:conf/config.yaml"], capture_output=True, text=True
+    ).stdout
+    assert (Path(head) / "config.yaml").read_text() == committed
+    assert conf_at("0000000000000000000000000000000000000000") is None

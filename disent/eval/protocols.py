@@ -231,21 +231,21 @@ def row_name(info: dict) -> str:
 def keep_rows(new: dict, old: dict, loaded: dict | None = None) -> dict:
     """``new`` with the trained models' rows of ``old`` that it does not measure again: measurements of runs whose
     folders are gone survive a re-run.  An old row's setting is read against today's ``conf/`` from its run's
-    folder or record (``loaded``: runs by origin; :func:`disent.runs.measured_setting`) and the row renamed by it,
+    folder or record (``loaded``: runs by id; :func:`disent.runs.measured_setting`) and the row renamed by it,
     so that a default changed since neither merges it with today's runs of the same old label nor lets them
     replace it.  Measured again: the same run folder, or the same model, setting (today's) and seed.  A row
     whose run is gone, folder and record, keeps its label, retyped from the ``conf/`` of the git revision that
     ``old`` was written at (its ``revision``, or the row's own where it has one: a row no revision could retype
     keeps its label and says so with ``revision: null``; :func:`disent.runs.retyped_label`), and its folder's name
     joins its name where that is taken."""
-    from disent.runs import measured_setting, retyped_label
+    from disent.runs import measured_setting, retyped_label, run_ref
 
     runs = dict(new.get("runs") or {})
-    folders = {str(Path(i["run"]).resolve()) for i in runs.values()}
+    folders = {run_ref(i["run"]) for i in runs.values()}
     measured = {(i["model"], i["setting"], i["seed"]) for i in runs.values()}
     estimators = dict(new["estimators"])
     for name, info in (old.get("runs") or {}).items():
-        if name not in old["estimators"] or str(Path(info["run"]).resolve()) in folders:
+        if name not in old["estimators"] or run_ref(info["run"]) in folders:
             continue
         then = info.get("revision", old.get("revision"))  # whose conf/ the row's label was read against
         today = measured_setting(info, loaded)
@@ -268,7 +268,7 @@ def keep_rows(new: dict, old: dict, loaded: dict | None = None) -> dict:
 
 def main(argv=None):
     from disent.data import SynthFaces
-    from disent.runs import RUN_ROOTS, find_runs, head_revision, load_models, tool_folder
+    from disent.runs import RECORDS, RUN_ROOTS, find_runs, head_revision, load_models, tool_folder
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", default=None, help="output folder (default: outputs/eval/<date>/<time>-<pid>/)")
@@ -290,7 +290,7 @@ def main(argv=None):
         metavar="JSON",
         help="a published sh_variance.json (reports/eval/): its rows of trained models not measured again here "
         "are kept (their run folders may be gone), each named by its setting read today from its folder or from "
-        "its record beside the JSON (reports/runs/); a model of the same model, setting and seed is replaced",
+        "its record beside the JSON (reports/runs.jsonl); a model of the same model, setting and seed is replaced",
     )
     a = p.parse_args(argv)
     torch.manual_seed(0)
@@ -316,8 +316,8 @@ def main(argv=None):
     if runs:  # which trained model each network row is, for the report's verdict over seeds
         res["runs"] = {name: info for name, (_, info) in runs.items()}
     if a.keep is not None:
-        records = a.keep.resolve().parent.parent / "runs"  # reports/runs/: the records of runs whose folders are gone
-        loaded = {r.origin: r for r in find_runs([*(a.roots or RUN_ROOTS), records])}
+        records = a.keep.resolve().parent.parent / RECORDS  # reports/runs.jsonl: runs whose folders are gone
+        loaded = {r.id: r for r in find_runs(a.roots or RUN_ROOTS, records)}
         res = keep_rows(res, json.loads(a.keep.read_text()), loaded)
     out = tool_folder("eval", a.out)
     (out / "sh_variance.json").write_text(json.dumps(res, indent=1))

@@ -504,17 +504,21 @@ def light_target_lines(runs: list[Run]) -> list[str]:
 
 
 def network_run(where: str, runs: list[Run]) -> Run | None:
-    """The run whose folder the setting ``where`` names as E_recon-L's network (``loss.recon_L_network=PATH``, a
-    target drawn from a network that was itself trained on a target): that folder's run among ``runs`` (the record
-    of a folder since deleted included), else the folder itself; None for a shipped model's name."""
+    """The run the setting ``where`` names as E_recon-L's network (``loss.recon_L_network=run:ID``, a target drawn
+    from a network that was itself trained on a target): that run among ``runs`` (records included), else the
+    folder that a run of ``runs`` trained with under that name; None for a shipped model's name."""
     for t in where.split():
         if t.startswith("loss.recon_L_network="):
-            value = t.partition("=")[2]
-            found = [r for r in runs if r.id == run_ref(value)]
-            if found:
-                return found[0]
-            path = Path(value)
-            return Run.load(path) if (path / ".hydra" / "config.yaml").is_file() else None
+            ref = run_ref(t.partition("=")[2])
+            found = [r for r in runs if r.id == ref]
+            if found or ref is None:
+                return found[0] if found else None
+            for r in runs:  # a run folder names it by its path in its overrides
+                for o in map(str, r.overrides):
+                    key, _, value = o.lstrip("+").partition("=")
+                    folder = Path(value)
+                    if key == "loss.recon_L_network" and run_ref(value) == ref and (folder / ".hydra").is_dir():
+                        return Run.load(folder)
     return None
 
 
@@ -1173,10 +1177,9 @@ def measured_claims(rep: Report, runs: list[Run], eval_dir: Path, glance: Glance
                 f"- The constant mean light scores SH error {trivial['mean']:.3f} on the test split: lower variance "
                 "than L-hat is not by itself evidence of a learned light (section *Lighting stability*)."
             )
-        rep.add("", *shown_hidden_lines(done, glance))
-        rep.add("")
     else:
         rep.note("`reports/eval/sh_variance.json`; run `python -m disent.eval.protocols` and publish it.")
+    rep.add("", *shown_hidden_lines(done, glance), "")  # the test split's light, with or without the light bank
     head = table_head(
         "setting",
         "baseline face PSNR",
