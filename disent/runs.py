@@ -234,10 +234,13 @@ def drop_remeasured(folder: Path, dest: Path) -> None:
 
 
 class MetricsLog:
-    """Append-only ``metrics.jsonl``; each record is flushed at once, so a killed run keeps its log."""
+    """Append-only ``metrics.jsonl``; each record is flushed at once, so a killed run keeps its log.  With
+    ``events`` (a folder) each record also goes to TensorBoard event files there (:class:`TensorBoardLog`), so that
+    ``tensorboard --logdir outputs`` shows runs as they train; ``metrics.jsonl`` stays the record the report reads."""
 
-    def __init__(self, path: Path):
+    def __init__(self, path: Path, events: Path | None = None):
         self.path = Path(path)
+        self.events = TensorBoardLog(events) if events is not None else None
 
     def write(self, record: dict) -> None:
         clean = {
@@ -246,13 +249,69 @@ class MetricsLog:
         clean = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in clean.items()}
         with self.path.open("a") as f:
             f.write(json.dumps(clean) + "\n")
+        if self.events is not None:
+            self.events.write(clean)
 
     def truncate_after(self, step: int) -> None:
-        """Drop records past ``step`` and earlier evaluations (a resumed run rewrites them exactly)."""
+        """Drop records past ``step`` and earlier evaluations (a resumed run rewrites them exactly); the event files
+        drop theirs past ``step`` too."""
         if self.path.exists():
             recs = [json.loads(l) for l in self.path.read_text().splitlines() if l.strip()]
             keep = [json.dumps(r) for r in recs if r.get("step", 0) <= step and "eval" not in r]
             atomic_write(self.path, lambda f: f.write("".join(l + "\n" for l in keep).encode()))
+        if self.events is not None:
+            self.events.purge_step = step + 1  # the steps after the checkpoint are trained again
+
+    def close(self) -> None:
+        if self.events is not None:
+            self.events.close()
+
+
+class TensorBoardLog:
+    """The training log as TensorBoard scalars (``torch.utils.tensorboard``): each loss term under ``loss/``, the
+    speed and learning rate, each validation metric under ``val/`` with its trivial baseline (``trivial/``) and the
+    pseudo-GT's (``pseudo/``) drawn on one chart beside it, and the final test metrics under ``eval/``.  The writer
+    opens at the first record (a resumed run purges the steps it trains again)."""
+
+    SKIP = ("step", "epoch", "wall", "minutes", "n", "seconds")
+
+    def __init__(self, folder: Path):
+        self.folder, self.writer, self.purge_step, self.charted = Path(folder), None, None, False
+
+    def scalars(self, prefix: str, values: dict, step: int) -> None:
+        for k, v in values.items():
+            if k not in self.SKIP and isinstance(v, (int, float)) and not isinstance(v, bool):
+                self.writer.add_scalar(f"{prefix}/{k}", v, step)
+
+    def write(self, record: dict) -> None:
+        if self.writer is None:
+            from torch.utils.tensorboard import SummaryWriter
+
+            self.writer = SummaryWriter(str(self.folder), purge_step=self.purge_step, flush_secs=10)
+            self.purge_step = None
+        step = int(record.get("step", 0))
+        if isinstance(record.get("val"), dict):
+            val = record["val"]
+            mine = {k: v for k, v in val.items() if not k.startswith(("trivial_", "pseudo_"))}
+            self.scalars("val", mine, step)
+            for kind in ("trivial", "pseudo"):
+                self.scalars(kind, {k[len(kind) + 1 :]: v for k, v in val.items() if k.startswith(kind + "_")}, step)
+            if not self.charted:  # one chart per metric: the network beside its baselines
+                charts = [k for k in mine if k not in self.SKIP]
+                lines = {k: ["Multiline", [f"val/{k}", f"trivial/{k}", f"pseudo/{k}"]] for k in charts}
+                self.writer.add_custom_scalars({"validation beside the trivial baselines": lines})
+                self.charted = True
+        elif isinstance(record.get("eval"), dict):
+            self.scalars("eval", record["eval"], step)
+        else:
+            losses = {k: v for k, v in record.items() if k not in ("lr", "images_per_s")}
+            self.scalars("loss", losses, step)
+            self.scalars("train", {k: record[k] for k in ("lr", "images_per_s") if k in record}, step)
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+            self.writer = None
 
 
 def atomic_write(path, write) -> None:

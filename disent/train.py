@@ -509,7 +509,7 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
     ckpt_path = run_dir / "checkpoints" / "last.pt"
     write_git_revision(run_dir)
     (run_dir / "machine.json").write_text(json.dumps(machine_info(device, t.threads), indent=1))
-    log = MetricsLog(run_dir / "metrics.jsonl")
+    log = MetricsLog(run_dir / "metrics.jsonl", run_dir / "tensorboard" if t.get("tensorboard", True) else None)
 
     data = make_dataset(cfg.data, "train", cfg.data.get("train_size"))
     steps_per_epoch = len(data) // t.batch_size
@@ -677,6 +677,7 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
     finally:
         prefetch.close()
         bar.close()
+        log.close()
 
     model.eval()
     if batch is None:  # no step ran in this process (a resumed run that was already done)
@@ -690,6 +691,7 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
         "train_seconds": wall,
     }
     log.write({"step": step, "epoch": step / steps_per_epoch, "wall": wall, "eval": metrics})
+    log.close()
     (run_dir / "eval.json").write_text(json.dumps(metrics, indent=2))
     print_eval(metrics, run_dir)
     return metrics

@@ -142,6 +142,9 @@ def test_resume_equals_an_uninterrupted_run(tmp_path, monkeypatch):
     ]
     assert strip(records(tmp_path / "full")) == strip(records(tmp_path / "cut"))
     assert [r["step"] for r in records(tmp_path / "cut") if "val" in r] == [1, 2, 3, 4]
+    full, cut = (scalars(tmp_path / d / "tensorboard") for d in ("full", "cut"))  # the retrained steps purged
+    assert [s for s, _ in cut["loss/total"]] == [s for s, _ in full["loss/total"]]
+    assert [s for s, _ in cut["val/normal_mean"]] == [1, 2, 3, 4]
     assert (
         json.loads((tmp_path / "full" / "eval.json").read_text())["recon_mse"]
         == json.loads((tmp_path / "cut" / "eval.json").read_text())["recon_mse"]
@@ -322,6 +325,39 @@ def test_the_refit_share_has_one_default():
     from disent.lighting.experiments import NETWORK_TEXTURE_SHARE
 
     assert cfg_of().loss.recon_L_network_share == NETWORK_TEXTURE_SHARE == T.ADDED_LATER["loss.recon_L_network_share"]
+
+
+def scalars(folder) -> dict:
+    """``{tag: [(step, value)]}`` of the TensorBoard event files in ``folder``."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    out = {}
+    for events in sorted({p.parent for p in folder.rglob("events.out.tfevents.*")}):
+        acc = EventAccumulator(str(events))
+        acc.Reload()
+        for tag in acc.Tags()["scalars"]:
+            out.setdefault(tag, []).extend((e.step, e.value) for e in acc.Scalars(tag))
+    return out
+
+
+def test_tensorboard_shows_the_losses_and_the_validation_beside_its_trivial_baselines(tmp_path):
+    """A run's event files hold what metrics.jsonl holds: each loss term at its logged steps, each validation metric
+    with the dataset-mean and pseudo-GT lines beside it, and the test metrics at the end."""
+    run(cfg_of(*TINY, "train.epochs=3", "train.max_steps=null", "train.val_every=2", "train.val_size=4"), tmp_path)
+    got, logged = scalars(tmp_path / "tensorboard"), records(tmp_path)
+    losses = [r for r in logged if "total" in r]
+    assert [s for s, _ in got["loss/total"]] == [r["step"] for r in losses]
+    assert [v for _, v in got["loss/total"]] == pytest.approx([r["total"] for r in losses], rel=1e-6)
+    vals = [r for r in logged if "val" in r]
+    assert [v for _, v in got["val/normal_mean"]] == pytest.approx([r["val"]["normal_mean"] for r in vals], rel=1e-6)
+    assert [v for _, v in got["trivial/normal_mean"]] == pytest.approx(
+        [r["val"]["trivial_normal_mean"] for r in vals], rel=1e-6
+    )
+    assert "pseudo/normal_mean" in got and "val/trivial_normal_mean" not in got and "val/n" not in got
+    final = json.loads((tmp_path / "eval.json").read_text())
+    assert got["eval/recon_mse"][-1][1] == pytest.approx(final["recon_mse"], rel=1e-6)
+    run(cfg_of(*TINY, "train.tensorboard=false"), tmp_path / "off")
+    assert not (tmp_path / "off" / "tensorboard").exists()
 
 
 def test_validation_records_normal_errors_and_psnr(tmp_path):

@@ -119,12 +119,18 @@ def ablation_table(runs: list[Run]) -> dict:
     return {"rows": rows, "budget": budget(runs)}
 
 
+def mean_std_text(mean: float, std: float | None, fmt: str = "auto") -> str:
+    """``mean ± std`` (``mean`` alone where ``std`` is None), both in ``fmt``; ``auto``: to the same decimal place,
+    two where the mean is 1 or more (25.98 ± 0.10 dB), else the mean's fourth significant digit (0.003712 ±
+    0.000140).  Every table's spread is written by this."""
+    if fmt == "auto":
+        places = 2 if abs(mean) >= 1 or mean == 0 or not math.isfinite(mean) else 3 - math.floor(math.log10(abs(mean)))
+        fmt = f".{places}f"
+    return f"{mean:{fmt}}" if std is None else f"{mean:{fmt}} ± {std:{fmt}}"
+
+
 def _fmt(s):
-    if s is None:
-        return "–"
-    m, d = s["mean"], s["std"]
-    digits = 4 if abs(m) < 1 else 3
-    return f"{m:.{digits}g} ± {d:.2g}"
+    return "–" if s is None else mean_std_text(s["mean"], s["std"])
 
 
 def to_markdown(table: dict) -> str:

@@ -221,7 +221,7 @@ def sec_ablations(rep: Report, runs: list[Run]) -> None:
     gates = {x["gate"] for x in readings}
 
     def arm(x, which):
-        return spread_text(x[which], ".2f" if x["key"] in ("normal_mean", "recon_face_psnr") else ".3g")
+        return spread_text(x[which], "auto")
 
     rows = [
         f"| {x['ablation']} | {x['reason']} | {CLAIM_METRICS[x['key']]} | {arm(x, 'full')} | {arm(x, 'ablated')} | "

@@ -35,9 +35,7 @@ def spread_text(st, fmt=".2f", count: bool = True) -> str:
     if st is None:
         return "–"
     n = f" (n={seeds_text(st)})" if count else ""
-    if st["n"] == 1:
-        return f"{st['mean']:{fmt}}{n}"
-    return f"{st['mean']:{fmt}} ± {st['std']:{fmt}}{n}"
+    return _ablation.mean_std_text(st["mean"], None if st["n"] == 1 else st["std"], fmt) + n
 
 
 def seeds_text(st) -> str:

@@ -396,7 +396,8 @@ def sec_methods(rep: Report, eval_dir: Path) -> None:
         "thread (a network at that batch); metrics on the pixels the networks are scored on. The coarse fit is "
         "the simulated pseudo ground truth: it starts from the scene's parameters, so its time is a lower bound "
         "for a real fit; *landmarks + fit* is the real pipeline (dlib and the face model) on the renders, scored "
-        "where dlib found the face."
+        "where dlib found the face. A *network* row is that model's shipped weights (one run; the headline and "
+        "claims pages give every seed)."
         + (f" Machine: {res['machine']}." if res.get("machine") else "")
         + (load_text(res["load"]) if res.get("load") else "")
         + "\n",
