@@ -71,7 +71,7 @@ def test_ablation_table_mean_std(tmp_path):
     assert rows["implicit"]["failed"] == {"diverged": 1, "incomplete": 1}
     md = to_markdown(t)
     steps = composed_config(("+experiment=smoke",))["train"]["max_steps"]
-    assert "0.03 ± 0.014" in md and f"train.max_steps={steps}" in md and "experiment=smoke" in md
+    assert "0.03000 ± 0.01414" in md and f"train.max_steps={steps}" in md and "experiment=smoke" in md
 
 
 def test_a_seed_run_twice_is_one_seed_not_two(tmp_path):
@@ -177,7 +177,7 @@ def test_teaser_names_each_model_by_its_setting_seed_and_steps(tmp_path, monkeyp
     assert not any(str(tmp_path) in t for t in titles)
     assert not any(str(tmp_path) in line for line in rep.lines)  # runs are named by their ids, not their folders
     ids = {r.id for r in find_runs([tmp_path / "runs"])}
-    assert sum(any(f"#{i})" in line for i in ids) for line in rep.lines) == 3
+    assert sum(any(f"#{i})" in line for i in ids) for line in rep.lines) == 6  # 3 teasers, 3 normals rows
 
 
 def test_shipped_weights_are_named_by_every_setting_they_differ_in_from_todays_conf(monkeypatch):
@@ -213,7 +213,7 @@ def test_teaser_without_ladder_runs_shows_the_shipped_weights(tmp_path, monkeypa
     text = "\n".join(rep.lines)
     assert "`disent/weights/implicit.pt`, trained as run run:" in text and "/root" not in text
     normals = manifest()["explicit"]["metrics"]["normal_mean"]  # the normals table reads their manifest's metrics
-    assert f"| explicit | {normals:.2f} |" in text
+    assert f"| explicit (shipped weights) | {normals:.2f} |" in text
 
 
 def test_replicates_set_the_gap_between_a_seeds_runs_beside_the_seed_spread(tmp_path):
@@ -750,8 +750,8 @@ def test_ablation_section_keeps_runs_of_other_settings_apart(tmp_path):
     text = "\n".join(rep.lines)
     assert "### (defaults)" in text and "### `model.norm=none`" in text
     defaults, norm_none = text.split("### `model.norm=none`")
-    assert "| explicit | 2/2 | **0.01 ± 0** |" in defaults.split("### (defaults)")[1] and "0.03" not in defaults
-    assert "| explicit | 2/2 | **0.03 ± 0** |" in norm_none
+    assert "| explicit | 2/2 | **0.01000 ± 0.00000** |" in defaults.split("### (defaults)")[1] and "0.03" not in defaults
+    assert "| explicit | 2/2 | **0.03000 ± 0.00000** |" in norm_none
 
 
 def test_budget_check_names_each_missed_target(tmp_path):
