@@ -1118,8 +1118,26 @@ def reader_rows(model: str, where: str, results: list[dict], drawn: dict) -> tup
 
 def measured_claims(rep: Report, runs: list[Run], eval_dir: Path, glance: Glance) -> None:
     """The claims' sections, each table's verdicts at the ladder's rungs also put in ``glance``."""
-    done = ladder_runs(runs)
-    loaded = {r.id: r for r in runs}  # for the tools' records of these runs
+    done, loaded = ladder_runs(runs), {r.id: r for r in runs}  # the runs by id: for the tools' records of them
+    rep.add("### 1. The network's normals go beyond the morphable-model fit that supervised them\n")
+    claim_normals(rep, done, glance)
+    rep.add("", "### 2. The network's light varies less across identities under one light than L-hat\n")
+    claim_light(rep, done, eval_dir, loaded, glance)
+    rep.add("### 3. The rendering models reconstruct better than the 265-d baseline; the implicit one more sharply\n")
+    claim_reconstruction(rep, done, glance)
+    rep.add("", "### 4. BWS prevents degenerate shading; each prior does what the paper says\n")
+    claim_ablations(rep, runs, glance)
+    claim_skin(rep, runs)
+    rep.add("### 5. Edits on the paper's manifolds change the attribute with less leakage than other manifolds\n")
+    groups, outside = edit_groups(eval_dir.parent / "edit", loaded)
+    if claim_edits(rep, groups, glance):
+        rep.add(*background_lines(outside))
+        progression_figures(rep, eval_dir.parent / "edit")
+        relighting(rep, groups)
+
+
+def claim_normals(rep: Report, done: list[Run], glance: Glance) -> None:
+    """Claim 1: the network's normals against the pseudo-GT that supervised them, per setting and model."""
     head = table_head("setting", "model", "network normals (deg)", "pseudo-GT (deg)", "mean map (deg)", "verdict")
     groups: dict = {}
     for r in done:
@@ -1134,13 +1152,13 @@ def measured_claims(rep: Report, runs: list[Run], eval_dir: Path, glance: Glance
         rows.append(
             f"| `{where}` | {model} | {spread_text(net)} | {spread_text(pseudo)} | {spread_text(mean)} | {said} |"
         )
-    rep.add(
-        "### 1. The network's normals go beyond the morphable-model fit that supervised them\n",
-        *head,
-        *rows,
-    )
+    rep.add(*head, *rows)
     rep.add("", *beyond_the_fit(groups))
-    rep.add("", "### 2. The network's light varies less across identities under one light than L-hat\n")
+
+
+def claim_light(rep: Report, done: list[Run], eval_dir: Path, loaded: dict, glance: Glance) -> None:
+    """Claim 2: the supplement's protocol on the light bank (``eval/sh_variance.json``) against L-hat, in the shown
+    directions too, and the test split's light against the constant mean light."""
     shv = load_json(eval_dir / "sh_variance.json")
     if shv:
         est = shv["estimators"]
@@ -1180,6 +1198,11 @@ def measured_claims(rep: Report, runs: list[Run], eval_dir: Path, glance: Glance
     else:
         rep.note("`reports/eval/sh_variance.json`; run `python -m disent.eval.protocols` and publish it.")
     rep.add("", *shown_hidden_lines(done, glance), "")  # the test split's light, with or without the light bank
+
+
+def claim_reconstruction(rep: Report, done: list[Run], glance: Glance) -> None:
+    """Claim 3: face PSNR against the 265-d baseline; the implicit model's face SSIM and albedo details against the
+    explicit model's."""
     head = table_head(
         "setting",
         "baseline face PSNR",
@@ -1217,7 +1240,6 @@ def measured_claims(rep: Report, runs: list[Run], eval_dir: Path, glance: Glance
             f"{finer} ({' / '.join(spread_text(fine[m], '.5f') for m in ('explicit', 'implicit'))}) |"
         )
     rep.add(
-        "### 3. The rendering models reconstruct better than the 265-d baseline; the implicit one more sharply\n",
         'Sec. 3.2: in the implicit model\'s UV space "facial features are aligned", so "the network has to learn a '
         'smaller space of variation, leading to sharper, more accurate reconstructions". Two readings of *sharper*: '
         "the face's SSIM (structure), and the error of the albedo's details (`albedo_fine_si_mse`: the albedo's "
@@ -1226,24 +1248,14 @@ def measured_claims(rep: Report, runs: list[Run], eval_dir: Path, glance: Glance
         *head,
         *rows,
     )
-    rep.add("", "### 4. BWS prevents degenerate shading; each prior does what the paper says\n")
-    claim_ablations(rep, runs, glance)
-    claim_skin(rep, runs)
-    rep.add("### 5. Edits on the paper's manifolds change the attribute with less leakage than other manifolds\n")
-    groups, outside = edit_groups(eval_dir.parent / "edit", loaded)
-    head = table_head(
-        "model",
-        "setting",
-        "method",
-        "attribute",
-        "paper's manifolds: gain per leakage",
-        "best other",
-        "best success",
-        "verdict",
-    )
-    rows, idle, relit, relit_regions, relit_matte = [], [], [], [], []
-    free = {reading: [] for reading in READER_FREE}
-    edits: dict = {}  # (model, setting, method, attribute) -> reading -> verdict
+
+
+def edit_readings(groups: dict) -> tuple[list[str], list[str], dict, dict]:
+    """Claim 5's readings of each setting's edit results (``groups``: :func:`edit_groups`): the reader's rows
+    (:func:`reader_rows`), the rows of edits no manifold set makes, the reader-free rows by reading
+    (:data:`READER_FREE`), and each edit's verdict by reading, ``{(model, setting, method, attribute): {reading:
+    verdict}}``."""
+    rows, idle, free, edits = [], [], {reading: [] for reading in READER_FREE}, {}
     for (model, where), results in sorted(groups.items()):
         drawn = drawn_rates(results)
         found, cannot, said = reader_rows(model, where, results, drawn)
@@ -1282,52 +1294,20 @@ def measured_claims(rep: Report, runs: list[Run], eval_dir: Path, glance: Glance
                 f"| {model} | `{where}` | {', '.join(f'{a} by {m} {v:.2f}' for a, m, v in cannot)} | "
                 f"{', '.join(ceiling) or '–'} |"
             )
-        relit += relight_rows(model, where, results, ("psnr_face",), all_methods=True)
-        relit_regions += relight_rows(model, where, results, ("psnr_skin", "psnr_skin_scaled", "psnr"))
-        relit_matte += relight_rows(model, where, results, SOFT_SPLIT, against=("ratio",), values=("matte_full_share",))
-    idle_head = table_head(
-        "model",
-        "setting",
-        "edits no manifold set makes (attribute by method: best success)",
-        "faces that have it, reconstructed, read as it",
-    )
-    relit_head = table_head(
-        "model", "setting", "transfer", "ratio", "decode", "input", "transfer - input", "transfer - ratio"
-    )
-    regions_head = table_head(
-        "model",
-        "setting",
-        *(
-            f"transfer - {d}, {w}"
-            for w in ("face region", "face region, one scale per image", "whole image")
-            for d in ("input", "ratio")
-        ),
-    )
-    matte_head = table_head(
-        "model",
-        "setting",
-        f"face region under a full matte (> {FACE_THRESHOLD:g})",
-        "transfer - ratio there, one scale per image",
-        "transfer - ratio under the soft rest, one scale per image",
-    )
-    rows, idle, relit, relit_regions, relit_matte = (
-        r
-        for h, r, k in (
-            (head, rows, 4),
-            (idle_head, idle, 2),
-            (relit_head, relit, 2),
-            (regions_head, relit_regions, 2),
-            (matte_head, relit_matte, 2),
-        )
-    )
-    if not (rows or idle or relit):
+    return rows, idle, free, edits
+
+
+def claim_edits(rep: Report, groups: dict, glance: Glance) -> bool:
+    """Claim 5's tables: the verdicts at a glance, the reader's table, the edits no set makes and each reader-free
+    reading (:func:`edit_readings`); False (a note) where no edit result is published."""
+    rows, idle, free, edits = edit_readings(groups)
+    if not (rows or idle):
         rep.note(
             "`reports/edit/*/edit.json`; run `python -m disent.edit measure explicit` (and `implicit`, or run "
             "folders), then publish its folder."
         )
-        return
+        return False
     readings = ("gain per leakage (reader)", *READER_FREE)
-    glance_head = table_head("model", "setting", "method", "attribute", *readings)
     glance_rows = [  # the verdicts alone, where some reading has the seeds to give one
         f"| {model} | `{where}` | {method} | {attribute} | "
         + " | ".join(verdict_word(cells.get(r, "–")) for r in readings)
@@ -1343,10 +1323,11 @@ def measured_claims(rep: Report, runs: list[Run], eval_dir: Path, glance: Glance
         rep.add(
             "At a glance: the verdict of each reading of the claim (the tables below give the numbers, and why a "
             "cell is not testable), for the edits where some reading has the seeds and the edit to give one.\n",
-            *glance_head,
+            *table_head("model", "setting", "method", "attribute", *readings),
             *glance_rows,
             "",
         )
+    columns = ("model", "setting", "method", "attribute")
     rep.add(
         "Attribute gain per unit leakage over the strengths of each method (`python -m disent.edit measure RUN`, "
         "16 source faces per attribute), mean ± std over the trained models (seeds) of a setting; the paper's "
@@ -1354,33 +1335,54 @@ def measured_claims(rep: Report, runs: list[Run], eval_dir: Path, glance: Glance
         f"{MIN_SEEDS} models and a difference beyond the spread, and is read only where some manifold set makes the "
         f"edit (best success, the share of edited faces read as having the attribute, >= {EDIT_WORKS} on average). "
         "`shipped`: the shipped long-budget weights.\n",
-        *head,
+        *table_head(*columns, "paper's manifolds: gain per leakage", "best other", "best success", "verdict"),
         *rows,
         "",
     )
     if idle:
         rep.add(
-            f"Not testable: no manifold set makes the edit (best success < {EDIT_WORKS}), or the model cannot draw "
-            f"the attribute (last column < {EDIT_WORKS}). Last column: the share of the model's reconstructions of "
-            "the same faces with the attribute truly on that the reader calls positive (beside the true images' "
-            "share, the reader's recall). A model draws an edit no more often than it draws the faces that have "
-            "the attribute, so a low share says the decoder cannot draw it, and an edit that reads as it anyway "
-            "(a best success above the last column) fools the reader rather than drawing the attribute; a high "
-            "share says the traversal, not the decoder, fails. Where measured, the share of the generator's change "
-            "(the same faces with the attribute on, less off) that the model's reconstructions reproduce "
-            "(`disent.edit.measure.drawn_share`, no reader: 100% draws all of it) says how much of it the decoder "
-            "draws, however faint for the reader.\n",
-            *idle_head,
+            IDLE_EDITS,
+            *table_head(
+                "model",
+                "setting",
+                "edits no manifold set makes (attribute by method: best success)",
+                "faces that have it, reconstructed, read as it",
+            ),
             *idle,
             "",
         )
+    for reading, text in reader_free_text(groups).items():
+        best = f"best {READER_FREE[reading][0].replace('drawn share', 'drawn')}, of what the model draws"
+        if free[reading]:
+            head = table_head(*columns, f"paper's manifolds: {reading}", "best other", best, "verdict")
+            rep.add(text, *head, *free[reading], "")
+    return True
+
+
+IDLE_EDITS = (
+    f"Not testable: no manifold set makes the edit (best success < {EDIT_WORKS}), or the model cannot draw "
+    f"the attribute (last column < {EDIT_WORKS}). Last column: the share of the model's reconstructions of "
+    "the same faces with the attribute truly on that the reader calls positive (beside the true images' "
+    "share, the reader's recall). A model draws an edit no more often than it draws the faces that have "
+    "the attribute, so a low share says the decoder cannot draw it, and an edit that reads as it anyway "
+    "(a best success above the last column) fools the reader rather than drawing the attribute; a high "
+    "share says the traversal, not the decoder, fails. Where measured, the share of the generator's change "
+    "(the same faces with the attribute on, less off) that the model's reconstructions reproduce "
+    "(`disent.edit.measure.drawn_share`, no reader: 100% draws all of it) says how much of it the decoder "
+    "draws, however faint for the reader.\n"
+)
+
+
+def reader_free_text(groups: dict) -> dict:
+    """What each reader-free reading of claim 5 measures (:data:`READER_FREE`), by reading; the face region's share
+    of the generator's change, from the source faces of ``groups``' results."""
     inside: dict = {}  # attribute -> the share of the generator's change in the face region, per result
     for res in (res for results in groups.values() for res in results):
         for r in res.get("traversal") or []:
             if r["method"] == "truth" and "change_in_face" in r:
                 inside.setdefault(r["attribute"], []).append(r["change_in_face"])
     in_face = ", ".join(f"{a} {sum(v) / len(v):.0%}" for a, v in inside.items())
-    said = {
+    return {
         "drawn share per leakage": "The same claim without the reader: how much of the generator's own change (the "
         "same faces with the attribute on, less off) each edit draws (`disent.edit.measure.drawn_share`: 100% draws "
         "all of it, however faint), summed over the strengths and divided by the summed leakage. The reader, trained "
@@ -1408,21 +1410,53 @@ def measured_claims(rep: Report, runs: list[Run], eval_dir: Path, glance: Glance
         "drawn share in the face per off-target change": "The same with no reader, inside the face region: both the "
         "drawn share and the off-target change counted there alone.\n",
     }
-    for reading, text in said.items():
-        head = table_head(
-            "model",
-            "setting",
-            "method",
-            "attribute",
-            f"paper's manifolds: {reading}",
-            "best other",
-            f"best {READER_FREE[reading][0].replace('drawn share', 'drawn')}, of what the model draws",
-            "verdict",
-        )
-        if kept := free[reading]:
-            rep.add(text, *head, *kept, "")
-    rep.add(*background_lines(outside))
-    progression_figures(rep, eval_dir.parent / "edit")
+
+
+RELIGHT_TABLES = (  # (key, scores, method differences, values, the table's columns after model and setting)
+    (
+        "face",
+        ("psnr_face",),
+        ("input", "ratio"),
+        (),
+        ("transfer", "ratio", "decode", "input", "transfer - input", "transfer - ratio"),
+    ),
+    (
+        "regions",
+        ("psnr_skin", "psnr_skin_scaled", "psnr"),
+        ("input", "ratio"),
+        (),
+        tuple(
+            f"transfer - {d}, {w}"
+            for w in ("face region", "face region, one scale per image", "whole image")
+            for d in ("input", "ratio")
+        ),
+    ),
+    (
+        "matte",
+        SOFT_SPLIT,
+        ("ratio",),
+        ("matte_full_share",),
+        (
+            f"face region under a full matte (> {FACE_THRESHOLD:g})",
+            "transfer - ratio there, one scale per image",
+            "transfer - ratio under the soft rest, one scale per image",
+        ),
+    ),
+)
+
+
+def relighting(rep: Report, groups: dict) -> None:
+    """Relighting with the detailed albedo (Sec. 5.3) over each setting's edit results: the face's PSNR per method,
+    then where the difference lies (:data:`RELIGHT_TABLES`, :func:`relight_rows`)."""
+    rows = {key: [] for key, *_ in RELIGHT_TABLES}
+    heads = {key: table_head("model", "setting", *columns) for key, *_, columns in RELIGHT_TABLES}
+    for (model, where), results in sorted(groups.items()):
+        for key, scores, against, values, _ in RELIGHT_TABLES:
+            rows[key] += relight_rows(
+                model, where, results, scores, all_methods=key == "face", against=against, values=values
+            )
+    relit, relit_regions, relit_matte = rows["face"], rows["regions"], rows["matte"]
+    relit_head, regions_head, matte_head = heads["face"], heads["regions"], heads["matte"]
     rep.add(
         "### Relighting with detailed albedo (Sec. 5.3)\n",
         "PSNR (dB) on the face against the generator's own render of the face under the source light, "
