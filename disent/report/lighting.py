@@ -646,8 +646,6 @@ def lhat_source_lines(src: dict) -> list[str]:
 
 def sec_lighting(rep: Report, out: Path) -> None:
     """How uncertain L-hat is and which lighting order a scene needs, from ``reports/lighting/*.json``."""
-    from disent.lighting.experiments import GEOMETRY
-
     d = out / "lighting"
     order, cal, cal_p, speed, sources = (
         load_json(d / f"{n}.json") for n in ("order", "calibration", "calibration_pseudo", "speed", "lhat_sources")
@@ -663,202 +661,224 @@ def sec_lighting(rep: Report, out: Path) -> None:
     if sources:
         rep.add(*lhat_source_lines(sources))
     if order:
-        rep.add(
-            "### Lighting model order: model no more than a scene needs\n",
-            "Item *i* of the split relit with its own light cut to SH order 0, 1 or 2, 20 scenes per order (a row "
-            "read again with more, as the rows the verdicts compare are, has them in its confusion counts). "
-            "Candidates: order 0, order 1 and 2 in gray or RGB; the smallest model within log 20 of the best "
-            "Laplace evidence is chosen (BIC beside it). *Albedo*: known (the reference), constant (what L-hat "
-            "assumes), or a PCA texture model fitted with the light (`disent/lighting/texture.py`). *Geometry "
-            "noise*: each pixel's variance adds what a normal error of std `normal_sigma` (the geometry's "
-            "measured mean error read as an isotropic tangent Gaussian: the pseudo-GT's, or a network row's model's "
-            "own test error; not fitted here) does to it under the candidate's light "
-            "(`select_order(..., normal_sigma=...)`, `disent.lighting.experiments.geometry_noise`). *Residual "
-            "process*: the misfit is "
-            "spatially correlated, noise covariance sigma^2 (I + rho exp(-d / ell)) / (1 + rho) over pixel distance "
-            "d, with rho and ell by maximum likelihood on train scenes' residuals at their true light "
-            f"({residual_text(d)}; `select_order(..., residual=(rho, ell))`). *Geometry noise and residual "
-            "process*: both, each channel's covariance V^1/2 R V^1/2 with R the residual process's correlation and V "
-            "each pixel's variance under the geometry noise: the geometry says how far each pixel may miss, the "
-            "residual process how neighbours miss together (rho and ell fitted with the geometry noise beside them). "
-            "*Eroded mask*: the pseudo mask less "
-            "its edge pixels, where the coarse fit's normals graze and its silhouette leaks onto hair or background "
-            "(`disent.lighting.experiments.GEOMETRY`). *uv registered*: the pseudo uv corrected by the affine map "
-            "that best registers the texture model to the image, found before any candidate is scored (Gauss-Newton "
-            "on the six affine parameters, the light and texture fitted again at each step, coarse to fine, under a "
-            "Gaussian prior of the affine maps that take train scenes' pseudo uv onto their true uv; "
-            "`disent.lighting.texture.register`). *Placement refined*: the coarse fit's maps rendered again at its "
-            "pose, scale and shift refined against the image, its shape kept: Powell's method on the fit of the "
-            "texture model and an order-2 RGB light to the coarse fit's mask eroded 3 px, under a Gaussian prior of "
-            "the coarse fit's placement errors on train scenes (`disent.lighting.experiments.refine_placement`); with "
-            "*uv registered* too, the refined maps' uv then registered as above. "
-            "*Oracle* rows put one true layer into the pseudo geometry, "
-            "to say which of its errors costs the choice: the true uv (the texture model registered to the face) "
-            "or the true normals, or on the explicit network's geometry the true uv "
-            "(`disent.lighting.experiments.GEOMETRY`). *Network* rows take the normals and matte "
-            "(eroded 1 px) that a shipped model (`disent/weights/`), trained on the pseudo-GT alone, draws from the "
-            "scene's noisy image, with the pseudo uv registered (explicit; in the `network_explicit_placed` row the "
-            "uv of the coarse fit placed against the image, then registered) or the model's own uv (implicit; in the "
-            "*uv registered* row corrected under the prior of that uv's affine errors on train scenes, "
-            "`registration_prior(network=...)`): a "
-            "geometry with no ground truth in it, whose normals beat the pseudo-GT's (claim 1; "
-            "`disent.lighting.experiments.network_maps`). *Band 2 fitted*: the median over a true "
-            "order's scenes of what the largest candidate (order 2, RGB) puts in SH band 2, as a share of bands 0 "
-            "and 1 (`disent.lighting.order.band2_share`), beside the true order-2 lights' median: where an order-1 "
-            "scene's fit holds as much band 2 as a true order-2 light, the geometry's error shows as band-2 light "
-            "and no criterion built on the fit can tell the two orders apart. Constants were chosen on val; test "
-            "only reports; the order study alone: `python -m disent.lighting task=order`; some of its rows, the "
-            "others kept as published: `python -m disent.lighting task=order order_rows='[ALBEDO/GEOMETRY+NOISE]' "
-            "order_keep=reports/lighting`. The order choice of `python -m disent.lighting image=PHOTO` takes the noise "
-            "model of the row best on val for its albedo and geometry (`order_noise=auto`).\n",
-            *table_head(
-                "split",
-                "albedo",
-                "geometry",
-                "evidence confusion (rows: true order 0, 1, 2)",
-                "evidence acc.",
-                "BIC acc.",
-                "band 2 fitted, true order 0 / 1 / 2 (true order-2 lights)",
-            ),
-        )
-        for key, r in order.items():
-            split, albedo, geometry = key.split("/", 2)
-            normals, _, noise = geometry.partition("+")
-            geometry = GEOMETRY[normals].label + (f", {noise.replace('_', ' ').replace('+', ' and ')}" if noise else "")
-            ev, bic = r["evidence"], r["bic"]
-            band2 = r.get("band2_share")  # studies written before it was measured have none
-            band2 = (
-                " / ".join(f"{v:.2f}" for v in band2["fitted_by_true_order"]) + f" ({band2['true_order2']:.2f})"
-                if band2
-                else "–"
-            )
-            rep.add(
-                f"| {split} | {albedo} | {geometry} | {ev['confusion']} | {_pct(ev['accuracy'])} | "
-                f"{_pct(bic['accuracy'])} | {band2} |"
-            )
-        pseudo = order_verdict(order, "texture/normal_pseudo", "pseudo geometry without the true albedo")
-        if pseudo:
-            rep.add(
-                "",
-                pseudo[1]
-                + band2_reading(order, pseudo[0])
-                + known_albedo_reading(order)
-                + placement_reading(order)
-                + "\n",
-            )
-        network = order_verdict(
-            order,
-            "texture/network_",
-            "the networks' geometry without the true albedo (the normals and matte that a shipped model trained on "
-            "the pseudo-GT alone draws from the image, with the implicit model's own uv or the coarse fit's)",
-        )
-        if network:
-            rep.add(
-                "",
-                network[1]
-                + network_reading(order, network[0], pseudo and pseudo[0])
-                + known_albedo_reading(order, "network_", "networks' geometry")
-                + uv_oracle_reading(order)
-                + "\n",
-            )
-        if combined := combined_reading(order):
-            rep.add(combined)
-        chosen = [row for row, _ in filter(None, (pseudo, network))]
-        if failures := failure_lines(order, chosen, face_attributes(order, chosen)):
-            rep.add(*failures)
-        if (wrong := load_json(d / "order_failures.json")) and (d / "order_failures.png").exists():
-            rep.add(failure_figure_text(wrong))
-            rep.image(d / "order_failures.png", "order_failures")
-        rep.add(*failure_region_lines(load_json(d / "order_failure_regions.json") or {}))
-        rows = {
-            "normal_pseudo_eroded": "on the pseudo geometry",
-            "normal_pseudo_registered": "with its uv registered to the image",
-            "normal_pseudo_placed": "with its placement refined against the image",
-            "oracle_uv": "with only its uv made true",
-            "oracle_normals": "with only its normals made true",
-            "oracle_placement": "with the coarse fit's placement (pose, scale, shift) made true",
-            "oracle_shape": "with the coarse fit's shape (identity, expression) made true",
-        }
-        accuracy = {  # the oracle rows and the pseudo geometry they start from, texture model, i.i.d. noise
-            (split, k): order[f"{split}/texture/{k}"]["evidence"]["accuracy"]
-            for split in ("val", "test")
-            for k in rows
-            if f"{split}/texture/{k}" in order
-        }
-        rows = {k: text for k, text in rows.items() if ("val", k) in accuracy and ("test", k) in accuracy}
-        if "normal_pseudo_eroded" in rows and any(k.startswith("oracle") for k in rows):
-            oracles = [k for k in rows if k.startswith("oracle")]
-            reached = [k for k in oracles if accuracy["test", k] >= ORDER_TARGET]
-            rep.add(
-                "Where the pseudo geometry's error comes from (texture model, i.i.d. noise, val/test accuracy): "
-                + ", ".join(f"{accuracy['val', k]:.2f}/{accuracy['test', k]:.2f} {text}" for k, text in rows.items())
-                + ". "
-                + (
-                    f"Made true alone, {' and '.join(reached)} reaches the target on test.\n"
-                    if reached
-                    else "Nothing made true alone brings the test accuracy to the target; the largest gain (val and "
-                    f"test together) comes {rows[max(oracles, key=lambda k: accuracy['val', k] + accuracy['test', k])]}"
-                    ".\n"
-                )
-            )
-        if (d / "order_accuracy.png").exists():
-            rep.add(
-                "Every row's evidence accuracy on val (open) and test (filled), with its 95 % interval over the row's "
-                "scenes (Wilson), against the target and against choosing one order for every scene (1/3); the "
-                "confusion matrices are in the table above (`disent.lighting.experiments.plot_order_accuracy`).\n"
-            )
-            rep.image(d / "order_accuracy.png", "order_accuracy")
-        if (registration := load_json(d / "registration.json")) and (d / "registration.png").exists():
-            rep.add(
-                "The texture model fitted through the pseudo, registered and true uv on val scenes under order-1 "
-                f"light (`disent.lighting.experiments.plot_registration`); uv error, rms per axis over the shown "
-                f"scenes: {registration['normal_pseudo_eroded']:.1f} px pseudo, "
-                f"{registration['normal_pseudo_registered']:.1f} px registered.\n"
-            )
-            rep.image(d / "registration.png", "registration")
+        lighting_order_table(rep, d, order)
+        lighting_order_readings(rep, d, order)
     if cal or cal_p:
-        rep.add(
-            "### Calibration of the posterior\n",
-            "Known albedo; share of the true SH coefficients inside the 68 % and 95 % credible intervals "
-            "(a calibrated posterior: 0.68 and 0.95) and the RMS of their z-scores (calibrated: 1), with "
-            "effects at severity 0.5.\n",
-            *table_head(
-                "condition / likelihood",
-                "true normals: 68 % / 95 % (z-RMS)",
-                "pseudo normals + mask: 68 % / 95 % (z-RMS)",
-            ),
-        )
-        cal, cal_p = cal or {}, cal_p or {}
-        for key in dict.fromkeys(
-            k for c in (cal, cal_p) for k, v in c.items() if isinstance(v, dict) and "inside68" in v
-        ):
-            cells = [
-                f"{_pct(c[key]['inside68'])} / {_pct(c[key]['inside95'])} ({c[key]['z_rms']:.1f})" if key in c else "–"
-                for c in (cal, cal_p)
-            ]
-            rep.add(f"| {key.replace('/', ' / ')} | {cells[0]} | {cells[1]} |")
-        rep.add("")
-        for name in ("calibration", "calibration_pseudo"):
-            if (d / f"{name}.png").exists():
-                rep.image(d / f"{name}.png", name)
+        lighting_calibration(rep, d, cal or {}, cal_p or {})
     for name in ("widths", "example_corner", "example_shading_sd"):
         if (d / f"{name}.png").exists():
             rep.image(d / f"{name}.png", name)
     if speed:
-        rep.add(
-            "### Speed\n",
-            f"One core, test item 0 ({speed['n_pixels']} face pixels): L-hat by least squares "
-            f"{speed['ls_ms_per_image']:.2f} ms per image (batch {speed['ls_batch']}); the posterior "
-            f"{speed['posterior_gaussian_s']:.2f} s with a Gaussian likelihood "
-            f"({speed['posterior_gaussian_steps']:.0f} "
-            f"steps), {speed['posterior_student_t_s']:.2f} s with Student-t ({speed['posterior_student_t_steps']:.0f} "
-            "steps)"
-            + (
-                "; the order choice without the true albedo (texture model, residual process), median of test items "
-                f"0-{speed['order_choice_items'] - 1}: "
-                + ", ".join(f"{s:.1f} s on `{g}`" for g, s in speed["order_choice_s"].items())
-                if speed.get("order_choice_s")
-                else ""
-            )
-            + ". Also `python -m disent.bench lighting`.\n",
+        lighting_speed(rep, speed)
+
+
+def order_caption(d: Path) -> str:
+    """What the order study's table holds: its candidates, albedos, geometries and noise models."""
+    return (
+        "Item *i* of the split relit with its own light cut to SH order 0, 1 or 2, 20 scenes per order (a row "
+        "read again with more, as the rows the verdicts compare are, has them in its confusion counts). "
+        "Candidates: order 0, order 1 and 2 in gray or RGB; the smallest model within log 20 of the best "
+        "Laplace evidence is chosen (BIC beside it). *Albedo*: known (the reference), constant (what L-hat "
+        "assumes), or a PCA texture model fitted with the light (`disent/lighting/texture.py`). *Geometry "
+        "noise*: each pixel's variance adds what a normal error of std `normal_sigma` (the geometry's "
+        "measured mean error read as an isotropic tangent Gaussian: the pseudo-GT's, or a network row's model's "
+        "own test error; not fitted here) does to it under the candidate's light "
+        "(`select_order(..., normal_sigma=...)`, `disent.lighting.experiments.geometry_noise`). *Residual "
+        "process*: the misfit is "
+        "spatially correlated, noise covariance sigma^2 (I + rho exp(-d / ell)) / (1 + rho) over pixel distance "
+        "d, with rho and ell by maximum likelihood on train scenes' residuals at their true light "
+        f"({residual_text(d)}; `select_order(..., residual=(rho, ell))`). *Geometry noise and residual "
+        "process*: both, each channel's covariance V^1/2 R V^1/2 with R the residual process's correlation and V "
+        "each pixel's variance under the geometry noise: the geometry says how far each pixel may miss, the "
+        "residual process how neighbours miss together (rho and ell fitted with the geometry noise beside them). "
+        "*Eroded mask*: the pseudo mask less "
+        "its edge pixels, where the coarse fit's normals graze and its silhouette leaks onto hair or background "
+        "(`disent.lighting.experiments.GEOMETRY`). *uv registered*: the pseudo uv corrected by the affine map "
+        "that best registers the texture model to the image, found before any candidate is scored (Gauss-Newton "
+        "on the six affine parameters, the light and texture fitted again at each step, coarse to fine, under a "
+        "Gaussian prior of the affine maps that take train scenes' pseudo uv onto their true uv; "
+        "`disent.lighting.texture.register`). *Placement refined*: the coarse fit's maps rendered again at its "
+        "pose, scale and shift refined against the image, its shape kept: Powell's method on the fit of the "
+        "texture model and an order-2 RGB light to the coarse fit's mask eroded 3 px, under a Gaussian prior of "
+        "the coarse fit's placement errors on train scenes (`disent.lighting.experiments.refine_placement`); with "
+        "*uv registered* too, the refined maps' uv then registered as above. "
+        "*Oracle* rows put one true layer into the pseudo geometry, "
+        "to say which of its errors costs the choice: the true uv (the texture model registered to the face) "
+        "or the true normals, or on the explicit network's geometry the true uv "
+        "(`disent.lighting.experiments.GEOMETRY`). *Network* rows take the normals and matte "
+        "(eroded 1 px) that a shipped model (`disent/weights/`), trained on the pseudo-GT alone, draws from the "
+        "scene's noisy image, with the pseudo uv registered (explicit; in the `network_explicit_placed` row the "
+        "uv of the coarse fit placed against the image, then registered) or the model's own uv (implicit; in the "
+        "*uv registered* row corrected under the prior of that uv's affine errors on train scenes, "
+        "`registration_prior(network=...)`): a "
+        "geometry with no ground truth in it, whose normals beat the pseudo-GT's (claim 1; "
+        "`disent.lighting.experiments.network_maps`). *Band 2 fitted*: the median over a true "
+        "order's scenes of what the largest candidate (order 2, RGB) puts in SH band 2, as a share of bands 0 "
+        "and 1 (`disent.lighting.order.band2_share`), beside the true order-2 lights' median: where an order-1 "
+        "scene's fit holds as much band 2 as a true order-2 light, the geometry's error shows as band-2 light "
+        "and no criterion built on the fit can tell the two orders apart. Constants were chosen on val; test "
+        "only reports; the order study alone: `python -m disent.lighting task=order`; some of its rows, the "
+        "others kept as published: `python -m disent.lighting task=order order_rows='[ALBEDO/GEOMETRY+NOISE]' "
+        "order_keep=reports/lighting`. The order choice of `python -m disent.lighting image=PHOTO` takes the noise "
+        "model of the row best on val for its albedo and geometry (`order_noise=auto`).\n"
+    )
+
+
+def lighting_order_table(rep: Report, d: Path, order: dict) -> None:
+    """The order study's table: each split, albedo and geometry's confusion and accuracy, and its band-2 share."""
+    from disent.lighting.experiments import GEOMETRY
+
+    rep.add(
+        "### Lighting model order: model no more than a scene needs\n",
+        order_caption(d),
+        *table_head(
+            "split",
+            "albedo",
+            "geometry",
+            "evidence confusion (rows: true order 0, 1, 2)",
+            "evidence acc.",
+            "BIC acc.",
+            "band 2 fitted, true order 0 / 1 / 2 (true order-2 lights)",
+        ),
+    )
+    for key, r in order.items():
+        split, albedo, geometry = key.split("/", 2)
+        normals, _, noise = geometry.partition("+")
+        geometry = GEOMETRY[normals].label + (f", {noise.replace('_', ' ').replace('+', ' and ')}" if noise else "")
+        ev, bic = r["evidence"], r["bic"]
+        band2 = r.get("band2_share")  # studies written before it was measured have none
+        band2 = (
+            " / ".join(f"{v:.2f}" for v in band2["fitted_by_true_order"]) + f" ({band2['true_order2']:.2f})"
+            if band2
+            else "–"
         )
+        rep.add(
+            f"| {split} | {albedo} | {geometry} | {ev['confusion']} | {_pct(ev['accuracy'])} | "
+            f"{_pct(bic['accuracy'])} | {band2} |"
+        )
+
+
+def lighting_order_readings(rep: Report, d: Path, order: dict) -> None:
+    """What the order study's rows say: the verdicts without the true albedo, where the choice fails, which error
+    of the pseudo geometry costs it, and its figures."""
+    pseudo = order_verdict(order, "texture/normal_pseudo", "pseudo geometry without the true albedo")
+    if pseudo:
+        rep.add(
+            "",
+            pseudo[1] + band2_reading(order, pseudo[0]) + known_albedo_reading(order) + placement_reading(order) + "\n",
+        )
+    network = order_verdict(
+        order,
+        "texture/network_",
+        "the networks' geometry without the true albedo (the normals and matte that a shipped model trained on "
+        "the pseudo-GT alone draws from the image, with the implicit model's own uv or the coarse fit's)",
+    )
+    if network:
+        rep.add(
+            "",
+            network[1]
+            + network_reading(order, network[0], pseudo and pseudo[0])
+            + known_albedo_reading(order, "network_", "networks' geometry")
+            + uv_oracle_reading(order)
+            + "\n",
+        )
+    if combined := combined_reading(order):
+        rep.add(combined)
+    chosen = [row for row, _ in filter(None, (pseudo, network))]
+    if failures := failure_lines(order, chosen, face_attributes(order, chosen)):
+        rep.add(*failures)
+    if (wrong := load_json(d / "order_failures.json")) and (d / "order_failures.png").exists():
+        rep.add(failure_figure_text(wrong))
+        rep.image(d / "order_failures.png", "order_failures")
+    rep.add(*failure_region_lines(load_json(d / "order_failure_regions.json") or {}))
+    rows = {
+        "normal_pseudo_eroded": "on the pseudo geometry",
+        "normal_pseudo_registered": "with its uv registered to the image",
+        "normal_pseudo_placed": "with its placement refined against the image",
+        "oracle_uv": "with only its uv made true",
+        "oracle_normals": "with only its normals made true",
+        "oracle_placement": "with the coarse fit's placement (pose, scale, shift) made true",
+        "oracle_shape": "with the coarse fit's shape (identity, expression) made true",
+    }
+    accuracy = {  # the oracle rows and the pseudo geometry they start from, texture model, i.i.d. noise
+        (split, k): order[f"{split}/texture/{k}"]["evidence"]["accuracy"]
+        for split in ("val", "test")
+        for k in rows
+        if f"{split}/texture/{k}" in order
+    }
+    rows = {k: text for k, text in rows.items() if ("val", k) in accuracy and ("test", k) in accuracy}
+    if "normal_pseudo_eroded" in rows and any(k.startswith("oracle") for k in rows):
+        oracles = [k for k in rows if k.startswith("oracle")]
+        reached = [k for k in oracles if accuracy["test", k] >= ORDER_TARGET]
+        rep.add(
+            "Where the pseudo geometry's error comes from (texture model, i.i.d. noise, val/test accuracy): "
+            + ", ".join(f"{accuracy['val', k]:.2f}/{accuracy['test', k]:.2f} {text}" for k, text in rows.items())
+            + ". "
+            + (
+                f"Made true alone, {' and '.join(reached)} reaches the target on test.\n"
+                if reached
+                else "Nothing made true alone brings the test accuracy to the target; the largest gain (val and "
+                f"test together) comes {rows[max(oracles, key=lambda k: accuracy['val', k] + accuracy['test', k])]}"
+                ".\n"
+            )
+        )
+    if (d / "order_accuracy.png").exists():
+        rep.add(
+            "Every row's evidence accuracy on val (open) and test (filled), with its 95 % interval over the row's "
+            "scenes (Wilson), against the target and against choosing one order for every scene (1/3); the "
+            "confusion matrices are in the table above (`disent.lighting.experiments.plot_order_accuracy`).\n"
+        )
+        rep.image(d / "order_accuracy.png", "order_accuracy")
+    if (registration := load_json(d / "registration.json")) and (d / "registration.png").exists():
+        rep.add(
+            "The texture model fitted through the pseudo, registered and true uv on val scenes under order-1 "
+            f"light (`disent.lighting.experiments.plot_registration`); uv error, rms per axis over the shown "
+            f"scenes: {registration['normal_pseudo_eroded']:.1f} px pseudo, "
+            f"{registration['normal_pseudo_registered']:.1f} px registered.\n"
+        )
+        rep.image(d / "registration.png", "registration")
+
+
+def lighting_calibration(rep: Report, d: Path, cal: dict, cal_p: dict) -> None:
+    """The posterior's coverage of the true SH coefficients, with the true and the pseudo geometry."""
+    rep.add(
+        "### Calibration of the posterior\n",
+        "Known albedo; share of the true SH coefficients inside the 68 % and 95 % credible intervals "
+        "(a calibrated posterior: 0.68 and 0.95) and the RMS of their z-scores (calibrated: 1), with "
+        "effects at severity 0.5.\n",
+        *table_head(
+            "condition / likelihood",
+            "true normals: 68 % / 95 % (z-RMS)",
+            "pseudo normals + mask: 68 % / 95 % (z-RMS)",
+        ),
+    )
+    for key in dict.fromkeys(k for c in (cal, cal_p) for k, v in c.items() if isinstance(v, dict) and "inside68" in v):
+        cells = [
+            f"{_pct(c[key]['inside68'])} / {_pct(c[key]['inside95'])} ({c[key]['z_rms']:.1f})" if key in c else "–"
+            for c in (cal, cal_p)
+        ]
+        rep.add(f"| {key.replace('/', ' / ')} | {cells[0]} | {cells[1]} |")
+    rep.add("")
+    for name in ("calibration", "calibration_pseudo"):
+        if (d / f"{name}.png").exists():
+            rep.image(d / f"{name}.png", name)
+
+
+def lighting_speed(rep: Report, speed: dict) -> None:
+    rep.add(
+        "### Speed\n",
+        f"One core, test item 0 ({speed['n_pixels']} face pixels): L-hat by least squares "
+        f"{speed['ls_ms_per_image']:.2f} ms per image (batch {speed['ls_batch']}); the posterior "
+        f"{speed['posterior_gaussian_s']:.2f} s with a Gaussian likelihood "
+        f"({speed['posterior_gaussian_steps']:.0f} "
+        f"steps), {speed['posterior_student_t_s']:.2f} s with Student-t ({speed['posterior_student_t_steps']:.0f} "
+        "steps)"
+        + (
+            "; the order choice without the true albedo (texture model, residual process), median of test items "
+            f"0-{speed['order_choice_items'] - 1}: "
+            + ", ".join(f"{s:.1f} s on `{g}`" for g, s in speed["order_choice_s"].items())
+            if speed.get("order_choice_s")
+            else ""
+        )
+        + ". Also `python -m disent.bench lighting`.\n",
+    )
