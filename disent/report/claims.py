@@ -644,8 +644,53 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
     at each rung; with a figure and the rank correlations (:func:`albedo_rank_reading`). Nothing without that
     file."""
     sources = load_json(rep.out / "lighting" / "lhat_sources.json")
-    if not sources:
+    rows, points, shipped = light_pattern_rows(runs, sources) if sources else ([], [], {})
+    if not rows:
         return
+    explicit = [p for p in points if p["model"] == "explicit"]  # the readings below: one model's settings
+    caps = normals_caps(explicit)
+    fig, rect = albedo_against_light_figure(points, caps)
+    rep.add(
+        "The albedo against its light: each setting above that changes E_recon-L's target alone (explicit, and "
+        "the implicit model where it trained on one of them: hollow in the figure), with "
+        "the target's pattern, magnitude and log error (the lighting section's table: the correlation of its log "
+        "shading with the truth's, the ratio of their spreads, and what both leave wrong; "
+        "`disent.eval.metrics.log_shading_agreement`; a target the table has no row for, as its runs scored it on "
+        "the same test faces: `target_light_*`), the same for the network's own light through the true normals "
+        "(`light_pattern_corr`, `light_contrast_ratio`, `light_log_error`), and the log error of the network's own "
+        "shading, its normals and light together, against the true shading (`shading_log_error`), mean ± std over "
+        "seeds (– where its runs were scored before them); the albedo as a share of the mean map's. Test split."
+        + "".join(
+            f" `shipped` ({model}): the shipped {model} weights, one seed of `{at}` as their manifest's config reads "
+            f"(`python -m disent.models.shipped {model} --add-metrics`), a row of the table only."
+            for model, at in shipped.items()
+        )
+        + "\n",
+        *table_head(
+            "setting",
+            "model",
+            "rung",
+            "target: pattern",
+            "target: magnitude",
+            "target: log error",
+            "network's light: pattern",
+            "magnitude",
+            "log error",
+            "network's shading: log error",
+            "albedo / mean map's",
+        ),
+        *sorted(rows, key=lambda r: (r.split(" | ")[2], r.split(" | ")[1], r.split(" | ")[3])),  # rung, model, pattern
+        "",
+    )
+    rep.figure(
+        fig, "albedo_vs_light_pattern.png", "the albedo against its target's pattern and its network's errors", rect
+    )
+    rep.add(albedo_rank_reading(explicit), normals_cap_reading(explicit, caps), "")
+
+
+def light_pattern_rows(runs: list[Run], sources: dict) -> tuple[list[str], list[dict], dict]:
+    """The rows of :func:`light_pattern_section`, the figure's points (one per setting) and the shipped models'
+    settings."""
     net_keys = ("light_pattern_corr", "light_contrast_ratio", "light_log_error", "shading_log_error")
     own_keys = {f"target_light_{k}": k for k in ("pattern_corr", "contrast_ratio", "log_error")}
     cap_key = "albedo_detailed_true_light_si_mse"  # I / S(N, L) with its N and the true L: what its normals allow
@@ -690,10 +735,12 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
             )
             + f" | {share['mean']:.2f} ± {share['std']:.2f} (n={st['albedo_si_mse']['n']}) |"
         )
-    if not rows:
-        return
-    explicit = [p for p in points if p["model"] == "explicit"]  # the readings below: one model's settings
-    caps = normals_caps(explicit)
+    return rows, points, shipped
+
+
+def albedo_against_light_figure(points: list[dict], caps: dict):
+    """The albedo's share of the mean map's against each measure of :data:`ALBEDO_AGAINST`, a point per setting
+    and rung, its normals' cap dotted; returns the figure and the rect its legend leaves the panels."""
     plt = pyplot()
     fig, axes = plt.subplots(1, len(ALBEDO_AGAINST), figsize=(15, 4.6), sharey=True)
     rect = (0, 0.1, 1, 1)  # the legend below the panels
@@ -736,42 +783,7 @@ def light_pattern_section(rep: Report, runs: list[Run]) -> None:
     fig.tight_layout(rect=rect)  # the final layout, before the labels are moved apart in it
     for ax, labels in zip(axes, labels_of):
         unoverlap(ax, labels)
-    rep.add(
-        "The albedo against its light: each setting above that changes E_recon-L's target alone (explicit, and "
-        "the implicit model where it trained on one of them: hollow in the figure), with "
-        "the target's pattern, magnitude and log error (the lighting section's table: the correlation of its log "
-        "shading with the truth's, the ratio of their spreads, and what both leave wrong; "
-        "`disent.eval.metrics.log_shading_agreement`; a target the table has no row for, as its runs scored it on "
-        "the same test faces: `target_light_*`), the same for the network's own light through the true normals "
-        "(`light_pattern_corr`, `light_contrast_ratio`, `light_log_error`), and the log error of the network's own "
-        "shading, its normals and light together, against the true shading (`shading_log_error`), mean ± std over "
-        "seeds (– where its runs were scored before them); the albedo as a share of the mean map's. Test split."
-        + "".join(
-            f" `shipped` ({model}): the shipped {model} weights, one seed of `{at}` as their manifest's config reads "
-            f"(`python -m disent.models.shipped {model} --add-metrics`), a row of the table only."
-            for model, at in shipped.items()
-        )
-        + "\n",
-        *table_head(
-            "setting",
-            "model",
-            "rung",
-            "target: pattern",
-            "target: magnitude",
-            "target: log error",
-            "network's light: pattern",
-            "magnitude",
-            "log error",
-            "network's shading: log error",
-            "albedo / mean map's",
-        ),
-        *sorted(rows, key=lambda r: (r.split(" | ")[2], r.split(" | ")[1], r.split(" | ")[3])),  # rung, model, pattern
-        "",
-    )
-    rep.figure(
-        fig, "albedo_vs_light_pattern.png", "the albedo against its target's pattern and its network's errors", rect
-    )
-    rep.add(albedo_rank_reading(explicit), normals_cap_reading(explicit, caps), "")
+    return fig, rect
 
 
 def normals_caps(points: list[dict]) -> dict:
