@@ -156,8 +156,9 @@ def sec_ceiling(rep: Report, runs: list[Run]) -> None:
     ceiling = [r for r in runs if r.status == "ok" and r.eval and r.ceiling]
     if not ceiling:
         rep.note(
-            "no finished ceiling run; train one with `python -m disent loss=ceiling` (and `+experiment=long "
-            "loss=ceiling`) and point the report at its folder."
+            "no finished ceiling run among the records; the tables the last build with them published are on "
+            "[the archive page](archive.md). Train one with `python -m disent loss=ceiling` (and "
+            "`+experiment=long loss=ceiling`) and give the report its folder (`--roots`)."
         )
         return
     with_ceiling = {setting(r, drop_model=True, drop=("loss=",)) for r in ceiling}  # trained settings with a ceiling
@@ -183,58 +184,8 @@ def sec_ceiling(rep: Report, runs: list[Run]) -> None:
     )
     gaps, reach = [], []
     for model in ("explicit", "implicit"):
-        rows = [("ceiling", r) for r in ceiling if r.model == model] + [
-            ("trained", r) for r in trained if r.model == model
-        ]
-        if not any(kind == "ceiling" for kind, _ in rows):
-            continue
-        floor = next(r for kind, r in rows if kind == "ceiling")  # any run scores the same dataset means
-        rep.add(
-            f"| {model} | floor (dataset mean) | – | – | "
-            + " | ".join(fmt_value(floor.value("trivial_" + k), fmt) for k, _, fmt in CEILING_COLUMNS)
-            + " |"
-        )
-        groups: dict = {}
-        for kind, r in rows:
-            groups.setdefault((kind, setting(r, drop_model=True)), []).append(r)
-        steps = {g: (seed_spread(rs, "steps") or {"mean": math.nan})["mean"] for g, rs in groups.items()}
-        order = sorted(groups.items(), key=lambda g: (steps[g[0]], g[0][0] == "ceiling"))
-        for (kind, where), rs in order:
-            rep.add(
-                f"| {model} | {kind} | `{where}` | {steps[kind, where]:,.0f} | "
-                + " | ".join(spread_text(seed_spread(rs, k), fmt) for k, _, fmt in CEILING_COLUMNS)
-                + " |"
-            )
-        tops: dict = {}  # each ceiling by the setting of the trained runs at its budget: its overrides but loss=ceiling
-        for kind, r in rows:
-            if kind == "ceiling":
-                tops.setdefault(setting(r, drop_model=True, drop=("loss=",)), []).append(r)
-        for (kind, where), rs in order:  # what the ceiling itself removes of the floor's albedo error, by scale
-            if kind != "ceiling":
-                continue
-            shares = []
-            for k, band in (("albedo_coarse_si_mse", "coarse part"), ("albedo_fine_si_mse", "detail")):
-                lo, got = floor.value("trivial_" + k), seed_spread(rs, k)
-                if lo and got:
-                    shares.append(f"{100 * (1 - got['mean'] / lo):.0f} % of its {band}")
-            if shares:
-                reach.append(f"- {model}, `{where}` ({steps[kind, where]:,.0f} steps): {' and '.join(shares)}")
-        for (kind, where), rs in order:
-            top = tops.get(where)
-            if kind != "trained" or not top:
-                continue
-            closed = []
-            for k, label, _ in CEILING_COLUMNS:
-                lo, got, hi = floor.value("trivial_" + k), seed_spread(rs, k), seed_spread(top, k)
-                if None in (lo, got, hi) or lo == hi["mean"]:
-                    closed.append(f"{label} –")
-                else:
-                    closed.append(f"{label} {100 * (lo - got['mean']) / (lo - hi['mean']):.0f} %")
-            top_steps = (seed_spread(top, "steps") or {"mean": math.nan})["mean"]
-            unequal = f" (trained {steps[kind, where]:,.0f} steps, ceiling {top_steps:,.0f})"
-            gaps.append(
-                f"- {model}, `{where}`: {', '.join(closed)}" + (unequal if steps[kind, where] != top_steps else "")
-            )
+        more = ceiling_rows(rep, model, ceiling, trained)
+        gaps, reach = gaps + more[0], reach + more[1]
     if gaps:
         rep.add(
             "",
@@ -253,6 +204,62 @@ def sec_ceiling(rep: Report, runs: list[Run]) -> None:
         "_Regenerate: `python -m disent model=MODEL loss=ceiling` and `python -m disent model=MODEL "
         "+experiment=long loss=ceiling`, then `python -m disent.report --roots ...` with their folders._\n",
     )
+
+
+def ceiling_rows(rep: Report, model: str, ceiling: list[Run], trained: list[Run]) -> tuple[list[str], list[str]]:
+    """One model's rows of the floor-and-ceiling table (the floor, then each setting's trained and ceiling runs by
+    budget); returns the lines on the share of the gap the trained runs close, and on what each ceiling removes of
+    the floor's albedo error by scale."""
+    gaps, reach = [], []
+    rows = [("ceiling", r) for r in ceiling if r.model == model] + [("trained", r) for r in trained if r.model == model]
+    if not any(kind == "ceiling" for kind, _ in rows):
+        return [], []
+    floor = next(r for kind, r in rows if kind == "ceiling")  # any run scores the same dataset means
+    rep.add(
+        f"| {model} | floor (dataset mean) | – | – | "
+        + " | ".join(fmt_value(floor.value("trivial_" + k), fmt) for k, _, fmt in CEILING_COLUMNS)
+        + " |"
+    )
+    groups: dict = {}
+    for kind, r in rows:
+        groups.setdefault((kind, setting(r, drop_model=True)), []).append(r)
+    steps = {g: (seed_spread(rs, "steps") or {"mean": math.nan})["mean"] for g, rs in groups.items()}
+    order = sorted(groups.items(), key=lambda g: (steps[g[0]], g[0][0] == "ceiling"))
+    for (kind, where), rs in order:
+        rep.add(
+            f"| {model} | {kind} | `{where}` | {steps[kind, where]:,.0f} | "
+            + " | ".join(spread_text(seed_spread(rs, k), fmt) for k, _, fmt in CEILING_COLUMNS)
+            + " |"
+        )
+    tops: dict = {}  # each ceiling by the setting of the trained runs at its budget: its overrides but loss=ceiling
+    for kind, r in rows:
+        if kind == "ceiling":
+            tops.setdefault(setting(r, drop_model=True, drop=("loss=",)), []).append(r)
+    for (kind, where), rs in order:  # what the ceiling itself removes of the floor's albedo error, by scale
+        if kind != "ceiling":
+            continue
+        shares = []
+        for k, band in (("albedo_coarse_si_mse", "coarse part"), ("albedo_fine_si_mse", "detail")):
+            lo, got = floor.value("trivial_" + k), seed_spread(rs, k)
+            if lo and got:
+                shares.append(f"{100 * (1 - got['mean'] / lo):.0f} % of its {band}")
+        if shares:
+            reach.append(f"- {model}, `{where}` ({steps[kind, where]:,.0f} steps): {' and '.join(shares)}")
+    for (kind, where), rs in order:
+        top = tops.get(where)
+        if kind != "trained" or not top:
+            continue
+        closed = []
+        for k, label, _ in CEILING_COLUMNS:
+            lo, got, hi = floor.value("trivial_" + k), seed_spread(rs, k), seed_spread(top, k)
+            if None in (lo, got, hi) or lo == hi["mean"]:
+                closed.append(f"{label} –")
+            else:
+                closed.append(f"{label} {100 * (lo - got['mean']) / (lo - hi['mean']):.0f} %")
+        top_steps = (seed_spread(top, "steps") or {"mean": math.nan})["mean"]
+        unequal = f" (trained {steps[kind, where]:,.0f} steps, ceiling {top_steps:,.0f})"
+        gaps.append(f"- {model}, `{where}`: {', '.join(closed)}" + (unequal if steps[kind, where] != top_steps else ""))
+    return gaps, reach
 
 
 def trained_as(source: Run | str) -> tuple[str, str]:
@@ -280,8 +287,8 @@ def scores(source: Run | str):
 
 
 def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
-    from disent.eval.evaluate import decomposed_region
-    from disent.eval.metrics import angular_error_deg
+    """The three models side by side on the same test faces (the ladder's runs, else the shipped weights), the
+    baseline's reconstructions against theirs (paper Fig. 3) and their normals (:func:`normals_figure`)."""
     from disent.models.shipped import manifest
 
     chosen = pick_runs(ladder_runs(runs))  # the paper's models as configured, side by side from the same runs
@@ -334,6 +341,15 @@ def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
     image_grid(rec, path, "Baseline autoencoder against the rendering models (paper Fig. 3)")
     rep.add("### Baseline against ours (paper Fig. 3)\n")
     rep.image(path, "baseline vs ours")
+    normals_figure(rep, chosen, outs, batch)
+
+
+def normals_figure(rep: Report, chosen: dict, outs: dict, batch: dict) -> None:
+    """The models' normals against the pseudo-GT and the truth, their angular errors, and the table of each one's
+    normal error beside the mean map's and the pseudo-GT's."""
+    from disent.eval.evaluate import decomposed_region
+    from disent.eval.metrics import angular_error_deg
+
     nrm = [
         ("input", batch["image"]),
         ("normal true", batch["normal"] * batch["matte"]),
@@ -397,7 +413,10 @@ def sec_recipe(rep: Report, runs: list[Run]) -> None:
     rows = {r.id: r for r in runs if is_recipe_run(r) and r.eval}
     ref = rows.get("recipe")
     if ref is None:
-        rep.note("no `recipe/recipe` run (ablations/recipe.sh writes the leave-one-out runs).")
+        rep.note(
+            "no `recipe/recipe` run among the records (ablations/recipe.sh writes the leave-one-out runs); the table "
+            "the last build with them published is on [the archive page](archive.md)."
+        )
         return
     steps, batch = ref.eval.get("steps"), (ref.cfg.get("train") or {}).get("batch_size")
     rep.add(
