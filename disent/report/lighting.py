@@ -595,6 +595,13 @@ def lhat_source_lines(src: dict) -> list[str]:
         )
     if not {"lhat", "true_pixels", "true_pixels_normals", "true_pixels_albedo"} <= set(e):
         return lines + [""]
+    return lines + [lhat_source_reading(rows) + "\n", *sharpening_lines(rows)]
+
+
+def lhat_source_reading(rows: dict) -> str:
+    """What the L-hat source table says: which of L-hat's inputs costs it most, the best light without truth
+    against the networks' own, and the skin every light fitted without the true albedo keeps."""
+    e = {k: r["light_on_face"] for k, r in rows.items()}
     larger = "albedo" if e["true_pixels_albedo"] < e["true_pixels_normals"] else "normals"
     reading = (
         f"\nThe paper's L-hat misses the light on the face by {e['lhat']:.4f} (the constant light: "
@@ -641,7 +648,7 @@ def lhat_source_lines(src: dict) -> list[str]:
             "the networks' own included): the skin's scale and the light's are one unknown in the image, and a "
             "target that carries the skin teaches it to Z_L."
         )
-    return lines + [reading + "\n", *sharpening_lines(rows)]
+    return reading
 
 
 def sec_lighting(rep: Report, out: Path) -> None:
