@@ -750,7 +750,9 @@ def test_ablation_section_keeps_runs_of_other_settings_apart(tmp_path):
     text = "\n".join(rep.lines)
     assert "### (defaults)" in text and "### `model.norm=none`" in text
     defaults, norm_none = text.split("### `model.norm=none`")
-    assert "| explicit | 2/2 | **0.01000 ± 0.00000** |" in defaults.split("### (defaults)")[1] and "0.03" not in defaults
+    assert (
+        "| explicit | 2/2 | **0.01000 ± 0.00000** |" in defaults.split("### (defaults)")[1] and "0.03" not in defaults
+    )
     assert "| explicit | 2/2 | **0.03000 ± 0.00000** |" in norm_none
 
 
