@@ -20,8 +20,9 @@ import disent.runs  # noqa: F401  (registers ${pid:}, used by the run folder nam
 def main(cfg: DictConfig) -> float:
     from hydra.core.hydra_config import HydraConfig
 
-    from disent.runs import CheckpointError, RunFolderBusy
-    from disent.train import ConfigError, run
+    from disent.config import ConfigError
+    from disent.storage import CheckpointError, RunFolderBusy
+    from disent.train import run
 
     try:
         metrics = run(cfg, Path(HydraConfig.get().runtime.output_dir))

@@ -36,7 +36,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from disent.eval.evaluate import decomposed_region
+from disent.regions import decomposed_region
 from disent.render import sh_shading
 
 TERMS = ("recon", "recon_fg", "adv", "recon_N", "recon_L", "smooth_A", "smooth_S", "UV", "Ni", "BWS", "M")

@@ -291,3 +291,34 @@ __all__ = [
     "sample_sphere",
     "rotate_sh",
 ]
+
+
+SHADING_EPS = 0.05  # shading below this (about 5% of a frontal unit light) is "small"
+
+
+def check_finite(name: str, x: torch.Tensor) -> None:
+    if not torch.isfinite(x).all():
+        raise ValueError(f"{name} contains NaN or Inf")
+
+
+def detailed_albedo(
+    image: torch.Tensor, shading: torch.Tensor, fallback: torch.Tensor | None = None, eps: float = SHADING_EPS
+) -> torch.Tensor:
+    """``A = I / S`` (Eq. 2) where ``S >= eps``; ``fallback`` elsewhere.
+
+    ``image [B,3,H,W]``, ``shading [B,1 or 3,H,W]``.  Without a ``fallback`` the small-shading
+    pixels get the mean detailed albedo of the well-lit pixels of the same image and channel
+    (0 when there are none).  Always finite for finite inputs.
+    """
+    check_finite("image", image)
+    check_finite("shading", shading)
+    shading = shading.expand_as(image)
+    ok = shading >= eps
+    A = image / torch.where(ok, shading, torch.ones_like(shading))
+    if fallback is None:
+        n = ok.flatten(2).sum(2).clamp_min(1)
+        fallback = (torch.where(ok, A, 0).flatten(2).sum(2) / n)[..., None, None].expand_as(A)
+    else:
+        check_finite("fallback albedo", fallback)
+        fallback = fallback.expand_as(A)
+    return torch.where(ok, A, fallback)

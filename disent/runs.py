@@ -1,11 +1,10 @@
-"""Run folders: what a training run writes into its folder (Hydra's ``outputs/<date>/<time>-<pid>/``), and
-the readers that find, read and label finished runs.
+"""The run catalogue: the readers that find, read and label finished runs (a run folder is Hydra's
+``outputs/<date>/<time>-<pid>/``; what training writes into it is :mod:`disent.storage`), tool folders and what
+they publish into ``reports/``, and the records of ended runs.
 
-Written: ``.hydra/{config,overrides,hydra}.yaml`` (Hydra), ``git.txt`` (revision and dirty files),
-``metrics.jsonl`` (one JSON record per line), ``checkpoints/last.pt`` (written atomically: a temp file, then
-``os.replace``; the one before it kept as ``prev.pt``), ``samples/*.png`` (grids: input, recon, albedo, normal,
-shading, matte), ``eval.json`` and ``status.json`` (the Hydra callback :class:`RunStatus`: how the job ended,
-with the error of a failed one).  A running job holds ``.lock`` (:class:`RunLock`).
+A run folder holds ``.hydra/{config,overrides,hydra}.yaml`` (Hydra), ``eval.json`` and ``status.json`` (the Hydra
+callback :class:`RunStatus`: how the job ended, with the error of a failed one) beside what :mod:`disent.storage`
+writes.
 
 Read: :class:`Run`, :func:`find_runs`, :func:`pick_runs`, :func:`load_models`.  Anything may be missing (a
 crashed or running job); readers return ``None`` or empty lists then, never raise.
@@ -27,97 +26,22 @@ import math
 import os
 import shutil
 import subprocess
-import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-import torch
 import yaml
 from omegaconf import OmegaConf
 
-SAMPLE_COLUMNS = ("image", "recon", "albedo", "normal", "shading", "matte")
-
-# ${pid:} in conf/config.yaml's hydra.run.dir / hydra.sweep.dir: two runs started in the same second
-# get different folders
-OmegaConf.register_new_resolver(
-    "pid", os.getpid, replace=True, use_cache=True
-)  # cached: jobs in worker processes reuse it
-
-
-def _git(*args) -> str:
-    """``git ARGS`` in the source tree's folder, its output stripped; "" where git or the checkout is missing."""
-    try:
-        src = Path(__file__).resolve().parent
-        return subprocess.run(["git", *args], cwd=src, capture_output=True, text=True, timeout=10).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        return ""
-
-
-def head_revision() -> str | None:
-    """``git rev-parse HEAD`` of the source tree, None outside a git checkout."""
-    return _git("rev-parse", "HEAD") or None
-
-
-GIT_LINE, NO_REVISION = "revision: ", "unknown (not a git checkout)"  # git.txt's first line: GIT_LINE + revision
-
-
-def git_revision() -> str:
-    """:func:`head_revision` and ``git status --porcelain`` of the source tree, as ``git.txt`` holds them."""
-    rev = head_revision() or NO_REVISION
-    dirty = _git("status", "--porcelain", "--untracked-files=no")
-    return f"{GIT_LINE}{rev}\n" + (f"uncommitted changes:\n{dirty}\n" if dirty else "clean\n")
-
-
-def write_git_revision(run_dir: Path) -> None:
-    """``git.txt``: :func:`git_revision`."""
-    (run_dir / "git.txt").write_text(git_revision())
-
-
-def cpu_name() -> str:
-    """The processor's model name (``/proc/cpuinfo`` on Linux), else what :mod:`platform` knows."""
-    import platform
-
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
-def machine_info(device="cpu", threads=None) -> dict:
-    """What a number was measured on: system, processor, CPU count, torch, numpy and scipy builds, device (with the
-    GPU's name)."""
-    import platform
-
-    import numpy
-    import scipy
-    import torch
-
-    info = {
-        "system": platform.platform(),
-        "processor": cpu_name(),
-        "cpus": os.cpu_count(),
-        "torch": torch.__version__,
-        "numpy": numpy.__version__,
-        "scipy": scipy.__version__,
-        "device": str(device),
-        "threads": threads,
-    }
-    if str(device).startswith("cuda") and torch.cuda.is_available():
-        info["gpu"] = torch.cuda.get_device_name(torch.device(str(device)))
-    return info
-
-
-def machine_text(info: dict | None) -> str:
-    """One line of :func:`machine_info` for a caption."""
-    if not info:
-        return "not recorded"
-    where = info.get("gpu") or f"{info.get('processor')}, {info.get('cpus')} CPUs"
-    return f"{where}, torch {info.get('torch')}, device {info.get('device')}, {info.get('threads')} thread(s)"
-
+from disent.storage import (
+    GIT_LINE,
+    NO_REVISION,
+    atomic_write,
+    load_json,
+    load_yaml,
+    lock_holder,
+    read_jsonl,
+    write_git_revision,
+)
 
 # ----------------------------------------------------------------------------- tool folders and publishing
 # Each tool writes into its own run folder; `python -m disent.report --publish FOLDER` copies what the report
@@ -222,7 +146,7 @@ def drop_remeasured(folder: Path, dest: Path) -> None:
     def measured(root):
         found = {}
         for p in root.glob("*/edit.json"):
-            if ref := run_ref((_load_json(p) or {}).get("run")):  # a run, not a shipped model's name
+            if ref := run_ref((load_json(p) or {}).get("run")):  # a run, not a shipped model's name
                 found.setdefault(ref, []).append(p.parent)
         return found
 
@@ -231,242 +155,6 @@ def drop_remeasured(folder: Path, dest: Path) -> None:
         for old in published:
             if run in again and old.name not in {new.name for new in again[run]}:
                 shutil.rmtree(old)
-
-
-class MetricsLog:
-    """Append-only ``metrics.jsonl``; each record is flushed at once, so a killed run keeps its log.  With
-    ``events`` (a folder) each record also goes to TensorBoard event files there (:class:`TensorBoardLog`), so that
-    ``tensorboard --logdir outputs`` shows runs as they train; ``metrics.jsonl`` stays the record the report reads."""
-
-    def __init__(self, path: Path, events: Path | None = None):
-        self.path = Path(path)
-        self.events = TensorBoardLog(events) if events is not None else None
-
-    def write(self, record: dict) -> None:
-        clean = {
-            k: (float(v) if isinstance(v, (float, np.floating)) or torch.is_tensor(v) else v) for k, v in record.items()
-        }
-        clean = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in clean.items()}
-        with self.path.open("a") as f:
-            f.write(json.dumps(clean) + "\n")
-        if self.events is not None:
-            self.events.write(clean)
-
-    def truncate_after(self, step: int) -> None:
-        """Drop records past ``step`` and earlier evaluations (a resumed run rewrites them exactly); the event files
-        drop theirs past ``step`` too."""
-        if self.path.exists():
-            recs = [json.loads(l) for l in self.path.read_text().splitlines() if l.strip()]
-            keep = [json.dumps(r) for r in recs if r.get("step", 0) <= step and "eval" not in r]
-            atomic_write(self.path, lambda f: f.write("".join(l + "\n" for l in keep).encode()))
-        if self.events is not None:
-            self.events.purge_step = step + 1  # the steps after the checkpoint are trained again
-
-    def close(self) -> None:
-        if self.events is not None:
-            self.events.close()
-
-
-class TensorBoardLog:
-    """The training log as TensorBoard scalars (``torch.utils.tensorboard``): each loss term under ``loss/``, the
-    speed and learning rate, each validation metric under ``val/`` with its trivial baseline (``trivial/``) and the
-    pseudo-GT's (``pseudo/``) drawn on one chart beside it, and the final test metrics under ``eval/``.  The writer
-    opens at the first record (a resumed run purges the steps it trains again)."""
-
-    SKIP = ("step", "epoch", "wall", "minutes", "n", "seconds")
-
-    def __init__(self, folder: Path):
-        self.folder, self.writer, self.purge_step, self.charted = Path(folder), None, None, False
-
-    def scalars(self, prefix: str, values: dict, step: int) -> None:
-        for k, v in values.items():
-            if k not in self.SKIP and isinstance(v, (int, float)) and not isinstance(v, bool):
-                self.writer.add_scalar(f"{prefix}/{k}", v, step)
-
-    def write(self, record: dict) -> None:
-        if self.writer is None:
-            from torch.utils.tensorboard import SummaryWriter
-
-            self.writer = SummaryWriter(str(self.folder), purge_step=self.purge_step, flush_secs=10)
-            self.purge_step = None
-        step = int(record.get("step", 0))
-        if isinstance(record.get("val"), dict):
-            val = record["val"]
-            mine = {k: v for k, v in val.items() if not k.startswith(("trivial_", "pseudo_"))}
-            self.scalars("val", mine, step)
-            for kind in ("trivial", "pseudo"):
-                self.scalars(kind, {k[len(kind) + 1 :]: v for k, v in val.items() if k.startswith(kind + "_")}, step)
-            if not self.charted:  # one chart per metric: the network beside its baselines
-                charts = [k for k in mine if k not in self.SKIP]
-                lines = {k: ["Multiline", [f"val/{k}", f"trivial/{k}", f"pseudo/{k}"]] for k in charts}
-                self.writer.add_custom_scalars({"validation beside the trivial baselines": lines})
-                self.charted = True
-        elif isinstance(record.get("eval"), dict):
-            self.scalars("eval", record["eval"], step)
-        else:
-            losses = {k: v for k, v in record.items() if k not in ("lr", "images_per_s")}
-            self.scalars("loss", losses, step)
-            self.scalars("train", {k: record[k] for k in ("lr", "images_per_s") if k in record}, step)
-
-    def close(self) -> None:
-        if self.writer is not None:
-            self.writer.close()
-            self.writer = None
-
-
-def atomic_write(path, write) -> None:
-    """Write ``path`` through ``write(binary_file)`` into a temp file beside it, then rename it into place:
-    a crash mid-write leaves the previous file intact (a temp name per process and thread: processes and the
-    prefetch threads may write the same file at once; the last rename wins)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f"{path.name}.tmp{os.getpid()}-{threading.get_ident()}")
-    with tmp.open("wb") as f:
-        write(f)
-    os.replace(tmp, path)
-
-
-def previous_checkpoint(path: Path) -> Path:
-    """Where :func:`save_checkpoint` keeps the checkpoint it replaced (``last.pt`` -> ``prev.pt``)."""
-    path = Path(path)
-    return path.with_name("prev.pt") if path.name == "last.pt" else path.with_name(path.stem + ".prev" + path.suffix)
-
-
-def save_checkpoint(path: Path, state: dict) -> None:
-    """Atomic ``torch.save``, keeping the checkpoint it replaces as :func:`previous_checkpoint`: a crash
-    mid-write leaves the previous file intact, and a file damaged later still leaves one good copy."""
-    path = Path(path)
-    if path.exists():  # last.pt stays in place throughout; prev.pt becomes a second name for it
-        prev = previous_checkpoint(path)
-        tmp = prev.with_name(f"{prev.name}.tmp{os.getpid()}")
-        tmp.unlink(missing_ok=True)
-        try:
-            os.link(path, tmp)
-        except OSError:  # a file system without hard links
-            shutil.copyfile(path, tmp)
-        os.replace(tmp, prev)
-
-    def write(f):
-        torch.save(state, f)
-        f.flush()
-        os.fsync(f.fileno())
-
-    atomic_write(path, write)
-
-
-class CheckpointError(RuntimeError):
-    """A checkpoint file that cannot be read, named with what to do."""
-
-
-def load_checkpoint(path: Path, fallback: bool = False) -> dict:
-    """``torch.load`` on the CPU.  A damaged file raises :class:`CheckpointError` naming it; with
-    ``fallback`` the previous checkpoint (:func:`previous_checkpoint`) is loaded instead, the damaged file
-    is set aside as ``*.damaged`` (so that the next save cannot rotate it in), and ``loaded_from`` says so."""
-    path = Path(path)
-    try:
-        return torch.load(path, map_location="cpu", weights_only=False)
-    except FileNotFoundError:
-        raise CheckpointError(f"no checkpoint at {path}") from None
-    except Exception as err:  # truncated zip, not a torch file, ...
-        why = f"{type(err).__name__}: {str(err).split('. ')[0]}"
-        prev = previous_checkpoint(path)
-        if fallback and prev.exists():
-            state = load_checkpoint(prev)
-            os.replace(path, path.with_name(path.name + ".damaged"))
-            print(
-                f"warning: {path} cannot be read ({why}); set aside as {path.name}.damaged, continuing from "
-                f"the previous checkpoint {prev} (step {state.get('step', '?')})"
-            )
-            return {**state, "loaded_from": str(prev)}
-        hint = f"; the previous checkpoint is {prev}" if prev.exists() else ""
-        raise CheckpointError(f"the checkpoint {path} cannot be read ({why}){hint}") from None
-
-
-def rng_state() -> dict:
-    return {
-        "torch": torch.get_rng_state(),
-        "numpy": np.random.get_state(),
-        "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None,
-    }
-
-
-def set_rng_state(state: dict) -> None:
-    torch.set_rng_state(state["torch"])
-    np.random.set_state(state["numpy"])
-    if state.get("cuda") is not None and torch.cuda.is_available():
-        torch.cuda.set_rng_state_all(state["cuda"])
-
-
-def save_samples(path: Path, batch: dict, out: dict, n: int = 8) -> None:
-    """A grid, one row per image; columns those of SAMPLE_COLUMNS the model has."""
-    from disent.images import sample_grid, save_image
-
-    save_image(sample_grid(batch, out, SAMPLE_COLUMNS, n), path)
-
-
-class RunFolderBusy(RuntimeError):
-    """Another live process holds the run folder."""
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # exists, owned by someone else
-        return True
-    return True
-
-
-def lock_holder(run_dir) -> int | None:
-    """PID of the live process holding ``run_dir`` (its ``.lock``), or None."""
-    try:
-        pid = int((Path(run_dir) / ".lock").read_text().strip() or 0)
-    except (OSError, ValueError):
-        return None
-    return pid if pid and pid != os.getpid() and _alive(pid) else None
-
-
-class RunLock:
-    """``run_dir/.lock`` holds the PID of the one process writing the folder.
-
-    Taken with ``O_EXCL``; a lock left by a dead process is taken over; a live holder makes
-    :meth:`acquire` raise :class:`RunFolderBusy`, before anything in the folder is written."""
-
-    def __init__(self, run_dir: Path):
-        self.path = Path(run_dir) / ".lock"
-
-    def acquire(self) -> "RunLock":
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        for _ in range(2):
-            try:
-                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
-            except FileExistsError:
-                holder = lock_holder(self.path.parent)
-                if holder is not None:
-                    raise RunFolderBusy(
-                        f"the run folder {self.path.parent} is in use by process {holder}; "
-                        "give this run its own folder (hydra.run.dir=...)"
-                    ) from None
-                self.path.unlink(missing_ok=True)  # stale: its process is gone
-                continue
-            with os.fdopen(fd, "w") as f:
-                f.write(str(os.getpid()))
-            return self
-        raise RunFolderBusy(f"could not take {self.path}: another process keeps creating it")
-
-    def release(self) -> None:
-        try:
-            if int(self.path.read_text().strip() or 0) == os.getpid():
-                self.path.unlink()
-        except (OSError, ValueError):
-            pass
-
-    def __enter__(self):
-        return self.acquire()
-
-    def __exit__(self, *exc):
-        self.release()
 
 
 # ----------------------------------------------------------------------------- reading runs
@@ -488,32 +176,6 @@ def run_ref(value) -> str | None:
     if text.startswith("run:"):
         return text[4:]
     return run_id(Path(text).resolve()) if text.startswith(("/", ".")) or os.sep in text else None
-
-
-def _load_yaml(path: Path):
-    try:
-        return yaml.safe_load(path.read_text()) if path.is_file() else None
-    except (OSError, yaml.YAMLError):
-        return None
-
-
-def _load_json(path: Path):
-    try:
-        return json.loads(path.read_text()) if path.is_file() else None
-    except (OSError, ValueError):
-        return None
-
-
-def read_jsonl(path: Path) -> list[dict]:
-    """Records of a JSON-lines file; unreadable lines (a run killed mid-write) are skipped."""
-    rows = []
-    if Path(path).is_file():
-        for line in Path(path).read_text().splitlines():
-            try:
-                rows.append(json.loads(line))
-            except ValueError:
-                continue
-    return rows
 
 
 def _get(d, dotted: str, default=None):
@@ -547,16 +209,16 @@ class Run:
     @classmethod
     def load(cls, path) -> "Run":
         p = Path(path)
-        hydra = _load_yaml(p / ".hydra" / "hydra.yaml") or {}
+        hydra = load_yaml(p / ".hydra" / "hydra.yaml") or {}
         return cls(
             path=p,
-            cfg=_load_yaml(p / ".hydra" / "config.yaml") or {},
-            overrides=_load_yaml(p / ".hydra" / "overrides.yaml") or [],
+            cfg=load_yaml(p / ".hydra" / "config.yaml") or {},
+            overrides=load_yaml(p / ".hydra" / "overrides.yaml") or [],
             choices=_get(hydra, "hydra.runtime.choices", {}) or {},
-            eval=_load_json(p / "eval.json"),
+            eval=load_json(p / "eval.json"),
             metrics=read_jsonl(p / "metrics.jsonl"),
-            ended=_load_json(p / "status.json"),
-            machine=_load_json(p / "machine.json"),
+            ended=load_json(p / "status.json"),
+            machine=load_json(p / "machine.json"),
         )
 
     @classmethod
@@ -627,7 +289,7 @@ class Run:
     def light_oracle(self) -> bool:
         """E_recon-L's target draws on the scene's true light (``loss.recon_L_target=sh`` or an oracle dose
         ``loss.recon_L_oracle_mix`` > 0): a measurement of what a better L-hat buys, not the paper's model."""
-        from disent.train import truth_readers
+        from disent.config import truth_readers
 
         loss = OmegaConf.create({"weights": {}, **(_get(self.cfg, "loss") or {})})
         return any(not r.startswith("loss.weights.") for r in truth_readers(loss))  # not a ceiling term
@@ -704,7 +366,7 @@ class RunStatus(Callback):
 
     Registered in ``conf/config.yaml`` under ``hydra.callbacks``, so a multirun records jobs
     that stopped on a non-finite loss (``disent.train.NonFiniteLoss``) instead of losing them.
-    Before anything is written, a run folder held by another live run (``disent.runs.RunLock``)
+    Before anything is written, a run folder held by another live run (``disent.storage.RunLock``)
     stops the new run with one line: Hydra would otherwise overwrite that run's ``.hydra/`` config.
     """
 
@@ -954,7 +616,7 @@ def retyped_overrides(run: Run) -> list[str]:
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
-    from disent.train import ABSENT, SETTING_KEYS, config_changes
+    from disent.config import ABSENT, SETTING_KEYS, config_changes
 
     if not run.cfg:  # no resolved config recorded: nothing to compare
         return sorted(str(o) for o in run.overrides)
@@ -974,7 +636,7 @@ def override_token(key: str, value, today) -> str:
     """``key=value`` as one types it today, where ``today`` is the key's value in today's ``conf/``: ``+key=value``
     where conf/ lacks the key (Hydra's form for adding one: an entry of ``loss.early_weights``), a whole number
     written as a float where conf/ holds a float (:func:`as_type`)."""
-    from disent.train import ABSENT
+    from disent.config import ABSENT
 
     return f"{'+' * (today is ABSENT)}{key}={typed(as_type(value, today))}"
 
@@ -997,7 +659,7 @@ def retyped_label(label: str, then: str | None = None, model: str | None = None)
     without ``then`` (or where git cannot give it) only the second step."""
     from hydra.errors import HydraException
 
-    from disent.train import ABSENT, SETTING_KEYS, config_changes, idle_settings
+    from disent.config import ABSENT, SETTING_KEYS, config_changes, idle_settings
 
     tokens = [t for t in label.split() if t != "(defaults)"]
     groups = tuple(sorted(t for t in tokens if config_group(t)))
@@ -1073,11 +735,11 @@ def measured_setting(info: dict, loaded: dict | None = None) -> str | None:
 
 
 def idle_keys(run: Run) -> frozenset:
-    """The settings ``run``'s model has no use for (:func:`disent.train.idle_settings`), computed once; none without
+    """The settings ``run``'s model has no use for (:func:`disent.config.idle_settings`), computed once; none without
     a config."""
     from omegaconf.errors import OmegaConfBaseException
 
-    from disent.train import idle_settings
+    from disent.config import idle_settings
 
     if run.idle is None:
         try:

@@ -11,7 +11,7 @@ from disent import bench
 from disent.bench.__main__ import main as bench_main
 from disent.bench.models import time_to_accuracy
 from disent.render import sh_shading
-from disent.runs import cpu_name
+from disent.storage import cpu_name
 
 RATES = ("train_img_s", "train_no_d_img_s", "infer_img_s")
 

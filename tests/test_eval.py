@@ -10,8 +10,9 @@ from torch.utils.data import default_collate
 
 from disent.eval import protocols
 from disent.eval import stability as st
-from disent.eval.evaluate import ceiling_share, decomposed_region, evaluate_model, face_mask, metrics_from_outputs
+from disent.eval.evaluate import ceiling_share, evaluate_model, metrics_from_outputs
 from disent.eval.protocols import sh_variance, sh_variance_protocol
+from disent.regions import decomposed_region, face_mask
 
 
 def test_sh_variance_matches_groupwise_var():
@@ -287,7 +288,8 @@ def test_detailed_albedo_with_one_shading_input_made_true_says_which_holds_it_ba
 def test_intrinsic_layers_are_scored_where_the_model_renders_the_face():
     """albedo, shading and normals count on the true face inside the pseudo mask; hair and neck (outside
     M-hat, the model's background layer) only in ``albedo_face_si_mse``."""
-    from disent.eval.evaluate import decomposed_region, metrics_from_outputs
+    from disent.eval.evaluate import metrics_from_outputs
+    from disent.regions import decomposed_region
 
     ds = FakeFaces("test", size=4)
     gt = default_collate([ds[i] for i in range(4)])

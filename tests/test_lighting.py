@@ -797,8 +797,8 @@ def test_sharpened_albedo_is_exact_at_the_true_shading_alone():
     """SynthFaces' image is albedo (.) shading: over the true shading (k = 1) the detailed albedo is the truth up to
     scale; a more or a less contrasty shading leaves its contrast in the albedo."""
     from disent.data import SynthFaces, get_batch
-    from disent.eval.evaluate import decomposed_region
     from disent.lighting.experiments import sharpened_albedo
+    from disent.regions import decomposed_region
 
     g = get_batch(SynthFaces("test", size=3), range(3))
     e = sharpened_albedo(g["image"], g["shading"], g["albedo"], decomposed_region(g), ks=(0.8, 1.0, 1.25))

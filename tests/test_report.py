@@ -1440,8 +1440,8 @@ def test_captions_name_the_machines_the_runs_trained_on(tmp_path):
 def test_setting_is_what_one_types_today_to_train_the_run_again(tmp_path):
     """A run's setting: its config-group choices and each defining value that differs from today's conf/, so that
     a run trained before a default changed is told apart from one trained after, however it was typed."""
+    from disent.config import ADDED_LATER
     from disent.runs import setting
-    from disent.train import ADDED_LATER
 
     today = composed_config(("model=explicit",))
     lr = today["train"]["lr"]
@@ -1472,8 +1472,8 @@ def test_setting_is_what_one_types_today_to_train_the_run_again(tmp_path):
 def test_bws_c_is_not_part_of_a_run_that_neither_uses_bws_nor_whitens_lhat(tmp_path):
     """c acts through BWS and the whitened L-hat target: a run with both off (``+ablation=no_bws``) trains the same
     under any c, and a run with either on does not (:func:`disent.train.idle_settings`)."""
+    from disent.config import idle_settings
     from disent.runs import setting
-    from disent.train import idle_settings
 
     for name, bws, white in (("no_bws", 0.0, False), ("bws_off_white", 0.0, True), ("raw", 1.0, False)):
         d = make_run(tmp_path, name, "explicit")

@@ -17,6 +17,7 @@ from disent.runs import (
     portable_runs,
     run_id,
     run_ref,
+    run_speed,
     setting,
     thinned_curve,
     write_records,
@@ -47,7 +48,7 @@ def test_records_keep_each_ended_run_as_one_row_named_by_its_id(tmp_path):
         k = kept[r.id]
         assert (k.status, setting(k), k.variant, k.seed) == (r.status, setting(r), r.variant, r.seed)
         assert k.value("recon_mse") == r.value("recon_mse") and k.name == r.name
-        assert report.tables.run_speed(k, "images_per_s") == report.tables.run_speed(r, "images_per_s")
+        assert run_speed(k, "images_per_s") == run_speed(r, "images_per_s")
 
 
 def test_the_curve_keeps_every_validation_record_and_every_fifth_loss_row():

@@ -13,7 +13,8 @@ import pytest
 import torch
 from test_train import TINY, cfg_of
 
-from disent.runs import (
+from disent.config import ConfigError
+from disent.storage import (
     CheckpointError,
     RunFolderBusy,
     RunLock,
@@ -23,7 +24,7 @@ from disent.runs import (
     previous_checkpoint,
     save_checkpoint,
 )
-from disent.train import ConfigError, run
+from disent.train import run
 
 ROOT = Path(__file__).resolve().parents[1]
 CLI_TINY = [a for a in TINY if a != "train.threads=1"] + ["train.max_steps=2", "train.val_every=0"]
@@ -118,7 +119,7 @@ def test_a_loss_weight_the_model_cannot_use_does_not_stop_a_resume(tmp_path):
 
 
 def test_a_setting_added_later_resumes_runs_from_before_it_only_at_its_old_behaviour():
-    from disent.train import ADDED_LATER, config_differences
+    from disent.config import ADDED_LATER, config_differences
 
     new = {"seed": 0, "loss": {"recon_p": 2, "recon_fg_p": 2}}
     before = {"seed": 0, "loss": {"recon_p": 2}}  # a checkpoint written before loss.recon_fg_p existed

@@ -17,8 +17,8 @@ from hydra.errors import ConfigCompositionException, MissingConfigException
 from disent import losses as L
 from disent import train as T
 from disent.models import load_run
-from disent.runs import load_checkpoint
 from disent.runtime import Prefetcher
+from disent.storage import load_checkpoint
 from disent.train import NonFiniteLoss, run, step_indices
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -220,7 +220,7 @@ def test_fitted_lhat_targets_are_fitted_once_per_training_image(tmp_path, monkey
     texture-model L-hat (or L-hat on M-hat eroded, a network's light), fitted the first time an image comes (two
     epochs of 8 images: 8 fits, none in the second epoch), in the batch's order; the evaluation draws it once more
     for the test faces it scores the target on (``target_light_*``)."""
-    import disent.lighting.experiments as E
+    import disent.lighting.targets as E  # the fits the trainer draws its targets from
 
     fitted = []
 
@@ -280,7 +280,7 @@ def test_the_evaluation_scores_the_target_a_setting_teaches():
     torch.testing.assert_close(dose, L.oracle_mixed(b["sh_pseudo"], b["sh"], b["normal_pseudo"], b["mask_pseudo"], 0.5))
     assert not torch.allclose(dose, b["sh_pseudo"])
     texture = T.target_light_of(cfg_of("loss.recon_L_target=sh_texture").loss)(b)
-    torch.testing.assert_close(texture, __import__("disent.lighting.experiments").lighting.experiments.texture_lhat(b))
+    torch.testing.assert_close(texture, __import__("disent.lighting.targets").lighting.targets.texture_lhat(b))
 
 
 def test_network_target_is_the_named_networks_own_light():
@@ -475,7 +475,7 @@ def test_learning_rate_schedules():
 def test_bad_settings_stop_before_anything_runs(tmp_path, override, message):
     """A setting that cannot run is a ConfigError naming the key and what it accepts, raised before a
     checkpoint or a metric is written (train.batch_size=-3 used to train 0 steps and report success)."""
-    from disent.train import ConfigError
+    from disent.config import ConfigError
 
     with pytest.raises(ConfigError, match=message):
         run(cfg_of(*TINY, override), tmp_path / "run")
@@ -494,7 +494,7 @@ def test_settings_that_read_the_truth_stop_on_photos_before_anything_runs(tmp_pa
     """The true layers (E_recon-L on the true light, the ceiling's terms) exist on SynthFaces alone: on a folder of
     photos each setting that reads them is named in a ConfigError at the start (loss.recon_L_target=sh used to fail
     only at the first step)."""
-    from disent.train import ConfigError
+    from disent.config import ConfigError
 
     with pytest.raises(ConfigError, match=f"^{named} read\\(s\\) the true layers, which only data=synth has$"):
         run(cfg_of(*TINY, "data=folder", *overrides), tmp_path / "run")

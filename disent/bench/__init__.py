@@ -23,7 +23,7 @@ from typing import Callable, Sequence
 
 import torch
 
-from disent.runs import machine_info as runs_machine_info
+from disent.storage import machine_info as runs_machine_info
 
 BENCH_JSON = Path("bench.json")  # in the bench tool folder; published to reports/bench.json
 DEVICE = "cpu"  # set by --device
@@ -78,7 +78,7 @@ def measure_peak_gflops(n: int = 2048, rounds: int = 5, device: str = "cpu") -> 
 
 
 def machine_info() -> dict:
-    """:func:`disent.runs.machine_info` under the benchmark file's keys (the GPU's name inside ``device``)."""
+    """:func:`disent.storage.machine_info` under the benchmark file's keys (the GPU's name inside ``device``)."""
     info = runs_machine_info(DEVICE, torch.get_num_threads())
     return {
         "torch": info["torch"],
@@ -106,7 +106,7 @@ def save(section: str, figures: dict, path: Path = BENCH_JSON) -> None:
     # the 1-minute load average as the section is written (the benchmark's own threads count in it): more than
     # the thread count means other work shared the cores
     data.setdefault("load_average_1min", {})[section] = round(os.getloadavg()[0], 2)
-    from disent.runs import atomic_write
+    from disent.storage import atomic_write
 
     atomic_write(path, lambda f: f.write(json.dumps(data, indent=2, sort_keys=True).encode()))
 

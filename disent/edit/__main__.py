@@ -124,7 +124,7 @@ def load_inputs(
 
 def load_model(run: str):
     from disent.models import load_run
-    from disent.runs import CheckpointError
+    from disent.storage import CheckpointError
 
     try:
         model, cfg = load_run(run)

@@ -46,9 +46,9 @@ from disent.data import get_batch
 from disent.edit.classifier import MeasureNet
 from disent.edit.relight import ratio_relight, transfer_lighting, with_light
 from disent.edit.traversal import ATTRIBUTES, DEFAULT_MANIFOLDS, FACE_CODES, encode_pool, model_kind, traverse
-from disent.eval.evaluate import face_mask
 from disent.eval.metrics import optimal_scale, reconstruction_metrics
 from disent.images import to_array
+from disent.regions import face_mask
 from disent.render import sh_shading
 
 DEFAULT_LAMBDAS = (1.0, 0.3, 0.07, 0.05, 0.03, 0.01)  # the paper's 0.07-0.01, and two smaller steps

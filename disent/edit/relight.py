@@ -20,14 +20,15 @@ from __future__ import annotations
 
 import torch
 
-from disent.render import composite, image_formation, sh_from_directions, sh_shading
-
-SHADING_EPS = 0.05  # shading below this (about 5% of a frontal unit light) is "small"
-
-
-def _check_finite(name: str, x: torch.Tensor) -> None:
-    if not torch.isfinite(x).all():
-        raise ValueError(f"{name} contains NaN or Inf")
+from disent.render import (  # noqa: F401  (detailed_albedo and SHADING_EPS: this module's names too)
+    SHADING_EPS,
+    check_finite,
+    composite,
+    detailed_albedo,
+    image_formation,
+    sh_from_directions,
+    sh_shading,
+)
 
 
 # ----------------------------------------------------------------------------- lights
@@ -69,29 +70,6 @@ def with_light(codes: dict, sh: torch.Tensor) -> dict:
 
 
 # ----------------------------------------------------------------------------- transfer
-def detailed_albedo(
-    image: torch.Tensor, shading: torch.Tensor, fallback: torch.Tensor | None = None, eps: float = SHADING_EPS
-) -> torch.Tensor:
-    """``A = I / S`` (Eq. 2) where ``S >= eps``; ``fallback`` elsewhere.
-
-    ``image [B,3,H,W]``, ``shading [B,1 or 3,H,W]``.  Without a ``fallback`` the small-shading
-    pixels get the mean detailed albedo of the well-lit pixels of the same image and channel
-    (0 when there are none).  Always finite for finite inputs.
-    """
-    _check_finite("image", image)
-    _check_finite("shading", shading)
-    shading = shading.expand_as(image)
-    ok = shading >= eps
-    A = image / torch.where(ok, shading, torch.ones_like(shading))
-    if fallback is None:
-        n = ok.flatten(2).sum(2).clamp_min(1)
-        fallback = (torch.where(ok, A, 0).flatten(2).sum(2) / n)[..., None, None].expand_as(A)
-    else:
-        _check_finite("fallback albedo", fallback)
-        fallback = fallback.expand_as(A)
-    return torch.where(ok, A, fallback)
-
-
 def transfer_lighting(
     image: torch.Tensor,
     normal: torch.Tensor,
@@ -120,7 +98,7 @@ def ratio_relight(
     eps: float = SHADING_EPS,
 ) -> torch.Tensor:
     """The naive baseline: every pixel times ``S(N, L_source) / S(N, L_target)`` (1 where ``S_target < eps``)."""
-    _check_finite("image", image)
+    check_finite("image", image)
     B = normal.shape[0]
     S_t = sh_shading(normal, sh_target.to(normal.dtype).expand(B, -1, -1))
     S_s = sh_shading(normal, sh_source.to(normal.dtype).expand(B, -1, -1))

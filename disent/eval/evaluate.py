@@ -30,14 +30,8 @@ from disent.eval.metrics import (
     sh_gram,
     shading_contrast,
 )
+from disent.regions import FACE_THRESHOLD, decomposed_region, face_mask
 from disent.render import sh_shading
-
-FACE_THRESHOLD = 0.99  # matte above this is face without background mixing
-
-
-def face_mask(matte: torch.Tensor, threshold: float = FACE_THRESHOLD) -> torch.Tensor:
-    """Binary face mask ``[B,1,H,W]`` from a soft matte: antialiased border pixels mix in background."""
-    return (matte > threshold).to(matte.dtype)
 
 
 def batches(dataset, batch_size: int = 64, limit: int | None = None, indices=None):
@@ -79,13 +73,6 @@ def model_outputs(
         gts.append({k: v for k, v in batch.items() if torch.is_tensor(v)})
     out, gt = _cat(outs), _cat(gts)
     return out, gt, len(gt["image"]) / max(seconds, 1e-12)
-
-
-def decomposed_region(gt: dict) -> torch.Tensor:
-    """Where the intrinsic layers are scored: the true face mask intersected with the pseudo mask M-hat.
-    The model renders the face there; its matte is trained towards M-hat (Sec. 3.3), so hair, ears and
-    neck belong to its background layer, and its albedo there is not an estimate of anything."""
-    return face_mask(gt["matte"]) * (gt["mask_pseudo"] > 0.5)
 
 
 # metric suffix -> part of disent.eval.metrics.log_shading_agreement, each the median over faces and channels
@@ -254,7 +241,7 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     if {"albedo", "shading"} <= set(out) and {"albedo", "image"} <= set(gt):
         # Sec. 5.3's "detailed" albedo, Eq. 2 solved for A with the model's own shading: I / S_e keeps every detail
         # of the image, and every error of S_e (the relighting transfer renders with it)
-        from disent.edit.relight import detailed_albedo
+        from disent.render import detailed_albedo
 
         image = gt["image"].to(out["shading"].dtype)
         m["albedo_detailed_si_mse"] = scale_invariant_mse(
@@ -356,8 +343,8 @@ def evaluate_model(
 ) -> dict:
     """All test metrics of ``model`` on the first ``limit`` items of ``dataset`` plus ``infer_images_per_s``;
     with ``trivial`` (:func:`disent.eval.trivial.dataset_means`) the ``trivial_*`` baselines on the same images;
-    with ``light_target`` (``batch -> [B, C, 9]``, :func:`disent.train.target_light_of`) the light it was taught,
-    scored as its own (``target_*``)."""
+    with ``light_target`` (``batch -> [B, C, 9]``, :func:`disent.lighting.targets.target_light_of`) the light it
+    was taught, scored as its own (``target_*``)."""
     from disent.eval.trivial import trivial_metrics
 
     out, gt, ips = model_outputs(model, dataset, limit, batch_size)
@@ -387,8 +374,6 @@ def completed_light_metrics(out: dict, gt: dict, prior: torch.Tensor) -> dict:
 
 
 __all__ = [
-    "FACE_THRESHOLD",
-    "face_mask",
     "normal_metrics",
     "batches",
     "predict",
@@ -420,7 +405,7 @@ def rescore(run_dir) -> dict:
     import json
     from pathlib import Path
 
-    from disent.runs import atomic_write
+    from disent.storage import atomic_write
 
     run_dir = Path(run_dir)
     old = json.loads((run_dir / "eval.json").read_text()) if (run_dir / "eval.json").exists() else {}

@@ -33,7 +33,7 @@ import torch
 
 from disent.eval.evaluate import metrics_from_outputs, predict
 from disent.images import to_uint8
-from disent.runs import cpu_name
+from disent.storage import cpu_name
 
 PANELS = (
     ("normal_mean", "normal error (deg)", False),

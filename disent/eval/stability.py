@@ -32,8 +32,9 @@ from pathlib import Path
 import torch
 
 from disent.data import get_batch
-from disent.eval.evaluate import batches, bws_stats, face_mask, metrics_from_outputs, predict
+from disent.eval.evaluate import batches, bws_stats, metrics_from_outputs, predict
 from disent.eval.metrics import sh_error
+from disent.regions import face_mask
 from disent.render import design_condition, fit_sh, rotate_sh
 
 BLOWUP = 10.0  # a condition number this many times the well-posed one marks the blow-up
@@ -206,9 +207,9 @@ def ood_curves(
 # ----------------------------------------------------------------------------- 1. BWS
 def bws_study(runs, dataset, n: int = 64) -> dict:
     """:func:`bws_stats` for every finished run of the explicit/implicit models, with its BWS setting and batch size."""
+    from disent.config import loss_setting
     from disent.eval.ablation import budget
     from disent.runs import load_models
-    from disent.train import loss_setting
 
     rows, used = [], []
     batch = next(iter(batches(dataset, n, n)))

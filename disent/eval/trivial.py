@@ -30,8 +30,9 @@ from __future__ import annotations
 
 import torch
 
-from disent.eval.evaluate import decomposed_region, face_mask, metrics_from_outputs
+from disent.eval.evaluate import metrics_from_outputs
 from disent.eval.metrics import scale_invariant_mse, sh_error
+from disent.regions import decomposed_region, face_mask
 from disent.render import sh_shading
 
 N_IMAGES = 1024  # training images the means are taken over (fewer if the split is smaller)

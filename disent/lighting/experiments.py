@@ -23,12 +23,21 @@ import torch
 from disent.lighting.order import choose, fitted, select_order
 from disent.lighting.posterior import N_COEFFS, prepare, sample_posterior
 from disent.render import C4, fit_sh, sh_basis, sh_shading
-from disent.runs import machine_info
+from disent.storage import machine_info
 
 BANDS = {0: [0], 1: [1, 2, 3], 2: [4, 5, 6, 7, 8]}
-# pixels taken off the pseudo mask's edge: the coarse fit's silhouette is where its geometry is least right (grazing
-# normals) and where it leaks onto hair or background (up to ~30 pixels of a val face lie outside its matte)
-EDGE = 1
+from disent.lighting.targets import (  # noqa: E402, F401  (the fits the studies score, under their names here too)
+    EDGE,
+    NETWORK_TEXTURE_SHARE,
+    eroded,
+    eroded_lhat,
+    least_squares_light,
+    network_lhat,
+    network_maps,
+    network_texture_lhat,
+    texture_lhat,
+    trained_network,
+)
 
 
 # geometry of a lighting fit: the normals, mask and uv (of the texture model) keys of an item, the pixels eroded
@@ -270,23 +279,6 @@ def refine_placement(p: dict, item: dict, noise: float, seed: int, evaluations: 
     return with_coarse_fit(item, placement(z.x))
 
 
-@functools.lru_cache(maxsize=2)
-def trained_network(name: str):
-    """A trained model in eval mode, loaded once: a shipped name, a run folder or a checkpoint."""
-    from disent.models import load_run
-
-    return load_run(name)[0].eval()
-
-
-def network_maps(name: str, image: torch.Tensor) -> dict:
-    """The maps shipped model ``name`` draws from ``image [3,H,W]``: ``normal_net``, ``matte_net`` and, from a
-    model with a uv layer (implicit), ``uv_net``."""
-    with torch.no_grad():
-        out = trained_network(name)(image.float().clamp(0, 1)[None])
-    maps = {"normal_net": out["normal"][0].double(), "matte_net": out["matte"][0]}
-    return maps | ({"uv_net": out["uv"][0]} if "uv" in out else {})
-
-
 def scene_geometry(ds, index: int, item: dict, normals: str, noise: float, seed: int) -> dict:
     """``item`` (scene ``index`` of ``ds``; None for a photo) with the maps geometry ``normals`` reads: the coarse
     fit rendered again at its placement refined against the image (a scene's or a photo's fit) or with its parts
@@ -340,14 +332,6 @@ def item_data(
         mask = (torch.as_tensor(mask) > 0.5) & (item[UV_DEFINED[geometry.uv]] > 0.5)
     albedo = item["albedo"] if known_albedo else None
     return prepare(noisy(item["image"], noise, seed), item[geometry.normals], mask, albedo, gray=gray)
-
-
-def eroded(mask, pixels: int) -> torch.Tensor:
-    """``mask [1,H,W]`` (``[H,W]``: returned as ``[1,H,W]``; or a batch ``[B,1,H,W]``) > 0.5 less the pixels within
-    ``pixels`` (chessboard distance) of its edge."""
-    m = (torch.as_tensor(mask) > 0.5).float()
-    shape = m.shape if m.dim() > 2 else (1, *m.shape)
-    return -torch.nn.functional.max_pool2d(-m.reshape(-1, 1, *m.shape[-2:]), 2 * pixels + 1, 1, pixels).reshape(shape)
 
 
 def band_width(post, level: float = 0.68) -> dict:
@@ -444,70 +428,11 @@ def sharpened_albedo(image, shading, albedo, region, ks=SHARPENING) -> dict:
     log contrast scaled by k about each face's mean; the scale this also changes is one the si-MSE forgives), scored
     against the true ``albedo`` on ``region``: what a more (k > 1) or less (k < 1) contrasty shading would give the
     albedo, all else kept."""
-    from disent.edit.relight import detailed_albedo
     from disent.eval.metrics import scale_invariant_mse
+    from disent.render import detailed_albedo
 
     s = shading.double().clamp_min(1e-3)
     return {k: scale_invariant_mse(detailed_albedo(image.double(), s.pow(k)), albedo, region) for k in ks}
-
-
-def least_squares_light(image, normal, mask, albedo=None) -> torch.Tensor:
-    """``[B, 3, 9]``: the least-squares SH light (:func:`disent.data.synth.scenes.fit_sh_packed`) of ``image`` over
-    ``albedo`` (None: a constant, the paper's L-hat) through ``normal`` on the pixels where ``mask`` > 0.5."""
-    from disent.data.synth.scenes import fit_sh_packed
-
-    return fit_sh_packed(image, normal * (mask > 0.5), mask, albedo)
-
-
-def eroded_lhat(batch: dict) -> torch.Tensor:
-    """``[B, 3, 9]``: the paper's L-hat (:func:`least_squares_light` with a constant albedo) fitted on M-hat eroded
-    ``EDGE`` px through the pseudo normals of each image of ``batch``: M-hat's rim, where the coarse fit reaches past
-    the skin, left out (``lhat_sources``' ``lhat_eroded``); E_recon-L's target with
-    ``loss.recon_L_target=sh_pseudo_eroded``."""
-    mask = eroded(batch["mask_pseudo"], EDGE)
-    return least_squares_light(batch["image"], batch["normal_pseudo"], mask).to(batch["image"].dtype)
-
-
-@torch.no_grad()
-def network_lhat(batch: dict, network: str = "explicit") -> torch.Tensor:
-    """``[B, 3, 9]``: the light the trained model ``network`` (a shipped name, a run folder or a checkpoint) draws
-    from each image of ``batch``: no truth, its own light where it learned one from L-hat (the lighting section's
-    network rows); E_recon-L's target with ``loss.recon_L_target=sh_network`` (``loss.recon_L_network``)."""
-    return trained_network(str(network))(batch["image"].float().clamp(0, 1))["sh"].to(batch["image"].dtype)
-
-
-# network_texture_lhat's share of the texture model's refit in its light: loss.recon_L_network_share's default
-# (conf/loss/default.yaml says how it was chosen; tests hold the two equal)
-NETWORK_TEXTURE_SHARE = 0.6
-
-
-@torch.no_grad()
-def network_texture_lhat(batch: dict, network: str = "explicit", share: float = NETWORK_TEXTURE_SHARE) -> torch.Tensor:
-    """``[B, 3, 9]``: the texture model's L-hat (:func:`disent.lighting.texture.texture_light`) refitted through the
-    trained model ``network``'s own normals, and its uv where it draws one (else the pseudo uv), on M-hat eroded
-    ``EDGE`` px inside its matte, averaged with its own light, ``share`` of the refit. No truth. The two err apart:
-    the refit through the network's normals (a little flatter than the truth: 37.9 / 38.1 deg about the face's mean
-    normal against 39.1, shipped explicit / implicit, test) overshoots the light's contrast, the network's own light
-    undershoots it. E_recon-L's target with ``loss.recon_L_target=sh_network_texture``
-    (``loss.recon_L_network``); the lighting section's ``network_NAME_texture`` rows."""
-    from disent.lighting.texture import texture_light
-
-    out = trained_network(str(network))(batch["image"].float().clamp(0, 1))
-    mask = eroded(batch["mask_pseudo"], EDGE) * (out["matte"] > 0.5)
-    uv = out["uv"] if "uv" in out else batch["uv_pseudo"]
-    refit = texture_light(batch["image"], out["normal"], mask, uv)
-    return (share * refit + (1 - share) * out["sh"].double()).to(batch["image"].dtype)
-
-
-def texture_lhat(batch: dict) -> torch.Tensor:
-    """``[B, 3, 9]``: L-hat with the PCA texture model for the albedo in place of its constant
-    (:func:`disent.lighting.texture.texture_light`), fitted on M-hat eroded ``EDGE`` px through the pseudo normals
-    and uv of each image of ``batch``: the best light here that needs no truth (``lhat_sources``), and E_recon-L's
-    target with ``loss.recon_L_target=sh_texture``."""
-    from disent.lighting.texture import texture_light
-
-    mask = eroded(batch["mask_pseudo"], EDGE)
-    return texture_light(batch["image"], batch["normal_pseudo"], mask, batch["uv_pseudo"]).to(batch["image"].dtype)
 
 
 @torch.no_grad()
@@ -538,10 +463,11 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
     right on average about its target) and ``sharpened_albedo`` (:func:`sharpened_albedo` of its own shading).
     ``floor``: the constant mean train light."""
     from disent.data import get_batch
-    from disent.eval.evaluate import decomposed_region, face_colour, skin_in_shading
+    from disent.eval.evaluate import face_colour, skin_in_shading
     from disent.eval.metrics import light_shading_si_mse, sh_error_shown_hidden, shading_contrast
     from disent.eval.trivial import dataset_means, template_albedo
     from disent.losses import oracle_mixed, rescaled
+    from disent.regions import decomposed_region
 
     g = get_batch(test, range(min(n, len(test))))
     face = decomposed_region(g)

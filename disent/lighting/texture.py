@@ -33,7 +33,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from disent.runs import atomic_write
+from disent.storage import atomic_write
 
 
 @dataclass
@@ -219,7 +219,7 @@ def registration_prior(
     batch = SynthFaces("train", resolution, seed).get_batch(range(n_images))
     estimates, masks = batch["uv_pseudo"], batch["mask_pseudo"]  # the uv to correct, and the pixels it covers
     if network:
-        from disent.lighting.experiments import network_maps
+        from disent.lighting.targets import network_maps
 
         maps = [network_maps(network, image) for image in batch["image"]]
         estimates, masks = (torch.stack([m[k] for m in maps]) for k in ("uv_net", "matte_net"))

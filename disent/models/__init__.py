@@ -53,12 +53,12 @@ def load_run(path):
     checkpoint does not say) and ``shipped`` whether ``path`` named a shipped model; ``cfg`` is the run's
     resolved OmegaConf config.  An unknown name lists the shipped ones; a checkpoint that does not fit this
     code's architecture names the mismatch, and one that cannot be read names the file
-    (:func:`disent.runs.load_checkpoint`).
+    (:func:`disent.storage.load_checkpoint`).
     """
     from omegaconf import OmegaConf
 
     from disent.models.shipped import load_weights, manifest
-    from disent.runs import load_checkpoint
+    from disent.storage import load_checkpoint
 
     ckpt_path = checkpoint_path(path)
     ckpt = load_checkpoint(ckpt_path)

@@ -89,7 +89,8 @@ def ship(run_dir, name: str, folder: Path = WEIGHTS) -> dict:
     from omegaconf import OmegaConf
 
     from disent.models import build_model
-    from disent.runs import Run, load_checkpoint, machine_info
+    from disent.runs import Run
+    from disent.storage import load_checkpoint, machine_info
 
     run_dir, folder = Path(run_dir), Path(folder)
     ckpt = load_checkpoint(run_dir / "checkpoints" / "last.pt")
@@ -131,7 +132,7 @@ def add_metrics(name: str, folder: Path = WEIGHTS) -> list[str]:
     weights). The added ones come from the shipped float16 weights, and ``metrics_added`` says which (``keys``) and,
     per addition, at what revision (``additions``). Returns the added keys."""
     from disent.eval.evaluate import score
-    from disent.runs import git_revision
+    from disent.storage import git_revision
 
     path = shipped_path(name, folder)  # an unknown name: the error that lists the shipped names
     entries = manifest(folder)

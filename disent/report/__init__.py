@@ -47,7 +47,8 @@ from disent.report.training import (
     sec_teaser,
     sec_uv_by_seed,
 )
-from disent.runs import RECORDS, RUN_ROOTS, find_runs, head_revision, publish, tool_folder, write_records
+from disent.runs import RECORDS, RUN_ROOTS, find_runs, publish, tool_folder, write_records
+from disent.storage import head_revision
 
 PAGES = {  # appendix page: (title, what it holds, [(section title, builder, its inputs)]), in the contents' order
     "claims": (

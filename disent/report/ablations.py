@@ -72,7 +72,7 @@ def budget_check(explicit: list[Run]) -> str:
     """:func:`budget_misses` as the caption under an ablation table: where the full explicit model misses a
     target, the ablation differences at that budget are not testable verdicts; where it meets them on an E_recon-L
     target that is not the paper's L-hat (the truth's, or one drawn without truth), the caption says so."""
-    from disent.train import loss_setting
+    from disent.config import loss_setting
 
     misses = budget_misses(explicit)
     if misses is None:
@@ -174,7 +174,7 @@ def setting_picks(where: str, key: str) -> list[str]:
     """The overrides of the setting ``where`` that ``key`` names: the override itself, or any value of a key ending
     in ``=`` (``loss.recon_L_oracle_mix=`` picks ``loss.recon_L_oracle_mix=0.5``); a network's target brings the
     network's name and the refit's share (``loss.recon_L_network=``, ``loss.recon_L_network_share=``) with it."""
-    from disent.train import NETWORK_TARGETS
+    from disent.config import NETWORK_TARGETS
 
     picks = [t for t in where.split() if t == key or (key.endswith("=") and t.startswith(key))]
     if picks and key.partition("=")[2] in NETWORK_TARGETS:

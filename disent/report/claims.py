@@ -6,8 +6,9 @@ from pathlib import Path
 
 from disent.edit.measure import DRAWN_READINGS, OFF_TARGET_READINGS
 from disent.eval import ablation as _ablation
-from disent.eval.evaluate import FACE_THRESHOLD, MATTE_EDGE
+from disent.eval.evaluate import MATTE_EDGE
 from disent.eval.trivial import TEMPLATE_KEYS
+from disent.regions import FACE_THRESHOLD
 from disent.report.ablations import (
     LIGHT_TARGETS,
     TARGETS,
@@ -574,7 +575,7 @@ def target_source(where: str) -> str | None:
     """The row of the lighting section's ``lhat_sources.json`` that is E_recon-L's target under the setting ``where``
     (L-hat, L-hat eroded, the texture model at its own or L-hat's scale, an oracle dose; the truth's shape for the
     true light or a full dose), or None where the setting changes anything else (a refit at another share too)."""
-    from disent.train import ADDED_LATER
+    from disent.config import ADDED_LATER
 
     if not only_light_target(where):
         return None
@@ -626,7 +627,7 @@ def shipped_setting(name: str, full: bool = False) -> str:
     they ran its steps, E_recon-L's target and oracle dose where not L-hat's; a config older than those options
     trained on L-hat), or with ``full`` every setting that defines a run, as :func:`disent.runs.setting` reads
     a run today."""
-    from disent.train import ABSENT, config_changes
+    from disent.config import ABSENT, config_changes
 
     run = shipped_run(name)
     if full:

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 from disent.eval import ablation as _ablation
-from disent.runs import TRAIN_SPEED_KEY, Run, defining_overrides, machine_text, run_speed, setting  # noqa: F401
+from disent.runs import Run, defining_overrides, setting
+from disent.storage import machine_text
 
 MODELS = ("baseline", "explicit", "implicit")
 INFER_SPEED_KEY = "infer_images_per_s"  # eval.json

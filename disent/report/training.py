@@ -15,18 +15,17 @@ from disent.report.pictures import image_grid, test_batch
 from disent.report.tables import (
     INFER_SPEED_KEY,
     MODELS,
-    TRAIN_SPEED_KEY,
     by_setting_and_model,
     fmt_value,
     is_recipe_run,
     ladder_runs,
     on_the_ladder,
-    run_speed,
     seed_spread,
     spread_text,
     table_head,
 )
-from disent.runs import Run, load_chosen, machine_text, pick_runs, portable, setting
+from disent.runs import TRAIN_SPEED_KEY, Run, load_chosen, pick_runs, portable, run_speed, setting
+from disent.storage import machine_text
 
 ERROR_WHITE = 40.0  # degrees of angular error drawn white in the normals figure
 
@@ -347,8 +346,8 @@ def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
 def normals_figure(rep: Report, chosen: dict, outs: dict, batch: dict) -> None:
     """The models' normals against the pseudo-GT and the truth, their angular errors, and the table of each one's
     normal error beside the mean map's and the pseudo-GT's."""
-    from disent.eval.evaluate import decomposed_region
     from disent.eval.metrics import angular_error_deg
+    from disent.regions import decomposed_region
 
     nrm = [
         ("input", batch["image"]),

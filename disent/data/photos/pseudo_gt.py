@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from disent.runs import atomic_write
+from disent.storage import atomic_write
 
 log = logging.getLogger(__name__)
 
