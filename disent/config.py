@@ -82,10 +82,10 @@ def check_config(cfg) -> None:
             raise ConfigError(f"loss.{key}={share!r}: must be a number in [0, 1]")
     if loss_setting(cfg.loss, "recon_L_target") in NETWORK_TARGETS:
         network = loss_setting(cfg.loss, "recon_L_network")
-        from disent.lighting.experiments import trained_network
+        from disent.models import load_run
 
         try:
-            trained_network(str(network))
+            load_run(str(network))
         except Exception as e:
             raise ConfigError(f"loss.recon_L_network={network!r}: no model to load ({e})") from e
     if (readers := truth_readers(cfg.loss)) and d.name != "synth":

@@ -25,7 +25,7 @@ import torch
 
 from disent.data.photos import pseudo_gt as pg
 from disent.images import over_max, save_image
-from disent.runs import tool_folder
+from disent.storage import tool_folder
 
 RELIGHT = ("flash_az-60", "top", "flash_az+60")  # named lights of the bank (python -m disent.edit lights)
 SHOWN = 16  # rows of decomposition.png

@@ -35,127 +35,11 @@ from omegaconf import OmegaConf
 from disent.storage import (
     GIT_LINE,
     NO_REVISION,
-    atomic_write,
     load_json,
     load_yaml,
     lock_holder,
     read_jsonl,
-    write_git_revision,
 )
-
-# ----------------------------------------------------------------------------- tool folders and publishing
-# Each tool writes into its own run folder; `python -m disent.report --publish FOLDER` copies what the report
-# cites into reports/<PUBLISH_TO[tool]>/.  Weights (*.pt) and bookkeeping files are never published.
-PUBLISH_TO = {
-    "edit": "edit",
-    "lighting": "lighting",
-    "photos": "photos",
-    "eval": "eval",
-    "bench": ".",
-    "sheet": "figures",
-}  # a tool not named here (python -m disent.photos writes "decompose" folders) is never published
-NOT_PUBLISHED = ("git.txt", "command.txt", ".tool")  # and weights (.pt), logs (.log), Hydra's .hydra/
-
-
-def tool_folder(tool: str, out=None) -> Path:
-    """The folder a tool writes into: ``out`` when given, else ``outputs/<tool>/<date>/<time>-<pid>/``.  It holds
-    ``.tool`` (the tool's name, for :func:`publish`), ``command.txt`` (the command line) and ``git.txt``."""
-    import sys
-    import time
-
-    if not tool.isidentifier():
-        raise ValueError(f"tool name {tool!r}: letters, digits and underscores only")
-    folder = Path(out) if out else Path("outputs") / tool / f"{time.strftime('%Y-%m-%d/%H-%M-%S')}-{os.getpid()}"
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / ".tool").write_text(tool + "\n")
-    spec = getattr(sys.modules.get("__main__"), "__spec__", None)  # python -m NAME: the module's name
-    prog = f"python -m {spec.name.removesuffix('.__main__')}" if spec else f"python {sys.argv[0]}"
-    (folder / "command.txt").write_text(" ".join([prog, *sys.argv[1:]]) + "\n")
-    write_git_revision(folder)
-    return folder
-
-
-def publish(folder, reports="reports") -> list[Path]:
-    """Copy a tool folder's results into ``reports/`` (where its ``.tool`` says); returns the files written.
-    A folder that is not a tool folder, or holds no results, is an error: nothing published is replaced by
-    nothing."""
-    folder = Path(folder)
-    marker = folder / ".tool"
-    if not marker.is_file():
-        raise FileNotFoundError(
-            f"{folder} is not a tool folder (no .tool file); tools write one, e.g. "
-            "python -m disent.edit measure explicit"
-        )
-    tool = marker.read_text().strip()
-    if tool not in PUBLISH_TO:
-        raise ValueError(f"{marker}: the results of {tool!r} are not published; publishable: {', '.join(PUBLISH_TO)}")
-    files = [
-        p
-        for p in sorted(folder.rglob("*"))
-        if p.is_file() and p.name not in NOT_PUBLISHED and p.suffix not in (".pt", ".log") and ".hydra" not in p.parts
-    ]
-    if not files:
-        raise FileNotFoundError(f"{folder} holds no results to publish")
-    dest = Path(reports) / PUBLISH_TO[tool]
-    if tool == "edit":
-        drop_remeasured(folder, dest)
-    written = []
-    for p in files:
-        target = dest / p.relative_to(folder)
-        target.parent.mkdir(parents=True, exist_ok=True)
-        if p.suffix == ".png":  # pictures of faces: a 256-colour dithered palette keeps reports/ small
-            compact_png(p, target)
-        elif p.suffix == ".json":  # a run is named by its id in reports/, never by its folder
-            new = _rounded_all(portable_runs(json.loads(p.read_text())), EVAL_DIGITS)
-            if tool == "bench" and target.exists():  # the sections of this run replace theirs
-                new = {**json.loads(target.read_text()), **new}
-            atomic_write(target, lambda f: f.write(json.dumps(new, sort_keys=True, separators=(",", ":")).encode()))
-        else:
-            shutil.copyfile(p, target)
-        written.append(target)
-    return written
-
-
-PUBLISHED_WIDTH = 900  # px
-
-
-def compact_png(src: Path, dest: Path) -> None:
-    """``src`` written to ``dest`` as a PNG at most :data:`PUBLISHED_WIDTH` px wide (a tool figure's 64-px faces
-    keep every pixel) in 256 colours (a median-cut palette, Floyd-Steinberg dithered): about a quarter of its size;
-    a PNG that is one already is copied."""
-    from PIL import Image
-
-    with Image.open(src) as im:
-        if im.mode == "P":
-            if Path(src).resolve() != Path(dest).resolve():
-                shutil.copyfile(src, dest)
-            return
-        rgb = im.convert("RGB")
-    if rgb.width > PUBLISHED_WIDTH:
-        height = round(rgb.height * PUBLISHED_WIDTH / rgb.width)
-        rgb = rgb.resize((PUBLISHED_WIDTH, height), Image.Resampling.LANCZOS)
-    palette = rgb.quantize(colors=256, method=Image.Quantize.MEDIANCUT)
-    picture = rgb.quantize(palette=palette, dither=Image.Dither.FLOYDSTEINBERG)
-    atomic_write(dest, lambda f: picture.save(f, format="PNG", optimize=True))
-
-
-def drop_remeasured(folder: Path, dest: Path) -> None:
-    """Remove the published edit results (``dest/<name>/edit.json``) of each run that ``folder`` measured again
-    under another name: a run's newer measurement replaces its older one, so no run counts twice."""
-
-    def measured(root):
-        found = {}
-        for p in root.glob("*/edit.json"):
-            if ref := run_ref((load_json(p) or {}).get("run")):  # a run, not a shipped model's name
-                found.setdefault(ref, []).append(p.parent)
-        return found
-
-    again = measured(folder)
-    for run, published in measured(dest).items():
-        for old in published:
-            if run in again and old.name not in {new.name for new in again[run]}:
-                shutil.rmtree(old)
-
 
 # ----------------------------------------------------------------------------- reading runs
 RUN_ROOTS = ("outputs", "multirun")
@@ -429,54 +313,6 @@ def run_speed(run: Run, key: str) -> float | None:
     return None if v is None else float(v)
 
 
-# ----------------------------------------------------------------------------- records of ended runs
-CURVE_EVERY = 5  # of the training log's loss rows, every 5th is kept (each validation record is kept)
-CURVE_KEYS = ("step", "epoch", "wall", "minutes", "images_per_s", "total", "UV")  # what the report reads of a loss row
-CURVE_VAL_KEYS = (  # what the learning-curve figure draws of each validation record
-    *("normal_mean", "recon_face_psnr", "albedo_face_si_mse", "albedo_si_mse", "sh_error", "light_shading_si_mse"),
-)
-CURVE_REFERENCE_KEYS = (  # its reference lines, the same at every record (kept in the last one)
-    *("trivial_normal_mean", "pseudo_normal_mean", "trivial_albedo_si_mse", "trivial_sh_error", "pseudo_sh_error"),
-    *("trivial_light_shading_si_mse", "pseudo_light_shading_si_mse"),
-)
-
-
-EVAL_DIGITS = 7  # significant digits a record keeps of eval.json and a published JSON (replicates agree to 1e-6)
-
-
-def _rounded(x, digits: int = 5):
-    """A curve's value to ``digits`` significant digits (a figure draws no more)."""
-    return float(f"{x:.{digits}g}") if isinstance(x, float) and math.isfinite(x) else x
-
-
-def _rounded_all(value, digits: int):
-    """Every float in ``value`` (nested dicts and lists) to ``digits`` significant digits."""
-    if isinstance(value, dict):
-        return {k: _rounded_all(v, digits) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_rounded_all(v, digits) for v in value]
-    return _rounded(value, digits)
-
-
-def thinned_curve(metrics: list[dict]) -> list[dict]:
-    """The learning curve a record keeps: every validation record (the values the figure draws,
-    :data:`CURVE_VAL_KEYS`, and in the last one its reference lines, :data:`CURVE_REFERENCE_KEYS`), and of the loss
-    rows every :data:`CURVE_EVERY`-th and the last, with the keys the report reads (:data:`CURVE_KEYS`), each to 5
-    significant digits."""
-    losses = [i for i, r in enumerate(metrics) if not isinstance(r.get("val"), dict)]
-    vals = [i for i, r in enumerate(metrics) if isinstance(r.get("val"), dict)]
-    kept = set(losses[::CURVE_EVERY] + losses[-1:])
-    out = []
-    for i, r in enumerate(metrics):
-        row = {k: _rounded(r[k]) for k in CURVE_KEYS if k in r}
-        if i in vals:
-            keys = CURVE_VAL_KEYS + (CURVE_REFERENCE_KEYS if i == vals[-1] else ())
-            out.append({**row, "val": {k: _rounded(r["val"][k]) for k in keys if k in r["val"]}})
-        elif i in kept:
-            out.append(row)
-    return out
-
-
 def portable(value):
     """``value`` with each run folder's path in it (a string) replaced by ``run:ID`` (:func:`run_id`): what a record
     or a published file may say of another run."""
@@ -491,51 +327,6 @@ def portable(value):
         key, _, path = value.partition("=")
         return f"{key}=run:{run_id(path)}"
     return value
-
-
-def portable_runs(value):
-    """A tool's JSON result with each ``run`` field that names a run folder replaced by ``run:ID`` (:func:`portable`):
-    what :func:`publish` copies into ``reports/``."""
-    if isinstance(value, dict):
-        return {k: portable(v) if k == "run" else portable_runs(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [portable_runs(v) for v in value]
-    return value
-
-
-def record_row(run: Run) -> dict:
-    """``run`` as one row of ``reports/runs.jsonl``: what it is (config, overrides, Hydra's group choices), how it
-    ended (status from its whole log, eval, the median training speed), where it trained (revision, machine), and
-    its learning curve thinned (:func:`thinned_curve`); paths become run ids (:func:`portable`)."""
-    return portable(
-        {
-            "id": run.id,
-            "model": run.model,
-            "seed": run.seed,
-            "status": run.status,
-            "revision": run.revision,
-            "recipe": run.recipe,
-            "overrides": [str(o) for o in run.overrides],
-            "choices": run.choices,
-            "config": run.cfg,
-            "eval": _rounded_all(run.eval, EVAL_DIGITS),
-            "ended": run.ended,
-            "machine": run.machine,
-            "images_per_s": run_speed(run, TRAIN_SPEED_KEY),
-            "curve": thinned_curve(run.metrics),
-        }
-    )
-
-
-def write_records(runs, path) -> int:
-    """Add the ended runs among ``runs`` (not ``incomplete``; run folders, not rows) to the records file ``path``,
-    replacing a row of the same id; the file stays sorted by id and is written atomically.  Returns the rows added."""
-    rows = {row["id"]: row for row in read_jsonl(path)}
-    new = [record_row(r) for r in runs if r.record is None and r.status != "incomplete"]
-    rows.update((row["id"], row) for row in new)
-    text = "".join(json.dumps(rows[k], sort_keys=True, separators=(",", ":")) + "\n" for k in sorted(rows))
-    atomic_write(Path(path), lambda f: f.write(text.encode()))
-    return len(new)
 
 
 # overrides that do not change what a run is (its seed, bookkeeping, the CPU time guard of a budget rung)
@@ -581,7 +372,6 @@ def conf_at(revision: str) -> str | None:
     """The folder of ``conf/`` as git revision ``revision`` had it (extracted once into a temporary folder that
     is removed when the process exits), or None where git cannot give it (no repository, an unknown revision)."""
     import atexit
-    import shutil
     import tarfile
     import tempfile
 

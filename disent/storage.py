@@ -366,3 +366,21 @@ def read_jsonl(path: Path) -> list[dict]:
             except ValueError:
                 continue
     return rows
+
+
+def tool_folder(tool: str, out=None) -> Path:
+    """The folder a tool writes into: ``out`` when given, else ``outputs/<tool>/<date>/<time>-<pid>/``.  It holds
+    ``.tool`` (the tool's name, for :func:`publish`), ``command.txt`` (the command line) and ``git.txt``."""
+    import sys
+    import time
+
+    if not tool.isidentifier():
+        raise ValueError(f"tool name {tool!r}: letters, digits and underscores only")
+    folder = Path(out) if out else Path("outputs") / tool / f"{time.strftime('%Y-%m-%d/%H-%M-%S')}-{os.getpid()}"
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / ".tool").write_text(tool + "\n")
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)  # python -m NAME: the module's name
+    prog = f"python -m {spec.name.removesuffix('.__main__')}" if spec else f"python {sys.argv[0]}"
+    (folder / "command.txt").write_text(" ".join([prog, *sys.argv[1:]]) + "\n")
+    write_git_revision(folder)
+    return folder

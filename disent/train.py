@@ -33,7 +33,8 @@ from disent.config import (
     truth_readers,
 )
 from disent.data import get_batch, make_dataset
-from disent.lighting.targets import target_fit, target_light_of, with_fitted_lhat
+from disent.eval.evaluate import evaluate, print_eval, trivial_baselines
+from disent.lighting.targets import target_fit, with_fitted_lhat
 from disent.models import Discriminator, build_model
 from disent.runtime import Prefetcher, tune_malloc
 from disent.storage import (
@@ -183,7 +184,7 @@ def validate(model, batch: dict) -> dict:
     """The periodic check on a fixed validation batch: recon PSNR (whole image and face), normal angular
     error of the network and of the pseudo-GT on the same pixels (degrees), albedo scale-invariant MSE
     and SH error (:mod:`disent.eval.evaluate`'s metrics, the ``VAL_KEYS`` the batch has truth for)."""
-    from disent.eval.evaluate import metrics_from_outputs, predict
+    from disent.eval.scoring import metrics_from_outputs, predict
 
     out = predict(model, batch["image"])
     out = {k: out[k].float() for k in ("recon", "normal", "albedo", "sh") if k in out}
@@ -193,30 +194,6 @@ def validate(model, batch: dict) -> dict:
         return {"recon_psnr": reconstruction_metrics(out["recon"].clamp(0, 1), batch["image"])["psnr"]}
     m = metrics_from_outputs(out, batch)
     return {k: m[k] for k in VAL_KEYS if k in m}
-
-
-def trivial_baselines(train) -> dict | None:
-    """The constant estimates of :mod:`disent.eval.trivial` from the training set ``train`` (None without
-    ground truth, e.g. real photos)."""
-    from disent.eval.trivial import dataset_means
-
-    return dataset_means(train) if "normal" in train[0] else None
-
-
-def evaluate(model, cfg, n: int, trivial: dict | None) -> dict:
-    """Test metrics on the first ``n`` test images (disent.eval.evaluate), on the CPU, with the trivial
-    baselines ``trivial`` (:func:`trivial_baselines`) and the setting's E_recon-L target (:func:`target_light_of`)
-    scored on the same images where the data has ground truth."""
-    from disent.eval.evaluate import evaluate_model, model_outputs
-    from disent.eval.metrics import reconstruction_metrics
-
-    test = make_dataset(cfg.data, "test", cfg.data.get("test_size"))
-    model = model.to("cpu")
-    if "normal" in test[0]:
-        return evaluate_model(model, test, limit=n, trivial=trivial, light_target=target_light_of(cfg.loss))
-    out, gt, ips = model_outputs(model, test, limit=n)  # real photos: no intrinsic ground truth
-    rec = reconstruction_metrics(out["recon"].clamp(0, 1), gt["image"])
-    return {**{f"recon_{k}": v for k, v in rec.items()}, "infer_images_per_s": ips, "n_eval": len(gt["image"])}
 
 
 def warm_start(model, cfg) -> None:
@@ -448,81 +425,3 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
     (run_dir / "eval.json").write_text(json.dumps(metrics, indent=2))
     print_eval(metrics, run_dir)
     return metrics
-
-
-LAYERS = (  # (label, network key, trivial key, pseudo-GT key, unit): lower is better but for HIGHER_BETTER
-    ("normals, angular error", "normal_mean", "trivial_normal_mean", "pseudo_normal_mean", "deg"),
-    ("albedo, scale-inv. MSE", "albedo_si_mse", "trivial_albedo_si_mse", None, ""),
-    ("  its coarse part", "albedo_coarse_si_mse", "trivial_albedo_coarse_si_mse", None, ""),  # 2-px blur of the error
-    ("  its detail", "albedo_fine_si_mse", "trivial_albedo_fine_si_mse", None, ""),  # what the blur leaves
-    ("albedo, detailed (I / S)", "albedo_detailed_si_mse", "trivial_albedo_si_mse", None, ""),  # Sec. 5.3
-    ("albedo, one scale", "albedo_global_si_mse", "trivial_albedo_global_si_mse", None, ""),
-    ("albedo, with hair+neck", "albedo_face_si_mse", "trivial_albedo_face_si_mse", None, ""),
-    ("albedo, one scale for RGB", "albedo_colour_si_mse", "trivial_albedo_colour_si_mse", None, ""),  # skin colour
-    ("shading, scale-inv. MSE", "shading_si_mse", "trivial_shading_si_mse", None, ""),
-    ("  one scale for RGB", "shading_colour_si_mse", "trivial_shading_colour_si_mse", None, ""),  # light's colour
-    ("light, SH error", "sh_error", "trivial_sh_error", "pseudo_sh_error", ""),
-    ("  shown by the face", "sh_error_shown", "trivial_sh_error_shown", "pseudo_sh_error_shown", ""),  # scale from
-    ("  hidden from it", "sh_error_hidden", "trivial_sh_error_hidden", "pseudo_sh_error_hidden", ""),  # shading
-    ("  completed by the mean", "sh_error_completed", "trivial_sh_error", "pseudo_sh_error_completed", ""),
-    ("light, on the face", "light_shading_si_mse", "trivial_light_shading_si_mse", "pseudo_light_shading_si_mse", ""),
-    ("matte, IoU with the face", "matte_iou", "trivial_matte_iou", "pseudo_matte_iou", ""),  # Sec. 3.3
-)
-HIGHER_BETTER = {"matte_iou"}
-
-
-def learned_layers(m: dict) -> dict:
-    """``{network key: True/False}``: whether each layer beats its trivial (dataset-mean) baseline."""
-    beats = lambda net, triv: m[net] > m[triv] if net in HIGHER_BETTER else m[net] < m[triv]
-    return {net: beats(net, triv) for _, net, triv, _, _ in LAYERS if net in m and triv in m}
-
-
-def print_eval(m: dict, run_dir) -> None:
-    print(f"\ntest metrics ({m['n_eval']} images) -> {Path(run_dir) / 'eval.json'}")
-    print(
-        f"  reconstruction  mse {m['recon_mse']:.5f}  psnr {m['recon_psnr']:.2f} dB  ssim {m['recon_ssim']:.3f}"
-        + (f"   face psnr {m['recon_face_psnr']:.2f} dB" if "recon_face_psnr" in m else "")
-    )
-    learned = learned_layers(m)
-    if any(net in m for _, net, _, _, _ in LAYERS):
-        print(
-            "  intrinsic layers on the face inside the pseudo mask (the model's own foreground; the last albedo line:"
-            " the whole face, whose hair and neck the model leaves to its background layer)"
-        )
-    for label, net, triv, pseudo, unit in LAYERS:
-        if net in m:
-            line = f"  {label:<24} network {m[net]:.4g}{unit}"
-            line += f"   trivial {m[triv]:.4g}{unit}" if triv in m else ""
-            line += f"   pseudo-GT {m[pseudo]:.4g}{unit}" if pseudo and pseudo in m else ""
-            if net == "sh_error" and "trivial_lhat_sh_error" in m:
-                line += f"   mean L-hat {m['trivial_lhat_sh_error']:.4g}"
-            if f"target_{net}" in m:  # the light E_recon-L taught it, where that is not L-hat (target_light_of)
-                line += f"   its target {m[f'target_{net}']:.4g}"
-            if net in learned:
-                line += "   learned" if learned[net] else "   NOT learned (no better than the dataset mean)"
-            if f"template_{net}" in m:  # the mean texture placed by the true uv: the face's placement, no identity
-                template = m[f"template_{net}"]
-                line += f"; placed mean texture {template:.4g}" + ("" if m[net] < template else " (NOT beaten)")
-            print(line)
-    if "normal_spread" in m:
-        from disent.eval.metrics import frame_map, normals_failure
-
-        failure = {
-            "flat": "   FLAT: the normals collapsed",
-            "frame": "   FRAME: the shape learned in a rotated or mirrored frame",
-            "astray": "   ASTRAY: farther than the dataset mean",
-        }.get(normals_failure(m), "")
-        print(
-            f"  normals' spread about each face's mean  network {m['normal_spread']:.1f}deg   "
-            f"truth {m['true_normal_spread']:.1f}deg{failure}"
-        )
-        if "normal_aligned_mean" in m:
-            print(
-                f"  normals after the best rotation or mirror of the frame  {m['normal_aligned_mean']:.2f}deg   "
-                f"({frame_map(m)})"
-            )
-    if "sh_error_coefficients" in m and "trivial_sh_error_coefficients" in m:
-        names = ("DC", "y", "z", "x", "xy", "yz", "3z2-1", "xz", "x2-y2")
-        print("  light error by SH coefficient " + " ".join(f"{n:>6}" for n in names))
-        for who, key in (("network", "sh_error_coefficients"), ("dataset mean", "trivial_sh_error_coefficients")):
-            print(f"  {who:>30} " + " ".join(f"{v:6.3f}" for v in m[key]))

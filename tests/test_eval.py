@@ -10,8 +10,9 @@ from torch.utils.data import default_collate
 
 from disent.eval import protocols
 from disent.eval import stability as st
-from disent.eval.evaluate import ceiling_share, evaluate_model, metrics_from_outputs
+from disent.eval.evaluate import evaluate_model
 from disent.eval.protocols import sh_variance, sh_variance_protocol
+from disent.eval.scoring import ceiling_share, metrics_from_outputs
 from disent.regions import decomposed_region, face_mask
 
 
@@ -217,7 +218,7 @@ def test_the_taught_light_is_scored_as_the_networks_own():
 
 
 def test_normal_error_binned_by_the_pseudo_gts_own_error():
-    from disent.eval.evaluate import PSEUDO_ERROR_BINS, normal_metrics
+    from disent.eval.scoring import PSEUDO_ERROR_BINS, normal_metrics
 
     g = torch.Generator().manual_seed(0)
     true = torch.nn.functional.normalize(
@@ -288,7 +289,7 @@ def test_detailed_albedo_with_one_shading_input_made_true_says_which_holds_it_ba
 def test_intrinsic_layers_are_scored_where_the_model_renders_the_face():
     """albedo, shading and normals count on the true face inside the pseudo mask; hair and neck (outside
     M-hat, the model's background layer) only in ``albedo_face_si_mse``."""
-    from disent.eval.evaluate import metrics_from_outputs
+    from disent.eval.scoring import metrics_from_outputs
     from disent.regions import decomposed_region
 
     ds = FakeFaces("test", size=4)
@@ -640,7 +641,7 @@ def test_region_depth_counts_rings_from_the_edge_of_a_square():
 def test_matte_edge_metrics_say_where_the_matte_is_soft_and_compare_it_with_m_hat():
     """A matte equal to M-hat has M-hat's mean on the edge band; a matte soft only on the region's outer ring is
     soft on the whole edge band's first ring and nowhere inside."""
-    from disent.eval.evaluate import matte_edge_metrics
+    from disent.eval.scoring import matte_edge_metrics
 
     face = torch.zeros(2, 1, 16, 16)
     face[..., 3:13, 3:13] = 1

@@ -679,7 +679,7 @@ def test_folder_config_lists_every_setting():
 
 
 def test_anatomy_reads_what_the_colour_match_closes():
-    from disent.eval.photos import anatomy_table
+    from disent.report.tools import anatomy_table
 
     def m(deg):
         return {"normal_vs_pseudo_deg": deg, "trivial_normal_vs_pseudo_deg": 16.7}
@@ -709,7 +709,7 @@ def test_anatomy_reads_what_the_colour_match_closes():
 
 def test_gap_table_marks_results_read_from_srgb_codes():
     """A domain-gap result written before the photos were decoded says so in its domain cell; today's does not."""
-    from disent.eval.photos import gap_table
+    from disent.report.tools import gap_table
 
     m = {"n": 4, "recon_psnr": 22.0, "normal_vs_pseudo_deg": 15.0, "trivial_normal_vs_pseudo_deg": 16.7}
     old = {"model": "explicit", "tag": "old", "training": {"steps": 10}, "photos": m, "synthfaces_test": m}

@@ -324,8 +324,8 @@ def test_completed_light_metrics_read_each_estimator_on_its_own_normals():
     """The network's light is completed along what its own normals hide, L-hat's along what the pseudo normals
     hide: a network light right where its normals show and wild where they hide scores ~0 once completed by the
     true light, against a raw error above 0.5; L-hat's entry is left out where the data carry no pseudo-GT."""
-    from disent.eval.evaluate import completed_light_metrics
     from disent.eval.metrics import hidden_directions, sh_gram
+    from disent.eval.scoring import completed_light_metrics
 
     normal, mask = frontal_normals(B=2)
     vectors, hidden = hidden_directions(sh_gram(normal, mask))

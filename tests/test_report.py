@@ -13,8 +13,9 @@ import yaml
 from disent import report
 from disent.eval.ablation import ablation_table, to_markdown
 from disent.eval.stability import training_stability
+from disent.publish import write_records
 from disent.report import ablations, benchmarks, claims, document, lighting, tables, tools, training
-from disent.runs import Run, composed_config, find_runs, group_by_setting, measured_setting, pick_runs, write_records
+from disent.runs import Run, composed_config, find_runs, group_by_setting, measured_setting, pick_runs
 
 
 def make_run(
@@ -704,7 +705,7 @@ def test_lhat_sources_table_reads_which_input_costs_l_hat_most(tmp_path):
 def test_beyond_the_fit_reads_each_bin_against_the_seed_spread():
     from types import SimpleNamespace
 
-    from disent.eval.evaluate import PSEUDO_ERROR_BINS
+    from disent.eval.scoring import PSEUDO_ERROR_BINS
 
     bins = [f"{lo}_{hi}" for lo, hi in zip(PSEUDO_ERROR_BINS, PSEUDO_ERROR_BINS[1:])]
 

@@ -8,20 +8,8 @@ from pathlib import Path
 import pytest
 
 from disent import report
-from disent.runs import (
-    CURVE_EVERY,
-    RECORDS,
-    Run,
-    find_runs,
-    portable,
-    portable_runs,
-    run_id,
-    run_ref,
-    run_speed,
-    setting,
-    thinned_curve,
-    write_records,
-)
+from disent.publish import CURVE_EVERY, portable_runs, thinned_curve, write_records
+from disent.runs import RECORDS, Run, find_runs, portable, run_id, run_ref, run_speed, setting
 from tests.test_report import fake_suite, make_run
 
 
@@ -163,7 +151,7 @@ def test_published_pictures_are_narrow_palette_pngs_close_to_the_original(tmp_pa
     import numpy as np
     from PIL import Image
 
-    from disent.runs import PUBLISHED_WIDTH, compact_png
+    from disent.publish import PUBLISHED_WIDTH, compact_png
 
     rng = np.random.default_rng(0)
     smooth = np.linspace(0, 255, 1800)[None, :, None] * np.ones((600, 1, 3))

@@ -189,7 +189,8 @@ def test_tool_folders_publish_their_results_and_nothing_else(tmp_path, monkeypat
     sections instead of replacing the file."""
     import json
 
-    from disent.runs import publish, tool_folder
+    from disent.publish import publish
+    from disent.storage import tool_folder
 
     monkeypatch.chdir(tmp_path)
     edit = tool_folder("edit")

@@ -7,16 +7,8 @@ import pytest
 import torch
 
 from disent.models import build_model, load_run
-from disent.models.shipped import (
-    CHECK_IMAGES,
-    WEIGHTS,
-    add_metrics,
-    check_metrics,
-    load_weights,
-    manifest,
-    ship,
-    shipped_names,
-)
+from disent.models.shipped import CHECK_IMAGES, WEIGHTS, load_weights, manifest, shipped_names
+from disent.ship import add_metrics, check_metrics, ship
 
 # The recorded check ran on one CPU; another CPU or thread count changes float rounding, never more than this.
 TOLERANCE = {"recon_psnr": 0.02, "normal_mean": 0.02, "albedo_si_mse": 1e-4, "sh_error": 1e-3}
@@ -59,7 +51,7 @@ def test_ship_writes_half_weights_and_manifest(tmp_path):
     """ship() on a finished smoke run: float16 tensors, a manifest entry whose check equals a fresh evaluation."""
     from hydra import compose, initialize_config_dir
 
-    from disent.models.shipped import main as _  # noqa: F401  (the command exists)
+    from disent.ship import main as _  # noqa: F401  (the command exists)
     from disent.train import run
     from tests.test_models import CONF
 

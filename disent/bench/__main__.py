@@ -12,8 +12,8 @@ import torch
 
 import disent.bench as bench
 from disent.bench import bench_json, data, lighting, measure_peak_gflops, median_time, models, print_table, save
-from disent.runs import tool_folder
 from disent.runtime import tune_malloc  # the same setting as training (train.malloc_tuning)
+from disent.storage import tool_folder
 
 
 def bench_render(args) -> dict:

@@ -32,7 +32,7 @@ import torch
 
 from disent.edit.traversal import ATTRIBUTES
 from disent.images import over_max, save_image, strip
-from disent.runs import tool_folder
+from disent.storage import tool_folder
 
 
 # ----------------------------------------------------------------------------- images
@@ -254,7 +254,7 @@ def main(argv=None) -> None:
         action="store_true",
         help="give each photo's face (its pseudo-GT mask) the colour statistics of SynthFaces' training faces "
         "before the model reads it (needs dlib); outputs keep the matched colours. Its effect on the bundled photos: "
-        "reports/photos/domain_gap.md",
+        "reports/appendix/photos.md",
     )
     run_help = "run folder, checkpoint, or a shipped model: explicit, implicit, baseline (disent/weights/)"
 

@@ -572,7 +572,8 @@ def run_measurements(a) -> None:
     of one setting side by side."""
     from disent.data import LIGHT_BANK, SynthFaces
     from disent.models import load_run
-    from disent.runs import Run, setting, tool_folder
+    from disent.runs import Run, setting
+    from disent.storage import tool_folder
 
     folder = tool_folder("edit", a.out)
     figures = not getattr(a, "no_figures", False)  # --no-figures: tables and JSON only

@@ -172,7 +172,7 @@ def main(argv=None):
     p.add_argument("roots", nargs="*", default=list(RUN_ROOTS))
     p.add_argument("--out", default=None, help="output folder (default: outputs/eval/<date>/<time>-<pid>/)")
     a = p.parse_args(argv)
-    from disent.runs import tool_folder
+    from disent.storage import tool_folder
 
     table = ablation_table(find_runs(a.roots))
     md = to_markdown(table)

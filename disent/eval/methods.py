@@ -31,7 +31,7 @@ import time
 import numpy as np
 import torch
 
-from disent.eval.evaluate import metrics_from_outputs, predict
+from disent.eval.scoring import metrics_from_outputs, predict
 from disent.images import to_uint8
 from disent.storage import cpu_name
 
@@ -200,8 +200,8 @@ def plot(res: dict, path) -> None:
 
 
 def main(argv=None) -> None:
-    from disent.runs import tool_folder
     from disent.runtime import single_core
+    from disent.storage import tool_folder
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--n", type=int, default=64, help="test images")

@@ -42,8 +42,8 @@ from pathlib import Path
 
 import torch
 
-from disent.eval.evaluate import batches, predict
 from disent.eval.metrics import scale_in_shading, sh_error, sh_error_split, sh_gram, shown_hidden_energy
+from disent.eval.scoring import batches, predict
 from disent.regions import face_mask
 from disent.render import SH_NAMES, fit_sh
 
@@ -269,8 +269,8 @@ def keep_rows(new: dict, old: dict, loaded: dict | None = None) -> dict:
 
 def main(argv=None):
     from disent.data import SynthFaces
-    from disent.runs import RECORDS, RUN_ROOTS, find_runs, load_models, tool_folder
-    from disent.storage import head_revision
+    from disent.runs import RECORDS, RUN_ROOTS, find_runs, load_models
+    from disent.storage import head_revision, tool_folder
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", default=None, help="output folder (default: outputs/eval/<date>/<time>-<pid>/)")

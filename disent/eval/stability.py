@@ -32,8 +32,8 @@ from pathlib import Path
 import torch
 
 from disent.data import get_batch
-from disent.eval.evaluate import batches, bws_stats, metrics_from_outputs, predict
 from disent.eval.metrics import sh_error
+from disent.eval.scoring import batches, bws_stats, metrics_from_outputs, predict
 from disent.regions import face_mask
 from disent.render import design_condition, fit_sh, rotate_sh
 
@@ -584,7 +584,8 @@ def plot_training(res: dict, path) -> None:
 
 # ----------------------------------------------------------------------------- command
 def main(argv=None):
-    from disent.runs import RUN_ROOTS, find_runs, load_models, tool_folder
+    from disent.runs import RUN_ROOTS, find_runs, load_models
+    from disent.storage import tool_folder
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("studies", nargs="*", default=["conditioning", "ood", "bws", "training"])

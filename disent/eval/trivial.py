@@ -30,8 +30,8 @@ from __future__ import annotations
 
 import torch
 
-from disent.eval.evaluate import metrics_from_outputs
 from disent.eval.metrics import scale_invariant_mse, sh_error
+from disent.eval.scoring import metrics_from_outputs
 from disent.regions import decomposed_region, face_mask
 from disent.render import sh_shading
 
@@ -71,7 +71,7 @@ def dataset_means(dataset, n: int = N_IMAGES, batch_size: int = 256) -> dict:
     ``n`` items of ``dataset`` (which must carry ``normal``, ``albedo``, ``sh`` and ``matte``); ``sh_pseudo``, the
     template's ``albedo_uv [3,R,R]``, the face region's mean ``mask_face [1,H,W]`` and the mean UV map ``uv [2,H,W]``
     (over face pixels, like the albedo) where the items carry them."""
-    from disent.eval.evaluate import batches
+    from disent.eval.scoring import batches
 
     optional = ("sh_pseudo", "albedo_uv", "mask_face")
     sums = {"normal": 0.0, "albedo": 0.0, "uv": 0.0, "weight": 0.0, "sh": 0.0, **{k: 0.0 for k in optional}}

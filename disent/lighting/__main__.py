@@ -25,8 +25,8 @@ from disent.lighting.experiments import (
 )
 from disent.lighting.order import select_order
 from disent.lighting.posterior import prepare, sample_posterior
-from disent.runs import tool_folder
 from disent.runtime import single_core
+from disent.storage import tool_folder
 
 log = logging.getLogger(__name__)
 TASKS = ("posterior", "report", "order", "lhat")

@@ -463,8 +463,8 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
     right on average about its target) and ``sharpened_albedo`` (:func:`sharpened_albedo` of its own shading).
     ``floor``: the constant mean train light."""
     from disent.data import get_batch
-    from disent.eval.evaluate import face_colour, skin_in_shading
     from disent.eval.metrics import light_shading_si_mse, sh_error_shown_hidden, shading_contrast
+    from disent.eval.scoring import face_colour, skin_in_shading
     from disent.eval.trivial import dataset_means, template_albedo
     from disent.losses import oracle_mixed, rescaled
     from disent.regions import decomposed_region

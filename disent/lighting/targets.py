@@ -6,33 +6,15 @@ score the same fits."""
 
 from __future__ import annotations
 
-import functools
-
 import torch
 
 from disent.config import NETWORK_TARGETS, loss_setting
+from disent.lighting.texture import network_maps, trained_network  # noqa: F401  (network_maps: the studies read it here)
 from disent.losses import target_light
 
 # pixels taken off the pseudo mask's edge: the coarse fit's silhouette is where its geometry is least right (grazing
 # normals) and where it leaks onto hair or background (up to ~30 pixels of a val face lie outside its matte)
 EDGE = 1
-
-
-@functools.lru_cache(maxsize=2)
-def trained_network(name: str):
-    """A trained model in eval mode, loaded once: a shipped name, a run folder or a checkpoint."""
-    from disent.models import load_run
-
-    return load_run(name)[0].eval()
-
-
-def network_maps(name: str, image: torch.Tensor) -> dict:
-    """The maps shipped model ``name`` draws from ``image [3,H,W]``: ``normal_net``, ``matte_net`` and, from a
-    model with a uv layer (implicit), ``uv_net``."""
-    with torch.no_grad():
-        out = trained_network(name)(image.float().clamp(0, 1)[None])
-    maps = {"normal_net": out["normal"][0].double(), "matte_net": out["matte"][0]}
-    return maps | ({"uv_net": out["uv"][0]} if "uv" in out else {})
 
 
 def eroded(mask, pixels: int) -> torch.Tensor:

@@ -213,14 +213,12 @@ def registration_prior(
     """Mean and std ``[3, 2]`` of ``W - I`` over SynthFaces train scenes, where ``W`` is the least-squares affine
     map of each scene's pseudo uv onto its true uv (over the pixels in both the matte and the pseudo mask): the
     prior of :func:`register`. With ``network`` (a shipped model with a uv layer), the same of that model's uv and
-    matte of each scene's image (:func:`disent.lighting.experiments.network_maps`) in place of the pseudo ones."""
+    matte of each scene's image (:func:`network_maps`) in place of the pseudo ones."""
     from disent.data import SynthFaces
 
     batch = SynthFaces("train", resolution, seed).get_batch(range(n_images))
     estimates, masks = batch["uv_pseudo"], batch["mask_pseudo"]  # the uv to correct, and the pixels it covers
     if network:
-        from disent.lighting.targets import network_maps
-
         maps = [network_maps(network, image) for image in batch["image"]]
         estimates, masks = (torch.stack([m[k] for m in maps]) for k in ("uv_net", "matte_net"))
     Ws = []
@@ -302,4 +300,30 @@ def _registration_residual(data, uv, model, gradients, x, delta, order):
     return r, X - np.linalg.lstsq(A.T, X.T, rcond=None)[0].T @ A
 
 
-__all__ = ["TextureModel", "texture_model", "texture_for", "register", "registration_prior", "affine"]
+@lru_cache(maxsize=2)
+def trained_network(name: str):
+    """A trained model in eval mode, loaded once: a shipped name, a run folder or a checkpoint."""
+    from disent.models import load_run
+
+    return load_run(name)[0].eval()
+
+
+def network_maps(name: str, image: torch.Tensor) -> dict:
+    """The maps shipped model ``name`` draws from ``image [3,H,W]``: ``normal_net``, ``matte_net`` and, from a
+    model with a uv layer (implicit), ``uv_net``."""
+    with torch.no_grad():
+        out = trained_network(name)(image.float().clamp(0, 1)[None])
+    maps = {"normal_net": out["normal"][0].double(), "matte_net": out["matte"][0]}
+    return maps | ({"uv_net": out["uv"][0]} if "uv" in out else {})
+
+
+__all__ = [
+    "TextureModel",
+    "texture_model",
+    "texture_for",
+    "register",
+    "registration_prior",
+    "affine",
+    "trained_network",
+    "network_maps",
+]

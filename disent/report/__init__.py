@@ -31,6 +31,7 @@ from pathlib import Path
 
 import torch
 
+from disent.publish import publish, write_records
 from disent.report import front
 from disent.report.ablations import sec_ablation
 from disent.report.benchmarks import sec_bench
@@ -47,8 +48,8 @@ from disent.report.training import (
     sec_teaser,
     sec_uv_by_seed,
 )
-from disent.runs import RECORDS, RUN_ROOTS, find_runs, publish, tool_folder, write_records
-from disent.storage import head_revision
+from disent.runs import RECORDS, RUN_ROOTS, find_runs
+from disent.storage import head_revision, tool_folder
 
 PAGES = {  # appendix page: (title, what it holds, [(section title, builder, its inputs)]), in the contents' order
     "claims": (

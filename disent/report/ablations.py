@@ -344,7 +344,7 @@ SKIN_METRICS = (  # (key, label, its floor's key or None): where each face's ski
 def claim_skin(rep: Report, runs: list[Run]) -> None:
     """Where each face's skin went: BWS fixes the batch's mean shading colour, so a model can still put each face's
     skin tone and brightness in its shading (the degenerate split per face); one row per setting and model."""
-    from disent.eval.evaluate import ALBEDO_CEILING
+    from disent.eval.scoring import ALBEDO_CEILING
 
     done = [r for r in runs if r.status == "ok" and r.eval and r.model in ("explicit", "implicit") and not r.ceiling]
     groups = by_setting_and_model(
@@ -416,7 +416,7 @@ def plot_skin_albedos(rep: Report, groups: dict) -> None:
     the true albedo, each where its matte is above 0.5: how BWS and its c set the albedo's brightness and where it
     is pinned at 1.  Drawn where two settings or more have a model; else the committed figure is shown as an
     earlier build's."""
-    from disent.eval.evaluate import predict
+    from disent.eval.scoring import predict
     from disent.models.shipped import manifest
 
     shipped_run = str(manifest().get("explicit", {}).get("run", ""))

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from disent.edit.measure import DRAWN_READINGS, OFF_TARGET_READINGS
 from disent.eval import ablation as _ablation
-from disent.eval.evaluate import MATTE_EDGE
+from disent.eval.scoring import MATTE_EDGE
 from disent.eval.trivial import TEMPLATE_KEYS
 from disent.regions import FACE_THRESHOLD
 from disent.report.ablations import (
@@ -29,6 +29,7 @@ from disent.report.tables import (
     on_the_ladder,
     seed_spread,
     seeds_cell,
+    shipped_run,
     spread_text,
     table_head,
     verdict,
@@ -611,17 +612,6 @@ ALBEDO_AGAINST = (
 MODEL_MARKERS = {"explicit": None, "implicit": "none"}  # light_pattern_section's models: filled, hollow markers
 
 
-def shipped_run(name: str) -> Run:
-    """The shipped weights ``name`` as a run (their manifest's config; the folder they trained in): at the long
-    rung where they ran its steps."""
-    from disent.models.shipped import manifest
-
-    entry = manifest()[name]
-    long_steps = composed_config(("+experiment=long",))["train"]["max_steps"]
-    rung = ["+experiment=long"] if entry["cfg"].get("train", {}).get("max_steps") == long_steps else []
-    return Run(path=Path(entry.get("run") or name), cfg=entry["cfg"], overrides=rung)
-
-
 def shipped_setting(name: str, full: bool = False) -> str:
     """The setting the shipped weights ``name`` trained at: in :func:`target_source`'s terms (the long rung where
     they ran its steps, E_recon-L's target and oracle dose where not L-hat's; a config older than those options
@@ -900,7 +890,7 @@ def beyond_the_fit(groups: dict) -> list[str]:
     """Claim 1 pixel by pixel: the network's and the pseudo-GT's normal error where the pseudo-GT errs by each
     range of :data:`disent.eval.evaluate.PSEUDO_ERROR_BINS` (``groups``: ``{(setting, model): runs}``; runs
     scored before the bins were kept show none)."""
-    from disent.eval.evaluate import PSEUDO_ERROR_BINS
+    from disent.eval.scoring import PSEUDO_ERROR_BINS
 
     bins = [f"{lo}_{hi}" for lo, hi in zip(PSEUDO_ERROR_BINS, PSEUDO_ERROR_BINS[1:])]
     rows, readings = [], []

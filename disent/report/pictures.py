@@ -31,7 +31,7 @@ def image_grid(rows: list[tuple[str, torch.Tensor]], path: Path, title: str) -> 
 
 def test_batch(n: int, resolution: int = 64):
     from disent.data import SynthFaces
-    from disent.eval.evaluate import batches
+    from disent.eval.scoring import batches
 
     return next(iter(batches(SynthFaces(split="test", resolution=resolution, seed=0), n, n)))
 

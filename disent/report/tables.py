@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from disent.eval import ablation as _ablation
-from disent.runs import Run, defining_overrides, setting
+from disent.runs import Run, composed_config, defining_overrides, setting
 from disent.storage import machine_text
 
 MODELS = ("baseline", "explicit", "implicit")
@@ -149,3 +151,14 @@ def verdict_word(text: str) -> str:
 def short_verdict(text: str) -> str:
     """A verdict cell for the glance: *not resolved* without its standing reason (the tables say it)."""
     return "not resolved" if text.startswith("not resolved (") else text
+
+
+def shipped_run(name: str) -> Run:
+    """The shipped weights ``name`` as a run (their manifest's config; the folder they trained in): at the long
+    rung where they ran its steps."""
+    from disent.models.shipped import manifest
+
+    entry = manifest()[name]
+    long_steps = composed_config(("+experiment=long",))["train"]["max_steps"]
+    rung = ["+experiment=long"] if entry["cfg"].get("train", {}).get("max_steps") == long_steps else []
+    return Run(path=Path(entry.get("run") or name), cfg=entry["cfg"], overrides=rung)

@@ -21,6 +21,7 @@ from disent.report.tables import (
     ladder_runs,
     on_the_ladder,
     seed_spread,
+    shipped_run,
     spread_text,
     table_head,
 )
@@ -268,11 +269,10 @@ def trained_as(source: Run | str) -> tuple[str, str]:
         what = f"`{setting(source, drop_model=True)}`, seed {source.seed}, {source.value('steps') or 0:,.0f} steps"
         return what, f"run {source.name}"
     from disent.models.shipped import manifest
-    from disent.report.claims import shipped_setting
 
     entry = manifest()[source]
     seed, steps = entry["cfg"].get("seed"), entry["steps"]
-    what = f"shipped weights, `{shipped_setting(source, full=True)}`, seed {seed}, {steps:,} steps"
+    what = f"shipped weights, `{setting(shipped_run(source), drop_model=True)}`, seed {seed}, {steps:,} steps"
     return what, f"`disent/weights/{entry['file']}`, trained as run {portable(str(entry['run']))}"
 
 
@@ -311,7 +311,7 @@ def sec_teaser(rep: Report, runs: list[Run], n_vis: int) -> None:
                 shutil.copyfile(pngs[-1], dst)
                 rep.image(dst, f"samples of {name}")
         return
-    from disent.eval.evaluate import predict
+    from disent.eval.scoring import predict
 
     outs = {name: predict(model, batch["image"]) for name, model in models.items()}
 

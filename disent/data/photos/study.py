@@ -20,7 +20,7 @@ import numpy as np
 
 from disent.data.photos import pseudo_gt as pg
 from disent.images import to_uint8
-from disent.runs import tool_folder
+from disent.storage import tool_folder
 
 N_LFW_FACES = 100  # lfw_subset: images 0-99 are faces, 100-199 are not
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import torch
 
 from disent.images import display, strip
-from disent.runs import tool_folder
+from disent.storage import tool_folder
 
 from . import LIGHT_NAMES, SynthFaces
 from .scenes import ATTRIBUTES, EFFECTS
