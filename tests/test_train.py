@@ -14,8 +14,11 @@ import torch
 from hydra import compose, initialize_config_dir
 from hydra.errors import ConfigCompositionException, MissingConfigException
 
+from disent import config as C
 from disent import losses as L
 from disent import train as T
+from disent.eval import evaluate as EV
+from disent.lighting import targets as TG
 from disent.models import load_run
 from disent.runtime import Prefetcher
 from disent.storage import load_checkpoint
@@ -74,8 +77,8 @@ def test_stop_step_replays_a_cut_run_on_the_full_schedule(tmp_path):
     assert ev["stopped_by"] == "stop_step" and ev["steps"] == 2
     machine = json.loads((tmp_path / "full" / "machine.json").read_text())  # what the run trained on
     assert machine["device"] == "cpu" and machine["cpus"] >= 1 and machine["torch"] == torch.__version__
-    with pytest.raises(T.ConfigError, match="stop_step"):
-        T.check_config(cfg_of(*common, "train.stop_step=0"))
+    with pytest.raises(C.ConfigError, match="stop_step"):
+        C.check_config(cfg_of(*common, "train.stop_step=0"))
 
 
 def test_warm_start_loads_the_weights_and_refuses_another_model(tmp_path):
@@ -90,9 +93,9 @@ def test_warm_start_loads_the_weights_and_refuses_another_model(tmp_path):
     model = T.build_model(shipped.model)
     T.warm_start(model, shipped)
     assert next(model.parameters()).dtype == torch.float32
-    with pytest.raises(T.ConfigError, match="model.name 'implicit' there, 'explicit' here"):
+    with pytest.raises(C.ConfigError, match="model.name 'implicit' there, 'explicit' here"):
         T.warm_start(T.build_model(cfg_of(*TINY).model), cfg_of(*TINY, f"init={tmp_path / 'source'}"))
-    with pytest.raises(T.ConfigError, match="model.norm 'batch' there, 'group' here"):
+    with pytest.raises(C.ConfigError, match="model.norm 'batch' there, 'group' here"):
         T.warm_start(model, cfg_of(*TINY, "model=implicit", "model.norm=group", f"init={tmp_path / 'source'}"))
 
 
@@ -233,11 +236,11 @@ def test_fitted_lhat_targets_are_fitted_once_per_training_image(tmp_path, monkey
     b = {
         k: torch.rand(4, c, 8, 8) for k, c in (("image", 3), ("normal_pseudo", 3), ("mask_pseudo", 1), ("uv_pseudo", 2))
     }
-    first = T.with_fitted_lhat(b, torch.tensor([5, 1, 7, 2]), cache, "sh_texture", fake)
+    first = TG.with_fitted_lhat(b, torch.tensor([5, 1, 7, 2]), cache, "sh_texture", fake)
     torch.testing.assert_close(first["sh_texture"][:, :, 0], b["image"].mean((2, 3)))
-    again = T.with_fitted_lhat({**b, "image": b["image"].flip(0)}, [2, 7, 1, 5], cache, "sh_texture", fake)  # cached
+    again = TG.with_fitted_lhat({**b, "image": b["image"].flip(0)}, [2, 7, 1, 5], cache, "sh_texture", fake)  # cached
     assert fitted == [4] and torch.equal(again["sh_texture"], first["sh_texture"].flip(0))
-    T.with_fitted_lhat(b, [5, 3, 0, 1], cache, "sh_texture", fake)
+    TG.with_fitted_lhat(b, [5, 3, 0, 1], cache, "sh_texture", fake)
     assert fitted == [4, 2] and sorted(cache) == [0, 1, 2, 3, 5, 7]
     fitted.clear()
     rescaled, real = [], L.rescaled  # loss.recon_L_scale=sh_pseudo: each step's target is taken to L-hat's scale
@@ -274,12 +277,12 @@ def test_the_evaluation_scores_the_target_a_setting_teaches():
     truth, as E_recon-L sees it before BWS's scale; a fitted target is drawn through its fit."""
     from disent.data import SynthFaces, get_batch
 
-    assert T.target_light_of(cfg_of().loss) is None
+    assert TG.target_light_of(cfg_of().loss) is None
     b = get_batch(SynthFaces("test", size=3), range(3))
-    dose = T.target_light_of(cfg_of("loss.recon_L_oracle_mix=0.5").loss)(b)
+    dose = TG.target_light_of(cfg_of("loss.recon_L_oracle_mix=0.5").loss)(b)
     torch.testing.assert_close(dose, L.oracle_mixed(b["sh_pseudo"], b["sh"], b["normal_pseudo"], b["mask_pseudo"], 0.5))
     assert not torch.allclose(dose, b["sh_pseudo"])
-    texture = T.target_light_of(cfg_of("loss.recon_L_target=sh_texture").loss)(b)
+    texture = TG.target_light_of(cfg_of("loss.recon_L_target=sh_texture").loss)(b)
     torch.testing.assert_close(texture, __import__("disent.lighting.targets").lighting.targets.texture_lhat(b))
 
 
@@ -293,10 +296,10 @@ def test_network_target_is_the_named_networks_own_light():
     with torch.no_grad():
         own = trained_network("explicit")(b["image"].clamp(0, 1))["sh"]
     torch.testing.assert_close(network_lhat(b, "explicit"), own)
-    assert T.target_fit({"recon_L_target": "sh_pseudo"}) is None and T.target_fit({}) is None
-    for target in T.NETWORK_TARGETS:
-        with pytest.raises(T.ConfigError, match="loss.recon_L_network='nowhere/run'"):
-            T.check_config(cfg_of(*TINY, f"loss.recon_L_target={target}", "loss.recon_L_network=nowhere/run"))
+    assert TG.target_fit({"recon_L_target": "sh_pseudo"}) is None and TG.target_fit({}) is None
+    for target in C.NETWORK_TARGETS:
+        with pytest.raises(C.ConfigError, match="loss.recon_L_network='nowhere/run'"):
+            C.check_config(cfg_of(*TINY, f"loss.recon_L_target={target}", "loss.recon_L_network=nowhere/run"))
 
 
 def test_network_texture_target_averages_the_networks_light_with_its_texture_refit():
@@ -324,7 +327,7 @@ def test_the_refit_share_has_one_default():
     the share of runs from before the key (ADDED_LATER) are one number."""
     from disent.lighting.experiments import NETWORK_TEXTURE_SHARE
 
-    assert cfg_of().loss.recon_L_network_share == NETWORK_TEXTURE_SHARE == T.ADDED_LATER["loss.recon_L_network_share"]
+    assert cfg_of().loss.recon_L_network_share == NETWORK_TEXTURE_SHARE == C.ADDED_LATER["loss.recon_L_network_share"]
 
 
 def scalars(folder) -> dict:
@@ -587,9 +590,9 @@ def test_learned_layers_reads_the_matte_higher_is_better(capsys):
     which, on the matte's line too."""
     m = {"matte_iou": 0.9, "trivial_matte_iou": 0.7, "pseudo_matte_iou": 0.86, "normal_mean": 20.0}
     m["trivial_normal_mean"] = 17.0
-    assert T.learned_layers(m) == {"matte_iou": True, "normal_mean": False}
-    assert T.learned_layers({**m, "matte_iou": 0.6}) == {"matte_iou": False, "normal_mean": False}
-    T.print_eval({**m, "n_eval": 4, "recon_mse": 0.01, "recon_psnr": 20.0, "recon_ssim": 0.5}, "run")
+    assert EV.learned_layers(m) == {"matte_iou": True, "normal_mean": False}
+    assert EV.learned_layers({**m, "matte_iou": 0.6}) == {"matte_iou": False, "normal_mean": False}
+    EV.print_eval({**m, "n_eval": 4, "recon_mse": 0.01, "recon_psnr": 20.0, "recon_ssim": 0.5}, "run")
     matte = next(line for line in capsys.readouterr().out.splitlines() if "matte" in line)
     assert "0.9" in matte and "0.7" in matte and "pseudo-GT 0.86" in matte and matte.endswith("learned")
 
@@ -600,9 +603,9 @@ def test_print_eval_names_how_the_normals_failed(capsys):
     m = {"n_eval": 4, "recon_mse": 0.01, "recon_psnr": 20.0, "recon_ssim": 0.5, "trivial_normal_mean": 17.0}
     m |= {"normal_mean": 64.0, "normal_spread": 31.6, "true_normal_spread": 39.1}
     m |= {"normal_aligned_mean": 11.0, "normal_aligned_angle": 58.2, "normal_aligned_det": 1.0}
-    T.print_eval(m, "run")
+    EV.print_eval(m, "run")
     out = capsys.readouterr().out
     assert "FRAME" in out and "11.00deg   (a rotation by 58 deg)" in out
-    T.print_eval({**m, "normal_mean": 9.6, "normal_aligned_mean": 9.5}, "run")
+    EV.print_eval({**m, "normal_mean": 9.6, "normal_aligned_mean": 9.5}, "run")
     out = capsys.readouterr().out
     assert not any(word in out for word in ("FRAME", "FLAT", "ASTRAY")) and "(a rotation by 58 deg)" in out
