@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
@@ -34,6 +35,7 @@ from disent.config import (
 )
 from disent.data import get_batch, make_dataset
 from disent.eval.evaluate import evaluate, print_eval, trivial_baselines
+from disent.eval.trivial import trivial_metrics
 from disent.lighting.targets import target_fit, with_fitted_lhat
 from disent.models import Discriminator, build_model
 from disent.runtime import Prefetcher, tune_malloc
@@ -227,7 +229,46 @@ def run(cfg, run_dir) -> dict:
         lock.release()
 
 
+@dataclass
+class Training:
+    """What a run's set-up hands the loop: the data and its budget, the networks and optimisers, where the run
+    stands (``step``, ``wall``: training seconds), the log, and the fixed validation batch with its trivial
+    baselines beside it."""
+
+    cfg: object
+    run_dir: Path
+    device: torch.device
+    data: object
+    steps_per_epoch: int
+    total_steps: int
+    model: torch.nn.Module
+    disc: torch.nn.Module | None
+    opt_g: torch.optim.Optimizer
+    opt_d: torch.optim.Optimizer | None
+    log: MetricsLog
+    trivial: dict | None
+    val_batch: dict | None = None
+    val_trivial: dict = field(default_factory=dict)
+    step: int = 0
+    wall: float = 0.0
+    last_saved: int = 0
+
+    @property
+    def ckpt_path(self) -> Path:
+        return self.run_dir / "checkpoints" / "last.pt"
+
+
 def train_and_evaluate(cfg, run_dir: Path) -> dict:
+    """Set up (data, networks, resume), train, then evaluate the final model into ``eval.json``."""
+    s = set_up(cfg, run_dir)
+    stopped, batch = train_loop(s)
+    return finish(s, stopped, batch)
+
+
+def set_up(cfg, run_dir: Path) -> Training:
+    """Threads and seed, the run's revision and machine, the training data and its step budget, the validation
+    batch, the trivial baselines, the networks and optimisers, and the state of a run resumed in its folder (or the
+    weights it warm-starts from)."""
     t = cfg.train
     if t.threads:
         torch.set_num_threads(t.threads)
@@ -236,7 +277,6 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
     torch.manual_seed(cfg.seed)
     device = torch.device(cfg.device)
     fmt = torch.channels_last if t.channels_last else torch.contiguous_format
-    ckpt_path = run_dir / "checkpoints" / "last.pt"
     write_git_revision(run_dir)
     (run_dir / "machine.json").write_text(json.dumps(machine_info(device, t.threads), indent=1))
     log = MetricsLog(run_dir / "metrics.jsonl", run_dir / "tensorboard" if t.get("tensorboard", True) else None)
@@ -251,177 +291,192 @@ def train_and_evaluate(cfg, run_dir: Path) -> dict:
         )
     total_steps = steps_per_epoch * t.epochs if t.max_steps is None else min(t.max_steps, steps_per_epoch * t.epochs)
     val_every, val_size = t.get("val_every", 0), t.get("val_size", 64)
-    val_every = val_every if val_every and val_every <= total_steps else 0
-    if val_every:  # rendered once, before the prefetch thread starts using the data code
+    val_batch = None
+    if val_every and val_every <= total_steps:  # rendered once, before the prefetch thread starts using the data code
         val_data = make_dataset(cfg.data, "val", val_size)
-        val_batch = to_device(
-            get_batch(val_data, range(min(val_size, len(val_data))), (*TRAIN_KEYS, "normal", "matte", "albedo", "sh")),
-            device,
-            t.channels_last,
-        )
+        keys = (*TRAIN_KEYS, "normal", "matte", "albedo", "sh")
+        val_batch = to_device(get_batch(val_data, range(min(val_size, len(val_data))), keys), device, t.channels_last)
     trivial = trivial_baselines(data)  # constant estimates, scored beside the network in val records and eval.json
-    if val_every and trivial is not None and "matte" in val_batch:
-        from disent.eval.trivial import trivial_metrics
-
+    val_trivial = {}
+    if val_batch is not None and trivial is not None and "matte" in val_batch:
         val_trivial = trivial_metrics(trivial, {k: v.cpu() for k, v in val_batch.items()})
-    else:
-        val_trivial = {}
 
     model = build_model(cfg.model).to(device, memory_format=fmt)
     disc = build_discriminator(model).to(device, memory_format=fmt) if cfg.loss.weights.adv else None
-    opt_g = make_optimizer(model, t)
-    opt_d = make_optimizer(disc, t) if disc is not None else None
-
-    step, wall = 0, 0.0
-    resume = Path(cfg.resume) if cfg.resume else (ckpt_path if ckpt_path.exists() else None)
+    s = Training(
+        *(cfg, run_dir, device, data, steps_per_epoch, total_steps, model, disc, make_optimizer(model, t)),
+        *(make_optimizer(disc, t) if disc is not None else None, log, trivial, val_batch, val_trivial),
+    )
+    resume = Path(cfg.resume) if cfg.resume else (s.ckpt_path if s.ckpt_path.exists() else None)
     if resume is not None:
-        ck = load_checkpoint(resume / "checkpoints" / "last.pt" if resume.is_dir() else resume, fallback=True)
-        resolved = OmegaConf.to_container(cfg, resolve=True)
-        diffs = config_differences(ck.get("cfg"), resolved, ignore=idle_settings(resolved))
-        if diffs and not cfg.get("resume_force", False):
-            raise ConfigError(
-                f"{resume} was trained with other settings ({'; '.join(diffs[:6])}"
-                f"{' ...' if len(diffs) > 6 else ''}); start in a new folder, or pass resume_force=true"
-            )
-        model.load_state_dict(ck["model"])
-        opt_g.load_state_dict(ck["opt_g"])
-        if disc is not None:
-            disc.load_state_dict(ck["disc"])
-            opt_d.load_state_dict(ck["opt_d"])
-        step, wall = ck["step"], ck["wall"]
-        set_rng_state(ck["rng"])
-        log.truncate_after(step)
-        print(f"resumed from {ck.get('loaded_from', resume)} at step {step}")
+        resume_from(s, resume)
     elif cfg.get("init"):
         warm_start(model, cfg)
+    s.last_saved = s.step
+    return s
 
-    def last_good() -> str:
-        if ckpt_path.exists():
-            return (
-                f"Last good checkpoint: {ckpt_path} (step {last_saved}); to continue from it, start again in "
-                f"{run_dir} (hydra.run.dir=...) with a smaller train.lr"
-            )
-        return f"No checkpoint was written yet; start again with a smaller train.lr (now {t.lr})"
 
-    def checkpoint():
-        bad = nonfinite_tensors(model, disc)
-        if bad:  # the losses were finite, the update was not: never save such weights as good
-            raise NonFiniteLoss(
-                f"weights became non-finite by step {step} ({', '.join(bad[:4])}"
-                f"{' ...' if len(bad) > 4 else ''}: 0 = model, 1 = D); stopped, not saved. {last_good()}"
-            )
-        save_checkpoint(
-            ckpt_path,
-            {
-                "model": model.state_dict(),
-                "opt_g": opt_g.state_dict(),
-                "disc": disc.state_dict() if disc is not None else None,
-                "opt_d": opt_d.state_dict() if opt_d is not None else None,
-                "step": step,
-                "epoch": step / steps_per_epoch,
-                "wall": wall,
-                "rng": rng_state(),
-                "cfg": OmegaConf.to_container(cfg, resolve=True),
-            },
+def resume_from(s: Training, resume: Path) -> None:
+    """Load a checkpoint (``resume``: a run folder or a checkpoint file) into ``s``: weights, optimisers, step,
+    training seconds and RNG state; the log drops what it wrote after that step.  A checkpoint of other settings
+    stops the run (``resume_force=true`` overrides)."""
+    cfg = s.cfg
+    ck = load_checkpoint(resume / "checkpoints" / "last.pt" if resume.is_dir() else resume, fallback=True)
+    resolved = OmegaConf.to_container(cfg, resolve=True)
+    diffs = config_differences(ck.get("cfg"), resolved, ignore=idle_settings(resolved))
+    if diffs and not cfg.get("resume_force", False):
+        raise ConfigError(
+            f"{resume} was trained with other settings ({'; '.join(diffs[:6])}"
+            f"{' ...' if len(diffs) > 6 else ''}); start in a new folder, or pass resume_force=true"
         )
+    s.model.load_state_dict(ck["model"])
+    s.opt_g.load_state_dict(ck["opt_g"])
+    if s.disc is not None:
+        s.disc.load_state_dict(ck["disc"])
+        s.opt_d.load_state_dict(ck["opt_d"])
+    s.step, s.wall = ck["step"], ck["wall"]
+    set_rng_state(ck["rng"])
+    s.log.truncate_after(s.step)
+    print(f"resumed from {ck.get('loaded_from', resume)} at step {s.step}")
 
+
+def last_good(s: Training) -> str:
+    """Where a stopped run can continue from."""
+    if s.ckpt_path.exists():
+        return (
+            f"Last good checkpoint: {s.ckpt_path} (step {s.last_saved}); to continue from it, start again in "
+            f"{s.run_dir} (hydra.run.dir=...) with a smaller train.lr"
+        )
+    return f"No checkpoint was written yet; start again with a smaller train.lr (now {s.cfg.train.lr})"
+
+
+def checkpoint(s: Training) -> None:
+    """``checkpoints/last.pt`` (atomically, :func:`disent.storage.save_checkpoint`); weights that became
+    non-finite are never saved as good."""
+    bad = nonfinite_tensors(s.model, s.disc)
+    if bad:  # the losses were finite, the update was not: never save such weights as good
+        raise NonFiniteLoss(
+            f"weights became non-finite by step {s.step} ({', '.join(bad[:4])}"
+            f"{' ...' if len(bad) > 4 else ''}: 0 = model, 1 = D); stopped, not saved. {last_good(s)}"
+        )
+    state = {"model": s.model.state_dict(), "opt_g": s.opt_g.state_dict()}
+    state |= {"disc": s.disc.state_dict() if s.disc is not None else None}
+    state |= {"opt_d": s.opt_d.state_dict() if s.opt_d is not None else None}
+    state |= {"step": s.step, "epoch": s.step / s.steps_per_epoch, "wall": s.wall, "rng": rng_state()}
+    save_checkpoint(s.ckpt_path, state | {"cfg": OmegaConf.to_container(s.cfg, resolve=True)})
+
+
+def batch_maker(s: Training):
+    """``step -> batch`` on the CPU (the prefetch threads run it): the step's seeded slice of its epoch's order,
+    with E_recon-L's target fitted where the setting fits it (once per training image)."""
+    cfg, t = s.cfg, s.cfg.train
     keys = train_keys(cfg.loss)
     target, fit = loss_setting(cfg.loss, "recon_L_target"), target_fit(cfg.loss)  # where the trainer fits it
     fitted_lights = {}  # data index -> its fitted E_recon-L target
 
-    def make_batch(s):  # on the CPU; the prefetch thread runs it
-        idx = step_indices(cfg.seed, s, steps_per_epoch, t.batch_size, len(data))
-        batch = get_batch(data, idx, keys)
+    def make_batch(step):
+        idx = step_indices(cfg.seed, step, s.steps_per_epoch, t.batch_size, len(s.data))
+        batch = get_batch(s.data, idx, keys)
         if fit:
             batch = with_fitted_lhat(batch, idx, fitted_lights, target, fit)
         return to_device(batch, "cpu", t.channels_last)
 
-    prefetch = Prefetcher(make_batch, range(step, total_steps), t.get("prefetch", 0), t.get("prefetch_workers", 1))
-    bar = tqdm(total=total_steps, initial=step, disable=not t.progress, unit="step", dynamic_ncols=True)
-    last_saved, stopped, batch = step, "steps", None
+    return make_batch
+
+
+def stop_reason(s: Training) -> str:
+    """Why the loop stops before its last step (``time_limit``, ``stop_step``), or ``steps``."""
+    t = s.cfg.train
+    if t.time_limit_min and s.wall > 60 * t.time_limit_min:  # budget spent: keep what we have, evaluate
+        return "time_limit"
+    if t.get("stop_step") and s.step >= t.stop_step:  # a replayed time-guard stop: the schedule is unchanged
+        return "stop_step"
+    return "steps"
+
+
+def train_loop(s: Training) -> tuple[str, dict | None]:
+    """The steps from where the run stands to ``total_steps`` (or its time guard): each on a prefetched batch at
+    the scheduled learning rate, logged every ``train.log_every`` steps, validated every ``train.val_every``,
+    checkpointed every ``train.checkpoint_every`` and at each epoch's end.  Returns why it stopped and its last
+    batch."""
+    t = s.cfg.train
+    prefetch = Prefetcher(
+        batch_maker(s), range(s.step, s.total_steps), t.get("prefetch", 0), t.get("prefetch_workers", 1)
+    )
+    bar = tqdm(total=s.total_steps, initial=s.step, disable=not t.progress, unit="step", dynamic_ncols=True)
+    stopped, batch = "steps", None
     try:
-        while step < total_steps:
-            if t.time_limit_min and wall > 60 * t.time_limit_min:  # budget spent: keep what we have, evaluate
-                stopped = "time_limit"
-            elif t.get("stop_step") and step >= t.stop_step:  # a replayed time-guard stop: the schedule is unchanged
-                stopped = "stop_step"
-            if stopped != "steps":
-                checkpoint()
+        while s.step < s.total_steps:
+            if (stopped := stop_reason(s)) != "steps":
+                checkpoint(s)
                 break
-            epoch = step // steps_per_epoch
-            lr = learning_rate(t, step, steps_per_epoch, total_steps)
-            for opt in (opt_g, opt_d):
+            epoch = s.step // s.steps_per_epoch
+            lr = learning_rate(t, s.step, s.steps_per_epoch, s.total_steps)
+            for opt in (s.opt_g, s.opt_d):
                 for g in opt.param_groups if opt is not None else []:
                     g["lr"] = lr
             t0 = time.perf_counter()
-            batch = to_device(prefetch.get(step), device, t.channels_last)
-            with torch.autocast(
-                device.type, dtype=torch.bfloat16, enabled=t.get("amp", False)
-            ):  # shading stays float32
-                losses = train_step(model, disc, opt_g, opt_d, batch, cfg.loss, step)
+            batch = to_device(prefetch.get(s.step), s.device, t.channels_last)
+            with torch.autocast(s.device.type, dtype=torch.bfloat16, enabled=t.get("amp", False)):  # shading: fp32
+                losses = train_step(s.model, s.disc, s.opt_g, s.opt_d, batch, s.cfg.loss, s.step)
             if "nonfinite" in losses:
                 raise NonFiniteLoss(
-                    f"loss term {', '.join(repr(k) for k in losses['nonfinite'])} is not finite at step {step} "
-                    f"(epoch {epoch}); stopped. {last_good()}"
+                    f"loss term {', '.join(repr(k) for k in losses['nonfinite'])} is not finite at step {s.step} "
+                    f"(epoch {epoch}); stopped. {last_good(s)}"
                 )
             dt = time.perf_counter() - t0
-            wall += dt
-            step += 1
+            s.wall += dt
+            s.step += 1
             ips = len(batch["image"]) / dt
             bar.update(1)
             if t.progress:  # .item() waits for the step's GPU work: not with the bar off (device=cuda runs)
                 bar.set_postfix(loss=f"{losses['total'].item():.4f}", img_s=f"{ips:.0f}", epoch=epoch)
-            if step % t.log_every == 0 or step == total_steps:
-                log.write(
-                    {
-                        "step": step,
-                        "epoch": epoch,
-                        "wall": wall,
-                        "lr": lr,
-                        "images_per_s": ips,
-                        **{k: v.item() for k, v in losses.items()},
-                    }
-                )
-            if val_every and step % val_every == 0:  # wall: training seconds only
-                t1 = time.perf_counter()
-                val = validate(model, val_batch)
-                log.write(
-                    {
-                        "step": step,
-                        "epoch": epoch,
-                        "wall": wall,
-                        "minutes": wall / 60,
-                        "val": {
-                            **val,
-                            **val_trivial,
-                            "n": len(val_batch["image"]),
-                            "seconds": time.perf_counter() - t1,
-                        },
-                    }
-                )
-            if t.sample_every and step % t.sample_every == 0:
-                save_samples(run_dir / "samples" / f"step{step:06d}.png", batch, model(batch["image"]))
-            if step % t.checkpoint_every == 0 or step % steps_per_epoch == 0 or step == total_steps:
-                checkpoint()
-                last_saved = step
+            after_step(s, epoch, lr, ips, losses, batch)
     finally:
         prefetch.close()
         bar.close()
-        log.close()
+        s.log.close()
+    return stopped, batch
 
-    model.eval()
+
+def after_step(s: Training, epoch: int, lr: float, ips: float, losses: dict, batch: dict) -> None:
+    """What follows a step: its log record, the validation record, a sample grid and a checkpoint, each when due."""
+    t, step = s.cfg.train, s.step
+    if step % t.log_every == 0 or step == s.total_steps:
+        record = {"step": step, "epoch": epoch, "wall": s.wall, "lr": lr, "images_per_s": ips}
+        s.log.write(record | {k: v.item() for k, v in losses.items()})
+    val_every = t.get("val_every", 0)
+    if s.val_batch is not None and step % val_every == 0:  # wall: training seconds only
+        t1 = time.perf_counter()
+        val = validate(s.model, s.val_batch)
+        n, seconds = len(s.val_batch["image"]), time.perf_counter() - t1
+        val = {**val, **s.val_trivial, "n": n, "seconds": seconds}
+        s.log.write({"step": step, "epoch": epoch, "wall": s.wall, "minutes": s.wall / 60, "val": val})
+    if t.sample_every and step % t.sample_every == 0:
+        save_samples(s.run_dir / "samples" / f"step{step:06d}.png", batch, s.model(batch["image"]))
+    if step % t.checkpoint_every == 0 or step % s.steps_per_epoch == 0 or step == s.total_steps:
+        checkpoint(s)
+        s.last_saved = step
+
+
+def finish(s: Training, stopped: str, batch: dict | None) -> dict:
+    """The final sample grid, the test metrics beside the trivial baselines (``eval.json``, the log's last record)
+    and the run's summary printed."""
+    t = s.cfg.train
+    s.model.eval()
     if batch is None:  # no step ran in this process (a resumed run that was already done)
-        batch = to_device(get_batch(data, range(min(8, len(data))), keys), device, t.channels_last)
+        keys = train_keys(s.cfg.loss)
+        batch = to_device(get_batch(s.data, range(min(8, len(s.data))), keys), s.device, t.channels_last)
     with torch.no_grad():
-        save_samples(run_dir / "samples" / "final.png", batch, model(batch["image"]))
+        save_samples(s.run_dir / "samples" / "final.png", batch, s.model(batch["image"]))
     metrics = {
-        **evaluate(model, cfg, t.eval_size, trivial),
-        "steps": step,
+        **evaluate(s.model, s.cfg, t.eval_size, s.trivial),
+        "steps": s.step,
         "stopped_by": stopped,
-        "train_seconds": wall,
+        "train_seconds": s.wall,
     }
-    log.write({"step": step, "epoch": step / steps_per_epoch, "wall": wall, "eval": metrics})
-    log.close()
-    (run_dir / "eval.json").write_text(json.dumps(metrics, indent=2))
-    print_eval(metrics, run_dir)
+    s.log.write({"step": s.step, "epoch": s.step / s.steps_per_epoch, "wall": s.wall, "eval": metrics})
+    s.log.close()
+    (s.run_dir / "eval.json").write_text(json.dumps(metrics, indent=2))
+    print_eval(metrics, s.run_dir)
     return metrics
