@@ -13,7 +13,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 
-import disent.runs  # noqa: F401  (registers ${pid:}, used by the run folder names in conf/config.yaml)
+import disent.storage  # noqa: F401  (registers ${pid:}, used by the run folder names in conf/config.yaml)
 
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
