@@ -79,7 +79,7 @@ def test_a_kept_row_is_named_by_its_setting_today_so_a_changed_default_neither_m
     JSON; today's "(defaults)" run of the same seed is another setting, so both rows stay, the old one renamed by
     what its record reads today."""
     from disent.runs import find_runs
-    from tests.test_report import make_run
+    from tests.run_fakes import make_run
 
     x1 = make_run(tmp_path, "x1", "implicit", extra=("loss.weights.UV=1.0",), eval_={"recon_mse": 0.01})
     x10 = make_run(tmp_path, "x10", "implicit", eval_={"recon_mse": 0.01})

@@ -10,7 +10,7 @@ import pytest
 from disent import report
 from disent.publish import CURVE_EVERY, portable_runs, thinned_curve, write_records
 from disent.runs import RECORDS, Run, find_runs, portable, run_id, run_ref, run_speed, setting
-from tests.test_report import fake_suite, make_run
+from tests.run_fakes import fake_suite, make_run
 
 
 def test_records_keep_each_ended_run_as_one_row_named_by_its_id(tmp_path):
