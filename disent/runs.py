@@ -35,6 +35,7 @@ from omegaconf import OmegaConf
 from disent.storage import (
     GIT_LINE,
     NO_REVISION,
+    dotted,
     load_json,
     load_yaml,
     lock_holder,
@@ -60,14 +61,6 @@ def run_ref(value) -> str | None:
     if text.startswith("run:"):
         return text[4:]
     return run_id(Path(text).resolve()) if text.startswith(("/", ".")) or os.sep in text else None
-
-
-def _get(d, dotted: str, default=None):
-    for key in dotted.split("."):
-        if not isinstance(d, dict) or key not in d:
-            return default
-        d = d[key]
-    return d
 
 
 def _finite(x) -> bool:
@@ -98,7 +91,7 @@ class Run:
             path=p,
             cfg=load_yaml(p / ".hydra" / "config.yaml") or {},
             overrides=load_yaml(p / ".hydra" / "overrides.yaml") or [],
-            choices=_get(hydra, "hydra.runtime.choices", {}) or {},
+            choices=dotted(hydra, "hydra.runtime.choices", {}) or {},
             eval=load_json(p / "eval.json"),
             metrics=read_jsonl(p / "metrics.jsonl"),
             ended=load_json(p / "status.json"),
@@ -150,7 +143,7 @@ class Run:
     # --------------------------------------------------------------- labels
     @property
     def model(self) -> str:
-        return str(_get(self.cfg, "model.name") or self.choices.get("model") or "unknown")
+        return str(dotted(self.cfg, "model.name") or self.choices.get("model") or "unknown")
 
     @property
     def ablations(self) -> list[str]:
@@ -167,7 +160,7 @@ class Run:
         """A supervised-ceiling run (``loss=ceiling``): trained on the true layers, not on the paper's objective."""
         from disent.losses import TRUTH
 
-        return any(_get(self.cfg, f"loss.weights.{t}", 0) for t in TRUTH)
+        return any(dotted(self.cfg, f"loss.weights.{t}", 0) for t in TRUTH)
 
     @property
     def light_oracle(self) -> bool:
@@ -175,7 +168,7 @@ class Run:
         ``loss.recon_L_oracle_mix`` > 0): a measurement of what a better L-hat buys, not the paper's model."""
         from disent.config import truth_readers
 
-        loss = OmegaConf.create({"weights": {}, **(_get(self.cfg, "loss") or {})})
+        loss = OmegaConf.create({"weights": {}, **(dotted(self.cfg, "loss") or {})})
         return any(not r.startswith("loss.weights.") for r in truth_readers(loss))  # not a ceiling term
 
     @property
@@ -194,12 +187,12 @@ class Run:
 
     @property
     def lr(self):
-        return _get(self.cfg, "train.lr")
+        return dotted(self.cfg, "train.lr")
 
     @property
     def adversarial(self) -> bool:
         """Whether the adversarial loss was on (its weight > 0 and no ``no_adv`` ablation)."""
-        w = _get(self.cfg, "loss.weights.adv", 1.0)
+        w = dotted(self.cfg, "loss.weights.adv", 1.0)
         return "no_adv" not in self.ablations and bool(w)
 
     @property

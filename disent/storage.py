@@ -343,17 +343,30 @@ class RunLock:
 
 
 def load_yaml(path: Path):
+    """The YAML at ``path``, None where it is missing or unreadable."""
     try:
         return yaml.safe_load(path.read_text()) if path.is_file() else None
     except (OSError, yaml.YAMLError):
         return None
 
 
-def load_json(path: Path):
+def load_json(path):
+    """The JSON at ``path``, None where it is missing or unreadable."""
+    path = Path(path)
     try:
         return json.loads(path.read_text()) if path.is_file() else None
     except (OSError, ValueError):
         return None
+
+
+def dotted(d, key: str, default=None):
+    """``d["a"]["b"]`` for ``key`` ``"a.b"`` of nested dicts (a resolved config), ``default`` where a part is
+    missing."""
+    for part in key.split("."):
+        if not isinstance(d, dict) or part not in d:
+            return default
+        d = d[part]
+    return d
 
 
 def read_jsonl(path: Path) -> list[dict]:

@@ -47,12 +47,12 @@ def model_cfg(name, **kw):
     return {"name": name, "resolution": R, **({"code_dim": 265} if name == "baseline" else {}), **kw}
 
 
-@pytest.mark.parametrize("name", ["baseline", "explicit", "implicit"])
 def compose_cfg(*overrides):
     with initialize_config_dir(config_dir=CONF, version_base="1.3"):
         return compose(config_name="config", overrides=list(overrides))
 
 
+@pytest.mark.parametrize("name", ["baseline", "explicit", "implicit"])
 def test_output_shapes_and_codes(name):
     torch.manual_seed(0)
     model = build_model(model_cfg(name))

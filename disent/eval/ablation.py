@@ -12,6 +12,7 @@ import json
 import math
 
 from disent.runs import RUN_ROOTS, Run, find_runs, setting
+from disent.storage import dotted
 
 # (key in eval.json, column title, lower is better)
 COLUMNS = (
@@ -67,19 +68,11 @@ def seed_mean_std(runs, key: str) -> dict | None:
     return st
 
 
-def _dig(cfg, dotted):
-    for k in dotted.split("."):
-        if not isinstance(cfg, dict) or k not in cfg:
-            return None
-        cfg = cfg[k]
-    return cfg
-
-
 def budget(runs: list[Run]) -> dict:
     """The training budget the runs share: each budget key with its set of values."""
     out = {}
     for key in BUDGET_KEYS:
-        vals = sorted({str(v) for r in runs if (v := _dig(r.cfg, key)) is not None})
+        vals = sorted({str(v) for r in runs if (v := dotted(r.cfg, key)) is not None})
         if vals:
             out[key] = vals[0] if len(vals) == 1 else vals
     exps = sorted({str(r.choices.get("experiment")) for r in runs if r.choices.get("experiment")})

@@ -3,11 +3,12 @@ rebuild gives the same bytes, links relative to each page."""
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import traceback
 from pathlib import Path
+
+from disent.storage import load_json  # noqa: F401  (the sections read their JSON through the page's module)
 
 
 def pyplot():
@@ -40,13 +41,6 @@ def unoverlap(ax, labels, pad_pt: float = 1.0) -> None:
             label.xyann = (x, y - (here.y1 - hit.y0) * to_pt - pad_pt)
             here = box(label)
         placed.append(here)
-
-
-def load_json(path: Path):
-    try:
-        return json.loads(Path(path).read_text())
-    except (OSError, ValueError):
-        return None
 
 
 class Report:
