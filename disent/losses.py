@@ -118,11 +118,11 @@ def recon_L(
     ``gray=True`` takes it out first: each face's three channels are scaled to one shading mean over the face
     (their average), so the target keeps the light's pattern and brightness but no colour of its own.
     ``target="sh_texture"`` puts L-hat fitted with a PCA texture model for the albedo in its place
-    (:func:`disent.lighting.experiments.texture_lhat`, added to the batch by the trainer), ``"sh_pseudo_eroded"``
-    L-hat fitted on M-hat eroded 1 px (:func:`disent.lighting.experiments.eroded_lhat`, the same), ``"sh_network"``
-    the light a trained network draws from the image (:func:`disent.lighting.experiments.network_lhat`, the same),
+    (:func:`disent.lighting.targets.texture_lhat`, added to the batch by the trainer), ``"sh_pseudo_eroded"``
+    L-hat fitted on M-hat eroded 1 px (:func:`disent.lighting.targets.eroded_lhat`, the same), ``"sh_network"``
+    the light a trained network draws from the image (:func:`disent.lighting.targets.network_lhat`, the same),
     ``"sh_network_texture"`` that light averaged with the texture model's L-hat refitted through the network's
-    normals and uv (:func:`disent.lighting.experiments.network_texture_lhat`, the same): no truth, not the paper's.
+    normals and uv (:func:`disent.lighting.targets.network_texture_lhat`, the same): no truth, not the paper's.
     ``target="sh"`` puts the true SH light there, an oracle (not the paper's): what a perfect L-hat
     would buy the model. Either is scaled by ``c`` and measured as L-hat is.
     ``scale="sh_pseudo"`` first scales the chosen target per face and channel to L-hat's mean shading over M-hat

@@ -14,7 +14,7 @@ from tests.lighting_fakes import directional_light, ellipsoid, render
 def test_noise_parts_name_each_part_of_a_noise_model():
     """The noise models' names, parsed in one place: which of the geometry noise and the residual process each has,
     and a residual fit keyed by the geometry noise beside it."""
-    from disent.lighting.experiments import NOISE_MODELS, fit_key, noise_parts
+    from disent.lighting.order_study import NOISE_MODELS, fit_key, noise_parts
 
     assert {m: noise_parts(m) for m in ("iid", *NOISE_MODELS)} == {
         "iid": (False, False, False),
@@ -110,7 +110,7 @@ def test_residual_process_maximum_likelihood_finds_the_generating_constants():
     """Residuals drawn from the process with rho 3, ell 2 (and i.i.d. ones) on an ellipse's pixels: the grid's
     maximum likelihood is the generating point (rho 0 for the i.i.d. draws).  (A large rho leaves little white
     noise to tell 30 from 300 apart: the likelihood flattens there, as in the fit on SynthFaces.)"""
-    from disent.lighting.experiments import max_likelihood_residual
+    from disent.lighting.order_study import max_likelihood_residual
 
     normal, mask = ellipsoid(20, 20)
     data = prepare(render(normal, directional_light([0.2, 0.3, 1.0]), 0.01), normal, mask)
@@ -127,7 +127,7 @@ def test_residual_process_maximum_likelihood_finds_the_generating_constants():
 
 
 def test_eroded_takes_a_batch_of_masks():
-    from disent.lighting.experiments import eroded
+    from disent.lighting.targets import eroded
 
     m = torch.zeros(2, 1, 8, 8)
     m[0, 0, 2:7, 1:6] = 1  # 5 x 5: 3 x 3 left
@@ -141,7 +141,7 @@ def test_sharpened_albedo_is_exact_at_the_true_shading_alone():
     """SynthFaces' image is albedo (.) shading: over the true shading (k = 1) the detailed albedo is the truth up to
     scale; a more or a less contrasty shading leaves its contrast in the albedo."""
     from disent.data import SynthFaces, get_batch
-    from disent.lighting.experiments import sharpened_albedo
+    from disent.lighting.sources import sharpened_albedo
     from disent.regions import decomposed_region
 
     g = get_batch(SynthFaces("test", size=3), range(3))
@@ -150,7 +150,8 @@ def test_sharpened_albedo_is_exact_at_the_true_shading_alone():
 
 
 def test_eroded_pseudo_mask_drops_exactly_the_edge_ring():
-    from disent.lighting.experiments import GEOMETRY, eroded, item_data
+    from disent.lighting.geometry import GEOMETRY, item_data
+    from disent.lighting.targets import eroded
 
     m = torch.zeros(1, 8, 8)
     m[0, 2:7, 1:6] = 1  # a 5 x 5 square
@@ -176,7 +177,7 @@ def test_coarse_fit_made_true_renders_the_pseudo_maps_again():
     pseudo normals towards the true ones, and each part alone changes the maps (the oracle rows' geometry)."""
     from disent.data import SynthFaces
     from disent.eval.metrics import normal_angular_error
-    from disent.lighting.experiments import coarse_fit_made_true
+    from disent.lighting.geometry import coarse_fit_made_true
 
     ds = SynthFaces("val", 64, 0)
     errors = {(): [], ("placement", "shape"): []}
@@ -203,8 +204,8 @@ def test_student_t_light_resists_outlying_pixels():
     from dataclasses import replace
 
     from disent.data import SynthFaces
-    from disent.lighting.experiments import order_data
     from disent.lighting.order import score
+    from disent.lighting.order_study import order_data
 
     item = SynthFaces("val", 64, 0)[0]
     data, _ = order_data(item, 0.01, 0, "known", "normal")
@@ -221,8 +222,8 @@ def test_fitted_image_of_the_right_order_leaves_only_the_noise():
     """With true normals and the known albedo, the order-2 candidate's fitted image (albedo times its light through
     the normals) leaves a residual at the added noise's level; order 0 (ambient only) leaves far more."""
     from disent.data import SynthFaces
-    from disent.lighting.experiments import order_data
     from disent.lighting.order import fitted, score
+    from disent.lighting.order_study import order_data
 
     item = SynthFaces("val", 64, 0)[0]
     data, _ = order_data(item, 0.01, 0, "known", "normal")
@@ -256,7 +257,7 @@ def test_eroded_lhat_does_not_see_m_hats_rim():
     (paint it over and the light stays), where the paper's L-hat on all of M-hat moves."""
     from disent.data import SynthFaces, get_batch
     from disent.data.synth.scenes import fit_sh_packed
-    from disent.lighting.experiments import EDGE, eroded, eroded_lhat
+    from disent.lighting.targets import EDGE, eroded, eroded_lhat
 
     g = get_batch(SynthFaces("test", size=4), range(4))
     rim = (g["mask_pseudo"] > 0.5) & (eroded(g["mask_pseudo"], EDGE) < 0.5)

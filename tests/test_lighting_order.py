@@ -122,7 +122,7 @@ def test_chosen_noise_model_reads_the_study(tmp_path):
     """``auto`` takes the noise model of the study's row best on val for that albedo and geometry (only that geometry's
     rows, not those of a geometry whose name it begins), i.i.d. without one; a named model takes its constants from
     the study; an unknown model, or a residual process the study has no fit for, is refused by name."""
-    from disent.lighting.experiments import chosen_noise_model, geometry_noise
+    from disent.lighting.order_study import chosen_noise_model, geometry_noise
 
     rows = {
         "val/texture/normal_pseudo+residual_process": 0.6,
@@ -264,7 +264,7 @@ def test_order_study_computes_only_the_named_rows_and_keeps_the_rest(tmp_path, m
     one, and an unknown row name is refused with the list of rows."""
     import json
 
-    from disent.lighting import experiments
+    from disent.lighting import order_study as experiments  # the study whose rows it runs
 
     calls = []
     monkeypatch.setattr(
@@ -360,7 +360,7 @@ def test_order_accuracy_figure_draws_every_row_with_its_wilson_interval(tmp_path
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from disent.lighting.experiments import plot_order_accuracy, wilson_interval
+    from disent.lighting.order_study import plot_order_accuracy, wilson_interval
 
     def row(confusion):
         return {"evidence": {"confusion": confusion, "accuracy": np.trace(confusion) / np.sum(confusion)}}
@@ -390,7 +390,7 @@ def test_order_confusion_keeps_each_scenes_outcome_and_they_add_up_to_its_matric
     """Each scene's record (true order, the order each criterion chose, yaw, pixels) adds up to the confusion
     matrices, so where the choice fails can be read scene by scene."""
     from disent.data import SynthFaces
-    from disent.lighting.experiments import order_confusion
+    from disent.lighting.order_study import order_confusion
 
     ds = SynthFaces("val", 64, 0)
     out = order_confusion(ds, 2, albedo="known", normals="normal")
@@ -411,8 +411,8 @@ def test_student_t_evidence_tends_to_the_gaussian_as_nu_grows():
     """The Student-t noise model at nu = 1e8 is the Gaussian one: the same log evidence for every candidate, with the
     texture model and the residual process (the reweighted fit, its texture step and the Laplace terms agree)."""
     from disent.data import SynthFaces
-    from disent.lighting.experiments import order_data
     from disent.lighting.order import Whitener, score
+    from disent.lighting.order_study import order_data
 
     data, texture = order_data(SynthFaces("val", 64, 0)[0], 0.02, 0, "texture", "normal")
     noise = {"texture": texture, "residual": (3.0, 1.0), "whitener": Whitener(data, 3.0, 1.0)}
@@ -428,7 +428,7 @@ def test_order_failures_refit_the_scenes_the_study_got_wrong(tmp_path):
     truth its log evidence is above the true order's best (else the smaller model would have been chosen); the
     misfit's parts of the face (order_failure_regions) cover every wrong scene's fitted pixels once."""
     from disent.data import SynthFaces
-    from disent.lighting.experiments import order_confusion, order_failure_regions, plot_order_failures
+    from disent.lighting.order_study import order_confusion, order_failure_regions, plot_order_failures
 
     ds = SynthFaces("val", 64, 0)
     row = order_confusion(ds, 3, albedo="texture", normals="normal_pseudo")

@@ -214,7 +214,7 @@ def test_cli_order_choice_on_pseudo_geometry_uses_the_chosen_geometry(monkeypatc
 
     import disent.lighting.__main__ as cli
     from disent.data import SynthFaces
-    from disent.lighting.experiments import GEOMETRY, coarse_fit_made_true, item_data
+    from disent.lighting.geometry import GEOMETRY, coarse_fit_made_true, item_data
 
     cfg = OmegaConf.load(Path(__file__).resolve().parents[1] / "conf" / "lighting.yaml")
     cfg.data = {"resolution": 64}
@@ -290,7 +290,7 @@ def test_lhat_sources_is_exact_with_every_input_made_true():
     """SynthFaces renders the face as albedo (.) S(n, L): least squares on the image over the true albedo, through
     the true normals, on the true face, returns the true light; the paper's L-hat does not."""
     from disent.data import SynthFaces
-    from disent.lighting.experiments import LHAT_SOURCES, ORACLE_MIXES, SHARPENING, lhat_sources
+    from disent.lighting.sources import LHAT_SOURCES, ORACLE_MIXES, SHARPENING, lhat_sources
 
     r = lhat_sources(SynthFaces("test", size=6), SynthFaces("train", size=32), n=6, networks=("explicit",))
     rows = r["rows"]
@@ -338,7 +338,7 @@ def test_a_photos_coarse_fit_is_drawn_again_and_its_placement_refined(monkeypatc
     import disent.data.photos.pseudo_gt as pg
     import disent.lighting.__main__ as cli
     from disent.data import SynthFaces
-    from disent.lighting.experiments import coarse_fit_of, with_coarse_fit
+    from disent.lighting.geometry import coarse_fit_of, with_coarse_fit
 
     ds, settings = SynthFaces("test", 64, size=1), pg.PseudoGTSettings()
     landmarks = pg.face_model_fitter(settings).synth_landmarks(ds.params([0]), 64)[0]

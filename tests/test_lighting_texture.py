@@ -49,7 +49,8 @@ def test_registration_brings_the_pseudo_uv_towards_the_true_uv():
     """On SynthFaces val scenes (lights cut to orders 0-2), the registered geometry scores the eroded pseudo
     geometry's pixels, and its uv lies nearer the true uv there than the pseudo uv does (rms over 6 scenes)."""
     from disent.data import SynthFaces
-    from disent.lighting.experiments import item_data, light_of_order, uv_of
+    from disent.lighting.geometry import item_data
+    from disent.lighting.order_study import light_of_order, uv_of
 
     ds, before, after = SynthFaces("val", 64, 0), [], []
     for i in range(6):
@@ -67,7 +68,8 @@ def test_registration_of_the_implicit_networks_own_uv_under_its_own_prior():
     """The implicit model's uv, registered under the prior of its own affine errors on train scenes (a systematic
     scale the pseudo uv's prior lacks), lies nearer the true uv in most val scenes and in the median."""
     from disent.data import SynthFaces
-    from disent.lighting.experiments import item_data, light_of_order, scene_geometry, uv_of
+    from disent.lighting.geometry import item_data, scene_geometry
+    from disent.lighting.order_study import light_of_order, uv_of
     from disent.lighting.texture import registration_prior
 
     own, pseudo = registration_prior(64, network="implicit"), registration_prior(64)
@@ -86,7 +88,7 @@ def test_oracle_geometries_swap_in_exactly_one_true_layer():
     """The order study's oracle rows: ``oracle_uv`` is the eroded pseudo geometry with the texture model reached
     through the true uv; ``oracle_normals`` is it with the true normals (same pixels, the pseudo uv)."""
     from disent.data import SynthFaces
-    from disent.lighting.experiments import order_data
+    from disent.lighting.order_study import order_data
     from disent.lighting.texture import texture_for
 
     item = SynthFaces("val", 64, 0)[0]
@@ -106,7 +108,10 @@ def test_network_geometry_reads_the_shipped_models_maps_of_the_noisy_image():
     network's maps with the scene's true uv."""
     from disent.data import SynthFaces
     from disent.eval.metrics import normal_angular_error
-    from disent.lighting.experiments import GEOMETRY, eroded, item_data, network_maps, noisy, scene_geometry, uv_of
+    from disent.lighting.geometry import GEOMETRY, item_data, noisy, scene_geometry
+    from disent.lighting.order_study import uv_of
+    from disent.lighting.targets import eroded
+    from disent.lighting.texture import network_maps
     from disent.models import load_run
 
     ds, errors = SynthFaces("val", 64, 0), {"net": [], "pseudo": []}
@@ -141,7 +146,7 @@ def test_texture_pixels_lie_where_the_uv_is_defined():
     fit's mask) on the explicit network's matte keeps the pixels inside the pseudo mask, the true uv on the pseudo
     mask those inside the matte; where the uv covers the mask already (the pseudo rows) nothing changes."""
     from disent.data import SynthFaces
-    from disent.lighting.experiments import GEOMETRY, UV_DEFINED, item_data, scene_geometry
+    from disent.lighting.geometry import GEOMETRY, UV_DEFINED, item_data, scene_geometry
 
     ds = SynthFaces("val", 64, 0)
     for normals in ("network_explicit", "oracle_uv", "normal_pseudo_registered"):
@@ -159,7 +164,7 @@ def test_texture_pixels_lie_where_the_uv_is_defined():
 def test_geometry_noise_reads_each_geometrys_own_measured_error():
     """The geometry-noise model's ``normal_sigma``: the pseudo-GT's constant for the pseudo rows; for a network row,
     the std whose isotropic tangent Gaussian has the shipped model's measured mean normal error as its mean angle."""
-    from disent.lighting.experiments import GEOMETRY_NOISE, geometry_noise
+    from disent.lighting.order_study import GEOMETRY_NOISE, geometry_noise
     from disent.models.shipped import manifest
 
     assert geometry_noise("normal_pseudo_registered") == GEOMETRY_NOISE
@@ -176,7 +181,7 @@ def test_placement_objective_prefers_the_scenes_own_placement():
     objective of the placement refinement (the image under the texture model and an order-2 light, and the prior)
     is lower at the scene's own placement than at the coarse fit's: the image tells where the face is."""
     from disent.data import SynthFaces
-    from disent.lighting.experiments import placed, placement_objective, placement_of, placement_width, with_coarse_fit
+    from disent.lighting.geometry import placed, placement_objective, placement_of, placement_width, with_coarse_fit
 
     ds = SynthFaces("train", 64, 0)
     offset = np.array([2.0, -2.0, 0.0, 0.0, 2.0, -2.0])  # in prior widths

@@ -290,7 +290,8 @@ def test_network_target_is_the_named_networks_own_light():
     """loss.recon_L_target=sh_network: the light the shipped model draws from each image, as the lighting section's
     network row scores it; a network that cannot be loaded stops the run at the start, naming the key."""
     from disent.data import SynthFaces, get_batch
-    from disent.lighting.experiments import network_lhat, trained_network
+    from disent.lighting.targets import network_lhat
+    from disent.lighting.texture import trained_network
 
     b = get_batch(SynthFaces("test", size=2), range(2))
     with torch.no_grad():
@@ -307,8 +308,8 @@ def test_network_texture_target_averages_the_networks_light_with_its_texture_ref
     L-hat through the network's normals and uv (the implicit model draws one) on M-hat eroded inside its matte, and
     between them the average; the explicit model, without uv, reads the pseudo uv."""
     from disent.data import SynthFaces, get_batch
-    from disent.lighting.experiments import EDGE, eroded, network_texture_lhat, trained_network
-    from disent.lighting.texture import texture_light
+    from disent.lighting.targets import EDGE, eroded, network_texture_lhat
+    from disent.lighting.texture import texture_light, trained_network
 
     b = get_batch(SynthFaces("test", size=2), range(2))
     for name, uv_key in (("implicit", "uv"), ("explicit", None)):
@@ -325,7 +326,7 @@ def test_network_texture_target_averages_the_networks_light_with_its_texture_ref
 def test_the_refit_share_has_one_default():
     """loss.recon_L_network_share's default (conf/loss/default.yaml), the lighting tool's (NETWORK_TEXTURE_SHARE) and
     the share of runs from before the key (ADDED_LATER) are one number."""
-    from disent.lighting.experiments import NETWORK_TEXTURE_SHARE
+    from disent.lighting.targets import NETWORK_TEXTURE_SHARE
 
     assert cfg_of().loss.recon_L_network_share == NETWORK_TEXTURE_SHARE == C.ADDED_LATER["loss.recon_L_network_share"]
 

@@ -11,20 +11,12 @@ import torch
 from omegaconf import DictConfig
 
 import disent.runs  # noqa: F401  (registers ${pid:}, used by the default run folder in conf/lighting.yaml)
-from disent.lighting.experiments import (
-    GEOMETRY,
-    chosen_noise_model,
-    figures_for,
-    lhat_sources,
-    noisy,
-    order_data,
-    order_report,
-    run_all,
-    save_json,
-    scene_geometry,
-)
+from disent.lighting.experiments import figures_for, order_report, run_all
+from disent.lighting.geometry import GEOMETRY, noisy, save_json, scene_geometry
 from disent.lighting.order import select_order
+from disent.lighting.order_study import chosen_noise_model, order_data
 from disent.lighting.posterior import prepare, sample_posterior
+from disent.lighting.sources import lhat_sources
 from disent.runtime import single_core
 from disent.storage import tool_folder
 

@@ -32,7 +32,7 @@ a smooth extra SH term buys.  ``residual = (rho, ell)`` models it as a residual 
 noise correlation is ``R = (I + rho K) / (1 + rho)``, ``K(p, q) = exp(-|p - q| / ell)`` over pixel distance,
 and the likelihood is computed after whitening with its Cholesky factor (:class:`Whitener`).  ``rho, ell``
 come from maximum likelihood on training scenes' residuals at their true light
-(:func:`disent.lighting.experiments.fit_residual_process`).
+(:func:`disent.lighting.order_study.fit_residual_process`).
 
 Both together: the covariance of channel ``c`` is ``V_c^1/2 R V_c^1/2`` with the marginal variances
 ``V = sigma^2 + normal_sigma^2 |a P_t grad_n S|^2`` (:func:`noise_variance`): the geometry sets how much each
