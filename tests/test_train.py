@@ -610,3 +610,25 @@ def test_print_eval_names_how_the_normals_failed(capsys):
     EV.print_eval({**m, "normal_mean": 9.6, "normal_aligned_mean": 9.5}, "run")
     out = capsys.readouterr().out
     assert not any(word in out for word in ("FRAME", "FLAT", "ASTRAY")) and "(a rotation by 58 deg)" in out
+
+
+def test_the_gpu_suite_script_runs_each_setting_once_and_resumes_after_an_interruption(tmp_path):
+    """ablations/suite_gpu.sh on the CPU (DEVICE=cpu) at a tiny budget, two models and one ablation at one seed:
+    one folder per run, each trained and evaluated; after one run is cut (its eval.json gone, its checkpoint kept)
+    the same command finishes that run alone and leaves the others as they were."""
+    root = Path(__file__).resolve().parents[1]
+    tiny = "train.max_steps=2 train.eval_size=8 data.test_size=8 train.val_size=4 train.val_every=0 "
+    tiny += "data.train_size=32 train.batch_size=4 train.checkpoint_every=2 train.threads=1"
+    env = {**os.environ, "DEVICE": "cpu", "WORKERS": "1", "PYTHON": sys.executable, "JOBS": "2", "REPORT": "0"}
+    env |= {"SEEDS": "0", "MODELS": "explicit baseline", "ABLATIONS": "no_bws", "EXPERIMENT": "smoke"}
+    cmd = ["bash", str(root / "ablations" / "suite_gpu.sh"), str(tmp_path), *tiny.split()]
+    subprocess.run(cmd, cwd=root, env=env, check=True, capture_output=True, timeout=600)
+    runs = sorted(p.parent.name for p in tmp_path.glob("*/eval.json"))
+    assert runs == ["baseline_s0", "explicit_no_bws_s0", "explicit_s0"]
+    assert "no_bws" in (tmp_path / "explicit_no_bws_s0" / ".hydra" / "overrides.yaml").read_text()
+    (tmp_path / "explicit_s0" / "eval.json").unlink()  # cut after its last checkpoint
+    stamps = {p: p.stat().st_mtime_ns for p in tmp_path.glob("*/eval.json")}
+    subprocess.run(cmd, cwd=root, env=env, check=True, capture_output=True, timeout=600)
+    assert {p: p.stat().st_mtime_ns for p in stamps} == stamps  # the finished runs were not started again
+    assert "resumed from" in (tmp_path / "explicit_s0" / "train.log").read_text()
+    assert json.loads((tmp_path / "explicit_s0" / "eval.json").read_text())["steps"] == 2
