@@ -98,3 +98,13 @@ def sample_grid(batch: dict, out: dict, columns, n: int = 8) -> np.ndarray:
     ]
     grid = torch.cat([torch.cat(list(c), 1) for c in cols], 2)  # [3, n*H, k*W]
     return to_uint8(grid.permute(1, 2, 0).numpy())
+
+
+def pyplot():
+    """matplotlib's pyplot on the Agg backend (files only, no screen): every figure of the suite is drawn so."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt

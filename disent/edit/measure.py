@@ -475,10 +475,9 @@ def claim_summary(rows: list[dict]) -> list[dict]:
 
 
 def plot_success_vs_leakage(rows: list[dict], path) -> None:
-    import matplotlib
+    from disent.images import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     attributes = list(dict.fromkeys(r["attribute"] for r in rows))
     fig, axes = plt.subplots(1, len(attributes), figsize=(4.2 * len(attributes), 3.6), squeeze=False)
@@ -511,10 +510,9 @@ def plot_success_vs_leakage(rows: list[dict], path) -> None:
 
 def image_grid(columns: list[torch.Tensor], titles: list[str], path, scale: float = 1.3) -> None:
     """Columns of ``[N,3,H,W]`` images with a title each (the paper's figure layout)."""
-    import matplotlib
+    from disent.images import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     n = columns[0].shape[0]
     fig, axes = plt.subplots(n, len(columns), figsize=(scale * len(columns), scale * n + 0.4), squeeze=False)

@@ -172,10 +172,9 @@ def measure(runs, n: int = 64, n_posterior: int = 8, seed: int = 0) -> dict:
 
 
 def plot(res: dict, path) -> None:
-    import matplotlib
+    from disent.images import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     rows = res["rows"]
     colour = {n: plt.cm.tab10(k % 10) for k, n in enumerate(rows)}  # one colour per estimator on every panel

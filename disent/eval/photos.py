@@ -148,10 +148,9 @@ def gap_metrics(model, batch: dict, trivial: dict | None = None) -> dict:
 def figures(model, batch: dict, names: list[str], out: Path, tag: str, budget: str = ""):
     """``decomposition_<tag>.png`` and (models with a light code) ``relight_<tag>.png``; the colour pictures (input,
     recon, albedo, relit) sRGB-encoded, as the photos were stored."""
-    import matplotlib
+    from disent.images import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     from disent.edit.relight import named_light, relight
 

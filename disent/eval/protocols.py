@@ -184,10 +184,9 @@ def plot_sh_variance(result: dict, path) -> None:
     """Grouped bars of per-coefficient variance, one colour per estimator (the supplement's figure); a trained
     setting's bar is the mean over its seeds, its whisker their range.  Left the raw variance, right divided by
     each estimator's mean squared coefficient."""
-    import matplotlib
+    from disent.images import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     import numpy as np
 
     groups = sh_variance_groups(result)

@@ -349,10 +349,9 @@ def training_stability(runs, images=None, reference_mse=None) -> dict:
 
 # ----------------------------------------------------------------------------- plots
 def _plt():
-    import matplotlib
+    from disent.images import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     return plt
 

@@ -44,7 +44,9 @@ def widths(ds, n_faces: int = 3, noise: float = 0.02) -> dict:
 
 
 def plot_widths(w: dict, path: Path) -> None:
-    import matplotlib.pyplot as plt
+    from disent.images import pyplot
+
+    plt = pyplot()
 
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.4))
     for ax, (axis, label) in zip(
@@ -109,7 +111,9 @@ def calibration(
 
 
 def plot_calibration(c: dict, path: Path) -> None:
-    import matplotlib.pyplot as plt
+    from disent.images import pyplot
+
+    plt = pyplot()
 
     keys = [k for k in c if k != "settings"]
     fig, ax = plt.subplots(figsize=(10, 3.6))

@@ -42,7 +42,10 @@ from disent.render import fit_sh
 def figures_for(post, item: dict, data, stem: Path, normal_key: str = "normal") -> list[Path]:
     """Corner plot (channel-summed light and log sigma) and the shading uncertainty map."""
     import corner
-    import matplotlib.pyplot as plt
+
+    from disent.images import pyplot
+
+    plt = pyplot()
 
     K = N_COEFFS[post.order]
     names = [f"L{k + 1}" for k in range(K)]

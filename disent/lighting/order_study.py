@@ -417,7 +417,9 @@ def wilson_interval(share: float, n: int, z: float = 1.96) -> tuple[float, float
 def plot_order_accuracy(study: dict, path: Path, criterion: str = "evidence") -> None:
     """Every row of :func:`order_study` on one axis: its accuracy on val and on test with 95 % intervals (Wilson,
     over the row's scenes), against :data:`ORDER_TARGET`; the confusion matrices themselves are in the JSON."""
-    import matplotlib.pyplot as plt
+    from disent.images import pyplot
+
+    plt = pyplot()
 
     names = list(dict.fromkeys(key.split("/", 1)[1] for key in study))  # rows in the study's order, val's first
     splits = {"val": ("tab:blue", "none", -0.17), "test": ("tab:orange", "tab:orange", 0.17)}  # colour, fill, shift
@@ -523,7 +525,9 @@ def plot_order_failures(ds, study: dict, row: str, path: Path, n_scenes: int = 4
     the chosen model's extra or missing SH terms fit).  Returns ``{"row", "scenes": [{index, true_order, chosen,
     evidence_gain}]}`` (the chosen candidate's log evidence over the true order's best); ``{}`` where the row has
     no such scene."""
-    import matplotlib.pyplot as plt
+    from disent.images import pyplot
+
+    plt = pyplot()
 
     records = study["order"].get(f"val/{row}", {}).get("scenes")
     if not records:
@@ -574,7 +578,9 @@ def plot_registration(ds, path: Path, n_scenes: int = 4, noise: float = 0.02, n_
     """The texture model's fitted albedo on the eroded pseudo mask, reached through the pseudo uv, the registered
     uv (:func:`disent.lighting.texture.register`) and the true uv, beside the image and the true albedo, for val
     scenes under order-1 light; each panel titled with its uv error (rms, pixels).  Returns those errors."""
-    import matplotlib.pyplot as plt
+    from disent.images import pyplot
+
+    plt = pyplot()
 
     from disent.lighting.order import score
     from disent.lighting.texture import texture_for

@@ -8,16 +8,8 @@ import re
 import traceback
 from pathlib import Path
 
+from disent.images import pyplot  # noqa: F401  (the sections draw through the page's module)
 from disent.storage import load_json  # noqa: F401  (the sections read their JSON through the page's module)
-
-
-def pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def unoverlap(ax, labels, pad_pt: float = 1.0) -> None:

@@ -131,10 +131,9 @@ def synth_landmark_check(settings: pg.PseudoGTSettings, n: int = 64) -> dict:
 def overlay_figure(records: list, path: Path, resolution: int, cols: int = 8):
     """Per photo: the crop with dlib (green) and fitted (red) landmarks, the pseudo normals
     blended over the photo, the mask outline, and the L-hat shading of the pseudo normals."""
-    import matplotlib
+    from disent.images import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     import torch
 
     from disent.render import sh_shading

@@ -87,7 +87,9 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     if args.out is not None and args.out.suffix.lower() != ".png":
         ap.error(f"--out {args.out}: give a .png file to write")
-    import matplotlib.pyplot as plt
+    from disent.images import pyplot
+
+    plt = pyplot()
 
     sheet, labels = contact_sheet(args.resolution, args.seed)
     sheet = sheet.repeat_interleave(args.zoom, 1).repeat_interleave(args.zoom, 2)
