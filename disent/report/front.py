@@ -317,9 +317,9 @@ def sec_lighting(rep: Report, runs: list[Run], eval_dir: Path) -> None:
             by_model.setdefault(info["model"], []).append(est[name])
     paper = res.get("paper", {})
 
-    def row(name, rows, paper_value):
-        st = [{k: r[k] for k in ("mean", "relative", "sh_error")} for r in rows]
-        cells = [spread_text(_spread([r[k] for r in st]), ".3f") for k in ("mean", "relative", "sh_error")]
+    def row(name, rows, paper_value):  # a fit or a constant is one deterministic estimate: no count
+        keys = ("mean", "relative", "sh_error")
+        cells = [spread_text(_spread([r[k] for r in rows]), ".3f", count=len(rows) > 1) for k in keys]
         return f"| {name} | {paper_value} | " + " | ".join(cells) + " |"
 
     rows = [
@@ -332,10 +332,11 @@ def sec_lighting(rep: Report, runs: list[Run], eval_dir: Path) -> None:
         f"({est['ls_pseudo']['n_conditions']} light conditions, {est['ls_pseudo']['n_images']} faces): the variance "
         "of each SH coefficient across identities and poses under one light, averaged over conditions and RGB, "
         "beside the paper's Multi-PIE numbers. The variance's scale is the light's, so *relative* divides it by the "
-        "estimator's mean squared coefficient; a constant light has none, so read the SH error beside it. "
+        "estimator's mean squared coefficient; a constant light has none, so read the SH error beside it (on these "
+        "faces, not the test split's of the headline). "
         "The full protocol and where methods fail: [stability](appendix/stability.md); L-hat's posterior and the "
         "light's model order: [lighting](appendix/lighting.md).\n",
-        *table_head("estimator", "paper's variance", "variance", "relative variance", "SH error"),
+        *table_head("estimator", "paper's variance", "variance", "relative variance", "SH error on the light bank"),
         *rows,
         "",
     )
