@@ -225,7 +225,9 @@ def sec_ablations(rep: Report, runs: list[Run]) -> None:
 
     rows = [
         f"| {x['ablation']} | {x['reason']} | {CLAIM_METRICS[x['key']]} | {arm(x, 'full')} | {arm(x, 'ablated')} | "
-        f"{short_verdict(x['difference']).replace('**', '')}" + ("" if gates != {None} else f" | {gated_verdict(x)}") + " |"
+        f"{short_verdict(x['difference']).replace('**', '')}"
+        + ("" if gates != {None} else f" | {gated_verdict(x)}")
+        + " |"
         for x in readings
     ]
     misses = budget_misses(rung_groups(runs).get((LONG, "explicit"), []))
