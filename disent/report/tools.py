@@ -409,7 +409,11 @@ def sec_methods(rep: Report, eval_dir: Path) -> None:
         extra = f" ({100 * r['detection_rate']:.0f} % detected)" if "detection_rate" in r else ""
         cells = " | ".join(f"{r[k]:.3g}" if k in r else "–" for k, _, _ in PANELS)
         rep.add(f"| {name}{extra} | {t} | {r['images']} | {cells} |")
-    rep.add("")
+    rep.add(
+        "",
+        "Each estimator's time per image against each accuracy; the points no other beats on both axes, the Pareto "
+        "front, are outlined (`disent.eval.methods.pareto`).\n",
+    )
     published_figure(rep, eval_dir / "methods.png", "methods on one plane")
 
 
