@@ -11,7 +11,6 @@ that same order; every ``train.val_every`` steps a fixed validation subset is sc
 from __future__ import annotations
 
 import json
-import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,8 +23,6 @@ from disent import losses as L
 from disent.config import (
     ADDED_LATER,
     NOT_DEFINING,
-    OPTIMIZERS,
-    SCHEDULES,
     ConfigError,
     check_config,
     config_differences,
@@ -35,9 +32,11 @@ from disent.config import (
 )
 from disent.data import get_batch, make_dataset
 from disent.eval.evaluate import evaluate, print_eval, trivial_baselines
+from disent.eval.scoring import validate
 from disent.eval.trivial import trivial_metrics
 from disent.lighting.targets import target_fit, with_fitted_lhat
-from disent.models import Discriminator, build_model
+from disent.models import build_model
+from disent.optim import build_discriminator, learning_rate, loss_weights, make_optimizer
 from disent.runtime import Prefetcher, tune_malloc
 from disent.storage import (
     MetricsLog,
@@ -93,39 +92,6 @@ def to_device(batch: dict, device, channels_last: bool) -> dict:
     return {k: (v.to(device).contiguous(memory_format=fmt) if v.dim() == 4 else v.to(device)) for k, v in batch.items()}
 
 
-def learning_rate(t, step: int, steps_per_epoch: int, total_steps: int) -> float:
-    """``train.lr`` after a linear warm-up of ``train.warmup_steps``, then ``train.schedule``: ``epoch_decay``
-    (the release: x ``train.lr_decay`` per epoch) or ``cosine`` (half a cosine from lr to 0 over the run's steps)."""
-    schedule = t.get("schedule", "epoch_decay")
-    if schedule not in SCHEDULES:
-        raise ValueError(f"train.schedule={schedule!r}; choose from {', '.join(SCHEDULES)}")
-    warm = min(1.0, (step + 1) / max(t.warmup_steps, 1))
-    if schedule == "cosine":
-        return t.lr * warm * 0.5 * (1 + math.cos(math.pi * step / max(total_steps, 1)))
-    return t.lr * warm * t.lr_decay ** (step // steps_per_epoch)
-
-
-def make_optimizer(module, cfg_train) -> torch.optim.Optimizer:
-    """``train.optimizer`` (rmsprop as in the release, or adam) over ``module``'s parameters at ``train.lr``."""
-    name = cfg_train.get("optimizer", "rmsprop")
-    if name not in OPTIMIZERS:
-        raise ValueError(f"train.optimizer={name!r}; choose from {', '.join(OPTIMIZERS)}")
-    return OPTIMIZERS[name](module.parameters(), lr=cfg_train.lr)
-
-
-def build_discriminator(model) -> Discriminator:
-    """The EBGAN discriminator, with the generator's layer choices (normalisation, input centring)."""
-    return Discriminator(model.resolution, layers=model.layers)
-
-
-def loss_weights(cfg_loss, step: int) -> dict:
-    """``loss.weights`` at ``step``: ``loss.early_weights`` in place of theirs for the first ``loss.early_steps``."""
-    weights = dict(cfg_loss.weights)
-    if step < loss_setting(cfg_loss, "early_steps"):
-        weights.update(loss_setting(cfg_loss, "early_weights") or {})
-    return weights
-
-
 def train_step(model, disc, opt_g, opt_d, batch, cfg_loss, step: int = 0) -> dict:
     """One simultaneous generator/discriminator update at ``step``; returns every term (detached floats later)."""
     weights = loss_weights(cfg_loss, step)
@@ -165,37 +131,6 @@ def train_step(model, disc, opt_g, opt_d, batch, cfg_loss, step: int = 0) -> dic
     if disc is not None:
         opt_d.step()
     return losses
-
-
-VAL_KEYS = (
-    "recon_psnr",
-    "recon_face_psnr",
-    "normal_mean",
-    "pseudo_normal_mean",
-    "albedo_si_mse",
-    "albedo_global_si_mse",
-    "albedo_face_si_mse",
-    "sh_error",
-    "pseudo_sh_error",
-    "light_shading_si_mse",
-    "pseudo_light_shading_si_mse",
-)
-
-
-def validate(model, batch: dict) -> dict:
-    """The periodic check on a fixed validation batch: recon PSNR (whole image and face), normal angular
-    error of the network and of the pseudo-GT on the same pixels (degrees), albedo scale-invariant MSE
-    and SH error (:mod:`disent.eval.evaluate`'s metrics, the ``VAL_KEYS`` the batch has truth for)."""
-    from disent.eval.scoring import metrics_from_outputs, predict
-
-    out = predict(model, batch["image"])
-    out = {k: out[k].float() for k in ("recon", "normal", "albedo", "sh") if k in out}
-    if "matte" not in batch:  # real photos: no intrinsic ground truth, the reconstruction only
-        from disent.eval.metrics import reconstruction_metrics
-
-        return {"recon_psnr": reconstruction_metrics(out["recon"].clamp(0, 1), batch["image"])["psnr"]}
-    m = metrics_from_outputs(out, batch)
-    return {k: m[k] for k in VAL_KEYS if k in m}
 
 
 def warm_start(model, cfg) -> None:

@@ -21,6 +21,7 @@ LAYERS = (  # lowest first: (name, module prefixes)
             "disent.data",
             "disent.storage",
             "disent.config",
+            "disent.optim",
             "disent.images",
             "disent.runtime",
         ),

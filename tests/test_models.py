@@ -211,7 +211,7 @@ def test_the_supervised_ceiling_trains_on_the_true_layers_only(name):
 def test_a_few_steps_on_one_batch_lower_the_loss(name):
     """Steps of the configured optimiser and learning rate on one fixed batch lower every model's objective
     (adversarial term off: D moves its target)."""
-    from disent.train import make_optimizer
+    from disent.optim import make_optimizer
 
     torch.manual_seed(0)
     cfg = compose_cfg(f"model={name}", "+ablation=no_adv")
@@ -226,7 +226,7 @@ def test_early_weights_replace_a_terms_weight_for_the_first_steps_only():
     """``loss.early_weights`` trains a term at its early weight while step < ``loss.early_steps``, then at
     ``loss.weights``: with the model held still (lr 0), the objective at an early step exceeds a later one's by
     exactly the weight's difference times the term."""
-    from disent.train import loss_weights
+    from disent.optim import loss_weights
 
     cfg = compose_cfg("model=implicit", "+ablation=no_adv", "+loss.early_weights.UV=50", "loss.early_steps=5")
     late = dict(cfg.loss.weights)
@@ -326,7 +326,7 @@ def test_hemisphere_normals_are_unit_face_the_camera_and_start_frontal():
 
 def test_layer_choices_are_checked_and_shared_with_the_discriminator():
     from disent.models.networks import Layers
-    from disent.train import build_discriminator
+    from disent.optim import build_discriminator
 
     with pytest.raises(ValueError, match="model.norm='batchnorm'; choose from none, batch, group"):
         build_model(model_cfg("explicit", norm="batchnorm"))
@@ -346,7 +346,7 @@ def test_a_deeper_decoder_adds_convolutions_without_skips_and_keeps_the_papers_w
     skips gains one 3x3 convolution a stage (the last before its output convolution), the skip-connected
     background and matte decoders none, gradients reach every new weight, and the speed kernels step aside."""
     from disent.models.networks import CHANNELS, Layers
-    from disent.train import build_discriminator
+    from disent.optim import build_discriminator
 
     with pytest.raises(ValueError, match="model.decoder_convs=0"):
         build_model(model_cfg("baseline", decoder_convs=0))

@@ -435,7 +435,7 @@ def test_learning_rate_schedules():
     """Linear warm-up, then the release's per-epoch decay or a half cosine that reaches 0 at the last step."""
     from omegaconf import OmegaConf
 
-    from disent.train import learning_rate
+    from disent.optim import learning_rate
 
     t = OmegaConf.create({"lr": 1e-3, "warmup_steps": 10, "lr_decay": 0.9, "schedule": "epoch_decay"})
     assert learning_rate(t, 0, 100, 1000) == pytest.approx(1e-4)  # (0 + 1) / 10 of lr

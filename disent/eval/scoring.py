@@ -347,3 +347,30 @@ def completed_light_metrics(out: dict, gt: dict, prior: torch.Tensor) -> dict:
         pseudo = sh_gram(gt["normal_pseudo"], gt["mask_pseudo"])
         m["pseudo_sh_error_completed"] = sh_error(completed_sh(gt["sh_pseudo"], prior, pseudo), gt["sh"])
     return m
+
+
+VAL_KEYS = (
+    "recon_psnr",
+    "recon_face_psnr",
+    "normal_mean",
+    "pseudo_normal_mean",
+    "albedo_si_mse",
+    "albedo_global_si_mse",
+    "albedo_face_si_mse",
+    "sh_error",
+    "pseudo_sh_error",
+    "light_shading_si_mse",
+    "pseudo_light_shading_si_mse",
+)
+
+
+def validate(model, batch: dict) -> dict:
+    """The periodic check on a fixed validation batch: recon PSNR (whole image and face), normal angular
+    error of the network and of the pseudo-GT on the same pixels (degrees), albedo scale-invariant MSE
+    and SH error (:mod:`disent.eval.evaluate`'s metrics, the ``VAL_KEYS`` the batch has truth for)."""
+    out = predict(model, batch["image"])
+    out = {k: out[k].float() for k in ("recon", "normal", "albedo", "sh") if k in out}
+    if "matte" not in batch:  # real photos: no intrinsic ground truth, the reconstruction only
+        return {"recon_psnr": reconstruction_metrics(out["recon"].clamp(0, 1), batch["image"])["psnr"]}
+    m = metrics_from_outputs(out, batch)
+    return {k: m[k] for k in VAL_KEYS if k in m}

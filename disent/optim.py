@@ -1,0 +1,45 @@
+"""The training recipe's moving parts: the optimisers (``train.optimizer``), the learning-rate schedule
+(``train.schedule`` after ``train.warmup_steps``), the loss weights by step (``loss.early_weights``), and the EBGAN
+discriminator built to match its generator."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from disent.config import OPTIMIZERS, SCHEDULES, loss_setting
+from disent.models import Discriminator
+
+
+def learning_rate(t, step: int, steps_per_epoch: int, total_steps: int) -> float:
+    """``train.lr`` after a linear warm-up of ``train.warmup_steps``, then ``train.schedule``: ``epoch_decay``
+    (the release: x ``train.lr_decay`` per epoch) or ``cosine`` (half a cosine from lr to 0 over the run's steps)."""
+    schedule = t.get("schedule", "epoch_decay")
+    if schedule not in SCHEDULES:
+        raise ValueError(f"train.schedule={schedule!r}; choose from {', '.join(SCHEDULES)}")
+    warm = min(1.0, (step + 1) / max(t.warmup_steps, 1))
+    if schedule == "cosine":
+        return t.lr * warm * 0.5 * (1 + math.cos(math.pi * step / max(total_steps, 1)))
+    return t.lr * warm * t.lr_decay ** (step // steps_per_epoch)
+
+
+def make_optimizer(module, cfg_train) -> torch.optim.Optimizer:
+    """``train.optimizer`` (rmsprop as in the release, or adam) over ``module``'s parameters at ``train.lr``."""
+    name = cfg_train.get("optimizer", "rmsprop")
+    if name not in OPTIMIZERS:
+        raise ValueError(f"train.optimizer={name!r}; choose from {', '.join(OPTIMIZERS)}")
+    return OPTIMIZERS[name](module.parameters(), lr=cfg_train.lr)
+
+
+def build_discriminator(model) -> Discriminator:
+    """The EBGAN discriminator, with the generator's layer choices (normalisation, input centring)."""
+    return Discriminator(model.resolution, layers=model.layers)
+
+
+def loss_weights(cfg_loss, step: int) -> dict:
+    """``loss.weights`` at ``step``: ``loss.early_weights`` in place of theirs for the first ``loss.early_steps``."""
+    weights = dict(cfg_loss.weights)
+    if step < loss_setting(cfg_loss, "early_steps"):
+        weights.update(loss_setting(cfg_loss, "early_weights") or {})
+    return weights
