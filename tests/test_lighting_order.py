@@ -479,3 +479,21 @@ def test_order_report_writes_its_figures_and_where_the_failures_misfit(tmp_path)
         rec = study[f"{split}/texture/normal_pseudo"]["scenes"]
         wrong = sum(t != e for t, e in zip(rec["true_order"], rec["evidence"]))
         assert sum(kind["scenes"] for kind in entry.get("kinds", {}).values()) == wrong
+
+
+def test_the_lighting_tables_load_from_their_data_file_and_name_only_known_rows(tmp_path):
+    """disent/lighting/tables.yaml: each order row names an albedo, a geometry of the table and a known noise
+    model; ``edge`` reads as EDGE px in the erosion and the label; a row naming a missing field stops the load."""
+    from disent.lighting.geometry import ALBEDO, EDGE, GEOMETRY, TABLES, Geometry, load_tables
+    from disent.lighting.order_study import NOISE_MODELS, ORDER_ROWS
+
+    assert all(isinstance(g, Geometry) and isinstance(g.made_true, tuple) for g in GEOMETRY.values())
+    assert GEOMETRY["normal_pseudo_eroded"].erosion == EDGE and GEOMETRY["normal"].erosion == 0
+    assert f"eroded {EDGE} px" in GEOMETRY["normal_pseudo_eroded"].label and "{edge}" not in str(GEOMETRY)
+    assert GEOMETRY["oracle_shape"].made_true == ("shape",) and GEOMETRY["network_implicit"].network == "implicit"
+    for albedo, geometry, *noise in ORDER_ROWS:
+        assert albedo in ALBEDO and geometry in GEOMETRY and all(n in NOISE_MODELS for n in noise)
+    broken = tmp_path / "tables.yaml"
+    broken.write_text(TABLES.read_text().replace("    normals: normal\n", "    normal: normal\n", 1))
+    with pytest.raises(TypeError):
+        load_tables(broken)

@@ -46,105 +46,26 @@ class Geometry(NamedTuple):
     network: str = ""  # the shipped model whose maps of the image (normal_net, matte_net, uv_net) the row reads
 
 
-GEOMETRY = {
-    "normal": Geometry("normal", "matte", "uv", 0, "true normals"),
-    "normal_pseudo": Geometry("normal_pseudo", "mask_pseudo", "uv_pseudo", 0, "pseudo normals + mask"),
-    "normal_pseudo_eroded": Geometry(
-        "normal_pseudo", "mask_pseudo", "uv_pseudo", EDGE, f"pseudo normals + mask eroded {EDGE} px"
-    ),
-    "normal_pseudo_registered": Geometry(
-        "normal_pseudo",
-        "mask_pseudo",
-        "uv_pseudo",
-        EDGE,
-        f"pseudo normals + mask eroded {EDGE} px, uv registered",
-        register=True,
-    ),
-    "normal_pseudo_placed": Geometry(
-        "normal_pseudo",
-        "mask_pseudo",
-        "uv_pseudo",
-        EDGE,
-        f"pseudo normals + mask eroded {EDGE} px, placement refined",
-        place=True,
-    ),
-    "normal_pseudo_placed_registered": Geometry(
-        "normal_pseudo",
-        "mask_pseudo",
-        "uv_pseudo",
-        EDGE,
-        f"pseudo normals + mask eroded {EDGE} px, placement refined, uv registered",
-        register=True,
-        place=True,
-    ),
-    "oracle_uv": Geometry(
-        "normal_pseudo", "mask_pseudo", "uv", EDGE, f"pseudo normals + mask eroded {EDGE} px, true uv (oracle)"
-    ),
-    "oracle_normals": Geometry(
-        "normal", "mask_pseudo", "uv_pseudo", EDGE, f"true normals, pseudo mask eroded {EDGE} px and uv (oracle)"
-    ),
-    "oracle_placement": Geometry(
-        "normal_pseudo",
-        "mask_pseudo",
-        "uv_pseudo",
-        EDGE,
-        f"coarse fit at the true pose, scale and shift, mask eroded {EDGE} px (oracle)",
-        made_true=("placement",),
-    ),
-    "oracle_shape": Geometry(
-        "normal_pseudo",
-        "mask_pseudo",
-        "uv_pseudo",
-        EDGE,
-        f"coarse fit with the true shape and expression, mask eroded {EDGE} px (oracle)",
-        made_true=("shape",),
-    ),
-    "network_explicit": Geometry(
-        "normal_net",
-        "matte_net",
-        "uv_pseudo",
-        EDGE,
-        f"explicit network's normals + matte eroded {EDGE} px, pseudo uv registered",
-        register=True,
-        network="explicit",
-    ),
-    "network_implicit": Geometry(
-        "normal_net",
-        "matte_net",
-        "uv_net",
-        EDGE,
-        f"implicit network's normals + matte eroded {EDGE} px + uv",
-        network="implicit",
-    ),
-    "oracle_uv_network": Geometry(
-        "normal_net",
-        "matte_net",
-        "uv",
-        EDGE,
-        f"explicit network's normals + matte eroded {EDGE} px, true uv (oracle)",
-        network="explicit",
-    ),
-    "network_explicit_placed": Geometry(
-        "normal_net",
-        "matte_net",
-        "uv_pseudo",
-        EDGE,
-        f"explicit network's normals + matte eroded {EDGE} px, uv of the placed coarse fit registered",
-        register=True,
-        place=True,
-        network="explicit",
-    ),
-    "network_implicit_registered": Geometry(
-        "normal_net",
-        "matte_net",
-        "uv_net",
-        EDGE,
-        f"implicit network's normals + matte eroded {EDGE} px + uv registered",
-        register=True,
-        network="implicit",
-    ),
-}
-# the scene parameters behind each part of the coarse fit (coarse_fit_made_true)
+TABLES = Path(__file__).with_name("tables.yaml")  # the lighting studies' tables, as data
+
+
+def load_tables(path: Path = TABLES) -> dict:
+    """``tables.yaml``: ``geometry`` as :class:`Geometry` rows (``erosion: edge`` and ``{edge}`` in a label: EDGE
+    px) and ``order_rows`` as tuples."""
+    import yaml
+
+    raw = yaml.safe_load(path.read_text())
+    geometry = {}
+    for name, row in raw["geometry"].items():
+        erosion = EDGE if row["erosion"] == "edge" else int(row["erosion"])
+        row = {**row, "erosion": erosion, "label": row["label"].format(edge=EDGE)}
+        geometry[name] = Geometry(**{**row, "made_true": tuple(row.get("made_true", ()))})
+    return {"geometry": geometry, "order_rows": tuple(tuple(r) for r in raw["order_rows"])}
+
+
+GEOMETRY = load_tables()["geometry"]
+
+
 COARSE_FIT_PARTS = {"placement": ("pose", "scale", "shift"), "shape": ("alpha", "expression")}
 
 

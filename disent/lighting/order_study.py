@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from disent.lighting.geometry import ALBEDO, GEOMETRY, item_data, save_json, scene_geometry
+from disent.lighting.geometry import ALBEDO, GEOMETRY, item_data, load_tables, save_json, scene_geometry
 from disent.lighting.order import choose, fitted, select_order
 from disent.lighting.posterior import N_COEFFS
 from disent.render import C4, sh_basis
@@ -163,46 +163,7 @@ def geometry_noise(normals: str) -> dict:
 
 # (albedo, normals[, noise model]); "residual_process": rho, ell by fit_residual_process on train scenes, on the
 # row's own geometry; "geometry_noise+residual_process": both, rho and ell fitted beside the geometry noise
-ORDER_ROWS = (
-    ("known", "normal"),
-    ("constant", "normal"),
-    ("texture", "normal"),
-    ("known", "normal_pseudo"),
-    ("constant", "normal_pseudo"),
-    ("texture", "normal_pseudo"),
-    ("known", "normal_pseudo", "geometry_noise"),
-    ("texture", "normal_pseudo", "geometry_noise"),
-    ("texture", "normal_pseudo", "residual_process"),
-    ("texture", "normal_pseudo_eroded"),
-    ("texture", "normal_pseudo_eroded", "residual_process"),
-    ("texture", "normal_pseudo_registered"),
-    ("texture", "normal_pseudo_registered", "residual_process"),
-    ("texture", "oracle_uv"),
-    ("texture", "oracle_normals"),
-    ("texture", "oracle_placement"),
-    ("texture", "oracle_shape"),
-    ("known", "network_explicit"),
-    ("known", "network_implicit"),
-    ("known", "network_explicit", "geometry_noise"),
-    ("known", "network_implicit", "geometry_noise"),
-    ("texture", "network_explicit", "geometry_noise"),
-    ("texture", "network_implicit", "geometry_noise"),
-    ("texture", "network_explicit", "residual_process"),
-    ("texture", "network_implicit", "residual_process"),
-    ("texture", "network_implicit_registered", "geometry_noise"),
-    ("texture", "normal_pseudo_registered", "geometry_noise+residual_process"),
-    ("texture", "network_explicit", "geometry_noise+residual_process"),
-    ("texture", "network_implicit", "geometry_noise+residual_process"),
-    ("texture", "oracle_uv_network", "geometry_noise"),
-    ("texture", "normal_pseudo_placed"),
-    ("texture", "normal_pseudo_placed", "residual_process"),
-    ("texture", "oracle_placement", "residual_process"),
-    ("known", "normal_pseudo_placed", "geometry_noise"),
-    ("texture", "normal_pseudo_placed_registered", "residual_process"),
-    ("texture", "network_explicit_placed", "residual_process"),
-    ("texture", "normal_pseudo_placed_registered", "residual_process+student_t"),
-    ("texture", "network_explicit_placed", "residual_process+student_t"),
-)
+ORDER_ROWS = load_tables()["order_rows"]  # (albedo, geometry[, noise model]): disent/lighting/tables.yaml
 ORDER_TARGET = 0.85  # share of scenes whose lighting order is chosen right on pseudo geometry
 NOISE_MODELS = ("geometry_noise", "residual_process", "geometry_noise+residual_process", "residual_process+student_t")
 # "+student_t": the whitened noise Student-t of STUDENT_T_NU degrees of freedom (disent.lighting.order.score); nu
