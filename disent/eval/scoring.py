@@ -180,6 +180,66 @@ def bws_stats(out: dict, gt: dict) -> dict:
     }
 
 
+def albedo_metrics(out: dict, gt: dict, region: torch.Tensor, face: torch.Tensor) -> dict:
+    """The albedo's metrics of :func:`metrics_from_outputs` (``albedo_*``, its detailed albedo's, and the same with
+    one input of its shading made true)."""
+    m = {}
+    if "albedo" in out:
+        m["albedo_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], region)
+        m["albedo_global_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], region, per_image=False)
+        m["albedo_colour_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], region, per_channel=False)
+        m["albedo_face_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], face)
+        m["albedo_pattern_corr"] = pattern_corr(out["albedo"], gt["albedo"], region)
+        bands = scale_invariant_mse_bands(out["albedo"], gt["albedo"], region)
+        m["albedo_coarse_si_mse"], m["albedo_fine_si_mse"] = bands["coarse"], bands["fine"]
+        for prefix, albedo in (("", out["albedo"]), ("true_", gt["albedo"])):
+            m[f"{prefix}albedo_ceiling_share"] = ceiling_share(albedo, region)
+    if {"albedo", "shading"} <= set(out) and {"albedo", "image"} <= set(gt):
+        # Sec. 5.3's "detailed" albedo, Eq. 2 solved for A with the model's own shading: I / S_e keeps every detail
+        # of the image, and every error of S_e (the relighting transfer renders with it)
+        from disent.render import detailed_albedo
+
+        image = gt["image"].to(out["shading"].dtype)
+        m["albedo_detailed_si_mse"] = scale_invariant_mse(
+            detailed_albedo(image, out["shading"], out["albedo"]), gt["albedo"], region
+        )
+        if {"normal", "sh"} <= set(out) and {"normal", "sh"} <= set(gt):  # S(N, L) of Eq. 4 with N or L made true
+            for name, normal, sh in (
+                ("true_light", out["normal"], gt["sh"]),
+                ("true_normals", gt["normal"], out["sh"]),
+            ):
+                shading = sh_shading(normal.to(image.dtype), sh.to(image.dtype))
+                detailed = detailed_albedo(image, shading, out["albedo"])
+                m[f"albedo_detailed_{name}_si_mse"] = scale_invariant_mse(detailed, gt["albedo"], region)
+    return m
+
+
+def light_metrics(out: dict, gt: dict, region: torch.Tensor) -> dict:
+    """The light's metrics of :func:`metrics_from_outputs` (``sh_error*``, ``*light_shading_si_mse``, the shown and
+    hidden split, the contrast parts), for the network's light, L-hat and the taught target."""
+    m = {}
+    if "sh" in out:
+        m["sh_error"] = sh_error(out["sh"], gt["sh"])
+        m["pseudo_sh_error"] = sh_error(gt["sh_pseudo"], gt["sh"])
+        m["sh_error_coefficients"] = sh_error(out["sh"], gt["sh"], reduction="coefficients")
+        # the network's light, L-hat and the target it was taught where that is not L-hat (sh_target), each as
+        # this face shows it: its shading through the true normals (Eq. 4), which leaves out the SH directions a
+        # face's normals cannot reveal; per image and channel scale-invariant
+        lights = {
+            "": out["sh"],
+            "pseudo_": gt["sh_pseudo"],
+            **({"target_": gt["sh_target"]} if "sh_target" in gt else {}),
+        }
+        for prefix, sh in lights.items():
+            m[f"{prefix}light_shading_si_mse"] = light_shading_si_mse(sh, gt["sh"], gt["normal"], region)
+            # the coefficients split by what the face shows: only the shown part is identifiable from an image
+            split = sh_error_shown_hidden(sh, gt["sh"], gt["normal"], region)
+            m[f"{prefix}sh_error_shown"], m[f"{prefix}sh_error_hidden"] = split["shown"], split["hidden"]
+            agree = shading_contrast(sh, gt["sh"], gt["normal"], region)
+            m.update({f"{prefix}light_{k}": agree[v].median().item() for k, v in AGREEMENT_KEYS.items()})
+    return m
+
+
 def metrics_from_outputs(out: dict, gt: dict) -> dict:
     """Flat metric dict from model outputs and ground truth (same keys as SynthFaces items).
 
@@ -226,58 +286,14 @@ def metrics_from_outputs(out: dict, gt: dict) -> dict:
     if "normal" in out:
         m.update(normal_metrics(out["normal"], gt))
     region = decomposed_region(gt)
-    if "albedo" in out:
-        m["albedo_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], region)
-        m["albedo_global_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], region, per_image=False)
-        m["albedo_colour_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], region, per_channel=False)
-        m["albedo_face_si_mse"] = scale_invariant_mse(out["albedo"], gt["albedo"], face)
-        m["albedo_pattern_corr"] = pattern_corr(out["albedo"], gt["albedo"], region)
-        bands = scale_invariant_mse_bands(out["albedo"], gt["albedo"], region)
-        m["albedo_coarse_si_mse"], m["albedo_fine_si_mse"] = bands["coarse"], bands["fine"]
-        for prefix, albedo in (("", out["albedo"]), ("true_", gt["albedo"])):
-            m[f"{prefix}albedo_ceiling_share"] = ceiling_share(albedo, region)
-    if {"albedo", "shading"} <= set(out) and {"albedo", "image"} <= set(gt):
-        # Sec. 5.3's "detailed" albedo, Eq. 2 solved for A with the model's own shading: I / S_e keeps every detail
-        # of the image, and every error of S_e (the relighting transfer renders with it)
-        from disent.render import detailed_albedo
-
-        image = gt["image"].to(out["shading"].dtype)
-        m["albedo_detailed_si_mse"] = scale_invariant_mse(
-            detailed_albedo(image, out["shading"], out["albedo"]), gt["albedo"], region
-        )
-        if {"normal", "sh"} <= set(out) and {"normal", "sh"} <= set(gt):  # S(N, L) of Eq. 4 with N or L made true
-            for name, normal, sh in (
-                ("true_light", out["normal"], gt["sh"]),
-                ("true_normals", gt["normal"], out["sh"]),
-            ):
-                shading = sh_shading(normal.to(image.dtype), sh.to(image.dtype))
-                detailed = detailed_albedo(image, shading, out["albedo"])
-                m[f"albedo_detailed_{name}_si_mse"] = scale_invariant_mse(detailed, gt["albedo"], region)
+    m.update(albedo_metrics(out, gt, region, face))
     if "shading" in out and "shading" in gt:  # (the validation batch carries no true shading)
         shading = out["shading"].expand_as(gt["shading"])
         m["shading_si_mse"] = scale_invariant_mse(shading, gt["shading"], region)
         m["shading_colour_si_mse"] = scale_invariant_mse(shading, gt["shading"], region, per_channel=False)
         agree = log_shading_agreement(shading, gt["shading"], region)
         m.update({f"shading_{k}": agree[v].median().item() for k, v in AGREEMENT_KEYS.items()})
-    if "sh" in out:
-        m["sh_error"] = sh_error(out["sh"], gt["sh"])
-        m["pseudo_sh_error"] = sh_error(gt["sh_pseudo"], gt["sh"])
-        m["sh_error_coefficients"] = sh_error(out["sh"], gt["sh"], reduction="coefficients")
-        # the network's light, L-hat and the target it was taught where that is not L-hat (sh_target), each as
-        # this face shows it: its shading through the true normals (Eq. 4), which leaves out the SH directions a
-        # face's normals cannot reveal; per image and channel scale-invariant
-        lights = {
-            "": out["sh"],
-            "pseudo_": gt["sh_pseudo"],
-            **({"target_": gt["sh_target"]} if "sh_target" in gt else {}),
-        }
-        for prefix, sh in lights.items():
-            m[f"{prefix}light_shading_si_mse"] = light_shading_si_mse(sh, gt["sh"], gt["normal"], region)
-            # the coefficients split by what the face shows: only the shown part is identifiable from an image
-            split = sh_error_shown_hidden(sh, gt["sh"], gt["normal"], region)
-            m[f"{prefix}sh_error_shown"], m[f"{prefix}sh_error_hidden"] = split["shown"], split["hidden"]
-            agree = shading_contrast(sh, gt["sh"], gt["normal"], region)
-            m.update({f"{prefix}light_{k}": agree[v].median().item() for k, v in AGREEMENT_KEYS.items()})
+    m.update(light_metrics(out, gt, region))
     if {"albedo", "shading"} <= set(out) and "shading" in gt:
         m.update(bws_stats(out, gt))
     if "matte" in out and "mask_face" in gt:  # the matte against the face region M-hat estimates (Sec. 3.3)
