@@ -323,7 +323,7 @@ def edit_table(
 # brightness scale per image (``psnr_skin_scaled``). Inside a full matte, transfer's detailed albedo makes it the ratio
 # image (A S' = I S' / S, Eqs. 2 and 4); the two differ only where the model's matte is not full (face_mask): Eq. 6
 # blends the unrelit input in: the face region split there (``_full`` / ``_soft``, each scaled on its own pixels), and
-# ``matte_full_share``, the face region's share under a full matte (disent.eval.evaluate.face_mask)
+# ``matte_full_share``, the face region's share under a full matte (disent.regions.face_mask)
 RELIGHT_SCORES = (
     "psnr",
     "ssim",

@@ -4,7 +4,7 @@
 
 On the first ``n`` SynthFaces test images, each estimator is timed on this machine at one thread (seconds
 per image; a network at batch ``n``) and scored against the true layers on the pixels the models are
-scored on (:func:`disent.eval.evaluate.decomposed_region`):
+scored on (:func:`disent.regions.decomposed_region`):
 
 - **mean map / mean light**: the training split's dataset means (constants: no time per image);
 - **coarse fit**: SynthFaces' simulated morphable-model fit, the pseudo ground truth that supervises the

@@ -21,7 +21,7 @@ A layer counts as learned only where the network beats its trivial baseline:
   (L-hat's constant albedo carries skin tone and the face's dark features into the light, so its mean is
   biased where the true mean is not).
 
-``trivial_metrics`` scores them with :func:`disent.eval.evaluate.metrics_from_outputs`, the code that
+``trivial_metrics`` scores them with :func:`disent.eval.scoring.metrics_from_outputs`, the code that
 scores the networks, and returns its keys prefixed with ``trivial_`` (``trivial_normal_mean``,
 ``trivial_albedo_si_mse``, ``trivial_albedo_global_si_mse``, ``trivial_sh_error``, ...).
 """

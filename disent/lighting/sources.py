@@ -58,7 +58,7 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
     channel, on the scored pixels (the true face inside M-hat; ``light_on_face``, with its standard error over the
     faces, and ``beats_lhat``, the share of faces where it is below the paper's L-hat), and the SH error along the
     directions the face shows (``shown``); ``skin_tone_corr`` and ``skin_brightness_corr``: how much of each face's
-    skin its shading carries there (:func:`disent.eval.evaluate.skin_in_shading`; a per-face, per-channel scale that
+    skin its shading carries there (:func:`disent.eval.scoring.skin_in_shading`; a per-face, per-channel scale that
     light on the face is blind to, and that the light hands on to the albedo); ``contrast``, ``pattern_corr``,
     ``contrast_ratio`` and ``log_error``: the medians over faces and channels of
     :func:`disent.eval.metrics.shading_contrast`'s slope, correlation, magnitude and error against the true light

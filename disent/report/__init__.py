@@ -3,7 +3,7 @@ they draw, from the committed records alone.
 
 ``python -m disent.report`` (or ``disent-report``) reads
 
-* ``reports/runs.jsonl``: one row per ended run (:func:`disent.runs.write_records`), and the run folders under
+* ``reports/runs.jsonl``: one row per ended run (:func:`disent.publish.write_records`), and the run folders under
   ``--roots`` (``outputs/`` and ``multirun/`` by default), whose ended runs it adds to that file first;
 * the tools' results published into ``reports/`` (``--publish FOLDER``): ``eval/*.json`` from
   :mod:`disent.eval.protocols` and :mod:`disent.eval.stability` (``--compute`` runs both first), ``edit/``,

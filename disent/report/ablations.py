@@ -330,7 +330,7 @@ def _normal_failure_line(r, reason: str) -> str:
     )
 
 
-SKIN_METRICS = (  # (key, label, its floor's key or None): where each face's skin went (disent.eval.evaluate.bws_stats)
+SKIN_METRICS = (  # (key, label, its floor's key or None): where each face's skin went (disent.eval.scoring.bws_stats)
     ("shading_albedo_tone_corr", "corr over faces: shading's tone, skin's tone", None),
     ("shading_albedo_brightness_corr", "the same, brightness", None),
     ("albedo_colour_si_mse", "albedo si-MSE, one scale for RGB", "trivial_albedo_colour_si_mse"),
@@ -394,7 +394,7 @@ def claim_skin(rep: Report, runs: list[Run]) -> None:
         + (f" (the true albedo's: {true_ceiling:.3f})" if true_ceiling is not None else "")
         + ": where the split leaves the albedo near 1 (the shading takes the face's brightness: without BWS, or "
         "with a low c), the albedo is pinned at 1 over the skin and flat there, whatever the skin does "
-        "(`disent.eval.evaluate.ceiling_share`; runs scored before it show –). Test "
+        "(`disent.eval.scoring.ceiling_share`; runs scored before it show –). Test "
         "split, 256 images; mean ± std over seeds (`python -m disent.eval.evaluate RUN` scores a finished run).\n",
         *head,
         *rows,

@@ -184,8 +184,8 @@ def sec_targets(rep: Report, runs: list[Run]) -> None:
     rep.add(*matte_lines(runs))
     if not any(where == "+experiment=long" for where, _ in groups):
         rep.add(
-            "_No run of the long rung is among this build's inputs (runs from before `reports/runs/` kept records "
-            "left none): its numbers are the kept rows of claims 1 and 3._\n"
+            "_No run of the long rung is among this build's inputs (`reports/runs.jsonl` has none); the archive page "
+            "keeps the rows of runs whose records are gone._\n"
         )
 
 
@@ -231,7 +231,7 @@ COMPLETED_HEAD = table_head(
 
 def completed_light_lines(runs: list[Run]) -> list[str]:
     """The light completed by the mean light where a face hides it (``sh_error_completed``,
-    :func:`disent.eval.evaluate.completed_light_metrics`), per setting and model of the runs scored with it, beside
+    :func:`disent.eval.scoring.completed_light_metrics`), per setting and model of the runs scored with it, beside
     the raw light, L-hat completed and raw, and the constant light; empty without such runs."""
     groups = by_setting_and_model(
         r for r in runs if r.status == "ok" and r.eval and r.value("sh_error_completed") is not None
@@ -829,7 +829,7 @@ def albedo_rank_reading(points: list[dict]) -> str:
 
 
 def matte_lines(runs: list[Run]) -> list[str]:
-    """The matte against the true face region (``matte_iou``, :func:`disent.eval.evaluate.metrics_from_outputs`) per
+    """The matte against the true face region (``matte_iou``, :func:`disent.eval.scoring.metrics_from_outputs`) per
     setting and model of the runs scored with it and of the shipped models (their manifest's metrics), beside M-hat's
     and the mean train face region's; empty where none was scored."""
     spreads = scored_spreads(runs, ("matte_iou", *(k for k, _ in MATTE_FLOORS), *MATTE_EDGE_KEYS))
@@ -853,7 +853,7 @@ def matte_lines(runs: list[Run]) -> list[str]:
         f"matte is under {FACE_THRESHOLD:g}; beside it the mean of the matte and of M-hat on the edge band. Where "
         "the two means agree, the soft edge is what the matte's L2 loss toward a binary M-hat asks for: M-hat's "
         "expectation where the image does not say where M-hat's edge falls "
-        "(`disent.eval.evaluate.matte_edge_metrics`; `loss.matte_p=1`: the release's L1 toward M-hat instead, "
+        "(`disent.eval.scoring.matte_edge_metrics`; `loss.matte_p=1`: the release's L1 toward M-hat instead, "
         "whose minimiser is M-hat's median, not its expectation). `shipped`: the shipped weights, scored by "
         "`python -m disent.models.shipped NAME --add-metrics`; runs score it themselves, and "
         "`python -m disent.eval.evaluate RUN` scores a finished run again.\n",
@@ -888,7 +888,7 @@ def edit_rates(results: list[dict], attribute: str) -> dict:
 
 def beyond_the_fit(groups: dict) -> list[str]:
     """Claim 1 pixel by pixel: the network's and the pseudo-GT's normal error where the pseudo-GT errs by each
-    range of :data:`disent.eval.evaluate.PSEUDO_ERROR_BINS` (``groups``: ``{(setting, model): runs}``; runs
+    range of :data:`disent.eval.scoring.PSEUDO_ERROR_BINS` (``groups``: ``{(setting, model): runs}``; runs
     scored before the bins were kept show none)."""
     from disent.eval.scoring import PSEUDO_ERROR_BINS
 
@@ -912,7 +912,7 @@ def beyond_the_fit(groups: dict) -> list[str]:
     return [
         "Where it goes beyond: the scored pixels binned by the pseudo-GT's own error against the truth; in each bin "
         "the network's error (mean ± std over seeds) / the pseudo-GT's (deg), and the bin's share of the pixels "
-        "(`disent.eval.evaluate.PSEUDO_ERROR_BINS`; runs scored before these bins: "
+        "(`disent.eval.scoring.PSEUDO_ERROR_BINS`; runs scored before these bins: "
         "`python -m disent.eval.evaluate RUN` rescores them).\n",
         *table_head("setting", "model", *(f"pseudo-GT off by {b.replace('_', '-')} deg" for b in bins)),
         *rows,
@@ -1488,7 +1488,7 @@ def relighting(rep: Report, groups: dict) -> None:
             "Why the ratio image leads once the brightness is scaled out: where the model's matte is full, transfer "
             "*is* the ratio image, since its detailed albedo A = I / S shaded anew gives I S' / S (Eqs. 2 and 4); "
             "Eq. 6 then blends the unrelit input in by 1 - M wherever the matte is under 1. The face region split "
-            f"by the model's matte (`disent.eval.evaluate.FACE_THRESHOLD`, {FACE_THRESHOLD:g}), each part with its own "
+            f"by the model's matte (`disent.regions.FACE_THRESHOLD`, {FACE_THRESHOLD:g}), each part with its own "
             "brightness scale per image, PSNR differences in dB:\n",
             *matte_head,
             *relit_matte,

@@ -559,7 +559,7 @@ def lhat_source_lines(src: dict) -> list[str]:
         "*light on the face* in the glance section), mean ± standard error over the faces; *beats L-hat*: the share "
         f"of faces where it is below the paper's L-hat; *shown SH error*: along the SH directions the face shows; "
         "*skin in its shading*: the correlation over faces of its shading's mean chromaticity (tone) and luminance "
-        "(brightness) on the scored pixels with the true albedo's (`disent.eval.evaluate.skin_in_shading`, as "
+        "(brightness) on the scored pixels with the true albedo's (`disent.eval.scoring.skin_in_shading`, as "
         "`shading_albedo_tone_corr` scores the networks' shading), the per-face scale that *light on the face* is "
         "blind to and that a light hands on to the albedo; the true light's is about 0; *contrast*: the median over "
         "faces and channels of the slope of its log shading on the true light's, on the scored pixels "

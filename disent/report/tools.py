@@ -161,7 +161,7 @@ def _stability_ood(rep: Report, res: dict) -> None:
     if uv:  # why the implicit model's normals break: its UV map, or its UV-space normals
         rep.add(
             "Why a UV model's normals break: its UV map against the true one (*uv error*, UV units) and its "
-            "UV-space normals looked up at the true UV (`disent.eval.evaluate.uv_metrics`), each read at the "
+            "UV-space normals looked up at the true UV (`disent.eval.scoring.uv_metrics`), each read at the "
             f"severity where the normals break: a step whose error has passed {BREAK_FACTOR:g}x its clean value "
             "there has failed.\n",
             *table_head(

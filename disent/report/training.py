@@ -748,7 +748,7 @@ def sec_uv_by_seed(rep: Report, runs: list[Run]) -> None:
     rep.add(
         "The implicit model draws its normals and albedo through its UV map (Fig. 2b), which E_UV (Sec. 4.2) pulls "
         "towards the morphable model's UV map. *UV error*: the mean distance of its UV map from the true one on the "
-        "scored pixels (UV units, the texture square is 1 wide; `disent.eval.evaluate.uv_metrics`), beside the "
+        "scored pixels (UV units, the texture square is 1 wide; `disent.eval.scoring.uv_metrics`), beside the "
         "dataset-mean UV map's (`trivial_uv_error`) and the pseudo UV's, its supervision (`pseudo_uv_error`); "
         f"*E_UV at step {UV_EARLY_STEP:,}*: its training loss, the mean of the logged values within 250 steps of "
         "it, and at the end (its last 250 steps); *normals at the true UV*: its UV-space normals looked up where "

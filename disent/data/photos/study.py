@@ -209,7 +209,7 @@ def markdown(stats: dict) -> str:
 
 def run_study(out, resolution: int = 64, workers: int = 2, cache_dir=None) -> list:
     """Pseudo ground truth of the bundled photos: ``pseudo_gt.json``, ``pseudo_gt.md`` and ``pseudo_gt.png`` in
-    ``out`` (a tool folder: :func:`disent.runs.tool_folder`); returns the records of the photos it could use
+    ``out`` (a tool folder: :func:`disent.storage.tool_folder`); returns the records of the photos it could use
     (for :mod:`disent.eval.photos`)."""
     settings = pg.PseudoGTSettings(resolution=resolution)
     cache = Path(cache_dir) if cache_dir else pg.default_cache_dir()
