@@ -109,13 +109,12 @@ def drop_remeasured(folder: Path, dest: Path) -> None:
 
 CURVE_EVERY = 5  # of the training log's loss rows, every 5th is kept (each validation record is kept)
 CURVE_KEYS = ("step", "epoch", "wall", "minutes", "images_per_s", "total", "UV")  # what the report reads of a loss row
-CURVE_VAL_KEYS = (  # what the learning-curve figure draws of each validation record
-    *("normal_mean", "recon_face_psnr", "albedo_face_si_mse", "albedo_si_mse", "sh_error", "light_shading_si_mse"),
-)
-CURVE_REFERENCE_KEYS = (  # its reference lines, the same at every record (kept in the last one)
-    *("trivial_normal_mean", "pseudo_normal_mean", "trivial_albedo_si_mse", "trivial_sh_error", "pseudo_sh_error"),
-    *("trivial_light_shading_si_mse", "pseudo_light_shading_si_mse"),
-)
+# what the learning-curve figure draws of each validation record, and its reference lines (the same at every record:
+# kept in the last one)
+CURVE_VAL_KEYS = ("normal_mean", "recon_face_psnr", "albedo_face_si_mse", "albedo_si_mse", "sh_error")
+CURVE_VAL_KEYS += ("light_shading_si_mse",)
+CURVE_REFERENCE_KEYS = ("trivial_normal_mean", "pseudo_normal_mean", "trivial_albedo_si_mse", "trivial_sh_error")
+CURVE_REFERENCE_KEYS += ("pseudo_sh_error", "trivial_light_shading_si_mse", "pseudo_light_shading_si_mse")
 
 
 EVAL_DIGITS = 7  # significant digits a record keeps of eval.json and a published JSON (replicates agree to 1e-6)
@@ -141,13 +140,13 @@ def thinned_curve(metrics: list[dict]) -> list[dict]:
     rows every :data:`CURVE_EVERY`-th and the last, with the keys the report reads (:data:`CURVE_KEYS`), each to 5
     significant digits."""
     losses = [i for i, r in enumerate(metrics) if not isinstance(r.get("val"), dict)]
-    vals = [i for i, r in enumerate(metrics) if isinstance(r.get("val"), dict)]
     kept = set(losses[::CURVE_EVERY] + losses[-1:])
+    last_val = max((i for i, r in enumerate(metrics) if isinstance(r.get("val"), dict)), default=None)
     out = []
     for i, r in enumerate(metrics):
         row = {k: _rounded(r[k]) for k in CURVE_KEYS if k in r}
-        if i in vals:
-            keys = CURVE_VAL_KEYS + (CURVE_REFERENCE_KEYS if i == vals[-1] else ())
+        if isinstance(r.get("val"), dict):
+            keys = CURVE_VAL_KEYS + (CURVE_REFERENCE_KEYS if i == last_val else ())
             out.append({**row, "val": {k: _rounded(r["val"][k]) for k in keys if k in r["val"]}})
         elif i in kept:
             out.append(row)

@@ -1,6 +1,6 @@
 """The run catalogue: the readers that find, read and label finished runs (a run folder is Hydra's
-``outputs/<date>/<time>-<pid>/``; what training writes into it is :mod:`disent.storage`), tool folders and what
-they publish into ``reports/``, and the records of ended runs.
+``outputs/<date>/<time>-<pid>/``; what training writes into it is :mod:`disent.storage`), from their folders or
+from their rows of ``reports/runs.jsonl`` (written by :mod:`disent.publish`).
 
 A run folder holds ``.hydra/{config,overrides,hydra}.yaml`` (Hydra), ``eval.json`` and ``status.json`` (the Hydra
 callback :class:`RunStatus`: how the job ended, with the error of a failed one) beside what :mod:`disent.storage`
@@ -9,11 +9,11 @@ writes.
 Read: :class:`Run`, :func:`find_runs`, :func:`pick_runs`, :func:`load_models`.  Anything may be missing (a
 crashed or running job); readers return ``None`` or empty lists then, never raise.
 
-Kept: :func:`write_records` keeps each ended run as one row of ``reports/runs.jsonl`` (its config, overrides, eval,
-status, revision and machine, and its learning curve thinned to what the report draws; no weights, no path), so that
-the report's tables and curves outlive the run folders.  A run is named by a short stable id (:func:`run_id`, a hash
-of the folder it trained in), never by that folder; :func:`find_runs` reads a row like a run folder and prefers the
-folder itself.
+Kept: :func:`disent.publish.write_records` keeps each ended run as one row of ``reports/runs.jsonl`` (its config,
+overrides, eval, status, revision and machine, and its learning curve thinned to what the report draws; no weights, no
+path), so that the report's tables and curves outlive the run folders.  A run is named by a short stable id
+(:func:`run_id`, a hash of the folder it trained in), never by that folder; :func:`find_runs` reads a row like a run
+folder and prefers the folder itself.
 """
 
 from __future__ import annotations
@@ -54,13 +54,19 @@ def run_id(origin) -> str:
     return hashlib.sha1(str(origin).encode()).hexdigest()[:6]
 
 
+def folder_id(path) -> str:
+    """The id of the run that trained in folder ``path`` (:func:`run_id` of its resolved path): one id whether the
+    path is typed relative, through a symlink or as the record kept it."""
+    return run_id(Path(path).resolve())
+
+
 def run_ref(value) -> str | None:
     """The run id that a tool's ``run`` field names: ``run:ID`` as published, or a run folder's path (an id is
     computed from it); None for anything else (a shipped model's name)."""
     text = str(value or "")
     if text.startswith("run:"):
         return text[4:]
-    return run_id(Path(text).resolve()) if text.startswith(("/", ".")) or os.sep in text else None
+    return folder_id(text) if text.startswith(("/", ".")) or os.sep in text else None
 
 
 def _finite(x) -> bool:
@@ -116,7 +122,7 @@ class Run:
     @property
     def id(self) -> str:
         """The run's short stable id (:func:`run_id` of the folder it trained in)."""
-        return self.record["id"] if self.record else run_id(self.path.resolve())
+        return self.record["id"] if self.record else folder_id(self.path)
 
     @property
     def name(self) -> str:
@@ -278,17 +284,22 @@ class RunStatus(Callback):
 
 def find_runs(roots=RUN_ROOTS, records=None) -> list[Run]:
     """Every run folder (one holding ``.hydra/config.yaml``) under ``roots`` and every row of the records file
-    ``records`` (``reports/runs.jsonl``), sorted by run id, so that a run keeps its place in tables and figures once
-    only its row is left; a run found both as its folder and as a row is read once, from its folder."""
+    ``records`` (``reports/runs.jsonl``), sorted by run id (:func:`with_records`)."""
     found = set()
     for root in roots:
         root = Path(root)
         if root.is_dir():
             found.update(c.parent.parent for c in root.rglob(".hydra/config.yaml"))
-    runs = [Run.load(p) for p in found]
-    folders = {r.id for r in runs}
-    runs += [Run.from_record(row) for row in read_jsonl(records) if row["id"] not in folders] if records else []
-    return sorted(runs, key=lambda r: r.id)
+    return with_records([Run.load(p) for p in found], records)
+
+
+def with_records(folders: list[Run], records=None) -> list[Run]:
+    """``folders`` (runs read from their folders) and the rows of ``records`` that are none of them, sorted by run
+    id, so that a run keeps its place in tables and figures once only its row is left; a run found both as its
+    folder and as a row is read once, from its folder."""
+    ids = {r.id for r in folders}
+    rows = [Run.from_record(row) for row in read_jsonl(records) if row["id"] not in ids] if records else []
+    return sorted([*folders, *rows], key=lambda r: r.id)
 
 
 TRAIN_SPEED_KEY = "images_per_s"  # logged by every training step (metrics.jsonl)
@@ -313,12 +324,11 @@ def portable(value):
         return {k: portable(v) for k, v in value.items()}
     if isinstance(value, list):
         return [portable(v) for v in value]
-    if isinstance(value, str) and value.startswith("/") and not value.startswith("/dev/"):
-        key, sep, path = value.rpartition("=")
-        return f"{key}{sep}run:{run_id(path)}" if sep else f"run:{run_id(value)}"
+    if isinstance(value, str) and value.startswith("/") and not value.startswith("/dev/"):  # a run folder
+        return f"run:{folder_id(value)}"
     if isinstance(value, str) and "=/" in value:  # an override naming a folder: loss.recon_L_network=/path
         key, _, path = value.partition("=")
-        return f"{key}=run:{run_id(path)}"
+        return f"{key}=run:{folder_id(path)}"
     return value
 
 

@@ -209,10 +209,10 @@ def apply_run(run_dir, records: list, out: Path, n_show: int = 8) -> dict:
     """Figures and gap numbers (``domain_gap_<tag>.json``) of one trained run on the photo records."""
     from disent.data import SynthFaces
     from disent.models import load_run
-    from disent.runs import run_id
+    from disent.runs import folder_id
 
     model, cfg = load_run(run_dir)
-    tag = f"{cfg.model.name}_" + ("shipped" if model.shipped else f"run-{run_id(Path(run_dir).resolve())}")
+    tag = f"{cfg.model.name}_" + ("shipped" if model.shipped else f"run-{folder_id(run_dir)}")
     res = int(cfg.data.resolution)
     if pg.load_cached(records[0])["image"].shape[0] != res:
         raise ValueError(f"run {run_dir} is at {res} px; rerun the photos at --resolution {res}")

@@ -48,7 +48,7 @@ from disent.report.training import (
     sec_teaser,
     sec_uv_by_seed,
 )
-from disent.runs import RECORDS, RUN_ROOTS, find_runs
+from disent.runs import RECORDS, RUN_ROOTS, find_runs, with_records
 from disent.storage import head_revision, tool_folder
 
 PAGES = {  # appendix page: (title, what it holds, [(section title, builder, its inputs)]), in the contents' order
@@ -156,8 +156,9 @@ def build(out="reports", roots=RUN_ROOTS, n_vis: int = 6, compute: bool = False,
         protocols.main(["--out", str(folder), "--roots", *map(str, roots)])
         stability.main(["--out", str(folder), "--roots", *map(str, roots)])
         publish(folder, out)
-    write_records(find_runs(roots), out / RECORDS)
-    runs = find_runs(roots, out / RECORDS)
+    folders = find_runs(roots)  # read once: their ended runs join the records, then every record joins them
+    write_records(folders, out / RECORDS)
+    runs = with_records(folders, out / RECORDS)
     inputs = {"runs": runs, "eval_dir": out / "eval", "out": out, "n_vis": n_vis, "glance": Glance()}
     pages = [appendix_page(out, name, inputs) for name in PAGES]
     pages.append(archive_page(out, runs))

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from disent.eval.ablation import mean_std
 from disent.report.ablations import CLAIM_METRICS, ablation_readings, budget_misses, gated_verdict
 from disent.report.claims import drawn_rates, edit_groups, reader_rows, relight_rows
 from disent.report.document import Report, load_json
@@ -321,7 +322,7 @@ def sec_lighting(rep: Report, runs: list[Run], eval_dir: Path) -> None:
 
     def row(name, rows, paper_value):  # a fit or a constant is one deterministic estimate: no count
         keys = ("mean", "relative", "sh_error")
-        cells = [spread_text(_spread([r[k] for r in rows]), ".3f", count=len(rows) > 1) for k in keys]
+        cells = [spread_text(mean_std([r[k] for r in rows]), ".3f", count=len(rows) > 1) for k in keys]
         return f"| {name} | {paper_value} | " + " | ".join(cells) + " |"
 
     rows = [
@@ -342,12 +343,6 @@ def sec_lighting(rep: Report, runs: list[Run], eval_dir: Path) -> None:
         *rows,
         "",
     )
-
-
-def _spread(values: list[float]) -> dict | None:
-    from disent.eval.ablation import mean_std
-
-    return mean_std(values)
 
 
 def sec_photos(rep: Report, photos_dir: Path) -> None:
