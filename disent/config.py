@@ -159,6 +159,22 @@ class _Absent:
 ABSENT = _Absent()  # a key that one config lacks (and ADDED_LATER does not know)
 
 
+def check_init(cfg, init_cfg: dict | None) -> None:
+    """A warm start's model settings (``init_cfg``: its checkpoint's config) must be ``cfg.model``'s, ``kernels``
+    aside (the same function computed another way); a setting added since counts as those runs trained."""
+    from omegaconf import OmegaConf
+
+    before = {k.removeprefix("model."): v for k, v in ADDED_LATER.items() if k.startswith("model.")}
+    theirs = {**before, **((init_cfg or {}).get("model") or {})}
+    ours = {**before, **OmegaConf.to_container(cfg.model, resolve=True)}
+    differ = sorted(k for k in {*theirs, *ours} if f"model.{k}" not in NOT_DEFINING and theirs.get(k) != ours.get(k))
+    if differ:
+        raise ConfigError(
+            f"init={cfg.init}: its model differs from this run's in "
+            + "; ".join(f"model.{k} {theirs.get(k)!r} there, {ours.get(k)!r} here" for k in differ)
+        )
+
+
 @functools.lru_cache(maxsize=None)
 def _model_outputs(model_json: str) -> frozenset:
     """The output names of a model config's forward pass (one black image, eval mode)."""

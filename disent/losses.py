@@ -280,6 +280,12 @@ def active_terms(weights: dict, out: dict) -> list[str]:
     return [t for t in TERMS + TRUTH if weights.get(t, 0) and NEEDS[t] in out]
 
 
+GENERATOR_SETTINGS = (  # conf/loss settings that choose how a term is computed (generator_losses' keywords)
+    *("lhat_white", "lhat_gray", "recon_L_space", "recon_p", "recon_fg_p", "matte_p"),
+    *("recon_L_target", "recon_L_oracle_mix", "recon_L_scale"),
+)
+
+
 def generator_losses(
     out: dict,
     batch: dict,

@@ -205,6 +205,19 @@ def previous_checkpoint(path: Path) -> Path:
     return path.with_name("prev.pt") if path.name == "last.pt" else path.with_name(path.stem + ".prev" + path.suffix)
 
 
+def nonfinite_tensors(*modules) -> list[str]:
+    """Names of the parameters and buffers of ``modules`` (None skipped) holding a NaN or Inf; one device sync."""
+    named = [
+        (f"{i}.{k}", v)
+        for i, m in enumerate(modules)
+        if m is not None
+        for k, v in m.state_dict().items()
+        if v.is_floating_point()
+    ]
+    finite = torch.stack([v.isfinite().all() for _, v in named]).tolist() if named else []
+    return [k for (k, _), ok in zip(named, finite) if not ok]
+
+
 def save_checkpoint(path: Path, state: dict) -> None:
     """Atomic ``torch.save``, keeping the checkpoint it replaces as :func:`previous_checkpoint`: a crash
     mid-write leaves the previous file intact, and a file damaged later still leaves one good copy."""

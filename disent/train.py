@@ -21,21 +21,21 @@ from tqdm import tqdm
 
 from disent import losses as L
 from disent.config import (
-    ADDED_LATER,
-    NOT_DEFINING,
     ConfigError,
     check_config,
+    check_init,
     config_differences,
     idle_settings,
     loss_setting,
     truth_readers,
 )
-from disent.data import get_batch, make_dataset
+from disent.data import get_batch, make_dataset, step_indices, to_device
 from disent.eval.evaluate import evaluate, print_eval, trivial_baselines
 from disent.eval.scoring import validate
 from disent.eval.trivial import trivial_metrics
 from disent.lighting.targets import target_fit, with_fitted_lhat
-from disent.models import build_model
+from disent.models import build_model, checkpoint_path
+from disent.models.shipped import load_weights
 from disent.optim import build_discriminator, learning_rate, loss_weights, make_optimizer
 from disent.runtime import Prefetcher, tune_malloc
 from disent.storage import (
@@ -43,6 +43,7 @@ from disent.storage import (
     RunLock,
     load_checkpoint,
     machine_info,
+    nonfinite_tensors,
     rng_state,
     save_checkpoint,
     save_samples,
@@ -64,55 +65,13 @@ class NonFiniteLoss(FloatingPointError):
     checkpoint (only finite weights are ever saved)."""
 
 
-def nonfinite_tensors(*modules) -> list[str]:
-    """Names of the parameters and buffers of ``modules`` (None skipped) holding a NaN or Inf; one device sync."""
-    named = [
-        (f"{i}.{k}", v)
-        for i, m in enumerate(modules)
-        if m is not None
-        for k, v in m.state_dict().items()
-        if v.is_floating_point()
-    ]
-    finite = torch.stack([v.isfinite().all() for _, v in named]).tolist() if named else []
-    return [k for (k, _), ok in zip(named, finite) if not ok]
-
-
-def epoch_order(seed: int, epoch: int, n: int) -> torch.Tensor:
-    return torch.randperm(n, generator=torch.Generator().manual_seed(seed * 100_003 + epoch))
-
-
-def step_indices(seed: int, step: int, steps_per_epoch: int, batch_size: int, n: int) -> torch.Tensor:
-    """The data indices of training step ``step`` (0-based): its slice of its epoch's permutation."""
-    epoch, i = divmod(step, steps_per_epoch)
-    return epoch_order(seed, epoch, n)[i * batch_size : (i + 1) * batch_size]
-
-
-def to_device(batch: dict, device, channels_last: bool) -> dict:
-    fmt = torch.channels_last if channels_last else torch.contiguous_format
-    return {k: (v.to(device).contiguous(memory_format=fmt) if v.dim() == 4 else v.to(device)) for k, v in batch.items()}
-
-
 def train_step(model, disc, opt_g, opt_d, batch, cfg_loss, step: int = 0) -> dict:
     """One simultaneous generator/discriminator update at ``step``; returns every term (detached floats later)."""
     weights = loss_weights(cfg_loss, step)
     out = model(batch["image"])
     energy_fake = disc.energy(out["recon"]) if disc is not None else None
-    losses = L.generator_losses(
-        out,
-        batch,
-        weights,
-        energy_fake,
-        cfg_loss.bws_c,
-        loss_setting(cfg_loss, "lhat_white"),
-        loss_setting(cfg_loss, "lhat_gray"),
-        loss_setting(cfg_loss, "recon_L_space"),
-        loss_setting(cfg_loss, "recon_p"),
-        loss_setting(cfg_loss, "recon_fg_p"),
-        loss_setting(cfg_loss, "matte_p"),
-        loss_setting(cfg_loss, "recon_L_target"),
-        loss_setting(cfg_loss, "recon_L_oracle_mix"),
-        loss_setting(cfg_loss, "recon_L_scale"),
-    )
+    settings = {k: loss_setting(cfg_loss, k) for k in L.GENERATOR_SETTINGS}
+    losses = L.generator_losses(out, batch, weights, energy_fake, cfg_loss.bws_c, **settings)
     if disc is not None:
         energy_real = disc.energy(batch["image"])
         losses["D"] = L.discriminator_loss(energy_real, energy_fake, cfg_loss.margin)
@@ -134,22 +93,11 @@ def train_step(model, disc, opt_g, opt_d, batch, cfg_loss, step: int = 0) -> dic
 
 
 def warm_start(model, cfg) -> None:
-    """Load the model weights of ``cfg.init`` (a run folder, checkpoint or shipped name) into ``model``; its
-    model settings must be ``cfg.model``'s (``kernels`` aside: the same function computed another way)."""
-    from disent.models import checkpoint_path
-    from disent.models.shipped import load_weights
-
+    """Load the model weights of ``cfg.init`` (a run folder, checkpoint or shipped name) into ``model``; its model
+    settings must be ``cfg.model``'s (:func:`disent.config.check_init`)."""
     path = checkpoint_path(cfg.init)
     ck = load_checkpoint(path)
-    before = {k.removeprefix("model."): v for k, v in ADDED_LATER.items() if k.startswith("model.")}
-    theirs = {**before, **((ck.get("cfg") or {}).get("model") or {})}  # a setting added since: as they trained
-    ours = {**before, **OmegaConf.to_container(cfg.model, resolve=True)}
-    differ = sorted(k for k in {*theirs, *ours} if f"model.{k}" not in NOT_DEFINING and theirs.get(k) != ours.get(k))
-    if differ:
-        raise ConfigError(
-            f"init={cfg.init}: its model differs from this run's in "
-            + "; ".join(f"model.{k} {theirs.get(k)!r} there, {ours.get(k)!r} here" for k in differ)
-        )
+    check_init(cfg, ck.get("cfg"))
     load_weights(model, ck["model"], path)  # a shipped model's half precision is cast back on loading
     print(f"warm start from {path}")
 

@@ -197,13 +197,13 @@ def test_tool_folders_publish_their_results_and_nothing_else(tmp_path, monkeypat
     assert edit.parent.parent == Path("outputs") / "edit" and edit.name.endswith(f"-{os.getpid()}")
     assert (edit / ".tool").read_text() == "edit\n" and (edit / "git.txt").exists() and (edit / "command.txt").exists()
     (edit / "explicit").mkdir()
-    (edit / "explicit" / "edit.md").write_text("table")
+    (edit / "explicit" / "edit.json").write_text("{}")
     (edit / "measure_net.pt").write_bytes(b"weights")
     (edit / "__main__.log").write_text("a Hydra job's log")
     (edit / ".hydra").mkdir()
     (edit / ".hydra" / "config.yaml").write_text("seed: 0")
     written = publish(edit, tmp_path / "reports")
-    assert written == [tmp_path / "reports" / "edit" / "explicit" / "edit.md"]
+    assert written == [tmp_path / "reports" / "edit" / "explicit" / "edit.json"]
     assert not (tmp_path / "reports" / "edit" / "measure_net.pt").exists()
 
     reports = tmp_path / "reports"

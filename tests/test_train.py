@@ -17,12 +17,13 @@ from hydra.errors import ConfigCompositionException, MissingConfigException
 from disent import config as C
 from disent import losses as L
 from disent import train as T
+from disent.data import step_indices
 from disent.eval import evaluate as EV
 from disent.lighting import targets as TG
 from disent.models import load_run
 from disent.runtime import Prefetcher
 from disent.storage import load_checkpoint
-from disent.train import NonFiniteLoss, run, step_indices
+from disent.train import NonFiniteLoss, run
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = [

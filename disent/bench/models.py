@@ -102,8 +102,8 @@ class Trainer:
 
 
 def synth_batch(n: int, resolution: int, device, channels_last: bool, start: int = 0) -> dict:
-    from disent.data import SynthFaces, get_batch
-    from disent.train import TRAIN_KEYS, to_device
+    from disent.data import SynthFaces, get_batch, to_device
+    from disent.train import TRAIN_KEYS
 
     ds = SynthFaces("train", resolution=resolution, seed=0)
     return to_device(get_batch(ds, range(start, start + n), TRAIN_KEYS), device, channels_last)

@@ -81,6 +81,24 @@ def get_batch(dataset, indices, keys=None, chunk: int = 256, **overrides) -> dic
     return batch if keys is None else {k: batch[k] for k in keys if k in batch}
 
 
+def epoch_order(seed: int, epoch: int, n: int) -> torch.Tensor:
+    """The training order of epoch ``epoch``: a permutation of the ``n`` images seeded by (seed, epoch), so a
+    resumed run replays exactly the steps it missed."""
+    return torch.randperm(n, generator=torch.Generator().manual_seed(seed * 100_003 + epoch))
+
+
+def step_indices(seed: int, step: int, steps_per_epoch: int, batch_size: int, n: int) -> torch.Tensor:
+    """The data indices of training step ``step`` (0-based): its slice of its epoch's permutation."""
+    epoch, i = divmod(step, steps_per_epoch)
+    return epoch_order(seed, epoch, n)[i * batch_size : (i + 1) * batch_size]
+
+
+def to_device(batch: dict, device, channels_last: bool) -> dict:
+    """A batch's tensors on ``device``; images (4-D) in channels-last memory order where asked."""
+    fmt = torch.channels_last if channels_last else torch.contiguous_format
+    return {k: (v.to(device).contiguous(memory_format=fmt) if v.dim() == 4 else v.to(device)) for k, v in batch.items()}
+
+
 __all__ = [
     "ATTRIBUTES",
     "ATTR_PRIOR",
@@ -92,4 +110,7 @@ __all__ = [
     "make_dataset",
     "collate",
     "get_batch",
+    "epoch_order",
+    "step_indices",
+    "to_device",
 ]

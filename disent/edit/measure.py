@@ -34,7 +34,6 @@ detailed albedo, naive ratio, decoding with the swapped ``Z_L``, and the unrelit
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import time
@@ -201,6 +200,44 @@ def summarize(attribute, manifolds, method, strength, p0, r, leaks) -> dict:
     return row
 
 
+def _truth_rows(model, net, src, true_edit, recon0, attribute: str, spread: dict) -> tuple[list[dict], object]:
+    """:func:`edit_table`'s rows for the true edit (``true_edit``: the sources rendered with the attribute on) and
+    for the model's reconstruction of it, and ``shares(edited)``: how much of the true change an edit draws."""
+    i_attr = ATTRIBUTES.index(attribute)
+    r_in = read(net, src["image"])
+    rt = read(net, true_edit["image"])
+    row = summarize(
+        attribute,
+        "-",
+        "truth",
+        1.0,
+        r_in["p"][:, i_attr],
+        rt,
+        leakage(r_in, rt, src["image"], true_edit["image"], src["matte"], attribute, spread),
+    )
+    # the face region of the faces with and without it: the paper's face masks leave hair out (Sec. 5.2,
+    # Limitations), and SynthFaces greys a senior face's hair, which no face code reaches. change_in_face: the
+    # share of the true change there, what a model drawing all of it there and nothing outside draws
+    face = torch.maximum(src["mask_face"], true_edit["mask_face"])
+    off, on = src["image"], true_edit["image"]
+    rows = [{**row, "change_in_face": drawn_share(off, off + (on - off) * face, off, on)}]
+    # what the model can draw at all: its reconstruction of the faces that truly have the attribute. An edit
+    # cannot read as the attribute more often than this (beside the truth's own rate, the reader's recall)
+    drawn = model.decode(model.encode(true_edit["image"]))["recon"]
+    rd = read(net, drawn)
+    leak = leakage(r_in, rd, src["image"], drawn, src["matte"], attribute, spread)
+    row = summarize(attribute, "-", "truth reconstructed", 1.0, r_in["p"][:, i_attr], rd, leak)
+
+    def shares(edited) -> dict:  # each drawn share, and its off-target change (OFF_TARGET_READINGS)
+        out = {}
+        for key, region in (("drawn_share", None), ("drawn_share_face", face)):
+            out[key], out[OFF_TARGET_READINGS[key][0]] = drawn_and_off_target(recon0, edited, off, on, region)
+        return out
+
+    rows.append({**row, **shares(drawn)})
+    return rows, shares
+
+
 @torch.no_grad()
 def edit_table(
     model,
@@ -258,40 +295,12 @@ def edit_table(
         )
     ]
     shown = {"input": src["image"][:n_show], "recon": recon0[:n_show]}
+    shares = None
     if truth_override is not None:
         true_edit = get_batch(test, idx, **truth_override(attribute))
-        r_in = read(net, src["image"])
-        rt = read(net, true_edit["image"])
-        row = summarize(
-            attribute,
-            "-",
-            "truth",
-            1.0,
-            r_in["p"][:, i_attr],
-            rt,
-            leakage(r_in, rt, src["image"], true_edit["image"], src["matte"], attribute, spread),
-        )
-        # the face region of the faces with and without it: the paper's face masks leave hair out (Sec. 5.2,
-        # Limitations), and SynthFaces greys a senior face's hair, which no face code reaches. change_in_face: the
-        # share of the true change there, what a model drawing all of it there and nothing outside draws
-        face = torch.maximum(src["mask_face"], true_edit["mask_face"])
-        off, on = src["image"], true_edit["image"]
-        rows.append({**row, "change_in_face": drawn_share(off, off + (on - off) * face, off, on)})
+        truth_rows, shares = _truth_rows(model, net, src, true_edit, recon0, attribute, spread)
+        rows += truth_rows
         shown["truth"] = true_edit["image"][:n_show]
-        # what the model can draw at all: its reconstruction of the faces that truly have the attribute. An edit
-        # cannot read as the attribute more often than this (beside the truth's own rate, the reader's recall)
-        drawn = model.decode(model.encode(true_edit["image"]))["recon"]
-        rd = read(net, drawn)
-        leak = leakage(r_in, rd, src["image"], drawn, src["matte"], attribute, spread)
-        row = summarize(attribute, "-", "truth reconstructed", 1.0, r_in["p"][:, i_attr], rd, leak)
-
-        def shares(edited) -> dict:  # each drawn share, and its off-target change (OFF_TARGET_READINGS)
-            out = {}
-            for key, region in (("drawn_share", None), ("drawn_share_face", face)):
-                out[key], out[OFF_TARGET_READINGS[key][0]] = drawn_and_off_target(recon0, edited, off, on, region)
-            return out
-
-        rows.append({**row, **shares(drawn)})
     for label, manifolds in choices.items():
         for method, strengths in (("dmt", lambdas), ("barycenter", alphas)):
             for s in strengths:
@@ -311,7 +320,7 @@ def edit_table(
                     )
                 )
                 rows[-1]["step"] = step_along_attribute(codes0, codes, pool, manifolds)
-                if truth_override is not None:  # how much of the true change the edit draws, with no reader
+                if shares is not None:  # how much of the true change the edit draws, with no reader
                     rows[-1].update(shares(edited))
     return rows, shown
 
@@ -562,6 +571,70 @@ def _measure_net(a, out, data_cls, resolution):
     return net, info
 
 
+def traversal_figures(shown: dict, attribute: str, lambdas, alphas, out: Path) -> None:
+    """One attribute's progression along the paper's manifold choice (``fig_<attribute>_progression.png``) and
+    every manifold choice at one strength (``fig_<attribute>_manifolds.png``)."""
+    paper = next(k for k in dict.fromkeys(k[0] for k in shown if isinstance(k, tuple)) if k.startswith("paper"))
+    image_grid(
+        [shown["input"], shown["recon"]]
+        + [shown[(paper, "dmt", s)] for s in lambdas]
+        + [shown[(paper, "barycenter", alphas[-1])], shown["truth"]],
+        ["input", "recon"] + [f"λ={s:g}" for s in lambdas] + [f"bary α={alphas[-1]:g}", "truth"],
+        out / f"fig_{attribute}_progression.png",
+    )
+    labels = list(dict.fromkeys(k[0] for k in shown if isinstance(k, tuple)))
+    lam = 0.03 if 0.03 in lambdas else lambdas[len(lambdas) // 2]
+    image_grid(
+        [shown["input"], shown["recon"]] + [shown[(lb, "dmt", lam)] for lb in labels],
+        ["input", "recon"] + [f"{lb} λ={lam:g}" for lb in labels],
+        out / f"fig_{attribute}_manifolds.png",
+    )
+
+
+def relight_figure(example: dict, path: Path) -> None:
+    """One face relit by each route (shading images scaled to their maximum)."""
+    shade = lambda s: s / s.flatten(1).amax(1).clamp_min(1e-6)[:, None, None, None]  # noqa: E731
+    image_grid(
+        [
+            example[k] if not k.startswith("S_") else shade(example[k])
+            for k in ("target", "source", "S_target", "S_transfer", "transfer", "ratio", "decode", "truth")
+        ],
+        ["target", "source", "S target", "S transfer", "transfer", "ratio", "decode", "truth"],
+        path,
+    )
+
+
+def summary_text(a, net_info: dict, rows: list, claims: list, rel_rows: list) -> list[str]:
+    """The measurement's tables, as printed at its end (the report builds its own from edit.json)."""
+    keys = [
+        "attribute",
+        "manifolds",
+        "method",
+        "strength",
+        "step",
+        "success",
+        "gain",
+        *LEAK_KEYS,
+        "leakage",
+        "gain_per_leak",
+    ]
+    rel_keys = ["method", *RELIGHT_SCORES, "lights", "faces"]
+    return [
+        f"# Editing measured on SynthFaces\n\nrun: `{a.run}`; pools of {a.pool_size}, {a.sources} source "
+        f"faces per attribute; measuring net (held-out): `{json.dumps(net_info.get('val', {}))}`\n",
+        "## Traversal\n",
+        "Gains and leakage are against the unedited reconstruction (`reconstruction` rows); the reader "
+        "was trained on the generator's sharp renders, so on a blurry reconstruction read the *changes*, "
+        "not the absolute success. `truth` rows: the generator's own edit of the input, same reader. "
+        "`step`: move along the pools' mean difference (barycenter: = alpha).\n",
+        markdown_table(rows, keys),
+        "\n## Success per unit leakage by manifold choice (the paper's claim: `paper:` ranks first)\n",
+        markdown_table(claims, list(claims[0])),
+        "\n## Relighting (PSNR dB / SSIM against the generator's render under the source light)\n",
+        markdown_table(rel_rows, rel_keys) if rel_rows else "(the baseline model has no lighting code)",
+    ]
+
+
 def run_measurements(a) -> None:
     """``python -m disent.edit measure``: tables, JSON and figures under ``<a.out>/<name>/`` (published to
     ``reports/edit/<name>/``): ``<name>`` is the model's name for a shipped model, else
@@ -570,7 +643,7 @@ def run_measurements(a) -> None:
     of one setting side by side."""
     from disent.data import LIGHT_BANK, SynthFaces
     from disent.models import load_run
-    from disent.runs import Run, setting
+    from disent.runs import Run, folder_id, setting
     from disent.storage import tool_folder
 
     folder = tool_folder("edit", a.out)
@@ -580,7 +653,7 @@ def run_measurements(a) -> None:
     steps = model.trained_steps
     shipped = model.shipped
     run_folder = Path(a.run) if Path(a.run).is_dir() else Path(a.run).parent.parent  # .../checkpoints/x.pt
-    tag = hashlib.sha1(str(run_folder.resolve()).encode()).hexdigest()[:6]
+    tag = folder_id(run_folder)  # the run's id in the report
     background = getattr(a, "background", False)
     name = cfg.model.name if shipped else f"{cfg.model.name}_seed{cfg.seed}_{steps}steps_{tag}"
     out = folder / (name + ("_background" if background else ""))  # a diagnostic beside, not over, the main one
@@ -619,33 +692,7 @@ def run_measurements(a) -> None:
         print(f"{attribute}: {len(r)} rows in {time.time() - t0:.0f} s", flush=True)
         if not figures:
             continue
-        paper = next(k for k in dict.fromkeys(k[0] for k in shown if isinstance(k, tuple)) if k.startswith("paper"))
-        image_grid(
-            [shown["input"], shown["recon"]]
-            + [shown[(paper, "dmt", s)] for s in lambdas]
-            + [shown[(paper, "barycenter", alphas[-1])], shown["truth"]],
-            ["input", "recon"] + [f"λ={s:g}" for s in lambdas] + [f"bary α={alphas[-1]:g}", "truth"],
-            out / f"fig_{attribute}_progression.png",
-        )
-        labels = list(dict.fromkeys(k[0] for k in shown if isinstance(k, tuple)))
-        lam = 0.03 if 0.03 in lambdas else lambdas[len(lambdas) // 2]
-        image_grid(
-            [shown["input"], shown["recon"]] + [shown[(lb, "dmt", lam)] for lb in labels],
-            ["input", "recon"] + [f"{lb} λ={lam:g}" for lb in labels],
-            out / f"fig_{attribute}_manifolds.png",
-        )
-    keys = [
-        "attribute",
-        "manifolds",
-        "method",
-        "strength",
-        "step",
-        "success",
-        "gain",
-        *LEAK_KEYS,
-        "leakage",
-        "gain_per_leak",
-    ]
+        traversal_figures(shown, attribute, lambdas, alphas, out)
     claims = claim_summary(rows)
     if figures:
         plot_success_vs_leakage(rows, out / "fig_success_vs_leakage.png")
@@ -653,16 +700,7 @@ def run_measurements(a) -> None:
     if "L" in getattr(model, "CODE_NAMES", ()):  # a rendering model (the baseline has no light to replace)
         rel_rows, example = relight_table(model, SynthFaces, LIGHT_BANK, a.relight_faces, seed=a.seed, resolution=R)
     if rel_rows and figures:
-        shade = lambda s: s / s.flatten(1).amax(1).clamp_min(1e-6)[:, None, None, None]  # noqa: E731
-        image_grid(
-            [
-                example[k] if not k.startswith("S_") else shade(example[k])
-                for k in ("target", "source", "S_target", "S_transfer", "transfer", "ratio", "decode", "truth")
-            ],
-            ["target", "source", "S target", "S transfer", "transfer", "ratio", "decode", "truth"],
-            out / "fig_relight.png",
-        )
-    rel_keys = ["method", *RELIGHT_SCORES, "lights", "faces"]
+        relight_figure(example, out / "fig_relight.png")
     (out / "edit.json").write_text(
         json.dumps(
             {
@@ -680,21 +718,7 @@ def run_measurements(a) -> None:
             indent=1,
         )
     )
-    text = [
-        f"# Editing measured on SynthFaces\n\nrun: `{a.run}`; pools of {a.pool_size}, {a.sources} source "
-        f"faces per attribute; measuring net (held-out): `{json.dumps(net_info.get('val', {}))}`\n",
-        "## Traversal\n",
-        "Gains and leakage are against the unedited reconstruction (`reconstruction` rows); the reader "
-        "was trained on the generator's sharp renders, so on a blurry reconstruction read the *changes*, "
-        "not the absolute success. `truth` rows: the generator's own edit of the input, same reader. "
-        "`step`: move along the pools' mean difference (barycenter: = alpha).\n",
-        markdown_table(rows, keys),
-        "\n## Success per unit leakage by manifold choice (the paper's claim: `paper:` ranks first)\n",
-        markdown_table(claims, list(claims[0])),
-        "\n## Relighting (PSNR dB / SSIM against the generator's render under the source light)\n",
-        markdown_table(rel_rows, rel_keys) if rel_rows else "(the baseline model has no lighting code)",
-    ]
-    (out / "edit.md").write_text("\n".join(text) + "\n")
+    text = summary_text(a, net_info, rows, claims, rel_rows)
     print("\n".join(text))
     print(f"wrote {out}; publish it with: python -m disent.report --publish {folder}")
 

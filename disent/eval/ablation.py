@@ -1,7 +1,7 @@
 """The ablation table: every variant (model + ablations) as mean +- std over seeds.
 
 ``python -m disent.eval.ablation [ROOT ...] [--out FOLDER]`` reads run folders (default ``multirun/`` and
-``outputs/``) and writes ``ablation.md`` and ``ablation.json`` into a tool folder.
+``outputs/``), writes ``ablation.json`` into a tool folder and prints the table.
 The caption states the training budget read from the runs' own configs.
 """
 
@@ -170,10 +170,9 @@ def main(argv=None):
     table = ablation_table(find_runs(a.roots))
     md = to_markdown(table)
     out = tool_folder("eval", a.out)
-    (out / "ablation.md").write_text("# Ablation results\n\n" + md)
     (out / "ablation.json").write_text(json.dumps(table, indent=1))
     print(md)
-    print(f"wrote {out}/ablation.md (the report's Ablations section tables every budget: python -m disent.report)")
+    print(f"wrote {out}/ablation.json (the report's Ablations section tables every budget: python -m disent.report)")
 
 
 if __name__ == "__main__":

@@ -70,4 +70,13 @@ def load_run(path):
     return model.eval(), cfg
 
 
-__all__ = ["build_model", "load_run", "checkpoint_path", "MODELS", "Baseline", "Explicit", "Implicit", "Discriminator"]
+__all__ = [
+    "build_model",
+    "load_run",
+    "checkpoint_path",
+    "MODELS",
+    "Baseline",
+    "Explicit",
+    "Implicit",
+    "Discriminator",
+]

@@ -436,7 +436,7 @@ def sec_photos(rep: Report, out: Path) -> None:
     rep.add(
         "Regenerate: `python -m disent.eval.photos --run explicit implicit --workers 1`, then `python -m "
         f"disent.report --publish FOLDER`. The bundled photos through the pseudo-GT pipeline (dlib landmarks and the "
-        f"face model; its accuracy on renders: `photos/pseudo_gt.md`). {GAP_TEXT}\n",
+        f"face model; its accuracy on renders: `photos/pseudo_gt.json`). {GAP_TEXT}\n",
         *gap_table(gaps),
         "",
         *(anatomy := anatomy_table(gaps)),

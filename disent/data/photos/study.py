@@ -208,7 +208,7 @@ def markdown(stats: dict) -> str:
 
 
 def run_study(out, resolution: int = 64, workers: int = 2, cache_dir=None) -> list:
-    """Pseudo ground truth of the bundled photos: ``pseudo_gt.json``, ``pseudo_gt.md`` and ``pseudo_gt.png`` in
+    """Pseudo ground truth of the bundled photos: ``pseudo_gt.json`` and ``pseudo_gt.png`` in
     ``out`` (a tool folder: :func:`disent.storage.tool_folder`); returns the records of the photos it could use
     (for :mod:`disent.eval.photos`)."""
     settings = pg.PseudoGTSettings(resolution=resolution)
@@ -226,7 +226,6 @@ def run_study(out, resolution: int = 64, workers: int = 2, cache_dir=None) -> li
     stats["synthfaces_dlib_check"] = synth_landmark_check(settings)
     stats["settings"] = {k: getattr(settings, k) for k in settings.__dataclass_fields__}
     (out / "pseudo_gt.json").write_text(json.dumps(stats, indent=2) + "\n")
-    (out / "pseudo_gt.md").write_text(markdown(stats))
     shown = [r for src in ("astronaut", "grace_hopper", "lfw_faces") for r in by_src[src] if r.used][:24]
     overlay_figure(shown, out / "pseudo_gt.png", resolution)
     for src in photos:
@@ -239,7 +238,7 @@ def run_study(out, resolution: int = 64, workers: int = 2, cache_dir=None) -> li
     print("fitted pose on LFW (deg):", json.dumps(stats["lfw_faces"]["fitted_pose_deg"]))
     print("dlib on SynthFaces renders:", json.dumps(stats["synthfaces_dlib_check"]))
     print(markdown(stats))
-    print(f"wrote {out / 'pseudo_gt.json'}, {out / 'pseudo_gt.md'} and {out / 'pseudo_gt.png'}")
+    print(f"wrote {out / 'pseudo_gt.json'} and {out / 'pseudo_gt.png'}")
     return [r for r in records if r.used]
 
 

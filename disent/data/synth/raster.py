@@ -118,14 +118,11 @@ def rasterize(vertices_cam: torch.Tensor, faces: torch.Tensor, resolution: int) 
     face_id = torch.full((B * H * W,), -1, dtype=torch.long, device=dev)
     empty = torch.zeros(0, dtype=torch.long, device=dev)
     if k.numel() == 0:
-        return {
-            "face_id": face_id.view(B, H, W),
-            "size": (B, H, W),
+        bary = torch.zeros(0, 3, dtype=dt, device=dev)
+        return {"face_id": face_id.view(B, H, W), "size": (B, H, W), "bary": bary, "corners": empty.view(3, 0)} | {
             "batch": empty,
             "pixel": empty,
             "face": empty,
-            "bary": torch.zeros(0, 3, dtype=dt, device=dev),
-            "corners": empty.view(3, 0),
         }
     big = int(torch.maximum(nx.max(), ny.max()))
     if big > MAX_WINDOW:
@@ -165,7 +162,13 @@ def rasterize(vertices_cam: torch.Tensor, faces: torch.Tensor, resolution: int) 
         slot = (torch.arange(row.numel(), device=dev) - first.index_select(0, row) + 1).to(dt)
         test(more.index_select(0, row), slot)
     rep, px, py, w0, w1, w2, depth = (torch.cat(c) for c in zip(*cand))
-    kk = k.index_select(0, rep)
+    return _nearest(k.index_select(0, rep), px, py, (w0, w1, w2), depth, faces, (B, V, H, W), face_id)
+
+
+def _nearest(kk, px, py, bary_raw, depth, faces, shape, face_id) -> dict:
+    """:func:`rasterize`'s z-buffer: of the candidates (``kk``: flat (triangle, image) ids ``t * B + b``, at pixel
+    centres ``px, py`` with barycentrics ``bary_raw`` and ``depth``), the nearest of each pixel, as its dict."""
+    B, V, H, W = shape
     tri_t, tri_b = kk // B, kk % B
     pix = tri_b * (H * W) + (H - 1 - py.long()) * W + px.long()
     # z-buffer: nearest (largest z) wins; the key packs quantised depth above the triangle id.
@@ -173,12 +176,12 @@ def rasterize(vertices_cam: torch.Tensor, faces: torch.Tensor, resolution: int) 
         (depth.double().clamp(-_DEPTH_RANGE, _DEPTH_RANGE) + _DEPTH_RANGE) * (_DEPTH_LEVELS / (2 * _DEPTH_RANGE))
     ).long()
     key = (zq << _ID_BITS) | tri_t
-    zbuf = torch.full((B * H * W,), -1, dtype=torch.long, device=dev)
+    zbuf = torch.full((B * H * W,), -1, dtype=torch.long, device=kk.device)
     zbuf.scatter_reduce_(0, pix, key, reduce="amax")
     win = (zbuf.index_select(0, pix) == key).nonzero().squeeze(1)
     win_pix, win_t = pix.index_select(0, win), tri_t.index_select(0, win)
     face_id[win_pix] = win_t
-    bary = torch.stack([w0.index_select(0, win), w1.index_select(0, win), w2.index_select(0, win)], 1).clamp_min(0)
+    bary = torch.stack([w.index_select(0, win) for w in bary_raw], 1).clamp_min(0)
     bary = bary / bary.sum(1, keepdim=True)
     batch = win_pix // (H * W)
     corners = torch.stack([faces[:, j].index_select(0, win_t) for j in range(3)]) + batch * V
@@ -353,49 +356,33 @@ def _grid_layout(
     return layout
 
 
-def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
-    """:func:`rasterize` for meshes that are regular grids triangulated by :func:`grid_faces`, several
-    meshes in one pass: ``meshes`` is a list of (``vertices_cam [B, gv*gu, 3]``, ``(gv, gu)``) or
-    (``vertices_cam``, ``(gv, gu)``, ``quads [(gv-1)*(gu-1)]`` bool: the quads drawn, default all).
-
-    Returns, per mesh, the dict of :func:`rasterize` for that mesh and ``grid_faces(gv, gu)``
-    (the same pixels, triangles and barycentrics up to float rounding and depth ties), with the
-    ``grid`` shape and without the ``face`` list and the dense ``face_id`` map, which
-    :func:`face_ids` builds from the corners when it is wanted.
-
-    The grid saves work: the primitive is the quad (half as many as triangles), and on the
-    flattened vertex planes a quad's four corners are the same planes shifted by 0, 1, gu and
-    gu + 1, so its per-quad data is a few passes over contiguous memory.  Each pixel centre
-    in a quad's box is put on one side of the quad's diagonal b-c, which picks one of its two
-    triangles, and tested against that triangle only.  The z-buffer key packs the depth's
-    order-preserving integer above the candidate's index; the winners are the candidates
-    whose key their pixel keeps.
-    """
+def _in_halves(meshes: list[tuple], info: list, resolution: int) -> list[dict]:
+    """:func:`rasterize_grids` on each half of the batch, the two results joined (a batch too large for exact
+    float32 pixel ids)."""
     H = W = resolution
+    if len({B for B, _ in info}) != 1 or info[0][0] < 2:
+        raise ValueError("rasterize_grids: too many pixels for one call and the meshes' batches differ")
+    h = info[0][0] // 2
+    halves = [rasterize_grids([(m[0][s], *m[1:]) for m in meshes], resolution) for s in (slice(0, h), slice(h, None))]
+    return [
+        {
+            "size": (a["size"][0] + b["size"][0], H, W),
+            "batch": torch.cat([a["batch"], b["batch"] + h]),
+            "corners": torch.cat([a["corners"], b["corners"] + h * m[0].shape[1]], 1),
+            "grid": m[1],
+            **{k: torch.cat([a[k], b[k]]) for k in ("pixel", "bary")},
+        }
+        for a, b, m in zip(*halves, meshes)
+    ]
+
+
+def _quad_tables(meshes: list[tuple], info: list, sizes: list, H: int, W: int):
+    """Per-quad and per-triangle data of :func:`rasterize_grids`, every mesh's quads in one table, and each quad's
+    count of pixel centres in its box: ``(table [9, Q], tri [4, 2, Q], count [Q], Q)``."""
     dev, dt = meshes[0][0].device, meshes[0][0].dtype
-    info = [(m[0].shape[0], m[1]) for m in meshes]  # (B, (gv, gu))
-    n_images = sum(B for B, _ in info)
-    if n_images * H * W >= _MAX_PIXELS:  # pixel ids must stay exact in float32: halve the batch
-        if len({B for B, _ in info}) != 1 or info[0][0] < 2:
-            raise ValueError("rasterize_grids: too many pixels for one call and the meshes' batches differ")
-        h = info[0][0] // 2
-        halves = [
-            rasterize_grids([(m[0][s], *m[1:]) for m in meshes], resolution) for s in (slice(0, h), slice(h, None))
-        ]
-        return [
-            {
-                "size": (a["size"][0] + b["size"][0], H, W),
-                "batch": torch.cat([a["batch"], b["batch"] + h]),
-                "corners": torch.cat([a["corners"], b["corners"] + h * m[0].shape[1]], 1),
-                "grid": m[1],
-                **{k: torch.cat([a[k], b[k]]) for k in ("pixel", "bary")},
-            }
-            for a, b, m in zip(*halves, meshes)
-        ]
     # Quads on the flattened vertex planes of each mesh: quad k has the corners a = k, b = k + 1, c = k + gu,
     # d = k + gu + 1 (flat ids over the batch), so each column below is a few contiguous slices; a k whose
     # corner a lies in the last row or column of its grid is no quad and is never drawn.
-    sizes = [B * gv * gu - gu - 1 for B, (gv, gu) in info]
     n_quads = sum(sizes)
     # Per quad, written in place: the box origin about corner c, its width, the diagonal b - c, the fold
     # bias, the depth at c and along c -> b, and the box origin's pixel index; per triangle (quad q's
@@ -449,6 +436,65 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
             torch.mul(far[1], inv[t], out=far_y[t])
             torch.sub(far[2], zc, out=far_z[t])
         q0, img0 = q0 + K, img0 + B
+    return table, tri, count, n_quads
+
+
+def _per_mesh(info, sizes, cov, quad, second, bary, H: int, W: int) -> list[dict]:
+    """The winners of :func:`rasterize_grids`, in pixel order over the meshes in turn, cut into one raster dict per
+    mesh: its images' covered pixels, barycentrics and grid_faces corners."""
+    dev = cov.device
+    out, q0, p0 = [], 0, 0
+    bounds = [0] + torch.searchsorted(cov, torch.tensor([B * H * W for B, _ in info], device=dev).cumsum(0)).tolist()
+    for m, ((B, (gv, gu)), K) in enumerate(zip(info, sizes)):
+        lo, hi = bounds[m], bounds[m + 1]
+        p = cov[lo:hi] - p0
+        if H * W & (H * W - 1) == 0:  # a power of two: a shift and a mask, no division
+            batch, pixel = p >> (H * W).bit_length() - 1, p & (H * W - 1)
+        else:
+            batch = torch.div(p, H * W, rounding_mode="floor")
+            pixel = p - batch * (H * W)
+        k, sec = quad[lo:hi] - q0, second[lo:hi]  # flat id of corner a; the quad's second triangle
+        corners = torch.stack([k + sec, k + gu, k.add(sec, alpha=gu).add_(1)])  # grid_faces order
+        out.append(
+            {
+                "size": (B, H, W),
+                "grid": (gv, gu),
+                "batch": batch,
+                "pixel": pixel,
+                "bary": bary[lo:hi],
+                "corners": corners,
+            }
+        )
+        q0, p0 = q0 + K, p0 + B * H * W
+    return out
+
+
+def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
+    """:func:`rasterize` for meshes that are regular grids triangulated by :func:`grid_faces`, several
+    meshes in one pass: ``meshes`` is a list of (``vertices_cam [B, gv*gu, 3]``, ``(gv, gu)``) or
+    (``vertices_cam``, ``(gv, gu)``, ``quads [(gv-1)*(gu-1)]`` bool: the quads drawn, default all).
+
+    Returns, per mesh, the dict of :func:`rasterize` for that mesh and ``grid_faces(gv, gu)``
+    (the same pixels, triangles and barycentrics up to float rounding and depth ties), with the
+    ``grid`` shape and without the ``face`` list and the dense ``face_id`` map, which
+    :func:`face_ids` builds from the corners when it is wanted.
+
+    The grid saves work: the primitive is the quad (half as many as triangles), and on the
+    flattened vertex planes a quad's four corners are the same planes shifted by 0, 1, gu and
+    gu + 1, so its per-quad data is a few passes over contiguous memory.  Each pixel centre
+    in a quad's box is put on one side of the quad's diagonal b-c, which picks one of its two
+    triangles, and tested against that triangle only.  The z-buffer key packs the depth's
+    order-preserving integer above the candidate's index; the winners are the candidates
+    whose key their pixel keeps.
+    """
+    H = W = resolution
+    dev, dt = meshes[0][0].device, meshes[0][0].dtype
+    info = [(m[0].shape[0], m[1]) for m in meshes]  # (B, (gv, gu))
+    n_images = sum(B for B, _ in info)
+    if n_images * H * W >= _MAX_PIXELS:  # pixel ids must stay exact in float32: halve the batch
+        return _in_halves(meshes, info, resolution)
+    sizes = [B * gv * gu - gu - 1 for B, (gv, gu) in info]  # quad ids k per mesh (see _quad_tables)
+    table, tri, count, n_quads = _quad_tables(meshes, info, sizes, H, W)
     # Candidates: every (quad, pixel centre of its box), quad after quad: candidate i belongs to the quad
     # whose run of ``count`` candidates covers i (the number of runs ending at or before i: a running sum
     # of marks at the run ends), and is the s-th centre of its box (row-major), s = i - the run's start.
@@ -481,7 +527,7 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     # Positive floats order as their bits; a failed candidate gets -1.0, whose bits are negative, and so a negative key.
     depth.add_(_DEPTH_RANGE).clamp_min_(0).mul_(ok).add_(ok).sub_(1)
     key = torch.arange(n, device=dev).add_(depth.view(torch.int32).long(), alpha=2**_CAND_BITS)
-    zbuf = torch.full((img0 * H * W,), -1, dtype=torch.long, device=dev)
+    zbuf = torch.full((n_images * H * W,), -1, dtype=torch.long, device=dev)
     zbuf.scatter_reduce_(0, pix, key, reduce="amax")
     # The winners, read off the z-buffer: each covered pixel keeps its winning candidate's key (a failed
     # candidate's key is below the empty buffer's -1), listed in pixel order, which runs over the meshes in turn.
@@ -496,31 +542,7 @@ def rasterize_grids(meshes: list[tuple], resolution: int) -> list[dict]:
     w_far, w_b, w_c = (t.div_(total) for t in (w_far, w_b, w_c))
     w_b, w_far = w_far.lerp(w_b, second), w_b.lerp(w_far, second)  # (a, c, b) or (b, c, d) in grid_faces order
     bary = torch.stack([w_b, w_c, w_far]).t()
-    second = second.int()
-    out, q0, p0 = [], 0, 0
-    bounds = [0] + torch.searchsorted(cov, torch.tensor([B * H * W for B, _ in info], device=dev).cumsum(0)).tolist()
-    for m, ((B, (gv, gu)), K) in enumerate(zip(info, sizes)):
-        lo, hi = bounds[m], bounds[m + 1]
-        p = cov[lo:hi] - p0
-        if H * W & (H * W - 1) == 0:  # a power of two: a shift and a mask, no division
-            batch, pixel = p >> (H * W).bit_length() - 1, p & (H * W - 1)
-        else:
-            batch = torch.div(p, H * W, rounding_mode="floor")
-            pixel = p - batch * (H * W)
-        k, sec = quad[lo:hi] - q0, second[lo:hi]  # flat id of corner a; the quad's second triangle
-        corners = torch.stack([k + sec, k + gu, k.add(sec, alpha=gu).add_(1)])  # grid_faces order
-        out.append(
-            {
-                "size": (B, H, W),
-                "grid": (gv, gu),
-                "batch": batch,
-                "pixel": pixel,
-                "bary": bary[lo:hi],
-                "corners": corners,
-            }
-        )
-        q0, p0 = q0 + K, p0 + B * H * W
-    return out
+    return _per_mesh(info, sizes, cov, quad, second.int(), bary, H, W)
 
 
 def render_face(
