@@ -111,7 +111,7 @@ def write_photo(folder: Path, arrays: dict, batch: dict, out: dict, relit: dict,
         save_image(x[i], folder / f"relit_{name}.png", "srgb")
 
 
-def main(argv=None) -> None:
+def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="python -m disent.photos",
         description=__doc__.split("\n\n")[0],
@@ -139,12 +139,56 @@ def main(argv=None) -> None:
         help="give each face (its mask_pseudo) the colour statistics of SynthFaces' training faces before the model "
         "reads it (disent.eval.photos.colour_matched); crop.png and the outputs keep the matched colours",
     )
+    return ap
+
+
+def decompose(model, used: list, a, out_dir: Path, R: int) -> list[dict]:
+    """The model's layers and relit images of the photos it could use, one folder each, and the figures of the
+    first ``SHOWN``; returns their rows of ``summary.json``."""
+    from disent.edit.relight import named_light, relight
+    from disent.eval.photos import colour_matched, colour_target, figures, photo_batch
+
+    batch = photo_batch(used)
+    if a.colour_match:
+        batch = colour_matched(batch, colour_target(R))
+    est = model(batch["image"])
+    relit, rows = {}, []
+    if "sh" in est:
+        relit = {n: relight(model, batch["image"], named_light(n).expand(len(used), -1, -1)) for n in RELIGHT}
+    for i, r in enumerate(used):
+        folder = out_dir / f"{i:03d}_{Path(r.path).stem}{f'_face{r.face}' if r.face else ''}"
+        arrays = pg.load_cached(r)
+        write_photo(folder, arrays, batch, est, relit, i)
+        rows.append(
+            {
+                "path": r.path,
+                "used": True,
+                "face": r.face,
+                "folder": folder.name,
+                "notes": r.notes,
+                "fit_residual_px": r.residual_px,
+                "faces_found": [
+                    {"box": [round(float(v), 1) for v in f[:4]], "score": round(float(f[4]), 3)}
+                    for f in arrays["faces"]
+                ],
+            }
+        )
+    shown = used[:SHOWN]
+    tag = Path(a.run).name  # the figures' titles name the model
+    figures(model, {k: v[:SHOWN] for k, v in batch.items()}, [Path(r.path).stem for r in shown], out_dir, tag)
+    (out_dir / f"decomposition_{tag}.png").replace(out_dir / "decomposition.png")
+    if (out_dir / f"relight_{tag}.png").exists():
+        (out_dir / f"relight_{tag}.png").replace(out_dir / "relight.png")
+    return rows
+
+
+def main(argv=None) -> None:
+    ap = parser()
     a = ap.parse_args(argv)
     if a.workers < 0 or a.threads < 1 or a.upsample < 0:
         ap.error("--workers must be >= 0, --threads >= 1, --upsample >= 0")
     torch.set_num_threads(a.threads)
     from disent.edit.__main__ import load_model
-    from disent.edit.relight import named_light, relight
 
     files = collect(a.paths)  # a wrong path stops here, before the model is loaded
     model, R = load_model(a.run)
@@ -161,39 +205,7 @@ def main(argv=None) -> None:
         "photos": [],
     }
     if used:
-        from disent.eval.photos import colour_matched, colour_target, figures, photo_batch
-
-        batch = photo_batch(used)
-        if a.colour_match:
-            batch = colour_matched(batch, colour_target(R))
-        est = model(batch["image"])
-        relit = {}
-        if "sh" in est:
-            relit = {n: relight(model, batch["image"], named_light(n).expand(len(used), -1, -1)) for n in RELIGHT}
-        for i, r in enumerate(used):
-            folder = out_dir / f"{i:03d}_{Path(r.path).stem}{f'_face{r.face}' if r.face else ''}"
-            arrays = pg.load_cached(r)
-            write_photo(folder, arrays, batch, est, relit, i)
-            report["photos"].append(
-                {
-                    "path": r.path,
-                    "used": True,
-                    "face": r.face,
-                    "folder": folder.name,
-                    "notes": r.notes,
-                    "fit_residual_px": r.residual_px,
-                    "faces_found": [
-                        {"box": [round(float(v), 1) for v in f[:4]], "score": round(float(f[4]), 3)}
-                        for f in arrays["faces"]
-                    ],
-                }
-            )
-        shown = used[:SHOWN]
-        tag = Path(a.run).name  # the figures' titles name the model
-        figures(model, {k: v[:SHOWN] for k, v in batch.items()}, [Path(r.path).stem for r in shown], out_dir, tag)
-        (out_dir / f"decomposition_{tag}.png").replace(out_dir / "decomposition.png")
-        if (out_dir / f"relight_{tag}.png").exists():
-            (out_dir / f"relight_{tag}.png").replace(out_dir / "relight.png")
+        report["photos"] = decompose(model, used, a, out_dir, R)
     report["photos"] += [
         {"path": r.path, "used": False, "face": r.face, "reason": r.reason, "detail": r.detail}
         for r in records

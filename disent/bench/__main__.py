@@ -62,7 +62,21 @@ SUBCOMMANDS: dict[str, Callable] = {
 }
 
 
-def main(argv=None) -> None:
+def fastest_threads(device: str) -> None:
+    """Set torch's thread count to the one with the highest 1024-square matmul rate, and print the rates."""
+    by_threads = {}
+    for t in range(1, (os.cpu_count() or 1) + 1):
+        torch.set_num_threads(t)
+        by_threads[t] = measure_peak_gflops(1024, rounds=3, device=device)
+    torch.set_num_threads(max(by_threads, key=by_threads.get))
+    print(
+        f"threads: {torch.get_num_threads()} (matmul GFLOP/s by thread count: "
+        + ", ".join(f"{t}: {g:.0f}" for t, g in by_threads.items())
+        + ")"
+    )
+
+
+def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m disent.bench", description=bench.__doc__)
     p.add_argument("which", nargs="*", default=[], help=f"subcommands (default: all): {', '.join(SUBCOMMANDS)}")
     p.add_argument(
@@ -109,6 +123,11 @@ def main(argv=None) -> None:
         "--infer-batches", type=int, nargs="+", default=[1, 64, 256], help="inference batches (64 is the headline)"
     )
     p.add_argument("--no-malloc-tuning", action="store_true", help="leave glibc's malloc as it is (see tune_malloc)")
+    return p
+
+
+def main(argv=None) -> None:
+    p = parser()
     args = p.parse_args(argv)
     if args.threads is not None and args.threads < 1:
         p.error(
@@ -128,16 +147,7 @@ def main(argv=None) -> None:
     if args.threads:
         torch.set_num_threads(args.threads)
     else:  # the fastest thread count, by the matmul peak (on a shared machine fewer threads can win)
-        by_threads = {}
-        for t in range(1, (os.cpu_count() or 1) + 1):
-            torch.set_num_threads(t)
-            by_threads[t] = measure_peak_gflops(1024, rounds=3, device=args.device)
-        torch.set_num_threads(max(by_threads, key=by_threads.get))
-        print(
-            f"threads: {torch.get_num_threads()} (matmul GFLOP/s by thread count: "
-            + ", ".join(f"{t}: {g:.0f}" for t, g in by_threads.items())
-            + ")"
-        )
+        fastest_threads(args.device)
     for name in args.which or list(SUBCOMMANDS):
         if name not in SUBCOMMANDS:
             p.error(f"unknown benchmark {name!r}; choose from {', '.join(SUBCOMMANDS)}")

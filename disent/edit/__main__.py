@@ -239,6 +239,8 @@ def cmd_measure(a) -> None:
 
 
 def main(argv=None) -> None:
+    """The four subcommands' options, then the one that was named runs (one argparse table: it reads better whole
+    than cut into a function per subcommand)."""
     p = argparse.ArgumentParser(prog="python -m disent.edit", description=__doc__.split("\n")[0])
     sub = p.add_subparsers(dest="cmd", required=True)
     common = argparse.ArgumentParser(add_help=False)

@@ -302,6 +302,34 @@ def texture_coefficients(
     return np.linalg.solve(H, X.T @ target), H
 
 
+def _texture_fit(data, order, gray, prior_scale, iterations, texture, texture_iterations, normal_sigma, whiten, nu):
+    """:func:`score`'s albedo from the texture model: ``beta`` by alternating least squares with the light, and
+    what beta adds to the log evidence (its prior and its Laplace volume); returns ``(data with that albedo, beta,
+    extra)``."""
+    C, K = data.n_channels, N_COEFFS[order]
+    tex, variance = texture
+    if tex.shape[1:] != data.y.shape:
+        raise ValueError(f"texture pixels {tex.shape[1:]} do not match the data {data.y.shape}")
+
+    beta = np.zeros(len(variance))
+    for _ in range(texture_iterations):
+        albedo = texture_albedo(tex, beta)
+        theta, _, _, v, w, _ = _fit(
+            replace(data, albedo=albedo), order, gray, prior_scale, iterations, normal_sigma, whiten, nu
+        )
+        shading = data.basis[:, :K] @ _light(theta, C, K, gray).T  # [P, C]: the light through S(n, L_c)
+        weights = None if nu is None else w.reshape(C, -1).T  # channel-major -> [P, C]
+        beta, H_beta = texture_coefficients(tex, variance, shading, data.y, v, whiten, weights)
+    if nu is not None:  # the Laplace volume from the Fisher information, as for the light below
+        fisher = np.full(data.y.shape, (nu + 1) / (nu + 3))
+        H_beta = texture_coefficients(tex, variance, shading, data.y, v, whiten, fisher)[1]
+    data = replace(data, albedo=texture_albedo(tex, beta))
+    extra = (
+        -0.5 * (beta**2 / variance).sum() - 0.5 * np.log(variance).sum() - 0.5 * np.linalg.slogdet(H_beta)[1]
+    )  # log N(beta; 0, var) + J/2 log 2 pi - 1/2 log det H
+    return data, beta, extra
+
+
 def score(
     data: LightingData,
     order: int,
@@ -336,26 +364,9 @@ def score(
     whiten = whitener if residual is not None else None
     beta, extra = None, 0.0
     if texture is not None:
-        tex, variance = texture
-        if tex.shape[1:] != data.y.shape:
-            raise ValueError(f"texture pixels {tex.shape[1:]} do not match the data {data.y.shape}")
-
-        beta = np.zeros(len(variance))
-        for _ in range(texture_iterations):
-            albedo = texture_albedo(tex, beta)
-            theta, _, _, v, w, _ = _fit(
-                replace(data, albedo=albedo), order, gray, prior_scale, iterations, normal_sigma, whiten, nu
-            )
-            shading = data.basis[:, :K] @ _light(theta, C, K, gray).T  # [P, C]: the light through S(n, L_c)
-            weights = None if nu is None else w.reshape(C, -1).T  # channel-major -> [P, C]
-            beta, H_beta = texture_coefficients(tex, variance, shading, data.y, v, whiten, weights)
-        if nu is not None:  # the Laplace volume from the Fisher information, as for the light below
-            fisher = np.full(data.y.shape, (nu + 1) / (nu + 3))
-            H_beta = texture_coefficients(tex, variance, shading, data.y, v, whiten, fisher)[1]
-        data = replace(data, albedo=texture_albedo(tex, beta))
-        extra = (
-            -0.5 * (beta**2 / variance).sum() - 0.5 * np.log(variance).sum() - 0.5 * np.linalg.slogdet(H_beta)[1]
-        )  # log N(beta; 0, var) + J/2 log 2 pi - 1/2 log det H
+        data, beta, extra = _texture_fit(
+            data, order, gray, prior_scale, iterations, texture, texture_iterations, normal_sigma, whiten, nu
+        )
     theta, r, J, v, _, (prior_mean, prior_prec) = _fit(
         data, order, gray, prior_scale, iterations, normal_sigma, whiten, nu
     )

@@ -50,6 +50,28 @@ def sharpened_albedo(image, shading, albedo, region, ks=SHARPENING) -> dict:
 
 
 @torch.no_grad()
+def source_rows(scores: dict, inputs: dict, extra: dict) -> dict:
+    """:func:`lhat_sources`' rows: each light's scores (``(per-face error, shown, skin correlations, contrast
+    agreement)``), its inputs, and what only a network's row has."""
+    reference = scores["lhat"][0]
+    rows = {}
+    for k, (e, shown, skin_corr, agree) in scores.items():
+        rows[k] = {
+            "light_on_face": float(e.mean()),
+            "light_on_face_se": float(e.std() / math.sqrt(len(e))),
+            "beats_lhat": float((e < reference).double().mean()),
+            "shown": shown,
+            "skin_tone_corr": skin_corr["tone"],
+            "skin_brightness_corr": skin_corr["brightness"],
+            "contrast": agree["slope"],
+            "pattern_corr": agree["corr"],
+            "contrast_ratio": agree["ratio"],
+            "log_error": agree["error"],
+            "inputs": inputs[k],
+        } | extra.get(k, {})
+    return rows
+
+
 def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -> dict:
     """How far L-hat's light lies from the true light on the face, and with which of its inputs made true.
 
@@ -127,20 +149,5 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
         inputs[f"network_{name}_texture"] = ("network", "texture_model", "eroded_matte")
     lights["floor"] = means["sh"].expand_as(g["sh"])
     scores = {k: scored(sh) for k, sh in lights.items()}
-    reference = scores["lhat"][0]
-    rows = {}
-    for k, (e, shown, skin_corr, agree) in scores.items():
-        rows[k] = {
-            "light_on_face": float(e.mean()),
-            "light_on_face_se": float(e.std() / math.sqrt(len(e))),
-            "beats_lhat": float((e < reference).double().mean()),
-            "shown": shown,
-            "skin_tone_corr": skin_corr["tone"],
-            "skin_brightness_corr": skin_corr["brightness"],
-            "contrast": agree["slope"],
-            "pattern_corr": agree["corr"],
-            "contrast_ratio": agree["ratio"],
-            "log_error": agree["error"],
-            "inputs": inputs[k],
-        } | extra.get(k, {})
-    return {"split": test.split, "n": len(reference), "rows": rows}
+    rows = source_rows(scores, inputs, extra)
+    return {"split": test.split, "n": len(scores["lhat"][0]), "rows": rows}
