@@ -13,6 +13,7 @@ renders handed to the landmark detector).
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -108,3 +109,50 @@ def pyplot():
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def save_figure(fig, path: Path, **kwargs) -> None:
+    """Save ``fig`` as a PNG without the timestamp and version matplotlib writes (a rebuild gives the same bytes
+    for the same pixels), and close it."""
+    fig.savefig(path, metadata={"Software": None}, **kwargs)
+    pyplot().close(fig)
+
+
+def wrapped(text: str, width: int) -> str:
+    """``text`` in lines of at most ``width`` characters where it can, broken only after a space, ``_``, ``-`` or
+    ``.`` (a run folder's or a setting's name stays whole between those)."""
+    lines = [""]
+    for piece in re.split(r"(?<=[ _.\-])", text):
+        if lines[-1] and len(lines[-1].rstrip()) + len(piece.rstrip()) > width:
+            lines.append("")
+        lines[-1] += piece
+    return "\n".join(line.rstrip() for line in lines)
+
+
+def image_grid(
+    sets: list[tuple[str, torch.Tensor]],
+    path: Path,
+    title: str | None = None,
+    columns: bool = False,
+    scale: float = 1.2,
+    dpi: int = 110,
+) -> None:
+    """Named ``[N,C,H,W]`` image sets as a grid: one row per set with its name on the left, or (``columns``) one
+    column per set with its name on top, the paper's figure layout; a set named ``normal...`` is shown as normals.
+    ``title`` is wrapped to the figure's width; ``scale``: inches per image."""
+    plt = pyplot()
+    n, k = sets[0][1].shape[0], len(sets)
+    shape, size = ((n, k), (scale * k, scale * n + 0.4)) if columns else ((k, n), (scale * n + 1, scale * k))
+    fig, axes = plt.subplots(*shape, figsize=size, squeeze=False)
+    for s, (name, images) in enumerate(sets):
+        for i in range(n):
+            ax = axes[i, s] if columns else axes[s, i]
+            ax.imshow(to_array(images[i], "normal" if name.startswith("normal") else "rgb"), interpolation="nearest")
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if i == 0:
+                (ax.set_title if columns else ax.set_ylabel)(name, fontsize=7)
+    if title:
+        fig.suptitle(wrapped(title, int(size[0] * 15)), fontsize=8)  # about 15 characters an inch at 8 pt
+    fig.tight_layout(pad=0.2 if columns else 1.08)
+    save_figure(fig, path, dpi=dpi)

@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from disent.images import pyplot
 from disent.report import document, tables
 from disent.runs import Run, composed_config, find_runs, group_by_setting, measured_setting, pick_runs
 from tests.run_fakes import fake_suite, make_run
@@ -217,7 +218,7 @@ def test_a_curve_ending_above_the_panel_is_marked_at_its_edge_with_its_value():
     labelled with its value; a run inside the panel gets none; ends at nearly one x share a label."""
     from disent.report.training import mark_off_chart
 
-    plt = document.pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots()
     ax.plot([0, 10], [20, 64.07])
     ax.set_ylim(0, 51.2)
@@ -321,7 +322,7 @@ def test_background_diagnostic_sets_edits_through_the_background_against_the_fac
 def test_wrapped_titles_break_only_between_name_parts_and_keep_every_character():
     """A figure title's lines stay within the width wherever a break is allowed, never split a name between its
     ``_``/``-``/``.``/space-separated parts, and lose nothing but the spaces at the breaks."""
-    from disent.report.pictures import wrapped
+    from disent.images import wrapped
 
     text = "+experiment=long loss.bws_c=0.3 (explicit_long_gpu_s12-explicit_s0)"
     lines = wrapped(text, 22).split("\n")
@@ -341,7 +342,7 @@ def test_unoverlap_moves_point_labels_apart_and_keeps_the_highest_in_place():
     points at its own point."""
     from matplotlib.text import Text
 
-    plt = document.pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots()
     points = [(0.5, 0.5 + 0.001 * i) for i in range(6)]
     labels = [

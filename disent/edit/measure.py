@@ -46,7 +46,6 @@ from disent.edit.classifier import MeasureNet
 from disent.edit.relight import ratio_relight, transfer_lighting, with_light
 from disent.edit.traversal import ATTRIBUTES, DEFAULT_MANIFOLDS, FACE_CODES, encode_pool, model_kind, traverse
 from disent.eval.metrics import optimal_scale, reconstruction_metrics
-from disent.images import to_array
 from disent.regions import face_mask
 from disent.render import sh_shading
 
@@ -517,27 +516,6 @@ def plot_success_vs_leakage(rows: list[dict], path) -> None:
     plt.close(fig)
 
 
-def image_grid(columns: list[torch.Tensor], titles: list[str], path, scale: float = 1.3) -> None:
-    """Columns of ``[N,3,H,W]`` images with a title each (the paper's figure layout)."""
-    from disent.images import pyplot
-
-    plt = pyplot()
-
-    n = columns[0].shape[0]
-    fig, axes = plt.subplots(n, len(columns), figsize=(scale * len(columns), scale * n + 0.4), squeeze=False)
-    for j, (col, title) in enumerate(zip(columns, titles)):
-        for i in range(n):
-            ax = axes[i, j]
-            ax.imshow(to_array(col[i]))
-            ax.set_xticks([])
-            ax.set_yticks([])
-            if i == 0:
-                ax.set_title(title, fontsize=7)
-    fig.tight_layout(pad=0.2)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-
-
 SHIPPED_MEASURE_NET = Path(__file__).resolve().parents[1] / "weights" / "measure_net.pt"
 
 
@@ -571,11 +549,18 @@ def _measure_net(a, out, data_cls, resolution):
     return net, info
 
 
+def figure(columns: list[torch.Tensor], titles: list[str], path: Path) -> None:
+    """Columns of ``[N,3,H,W]`` images with a title each (the paper's figure layout)."""
+    from disent.images import image_grid
+
+    image_grid(list(zip(titles, columns)), path, columns=True, scale=1.3, dpi=120)
+
+
 def traversal_figures(shown: dict, attribute: str, lambdas, alphas, out: Path) -> None:
     """One attribute's progression along the paper's manifold choice (``fig_<attribute>_progression.png``) and
     every manifold choice at one strength (``fig_<attribute>_manifolds.png``)."""
     paper = next(k for k in dict.fromkeys(k[0] for k in shown if isinstance(k, tuple)) if k.startswith("paper"))
-    image_grid(
+    figure(
         [shown["input"], shown["recon"]]
         + [shown[(paper, "dmt", s)] for s in lambdas]
         + [shown[(paper, "barycenter", alphas[-1])], shown["truth"]],
@@ -584,7 +569,7 @@ def traversal_figures(shown: dict, attribute: str, lambdas, alphas, out: Path) -
     )
     labels = list(dict.fromkeys(k[0] for k in shown if isinstance(k, tuple)))
     lam = 0.03 if 0.03 in lambdas else lambdas[len(lambdas) // 2]
-    image_grid(
+    figure(
         [shown["input"], shown["recon"]] + [shown[(lb, "dmt", lam)] for lb in labels],
         ["input", "recon"] + [f"{lb} λ={lam:g}" for lb in labels],
         out / f"fig_{attribute}_manifolds.png",
@@ -594,7 +579,7 @@ def traversal_figures(shown: dict, attribute: str, lambdas, alphas, out: Path) -
 def relight_figure(example: dict, path: Path) -> None:
     """One face relit by each route (shading images scaled to their maximum)."""
     shade = lambda s: s / s.flatten(1).amax(1).clamp_min(1e-6)[:, None, None, None]  # noqa: E731
-    image_grid(
+    figure(
         [
             example[k] if not k.startswith("S_") else shade(example[k])
             for k in ("target", "source", "S_target", "S_transfer", "transfer", "ratio", "decode", "truth")

@@ -7,9 +7,9 @@ import json
 
 from disent.eval import ablation as _ablation
 from disent.eval.metrics import FLAT_SHARE, frame_map, normals_failure
-from disent.images import on_matte, to_array
-from disent.report.document import Report, pyplot
-from disent.report.pictures import test_batch, wrapped
+from disent.images import on_matte, pyplot, to_array, wrapped
+from disent.report.document import Report
+from disent.report.pictures import test_batch
 from disent.report.tables import (
     Glance,
     by_setting_and_model,

@@ -8,9 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
-from disent.report.document import Report, load_json, pyplot
-from disent.report.pictures import wrapped
+from disent.images import pyplot, wrapped
+from disent.report.document import Report
 from disent.report.tables import fmt_value, table_head
+from disent.storage import load_json
 
 FRACTION_TARGETS = {
     "train": 0.55,

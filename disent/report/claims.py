@@ -8,6 +8,7 @@ from disent.edit.measure import DRAWN_READINGS, OFF_TARGET_READINGS
 from disent.eval import ablation as _ablation
 from disent.eval.scoring import MATTE_EDGE
 from disent.eval.trivial import TEMPLATE_KEYS
+from disent.images import pyplot
 from disent.regions import FACE_THRESHOLD
 from disent.report.ablations import (
     LIGHT_TARGETS,
@@ -18,7 +19,7 @@ from disent.report.ablations import (
     claim_skin,
     setting_picks,
 )
-from disent.report.document import Report, load_json, pyplot, unoverlap
+from disent.report.document import Report, unoverlap
 from disent.report.tables import (
     EDIT_WORKS,
     MIN_SEEDS,
@@ -37,6 +38,7 @@ from disent.report.tables import (
 )
 from disent.report.training import uv_glance_lines
 from disent.runs import Run, composed_config, group_by_setting, measured_setting, run_ref, setting, typed
+from disent.storage import load_json
 
 # The trainable-models targets by rung: the default rung's absolute ones (TARGETS), the long rung's normals 15 %
 # better than the pseudo-GT they were supervised by (the paper's "beyond the morphable model" claim, with a margin)

@@ -8,8 +8,7 @@ import re
 import traceback
 from pathlib import Path
 
-from disent.images import pyplot  # noqa: F401  (the sections draw through the page's module)
-from disent.storage import load_json  # noqa: F401  (the sections read their JSON through the page's module)
+from disent.images import save_figure
 
 
 def unoverlap(ax, labels, pad_pt: float = 1.0) -> None:
@@ -86,13 +85,6 @@ class Report:
         self.page.parent.mkdir(parents=True, exist_ok=True)
         self.page.write_text("\n".join(self.lines) + "\n")
         return self.page
-
-
-def save_figure(fig, path: Path, **kwargs) -> None:
-    """Save ``fig`` as a PNG without the timestamp and version matplotlib writes (a rebuild gives the same bytes
-    for the same pixels), and close it."""
-    fig.savefig(path, metadata={"Software": None}, **kwargs)
-    pyplot().close(fig)
 
 
 MISSING = "> **Missing:**"

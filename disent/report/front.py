@@ -13,7 +13,7 @@ from pathlib import Path
 from disent.eval.ablation import mean_std
 from disent.report.ablations import CLAIM_METRICS, ablation_readings, budget_misses, gated_verdict
 from disent.report.claims import drawn_rates, edit_groups, reader_rows, relight_rows
-from disent.report.document import Report, load_json
+from disent.report.document import Report
 from disent.report.tables import (
     LADDER_COLUMNS,
     MODELS,
@@ -27,6 +27,7 @@ from disent.report.tables import (
     verdict_word,
 )
 from disent.runs import Run, measured_setting
+from disent.storage import load_json
 
 LONG, DEFAULT = "+experiment=long", "(defaults)"
 HEADLINE = (  # (key, its trivial baseline's key, the pseudo-GT's key, column, format); lower is better but PSNR

@@ -9,8 +9,9 @@ import numpy as np
 
 from disent.lighting import order_study
 from disent.lighting.order_study import ORDER_TARGET, wilson_interval
-from disent.report.document import Report, load_json
+from disent.report.document import Report
 from disent.report.tables import fmt_value, table_head
+from disent.storage import load_json
 
 
 def _pct(x) -> str:

@@ -9,8 +9,9 @@ import numpy as np
 
 from disent.eval import ablation as _ablation
 from disent.eval.photos import steps_text
-from disent.report.document import Report, load_json
+from disent.report.document import Report
 from disent.report.tables import spread_text, table_head, verdict
+from disent.storage import load_json
 
 
 def sec_sh_variance(rep: Report, eval_dir: Path) -> None:

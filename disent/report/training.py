@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from disent.images import on_matte, over_max
-from disent.report.document import Report, pyplot, save_figure
-from disent.report.pictures import image_grid, test_batch
+from disent.images import image_grid, on_matte, over_max, pyplot, save_figure
+from disent.report.document import Report
+from disent.report.pictures import test_batch
 from disent.report.tables import (
     INFER_SPEED_KEY,
     MODELS,
