@@ -28,7 +28,6 @@ from disent.data.synth.scenes import (
     LAYERS,
     _pseudo_geometry,
     dominant_light,
-    fit_sh_packed,
     lights_to_sh,
     paint_layers,
     pseudo_mesh,
@@ -37,7 +36,7 @@ from disent.data.synth.scenes import (
     shade,
     uniform,
 )
-from disent.render import composite, fit_sh, image_formation, sh_basis, sh_from_directions, sh_shading
+from disent.render import composite, fit_sh, fit_sh_packed, image_formation, sh_basis, sh_from_directions, sh_shading
 
 IMAGE_KEYS = (
     "image",

@@ -256,8 +256,8 @@ def test_eroded_lhat_does_not_see_m_hats_rim():
     """loss.recon_L_target=sh_pseudo_eroded: L-hat fitted on M-hat eroded 1 px is blind to what M-hat's rim shows
     (paint it over and the light stays), where the paper's L-hat on all of M-hat moves."""
     from disent.data import SynthFaces, get_batch
-    from disent.data.synth.scenes import fit_sh_packed
     from disent.lighting.targets import EDGE, eroded, eroded_lhat
+    from disent.render import fit_sh_packed
 
     g = get_batch(SynthFaces("test", size=4), range(4))
     rim = (g["mask_pseudo"] > 0.5) & (eroded(g["mask_pseudo"], EDGE) < 0.5)

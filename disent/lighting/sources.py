@@ -85,7 +85,7 @@ def lhat_sources(test, train, n: int = 256, networks=("explicit", "implicit")) -
     ``contrast_ratio`` and ``log_error``: the medians over faces and channels of
     :func:`disent.eval.metrics.shading_contrast`'s slope, correlation, magnitude and error against the true light
     there (a slope below 1 leaves the rest of the shading to the albedo). ``LHAT_SOURCES`` are least-squares
-    fits (:func:`disent.data.synth.scenes.fit_sh_packed`) of the image over the albedo; *template*: the mean train
+    fits (:func:`disent.render.fit_sh_packed`) of the image over the albedo; *template*: the mean train
     albedo in UV space placed through the pseudo uv; ``texture_model``: the PCA texture model fitted with the light
     (:func:`texture_lhat`) on M-hat eroded ``EDGE`` px, and ``texture_model_lhat_scale``, the same at L-hat's mean
     shading per face and channel (:func:`disent.losses.rescaled`; E_recon-L's target under

@@ -26,9 +26,9 @@ def eroded(mask, pixels: int) -> torch.Tensor:
 
 
 def least_squares_light(image, normal, mask, albedo=None) -> torch.Tensor:
-    """``[B, 3, 9]``: the least-squares SH light (:func:`disent.data.synth.scenes.fit_sh_packed`) of ``image`` over
+    """``[B, 3, 9]``: the least-squares SH light (:func:`disent.render.fit_sh_packed`) of ``image`` over
     ``albedo`` (None: a constant, the paper's L-hat) through ``normal`` on the pixels where ``mask`` > 0.5."""
-    from disent.data.synth.scenes import fit_sh_packed
+    from disent.render import fit_sh_packed
 
     return fit_sh_packed(image, normal * (mask > 0.5), mask, albedo)
 

@@ -549,7 +549,7 @@ def lhat_source_lines(src: dict) -> list[str]:
     e = {k: r["light_on_face"] for k, r in rows.items()}
     lines = [
         "### Where L-hat's error comes from\n",
-        "L-hat, the least-squares light of Eq. 9 (`disent.data.synth.scenes.fit_sh_packed`), fitted with its inputs "
+        "L-hat, the least-squares light of Eq. 9 (`disent.render.fit_sh_packed`), fitted with its inputs "
         "made true one at a time: first its pixels (M-hat also covers some hair, ears and background), then from there "
         "the normals, the albedo (or in its place a placed mean texture: the mean train albedo in UV space through the "
         "pseudo uv), or both; beside them what needs no truth: M-hat eroded, the PCA texture model fitted with the "

@@ -25,12 +25,12 @@ from disent.render import (
     C2,
     C4,
     composite,
+    eq5_coefficients,
+    eq5_planes,
+    fit_sh_packed,
     image_formation,
-    over_albedo,
     sh_basis,
     sh_from_directions,
-    sh_matrix,
-    solve_normal_equations,
 )
 from disent.runtime import single_thread
 
@@ -698,31 +698,6 @@ def render_scenes(p: dict, res: int, effects: dict | None = None, pseudo: bool =
     return out
 
 
-_QUADRATIC = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))  # the products n_i n_j (i <= j) of Eq. 5
-
-
-def eq5_planes(normal: torch.Tensor, one: torch.Tensor, extra: int = 0, dtype=None) -> torch.Tensor:
-    """The 10 distinct entries of [n;1][n;1]^T (Eq. 5) as planes ``[B, 10 + extra, P]`` from ``normal [B, 3, P]``:
-    n_x, n_y, n_z, ``one [B, P]`` (the constant: a binary mask, with normals 0 off it), then n_i n_j
-    in ``_QUADRATIC`` order; ``extra`` planes are left for the caller."""
-    B, _, P = normal.shape
-    planes = torch.empty(B, 10 + extra, P, dtype=dtype or normal.dtype)
-    n = planes[:, :3]
-    n.copy_(normal)
-    planes[:, 3].copy_(one)
-    for k, (i, j) in enumerate(_QUADRATIC):
-        torch.mul(n[:, i], n[:, j], out=planes[:, 4 + k])
-    return planes
-
-
-def eq5_coefficients(sh: torch.Tensor) -> torch.Tensor:
-    """``sh [..., 9]`` -> ``[..., 10]``: the shading is these coefficients dotted with :func:`eq5_planes`
-    (S = [n;1]^T K [n;1], Eq. 5, with K = :func:`disent.render.sh_matrix`, symmetric)."""
-    K = sh_matrix(sh)
-    quadratic = torch.stack([K[..., i, j] * (1 if i == j else 2) for i, j in _QUADRATIC], -1)
-    return torch.cat([2 * K[..., :3, 3], K[..., 3:, 3], quadratic], -1)  # n (twice the off-diagonal), 1, n_i n_j
-
-
 def shade(normal: torch.Tensor, sh: torch.Tensor, matte: torch.Tensor) -> torch.Tensor:
     """``sh_shading(normal, sh) * matte`` (Eq. 4) in the form of Eq. 5 for a binary ``matte`` and normals
     that are 0 off it: one batched product of :func:`eq5_coefficients` with :func:`eq5_planes`."""
@@ -760,61 +735,6 @@ def _pseudo_maps(image: torch.Tensor, fit: dict, r: dict, res: int) -> dict:
         "normal_uv_pseudo": _uv_map_from_subgrid(fit["vn"], res),
         "sh_pseudo": fit_sh_packed(image, normal, mask),
     }
-
-
-def fit_sh_packed(
-    image: torch.Tensor,
-    normal: torch.Tensor,
-    mask: torch.Tensor,
-    albedo: torch.Tensor | None = None,
-    min_pixels: int = 16,
-    chunk: int = 128,
-) -> torch.Tensor:
-    """:func:`disent.render.fit_sh` on the masked pixels only: the same least squares (a constant albedo, or the
-    image over ``albedo`` by the same rule, :func:`disent.render.over_albedo`), as its sums over pixels need
-    nothing else.
-
-    Each image's masked pixels are packed into pieces of ``chunk`` (the last one padded with
-    zero weight); one batched float64 product gives every piece's sums of products of the
-    image and the :func:`eq5_planes` of its normals, and each image sums its own pieces in order,
-    so an image's L-hat does not depend on its batch (float32 sums would, and the solve amplifies
-    their rounding to ~1e-3 in L-hat).  The SH basis is linear in those planes (Eq. 5), basis =
-    T planes, so the normal equations are T (sums) T^T and T (sums with the image)."""
-    B, C = image.shape[:2]
-    HW = image[0, 0].numel()
-    if albedo is not None:
-        image, mask = over_albedo(image, mask.reshape(B, 1, *image.shape[2:]), albedo)
-    w = mask.reshape(B * HW)
-    sel = (w > 0).nonzero().squeeze(1)  # [M] flat b * HW + p, sorted
-    counts = torch.bincount(torch.div(sel, HW, rounding_mode="floor"), minlength=B)
-    if (counts < min_pixels).any():
-        bad = torch.nonzero(counts < min_pixels).flatten().tolist()
-        raise ValueError(f"fit_sh needs at least {min_pixels} masked pixels; images {bad} have {counts[bad].tolist()}")
-    pieces = (counts + chunk - 1) // chunk
-    owner = torch.repeat_interleave(pieces)  # [n] image of each piece
-    rank = (torch.arange(owner.numel()) - (torch.cumsum(pieces, 0) - pieces).index_select(0, owner))[:, None] * chunk
-    rank = rank + torch.arange(chunk)  # [n, chunk]: which masked pixel of its image
-    valid = rank < counts.index_select(0, owner)[:, None]
-    start = (torch.cumsum(counts, 0) - counts).index_select(0, owner)[:, None]
-    at = sel.index_select(0, (start + rank).clamp_max_(sel.numel() - 1).view(-1)).view(-1, chunk)  # b * HW + p
-    weight = w.index_select(0, at.view(-1)).view(-1, chunk).mul_(valid)
-    at = (at + (owner * (2 * HW))[:, None])[:, None] + torch.arange(3)[
-        :, None
-    ] * HW  # [n, 3, chunk]: b * 3HW + c * HW + p
-
-    def packed(x):  # x [B, 3, H, W] at the packed pixels, 0 on the padding -> [n, 3, chunk]
-        return x.reshape(-1).index_select(0, at.view(-1)).view(at.shape).mul_(valid[:, None])
-
-    y = packed(image)
-    if not torch.isfinite(y).all():
-        raise ValueError("fit_sh: image has NaN or Inf inside the mask")
-    X = eq5_planes(packed(normal), valid, extra=C, dtype=torch.float64)  # [n, 10 + C, chunk]
-    X[:, 10:].copy_(y)
-    soft = not torch.equal(weight, valid.to(weight.dtype))  # a binary mask: X's rows already carry it
-    G = torch.bmm(X[:, :10] * weight.double()[:, None] if soft else X[:, :10], X.transpose(1, 2))  # [n, 10, 10 + C]
-    G = torch.zeros(B, 10, 10 + C, dtype=torch.float64).index_add_(0, owner, G)
-    T = eq5_coefficients(torch.eye(9, dtype=torch.float64))  # [9, 10]: basis = T planes
-    return solve_normal_equations(T @ G[:, :10, :10] @ T.t(), T @ G[:, :10, 10:]).float()
 
 
 def dominant_light(sh: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -887,7 +807,6 @@ __all__ = [
     "scene_params",
     "render_scenes",
     "render_pseudo",
-    "fit_sh_packed",
     "dominant_light",
     "apply_effects",
     "paint_albedo",
