@@ -9,7 +9,6 @@ import torch
 from scipy.optimize import minimize_scalar
 
 from disent.edit.relight import (
-    detailed_albedo,
     directional_light,
     ratio_relight,
     relight,
@@ -26,7 +25,7 @@ from disent.edit.traversal import (
     traverse,
     witness,
 )
-from disent.render import composite, sh_from_directions, sh_shading
+from disent.render import composite, detailed_albedo, sh_from_directions, sh_shading
 
 
 def gaussian_sets(D=5, n=40, shift=3.0, seed=0):

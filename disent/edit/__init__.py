@@ -8,7 +8,6 @@
 """
 
 from disent.edit.relight import (
-    detailed_albedo,
     directional_light,
     named_light,
     ratio_relight,
@@ -38,7 +37,6 @@ __all__ = [
     "encode_pool",
     "traverse",
     "witness",
-    "detailed_albedo",
     "directional_light",
     "named_light",
     "ratio_relight",

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import torch
 
-from disent.render import (  # noqa: F401  (detailed_albedo and SHADING_EPS: this module's names too)
+from disent.render import (
     SHADING_EPS,
     check_finite,
     composite,

@@ -13,11 +13,8 @@ import numpy as np
 import torch
 
 from disent.lighting.posterior import prepare
-from disent.lighting.targets import (
-    EDGE,
-    eroded,
-    network_maps,
-)
+from disent.lighting.targets import EDGE, eroded
+from disent.lighting.texture import network_maps
 
 BANDS = {0: [0], 1: [1, 2, 3], 2: [4, 5, 6, 7, 8]}
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import torch
 
 from disent.config import NETWORK_TARGETS, loss_setting
-from disent.lighting.texture import network_maps, trained_network  # noqa: F401  (network_maps: the studies read it here)
+from disent.lighting.texture import trained_network
 from disent.losses import target_light
 
 # pixels taken off the pseudo mask's edge: the coarse fit's silhouette is where its geometry is least right (grazing
