@@ -98,6 +98,36 @@ def without_truth_lines(runs: list[Run]) -> list[str]:
     return [intro + f"{len(meets)} meet(s) every target of its rung, on the mean over seeds:\n", *meets, ""]
 
 
+def template_section(rep: Report, groups: dict) -> None:
+    """The albedo against the stronger floor, the placed mean texture, for each setting and model of ``groups``."""
+    template_rows = [
+        f"| `{where}` | {model} | "
+        + " | ".join(
+            f"{spread_text(seed_spread(rs, key), '.4f')} / {seed_spread(rs, f'template_{key}')['mean']:.4f} / "
+            f"{seed_spread(rs, f'trivial_{key}')['mean']:.4f}"
+            for key in TEMPLATE_KEYS
+        )
+        + " |"
+        for (where, model), rs in sorted(groups.items())
+        if all(seed_spread(rs, f"template_{key}") and seed_spread(rs, key) for key in TEMPLATE_KEYS)
+    ]
+    head = table_head(
+        "setting", "model", *(f"{label}: network / placed mean texture / mean map" for label in TEMPLATE_LABELS)
+    )
+    if template_rows:
+        rep.add(
+            "A stronger floor for the albedo: the *placed mean texture*, the mean train albedo in UV space put on each "
+            "test face through its true uv (`disent.eval.trivial.template_albedo`). It knows where the face's eyes, "
+            "brows and lips are and nothing of whose face it is, so an albedo that beats the mean map but not this "
+            "floor has learned where the face is, not what it looks like. Three scorings: a scale per image and "
+            "channel (the targets' measure), one scale per image for R, G and B (the skin's colour must be in the "
+            "albedo), one scale per channel for the whole test set (each face's brightness must be too).\n",
+            *head,
+            *template_rows,
+            "",
+        )
+
+
 def sec_targets(rep: Report, runs: list[Run]) -> None:
     """At a glance: each model of the budget ladder against its rung's targets and its floors (mean ± std over seeds);
     a layer is learned only where it beats its floor, the dataset-mean map."""
@@ -143,32 +173,7 @@ def sec_targets(rep: Report, runs: list[Run]) -> None:
         *rows,
         "",
     )
-    template_rows = [
-        f"| `{where}` | {model} | "
-        + " | ".join(
-            f"{spread_text(seed_spread(rs, key), '.4f')} / {seed_spread(rs, f'template_{key}')['mean']:.4f} / "
-            f"{seed_spread(rs, f'trivial_{key}')['mean']:.4f}"
-            for key in TEMPLATE_KEYS
-        )
-        + " |"
-        for (where, model), rs in sorted(groups.items())
-        if all(seed_spread(rs, f"template_{key}") and seed_spread(rs, key) for key in TEMPLATE_KEYS)
-    ]
-    head = table_head(
-        "setting", "model", *(f"{label}: network / placed mean texture / mean map" for label in TEMPLATE_LABELS)
-    )
-    if template_rows:
-        rep.add(
-            "A stronger floor for the albedo: the *placed mean texture*, the mean train albedo in UV space put on each "
-            "test face through its true uv (`disent.eval.trivial.template_albedo`). It knows where the face's eyes, "
-            "brows and lips are and nothing of whose face it is, so an albedo that beats the mean map but not this "
-            "floor has learned where the face is, not what it looks like. Three scorings: a scale per image and "
-            "channel (the targets' measure), one scale per image for R, G and B (the skin's colour must be in the "
-            "albedo), one scale per channel for the whole test set (each face's brightness must be too).\n",
-            *head,
-            *template_rows,
-            "",
-        )
+    template_section(rep, groups)
     rep.add(*uv_glance_lines(runs, ladder_runs(runs)))
     rep.add(*without_truth_lines(runs), *albedo_cause_lines(runs), *light_target_lines(runs))
     light_pattern_section(rep, runs)

@@ -726,19 +726,7 @@ def prepare(
         root = root / f"detector-{getattr(detector, 'name', type(detector).__name__)}"
     root.mkdir(parents=True, exist_ok=True)
     manifest = root / "manifest.jsonl"
-    known = _read_manifest(manifest)
-    records: dict[int, Record] = {}
-    todo = []
-    for i, p in enumerate(paths):
-        rec = known.get(p)
-        try:
-            st = os.stat(p)
-        except OSError:
-            st = None
-        if rec and st and (rec.size, rec.mtime_ns) == (st.st_size, st.st_mtime_ns) and Path(rec.cache).is_file():
-            records[i] = rec
-        else:
-            todo.append(i)
+    records, todo = _cached(paths, _read_manifest(manifest))
     bar = tqdm(
         total=len(paths),
         initial=len(paths) - len(todo),
@@ -781,6 +769,24 @@ def prepare(
     if log_summary:
         log.info("%s\n  per file: %s", format_summary(summary), manifest)
     return out, summary
+
+
+def _cached(paths: list[str], known: dict[str, Record]) -> tuple[dict[int, Record], list[int]]:
+    """The records of the paths the manifest knows unchanged (same size and mtime, cache file present), by index,
+    and the indices of the rest, to be processed."""
+    records: dict[int, Record] = {}
+    todo = []
+    for i, p in enumerate(paths):
+        rec = known.get(p)
+        try:
+            st = os.stat(p)
+        except OSError:
+            st = None
+        if rec and st and (rec.size, rec.mtime_ns) == (st.st_size, st.st_mtime_ns) and Path(rec.cache).is_file():
+            records[i] = rec
+        else:
+            todo.append(i)
+    return records, todo
 
 
 def _read_manifest(path: Path) -> dict[str, Record]:

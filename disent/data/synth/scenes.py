@@ -253,7 +253,11 @@ def _ring(X, Y, cx, cy, rx, ry, width, square=False):
 @lru_cache(maxsize=4)
 @single_thread()
 def paint_layers(res: int) -> torch.Tensor:
-    """The fixed masks ``[L, res*res]`` in UV space (texel centres, align-corners grid)."""
+    """The fixed masks ``[L, res*res]`` in UV space (texel centres, align-corners grid).
+
+    One mask per painted layer, in ``LAYERS`` order, each a few shapes on the face's angles: a catalogue read
+    top to bottom, longer than a function should be because cutting it would only scatter the face's landmarks
+    (``EYE_X``, ``MOUTH_Y``, ...) across helpers."""
     t = torch.linspace(0, 1, res, dtype=torch.float64)
     uv = torch.stack(torch.meshgrid(t, t, indexing="xy"), -1)
     theta, phi, slit = uv_to_angles(uv, layout().slit_row)
