@@ -98,17 +98,26 @@ def check_config(cfg) -> None:
     for key, what in norms:
         if cfg.loss.get(key, 2) not in (1, 2):
             raise ConfigError(f"loss.{key}={cfg.loss[key]!r}; choose from {what}")
-    device = str(cfg.device)
+    check_device("device", cfg.device)
+    if (data_device := d.get("device", "cpu")) != "cpu":
+        check_device("data.device", data_device)
+        if d.name != "synth":
+            raise ConfigError(f"data.device={data_device!r}: only SynthFaces (data=synth) renders on a device")
+
+
+def check_device(key: str, device) -> None:
+    """``cpu``, ``cuda`` or ``cuda:N``, where this torch and machine have it."""
+    device = str(device)
     kind, _, index = device.partition(":")
     if kind not in ("cpu", "cuda") or (index and not index.isdigit()) or (kind == "cpu" and index):
-        raise ConfigError(f"device={device!r}; choose from cpu, cuda, cuda:N")
+        raise ConfigError(f"{key}={device!r}; choose from cpu, cuda, cuda:N")
     if kind == "cuda" and not torch.cuda.is_available():
         raise ConfigError(
-            f"device={device!r}, but this torch ({torch.__version__}) sees no CUDA GPU; use device=cpu, "
+            f"{key}={device!r}, but this torch ({torch.__version__}) sees no CUDA GPU; use {key}=cpu, "
             "or install a CUDA build of torch (README, GPU install)"
         )
     if kind == "cuda" and index and int(index) >= torch.cuda.device_count():
-        raise ConfigError(f"device={device!r}: this machine has {torch.cuda.device_count()} CUDA device(s)")
+        raise ConfigError(f"{key}={device!r}: this machine has {torch.cuda.device_count()} CUDA device(s)")
 
 
 # Settings that define what a checkpoint is: resuming under other values (without resume_force) is refused.
@@ -129,7 +138,8 @@ RUN_DEFINING = (
 )
 # what a run is, apart from its seed, for the report's settings (disent.runs.setting): with its budget
 SETTING_KEYS = tuple(k for k in RUN_DEFINING if k != "seed") + ("train.max_steps", "train.epochs")
-NOT_DEFINING = ("data.test_size", "model.kernels")  # evaluation only; the same function computed another way
+NOT_DEFINING = ("data.test_size", "model.kernels", "data.device")  # evaluation only; the same function computed another
+# way (kernels; data.device: the same faces rendered elsewhere, equal to float rounding)
 # settings added after runs existed, each with the value that trains as those runs did
 ADDED_LATER = {
     "init": None,
@@ -147,6 +157,7 @@ ADDED_LATER = {
     "loss.early_steps": 0,
     "loss.early_weights": {},
     "model.decoder_convs": 1,
+    "data.device": "cpu",
     **{f"loss.weights.{t}": 0.0 for t in L.TRUTH},
 }
 

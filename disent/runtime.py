@@ -4,11 +4,15 @@
 - :class:`Prefetcher`: training batches rendered ahead in background threads (``train.prefetch``, ``_workers``).
 - :class:`single_thread`: one torch thread inside (SynthFaces generation is written for one core).
 - :func:`single_core`: one torch thread and one OpenBLAS thread (the lighting experiments).
+- :func:`per_device`: a cached tensor builder (SynthFaces' mesh, masks, banks) copied once to the device it is
+  asked on, where batches are rendered on the training device (``data.device``).
 """
 
 from __future__ import annotations
 
 import ctypes
+import dataclasses
+import functools
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import ContextDecorator, contextmanager
@@ -136,3 +140,39 @@ def single_core():
     finally:
         for (_, set_), n in zip(blas, before):
             set_(n)
+
+
+def moved(value, device):
+    """``value`` with every tensor in it on ``device``: a tensor, or tuples, lists, dicts and dataclasses of them, each
+    copied (a dataclass's cache dict too, so the copy shares nothing with the original)."""
+    if torch.is_tensor(value):
+        return value.to(device)
+    if isinstance(value, (tuple, list)):
+        return type(value)(moved(v, device) for v in value)
+    if isinstance(value, dict):
+        return {k: moved(v, device) for k, v in value.items()}
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return dataclasses.replace(
+            value, **{f.name: moved(getattr(value, f.name), device) for f in dataclasses.fields(value) if f.init}
+        )
+    return value
+
+
+def per_device(build):
+    """Decorate a cached builder of tensors (``lru_cache``'d, no tensor arguments): on the CPU it is ``build``; under
+    ``with torch.device(d)`` (SynthFaces rendering on the training device) ``build`` runs on the CPU, where its
+    seeded generators live, and its result is copied to ``d`` once and kept."""
+    copies = {}
+
+    @functools.wraps(build)
+    def on_default_device(*args):
+        device = torch.get_default_device()
+        if device.type == "cpu":
+            return build(*args)
+        key = (str(device), args)
+        if key not in copies:
+            with torch.device("cpu"):
+                copies[key] = moved(build(*args), device)
+        return copies[key]
+
+    return on_default_device

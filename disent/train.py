@@ -250,8 +250,8 @@ def checkpoint(s: Training) -> None:
 
 
 def batch_maker(s: Training):
-    """``step -> batch`` on the CPU (the prefetch threads run it): the step's seeded slice of its epoch's order,
-    with E_recon-L's target fitted where the setting fits it (once per training image)."""
+    """``step -> batch`` where the data renders (``data.device``; the prefetch threads run it): the step's seeded
+    slice of its epoch's order, with E_recon-L's target fitted where the setting fits it (once per training image)."""
     cfg, t = s.cfg, s.cfg.train
     keys = train_keys(cfg.loss)
     target, fit = loss_setting(cfg.loss, "recon_L_target"), target_fit(cfg.loss)  # where the trainer fits it
@@ -262,7 +262,10 @@ def batch_maker(s: Training):
         batch = get_batch(s.data, idx, keys)
         if fit:
             batch = with_fitted_lhat(batch, idx, fitted_lights, target, fit)
-        return to_device(batch, "cpu", t.channels_last)
+        batch = to_device(batch, batch["image"].device, t.channels_last)  # where it was rendered (data.device)
+        if batch["image"].is_cuda:  # rendered on this thread's stream: done before the step's stream reads it
+            torch.cuda.current_stream().synchronize()
+        return batch
 
     return make_batch
 

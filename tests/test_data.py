@@ -558,3 +558,55 @@ def test_contact_sheet_refuses_a_non_png_out_before_rendering(tmp_path, capsys, 
         with pytest.raises(SystemExit):
             sheet.main(["--out", str(out)])
         assert "give a .png file to write" in capsys.readouterr().err
+
+
+def test_the_device_path_renders_what_the_cpu_path_renders():
+    """``SynthFaces(device=...)`` (``data.device``) draws the scene parameters on the CPU and renders where it is told:
+    with the device set to the CPU, the device path's batch is the CPU path's, bit for bit, and the training data
+    built from a config with ``data.device=cpu`` is the default's."""
+    from omegaconf import OmegaConf
+
+    from disent.config import NOT_DEFINING
+    from disent.data import make_dataset
+
+    plain = SynthFaces("train", resolution=64, seed=3, size=40)
+    on_cpu = SynthFaces("train", resolution=64, seed=3, size=40, device=torch.device("cpu"))
+    a, b = plain.get_batch(range(5, 17)), on_cpu.get_batch(range(5, 17))
+    assert set(a) == set(b)
+    for k in a:
+        if torch.is_tensor(a[k]):
+            assert torch.equal(a[k], b[k]), k
+    cfg = OmegaConf.create({"name": "synth", "resolution": 64, "seed": 3, "effects": None, "device": "cpu"})
+    made = make_dataset(cfg, "train", 40)
+    assert made.device == torch.device("cpu") and torch.equal(made.get_batch([7])["image"], a["image"][2:3])
+    assert "data.device" in NOT_DEFINING  # a run resumed on another device trains on as before
+
+
+def test_cached_scene_tables_are_built_on_the_cpu_and_copied_once_to_the_rendering_device():
+    """The builders of SynthFaces' fixed tables (the face model, the painted masks, the coarse fit's mesh) run on the
+    CPU, where their seeded generators live, whatever device the batch renders on; under another default device the
+    result is a copy there, made once, that shares no cache with the CPU's."""
+    from disent.data.synth.face_model import face_model
+    from disent.data.synth.scenes import paint_layers, pseudo_mesh
+
+    cpu_layers, cpu_model = paint_layers(64), face_model()
+    with torch.device("meta"):  # a device with no data: what lands there is only placed, not computed
+        layers, model, mesh = paint_layers(64), face_model(), pseudo_mesh()
+        assert paint_layers(64) is layers and face_model() is model  # copied once
+    assert layers.device.type == model.mean.device.type == model.uv.device.type == mesh[0].device.type == "meta"
+    assert layers.shape == cpu_layers.shape and mesh[3] == pseudo_mesh()[3]  # the grid shape, a plain tuple
+    assert model._cache is not cpu_model._cache
+    assert paint_layers(64) is cpu_layers and paint_layers(64).device.type == "cpu"  # the CPU's own, untouched
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_synthfaces_rendered_on_cuda_match_the_cpu():
+    """The same scene parameters give the same images on the GPU: float32 rounding, and at triangle edges a rare pixel
+    whose centre lies on an edge within rounding may fall to the neighbouring triangle."""
+    cpu = SynthFaces("train", resolution=64, seed=0, size=64).get_batch(range(64))
+    gpu = SynthFaces("train", resolution=64, seed=0, size=64, device="cuda").get_batch(range(64))
+    assert gpu["image"].is_cuda
+    for k in ("image", "normal", "albedo", "shading", "matte", "normal_pseudo", "mask_pseudo", "sh_pseudo"):
+        close = torch.isclose(gpu[k].cpu(), cpu[k], atol=1e-4, rtol=1e-4)
+        assert close.float().mean() > 0.999, (k, close.float().mean())
+    torch.testing.assert_close(gpu["sh"].cpu(), cpu["sh"])

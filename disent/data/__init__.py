@@ -24,7 +24,8 @@ def make_dataset(cfg_data, split: str, size: int | None = None):
     """The data set named by ``data.name``: SynthFaces (``synth``) or a folder of photos (``folder``)."""
     if cfg_data.name == "synth":
         effects = OmegaConf.to_container(cfg_data.effects) if cfg_data.get("effects") else None
-        return SynthFaces(split, resolution=cfg_data.resolution, seed=cfg_data.seed, size=size, effects=effects)
+        device = cfg_data.get("device", "cpu")  # where batches are rendered: data.device
+        return SynthFaces(split, cfg_data.resolution, cfg_data.seed, size, effects, device=device)
     if cfg_data.name == "folder":
         from disent.data.photos.folder import build as build_folder
 

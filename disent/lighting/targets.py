@@ -132,6 +132,7 @@ def with_fitted_lhat(batch: dict, idx, cache: dict, target: str, fit) -> dict:
     idx = torch.as_tensor(idx).tolist()
     new = [k for k, i in enumerate(idx) if i not in cache]
     if new:
-        parts = {k: batch[k][new] for k in ("image", "normal_pseudo", "mask_pseudo", "uv_pseudo")}
+        keys = ("image", "normal_pseudo", "mask_pseudo", "uv_pseudo")
+        parts = {k: batch[k][new].cpu() for k in keys}  # fitted on the CPU, wherever the batch was rendered
         cache.update(zip((idx[k] for k in new), fit(parts)))
-    return {**batch, target: torch.stack([cache[i] for i in idx])}
+    return {**batch, target: torch.stack([cache[i] for i in idx]).to(batch["image"].device)}

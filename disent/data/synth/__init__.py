@@ -23,11 +23,12 @@ cache of rendered chunks.
 from __future__ import annotations
 
 from collections import OrderedDict
+from contextlib import nullcontext
 
 import torch
 from torch.utils.data import Dataset
 
-from disent.runtime import single_thread
+from disent.runtime import moved, single_thread
 
 from .scenes import (
     ATTR_PRIOR,
@@ -61,6 +62,9 @@ class SynthFaces(Dataset):
         effects: optional ``{name: severity in [0,1]}`` over ``specular``,
             ``cast_shadow``, ``noise``, ``occluder`` (default: none, the paper's image model).
         cache_chunks: rendered chunks of ``CHUNK`` items kept for ``__getitem__``.
+        device: where batches are rendered (``cpu``, ``cuda``, ...).  The scene parameters are drawn on the CPU
+            either way, so the seeded faces are the same; a batch rendered on a GPU equals the CPU's to float
+            rounding (``tests/test_data.py`` states the tolerance).
     """
 
     def __init__(
@@ -71,6 +75,7 @@ class SynthFaces(Dataset):
         size: int | None = None,
         effects: dict | None = None,
         cache_chunks: int = 4,
+        device: str | torch.device = "cpu",
     ):
         if split not in SPLITS:
             raise ValueError(f"unknown split {split!r}; choose from {', '.join(SPLITS)}")
@@ -88,6 +93,7 @@ class SynthFaces(Dataset):
             raise ValueError(f"size must be positive, got {size}")
         self._cache: OrderedDict[int, dict] = OrderedDict()
         self._cache_chunks = cache_chunks
+        self.device = torch.device(device)
 
     def __len__(self) -> int:
         return self.size
@@ -140,7 +146,10 @@ class SynthFaces(Dataset):
         """Render ``indices`` as one vectorized batch: the collated dict of items."""
         p = self.params(indices, **overrides)
         eff = self.effects if effects is None else effects
-        with single_thread():
+        on_device = nullcontext()
+        if self.device.type != "cpu":  # drawn on the CPU, rendered where the model trains (every tensor made there)
+            p, on_device = moved(p, self.device), torch.device(self.device)
+        with single_thread(), on_device:
             out = render_scenes(p, self.resolution, effects=eff)
         out = {k: v.float().contiguous() for k, v in out.items()}
         out["attrs"] = {}
@@ -178,7 +187,8 @@ class SynthFaces(Dataset):
     def __repr__(self) -> str:
         return (
             f"SynthFaces(split={self.split!r}, resolution={self.resolution}, seed={self.seed}, "
-            f"size={self.size}, effects={self.effects or None})"
+            f"size={self.size}, effects={self.effects or None}"
+            + (f", device={str(self.device)!r})" if self.device.type != "cpu" else ")")
         )
 
 

@@ -41,7 +41,7 @@ from functools import lru_cache
 import torch
 
 from disent.data.synth.raster import grid_faces
-from disent.runtime import single_thread
+from disent.runtime import per_device, single_thread
 
 GRID_U, GRID_V = 41, 53
 NECK_ROWS = 5  # the last rows of the grid: a short neck below the head
@@ -129,6 +129,7 @@ def face_regions(uv: torch.Tensor) -> dict[str, torch.Tensor]:
     }
 
 
+@per_device
 @lru_cache(maxsize=1)
 def layout() -> Layout:
     # Put the slit where the elevation of the mouth line falls.
@@ -148,6 +149,7 @@ def is_neck(phi: torch.Tensor) -> torch.Tensor:
     return phi < PHI_BOTTOM - 1e-9
 
 
+@per_device
 @lru_cache(maxsize=1)
 def faces() -> torch.Tensor:
     """Triangles ``[T, 3]`` (int64), counter-clockwise seen from outside (x right, y up)."""
@@ -424,6 +426,7 @@ def _landmarks(lay: Layout) -> torch.Tensor:
     return torch.tensor(idx)
 
 
+@per_device
 @lru_cache(maxsize=1)
 @single_thread()
 def face_model() -> FaceModel:

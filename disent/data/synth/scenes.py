@@ -32,7 +32,7 @@ from disent.render import (
     sh_basis,
     sh_from_directions,
 )
-from disent.runtime import single_thread
+from disent.runtime import per_device, single_thread
 
 from .face_model import (
     BROW_X,
@@ -250,6 +250,7 @@ def _ring(X, Y, cx, cy, rx, ry, width, square=False):
     return torch.exp(-0.5 * ((r - 1) / width) ** 2)
 
 
+@per_device
 @lru_cache(maxsize=4)
 @single_thread()
 def paint_layers(res: int) -> torch.Tensor:
@@ -342,6 +343,7 @@ def paint_layers(res: int) -> torch.Tensor:
     return (torch.stack([L[n] for n in LAYERS]) * head).reshape(len(LAYERS), -1).float()
 
 
+@per_device
 @lru_cache(maxsize=4)
 @single_thread()
 def noise_bank(res: int, n: int = 16, seed: int = 11) -> torch.Tensor:
@@ -439,6 +441,7 @@ _BG_NAMES = (
 )
 
 
+@per_device
 @lru_cache(maxsize=1)
 @single_thread()
 def background_atlas(tile: int = 192) -> torch.Tensor:
@@ -472,6 +475,7 @@ def background_atlas(tile: int = 192) -> torch.Tensor:
 BG_CROPS = 12  # fixed random crops of each atlas tile
 
 
+@per_device
 @lru_cache(maxsize=2)
 @single_thread()
 def background_bank(res: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -533,6 +537,7 @@ def paint_background(u: torch.Tensor, res: int) -> torch.Tensor:
     return bg.clamp_(0, 1).reshape(N, 3, res, res)
 
 
+@per_device
 @lru_cache(maxsize=4)
 def _bilinear_weights(res: int) -> torch.Tensor:
     """``[4, res*res]``: bilinear interpolation (align-corners) from the corners top-left,
@@ -623,6 +628,7 @@ def attribute_labels(p: dict) -> dict[str, torch.Tensor]:
 
 
 # ----------------------------------------------------------------------------- rendering
+@per_device
 @lru_cache(maxsize=1)
 def pseudo_mesh() -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, tuple[int, int]]:
     """The coarse fit's mesh: every ``PSEUDO_GRID_STEP``-th row and column of the grid, keeping
@@ -638,6 +644,7 @@ def pseudo_mesh() -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, tuple[int, 
     return idx, grid_faces(gv, gu), face_model().uv[idx], (gv, gu)
 
 
+@per_device
 @lru_cache(maxsize=1)
 def pseudo_quads() -> torch.Tensor:
     """The quads of :func:`pseudo_mesh` that touch the face region: the only ones whose pixels
