@@ -271,15 +271,30 @@ class RunStatus(Callback):
         out = OmegaConf.select(job_return.hydra_cfg, "hydra.runtime.output_dir") if job_return.hydra_cfg else None
         if not out:
             return
-        out = Path(out)
-        if job_return.status == JobStatus.COMPLETED:
-            status = {"status": "ok"}
+        together = OmegaConf.select(job_return.cfg, "train.together") if job_return.cfg else False
+        if job_return.status == JobStatus.COMPLETED and together and job_return._return_value is None:
+            write_status(Path(out), None, "queued")  # set up; trained at the sweep's end (disent.together)
         else:
-            err = job_return._return_value
-            nan = isinstance(err, FloatingPointError) or "not finite" in str(err)
-            status = {"status": "nan" if nan else "failed", "error": f"{type(err).__name__}: {err}"}
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "status.json").write_text(json.dumps(status))
+            write_status(Path(out), None if job_return.status == JobStatus.COMPLETED else job_return._return_value)
+
+    def on_multirun_end(self, config, **kwargs) -> None:
+        """The jobs a sweep with ``train.together=true`` set up, trained side by side now; each one's status."""
+        from disent.together import train_queued
+
+        for run_dir, result in train_queued():
+            write_status(run_dir, result if isinstance(result, BaseException) else None)
+
+
+def write_status(run_dir: Path, error: BaseException | None, status: str = "ok") -> None:
+    """``status.json``: ``status`` (ok, queued) where ``error`` is None, else nan (a non-finite loss) or failed, with
+    the error."""
+    if error is not None:
+        nan = isinstance(error, FloatingPointError) or "not finite" in str(error)
+        status = {"status": "nan" if nan else "failed", "error": f"{type(error).__name__}: {error}"}
+    else:
+        status = {"status": status}
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "status.json").write_text(json.dumps(status))
 
 
 def find_runs(roots=RUN_ROOTS, records=None) -> list[Run]:

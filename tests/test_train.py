@@ -633,3 +633,25 @@ def test_the_gpu_suite_script_runs_each_setting_once_and_resumes_after_an_interr
     assert {p: p.stat().st_mtime_ns for p in stamps} == stamps  # the finished runs were not started again
     assert "resumed from" in (tmp_path / "explicit_s0" / "train.log").read_text()
     assert json.loads((tmp_path / "explicit_s0" / "eval.json").read_text())["steps"] == 2
+
+
+def test_the_gpu_suite_script_trains_a_settings_seeds_together_and_resumes_the_one_cut(tmp_path):
+    """``TOGETHER=1``: one process per setting trains its unfinished seeds side by side (``train.together=true``),
+    each in its own ``<setting>_s<seed>`` folder; after one is cut, the same command trains that one alone again."""
+    root = Path(__file__).resolve().parents[1]
+    tiny = "train.max_steps=2 train.eval_size=8 data.test_size=8 train.val_size=4 train.val_every=0 "
+    tiny += "data.train_size=32 train.batch_size=4 train.checkpoint_every=2 train.threads=1"
+    env = {**os.environ, "DEVICE": "cpu", "WORKERS": "1", "PYTHON": sys.executable, "JOBS": "1", "REPORT": "0"}
+    env |= {"SEEDS": "0 1", "MODELS": "explicit", "ABLATIONS": "", "EXPERIMENT": "smoke", "TOGETHER": "1"}
+    cmd = ["bash", str(root / "ablations" / "suite_gpu.sh"), str(tmp_path), *tiny.split()]
+    subprocess.run(cmd, cwd=root, env=env, check=True, capture_output=True, timeout=600)
+    assert sorted(p.parent.name for p in tmp_path.glob("*/eval.json")) == ["explicit_s0", "explicit_s1"]
+    assert "training 2 run(s) together" in (tmp_path / "explicit.log").read_text()
+    assert json.loads((tmp_path / "explicit_s1" / "status.json").read_text())["status"] == "ok"
+    (tmp_path / "explicit_s1" / "eval.json").unlink()
+    stamp = (tmp_path / "explicit_s0" / "eval.json").stat().st_mtime_ns
+    subprocess.run(cmd, cwd=root, env=env, check=True, capture_output=True, timeout=600)
+    assert (tmp_path / "explicit_s0" / "eval.json").stat().st_mtime_ns == stamp
+    log = (tmp_path / "explicit.log").read_text()
+    assert "training 1 run(s) together" in log and "resumed from" in log
+    assert json.loads((tmp_path / "explicit_s1" / "eval.json").read_text())["steps"] == 2
