@@ -240,3 +240,30 @@ def test_out_in_the_working_folder_is_refused(tmp_path, monkeypatch):
     with pytest.raises(SystemExit):
         bench_main(["peak", "--out", "bench.json", "--threads", "1"])
     assert not (tmp_path / ".tool").exists() and not (tmp_path / "bench.json").exists()
+
+
+def test_a_suite_slice_gives_images_per_wall_second_and_the_projected_suite_time(tmp_path):
+    """``python -m disent.bench.suite``: the slice's images (steps x batch of each finished run) over its wall time,
+    the 33 long runs' minutes at that rate, merged into the benchmark file; the report states them against the
+    targets, and says the suite is not measured where a GPU file has no slice."""
+    import yaml
+
+    from disent.bench.suite import main as suite_main
+    from disent.report.benchmarks import suite_text
+
+    for name, steps in (("explicit_s0", 100), ("explicit_s1", 100), ("explicit_s2", 50)):
+        run = tmp_path / "slice" / name
+        (run / ".hydra").mkdir(parents=True)
+        (run / ".hydra" / "config.yaml").write_text(yaml.safe_dump({"train": {"batch_size": 25}, "seed": 0}))
+        (run / "eval.json").write_text(json.dumps({"steps": steps, "train_seconds": 3.0, "normal_mean": 20.0}))
+    (tmp_path / "slice" / "cut").mkdir()  # an unfinished run (no eval.json) trained nothing that counts
+    bench_file = tmp_path / "bench.json"
+    bench_file.write_text(json.dumps({"device": "cuda", "models": {}}))
+    suite_main([str(tmp_path / "slice"), "1000", "1010", "--into", str(bench_file)])
+    suite = json.loads(bench_file.read_text())["suite"]
+    assert suite["images"] == 250 * 25 and suite["wall_s"] == 10 and suite["images_per_s"] == 625
+    assert suite["suite_projected_min"] == pytest.approx(33 * 250_000 / 625 / 60)
+    assert [r["run"] for r in suite["runs"]] == ["explicit_s0", "explicit_s1", "explicit_s2"]
+    text = suite_text(suite)
+    assert "625 images/s" in text and "target 20,000; missed" in text and "220 min" in text
+    assert "Not measured" in suite_text(None)

@@ -1,0 +1,39 @@
+#!/usr/bin/env bash
+# The checks a GPU session runs, as one call: the CUDA tests, the model and SynthFaces benchmarks on the card, and a
+# slice of the long-rung suite (SETTINGS x 3 seeds, each setting's seeds trained together, batches rendered on the
+# card) with the whole suite's projected time.  At most 8 files land in OUT (a device call brings back no more).
+#   ablations/gpu_check.sh OUT [STEPS]      # STEPS: training steps of each slice run (default 1000)
+# Where hydra-core is not installed (a bare GPU image), carry its wheels in .wheels/ (ignored by git), made here with
+#   pip download --no-deps -d .wheels hydra-core==1.3.8 omegaconf==2.3.1 antlr4-python3-runtime==4.9.3 emcee==3.1.6
+# SETTINGS (default "explicit"), JOBS (processes side by side, default 1), DEVICE (cuda), DATA_DEVICE (the DEVICE),
+# BENCH=0 (no benchmarks), EXTRA (overrides for the slice runs) and PYTHON change it.  The benchmark file, with the
+# slice's figures as its "suite" section, is OUT/bench-DEVICE.json: copy it to reports/ (the benchmarks page reads it).
+set -uo pipefail
+OUT=${1:?usage: ablations/gpu_check.sh OUT [STEPS]}
+STEPS=${2:-1000}
+PY=${PYTHON:-python3}
+DEVICE=${DEVICE:-cuda}
+BENCH_JSON=/tmp/disent-bench/bench.json
+mkdir -p "$OUT"
+export PYTHONUNBUFFERED=1 PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH}
+if [ -d .wheels ]; then
+  $PY -m pip install -q --no-index --no-deps --no-build-isolation --target /tmp/disent-site .wheels/* \
+    && export PYTHONPATH=$PYTHONPATH:/tmp/disent-site
+fi
+{ $PY -c "import torch; print('torch', torch.__version__, torch.cuda.is_available())"; nvidia-smi; } >"$OUT/env.txt" 2>&1
+$PY -m pytest -q -p no:cacheprovider tests/test_render.py tests/test_data.py -k "cuda or device" >"$OUT/cuda_tests.txt" 2>&1
+if [ "${BENCH:-1}" = 1 ]; then
+  $PY -m disent.bench peak models data --device "$DEVICE" --out "$BENCH_JSON" >"$OUT/bench.txt" 2>&1
+fi
+slice=/tmp/disent-slice
+rm -rf "$slice"
+start=$(date +%s.%N)
+# shellcheck disable=SC2086  # EXTRA: words
+MODELS=${SETTINGS:-explicit} ABLATIONS="" SEEDS="0 1 2" TOGETHER=1 JOBS=${JOBS:-1} DEVICE=$DEVICE \
+  DATA_DEVICE=${DATA_DEVICE:-$DEVICE} REPORT=0 PYTHON=$PY \
+  bash ablations/suite_gpu.sh "$slice" train.max_steps="$STEPS" ${EXTRA:-} >"$OUT/slice.txt" 2>&1
+end=$(date +%s.%N)
+cat "$slice"/*.log >>"$OUT/slice.txt" 2>/dev/null
+$PY -m disent.bench.suite "$slice" "$start" "$end" --into "$BENCH_JSON" >"$OUT/slice.json"
+cp "$BENCH_JSON" "$OUT/bench-$DEVICE.json" 2>/dev/null
+cat "$OUT/slice.json"
