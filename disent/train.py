@@ -186,6 +186,9 @@ def set_up(cfg, run_dir: Path) -> Training:
 
     model = build_model(cfg.model).to(device, memory_format=fmt)
     disc = build_discriminator(model).to(device, memory_format=fmt) if cfg.loss.weights.adv else None
+    for net in (model, disc) if t.get("compile", False) else ():  # in place: checkpoints keep their keys
+        if net is not None:
+            net.compile()
     s = Training(
         *(cfg, run_dir, device, data, steps_per_epoch, total_steps, model, disc, make_optimizer(model, t)),
         *(make_optimizer(disc, t) if disc is not None else None, log, trivial, val_batch, val_trivial),

@@ -655,3 +655,16 @@ def test_the_gpu_suite_script_trains_a_settings_seeds_together_and_resumes_the_o
     log = (tmp_path / "explicit.log").read_text()
     assert "training 1 run(s) together" in log and "resumed from" in log
     assert json.loads((tmp_path / "explicit_s1" / "eval.json").read_text())["steps"] == 2
+
+
+@pytest.mark.slow
+def test_a_compiled_run_trains_to_the_eager_runs_numbers(tmp_path):
+    """``train.compile=true`` (torch.compile of the model and D) computes the same function: a tiny run's test
+    metrics match the eager run's to float rounding, and its checkpoint loads into a plain model."""
+    run(cfg_of(*TINY, "train.max_steps=2", "train.val_every=0"), tmp_path / "eager")
+    run(cfg_of(*TINY, "train.max_steps=2", "train.val_every=0", "train.compile=true"), tmp_path / "compiled")
+    eager, compiled = (json.loads((tmp_path / k / "eval.json").read_text()) for k in ("eager", "compiled"))
+    for key in ("recon_mse", "normal_mean", "albedo_si_mse", "recon_face_psnr"):
+        assert compiled[key] == pytest.approx(eager[key], rel=1e-3, abs=1e-5), key
+    model = T.build_model(cfg_of(*TINY).model)
+    model.load_state_dict(torch.load(tmp_path / "compiled" / "checkpoints" / "last.pt", weights_only=False)["model"])
