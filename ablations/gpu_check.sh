@@ -6,7 +6,8 @@
 # Where hydra-core is not installed (a bare GPU image), carry its wheels in .wheels/ (ignored by git), made here with
 #   pip download --no-deps -d .wheels hydra-core==1.3.8 omegaconf==2.3.1 antlr4-python3-runtime==4.9.3 emcee==3.1.6
 # SETTINGS (default "explicit"), JOBS (processes side by side, default 1), DEVICE (cuda), DATA_DEVICE (the DEVICE),
-# BENCH=0 (no benchmarks), EXTRA (overrides for the slice runs) and PYTHON change it.  The benchmark file, with the
+# BENCH=0 (no benchmarks), AMP=1 (the slice again with train.amp=true), EXTRA (overrides for the slice runs) and PYTHON
+# change it.  The benchmark file, with the
 # slice's figures as its "suite" section, is OUT/bench-DEVICE.json: copy it to reports/ (the benchmarks page reads it).
 set -uo pipefail
 OUT=${1:?usage: ablations/gpu_check.sh OUT [STEPS]}
@@ -23,17 +24,27 @@ fi
 { $PY -c "import torch; print('torch', torch.__version__, torch.cuda.is_available())"; nvidia-smi; } >"$OUT/env.txt" 2>&1
 $PY -m pytest -q -p no:cacheprovider tests/test_render.py tests/test_data.py -k "cuda or device" >"$OUT/cuda_tests.txt" 2>&1
 if [ "${BENCH:-1}" = 1 ]; then
-  $PY -m disent.bench peak models data --device "$DEVICE" --out "$BENCH_JSON" >"$OUT/bench.txt" 2>&1
+  bench="--models explicit --device $DEVICE"
+  # shellcheck disable=SC2086  # words
+  { $PY -m disent.bench peak models data $bench --out "$BENCH_JSON"
+    $PY -m disent.bench models $bench --compile --no-bf16 --out /tmp/disent-bench-compiled/bench-compiled.json
+  } >"$OUT/bench.txt" 2>&1
+  cp /tmp/disent-bench-compiled/bench-compiled.json "$OUT/bench-$DEVICE-compiled.json" 2>/dev/null
 fi
-slice=/tmp/disent-slice
-rm -rf "$slice"
-start=$(date +%s.%N)
-# shellcheck disable=SC2086  # EXTRA: words
-MODELS=${SETTINGS:-explicit} ABLATIONS="" SEEDS="0 1 2" TOGETHER=1 JOBS=${JOBS:-1} DEVICE=$DEVICE \
-  DATA_DEVICE=${DATA_DEVICE:-$DEVICE} REPORT=0 PYTHON=$PY \
-  bash ablations/suite_gpu.sh "$slice" train.max_steps="$STEPS" ${EXTRA:-} >"$OUT/slice.txt" 2>&1
-end=$(date +%s.%N)
-cat "$slice"/*.log >>"$OUT/slice.txt" 2>/dev/null
-$PY -m disent.bench.suite "$slice" "$start" "$end" --into "$BENCH_JSON" >"$OUT/slice.json"
+slice() {  # slice NAME "OVERRIDES" [SUITE_OPTION...]: SETTINGS x 3 seeds trained together, timed, into OUT/NAME.json
+  local name=$1 overrides=$2 root=/tmp/disent-$1 start end
+  shift 2
+  rm -rf "$root"
+  start=$(date +%s.%N)
+  # shellcheck disable=SC2086  # EXTRA and the overrides: words
+  MODELS=${SETTINGS:-explicit} ABLATIONS="" SEEDS="0 1 2" TOGETHER=1 JOBS=${JOBS:-1} DEVICE=$DEVICE \
+    DATA_DEVICE=${DATA_DEVICE:-$DEVICE} REPORT=0 PYTHON=$PY \
+    bash ablations/suite_gpu.sh "$root" train.max_steps="$STEPS" ${EXTRA:-} $overrides >>"$OUT/slice.txt" 2>&1
+  end=$(date +%s.%N)
+  cat "$root"/*.log >>"$OUT/slice.txt" 2>/dev/null
+  $PY -m disent.bench.suite "$root" "$start" "$end" "$@" >"$OUT/$name.json"
+}
+slice slice "" --into "$BENCH_JSON"
 cp "$BENCH_JSON" "$OUT/bench-$DEVICE.json" 2>/dev/null
-cat "$OUT/slice.json"
+[ "${AMP:-0}" = 1 ] && slice slice_amp train.amp=true  # the same slice in bfloat16: its accuracy beside fp32's
+cat "$OUT"/slice*.json

@@ -4,6 +4,7 @@
 - :class:`Prefetcher`: training batches rendered ahead in background threads (``train.prefetch``, ``_workers``).
 - :class:`single_thread`: one torch thread inside (SynthFaces generation is written for one core).
 - :func:`single_core`: one torch thread and one OpenBLAS thread (the lighting experiments).
+- :func:`compile_networks`: torch.compile of the model and D in place (``train.compile``, ``bench --compile``).
 - :func:`per_device`: a cached tensor builder (SynthFaces' mesh, masks, banks) copied once to the device it is
   asked on, where batches are rendered on the training device (``data.device``).
 """
@@ -176,3 +177,15 @@ def per_device(build):
         return copies[key]
 
     return on_default_device
+
+
+def compile_networks(*networks) -> None:
+    """``torch.compile`` each of ``networks`` (None skipped) in place, so checkpoints keep their keys.  A training step
+    backpropagates D's loss with the graph kept for the generator's (``retain_graph``), which compiled backward
+    passes allow only without donated buffers, so those are off."""
+    import torch._functorch.config as functorch_config
+
+    functorch_config.donated_buffer = False
+    for net in networks:
+        if net is not None:
+            net.compile()

@@ -37,7 +37,7 @@ from disent.lighting.targets import target_fit, with_fitted_lhat
 from disent.models import build_model, checkpoint_path
 from disent.models.shipped import load_weights
 from disent.optim import build_discriminator, learning_rate, loss_weights, make_optimizer
-from disent.runtime import Prefetcher, tune_malloc
+from disent.runtime import Prefetcher, compile_networks, tune_malloc
 from disent.storage import (
     MetricsLog,
     RunLock,
@@ -186,9 +186,8 @@ def set_up(cfg, run_dir: Path) -> Training:
 
     model = build_model(cfg.model).to(device, memory_format=fmt)
     disc = build_discriminator(model).to(device, memory_format=fmt) if cfg.loss.weights.adv else None
-    for net in (model, disc) if t.get("compile", False) else ():  # in place: checkpoints keep their keys
-        if net is not None:
-            net.compile()
+    if t.get("compile", False):
+        compile_networks(model, disc)
     s = Training(
         *(cfg, run_dir, device, data, steps_per_epoch, total_steps, model, disc, make_optimizer(model, t)),
         *(make_optimizer(disc, t) if disc is not None else None, log, trivial, val_batch, val_trivial),

@@ -267,3 +267,24 @@ def test_a_suite_slice_gives_images_per_wall_second_and_the_projected_suite_time
     text = suite_text(suite)
     assert "625 images/s" in text and "target 20,000; missed" in text and "220 min" in text
     assert "Not measured" in suite_text(None)
+
+
+@pytest.mark.slow
+def test_the_models_benchmark_times_compiled_steps_with_compile(tmp_path):
+    """``--compile`` times the training steps compiled (``train.compile``), counts their FLOPs eager, and says so in
+    the file."""
+    out = tmp_path / "bench" / "bench.json"
+    threads = torch.get_num_threads()
+    try:
+        bench_main(
+            [
+                *("models", "--models", "explicit", "--compile", "--rounds", "1", "--peak-n", "256"),
+                *("--train-batch", "2", "--infer-batches", "64", "--threads", "1", "--no-bf16", "--out", str(out)),
+            ]
+        )
+    finally:
+        torch.set_num_threads(threads)
+    b = json.loads(out.read_text())
+    assert b["models_setup"]["compile"] is True
+    explicit = b["models"]["explicit"]
+    assert explicit["train_img_s"] > 0 and explicit["train_flops_per_image"] > 0

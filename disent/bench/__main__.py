@@ -94,6 +94,7 @@ def parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--device", default="cpu", help="cpu | cuda | cuda:N")
     p.add_argument("--amp", action="store_true", help="bfloat16 mixed precision (the shading layer stays float32)")
+    p.add_argument("--compile", action="store_true", help="training steps timed with torch.compile (train.compile)")
     p.add_argument(
         "--bf16",
         dest="bf16",

@@ -92,6 +92,12 @@ class Trainer:
         self.cfg = loss_cfg(adv, margin)
         self.batch, self.amp, self.device = batch, amp, torch.device(device)
 
+    def compile(self) -> None:
+        """torch.compile the model and D in place, as ``train.compile`` does (the next step compiles them)."""
+        from disent.runtime import compile_networks
+
+        compile_networks(self.model, self.disc)
+
     def step(self):
         from disent.train import train_step
 
@@ -166,7 +172,9 @@ def bench_one(name: str, args, device: str, sync) -> dict:
     ):  # every generated image past D's margin
         tr = Trainer(name, batch, adv, device, channels_last, args.amp, margin)
         out[f"{key}_flops_per_image"] = count_flops(tr.step) / n
-        tr.step()  # warm-up (allocator, RMSprop state)
+        if getattr(args, "compile", False):  # counted eager; timed compiled (train.compile)
+            tr.compile()
+        tr.step()  # warm-up (allocator, RMSprop state; the compilation with --compile)
         out[f"{key}_img_s"], out[f"{key}_peak_gflops"] = beside_peak(
             args, device, lambda: (tr.step(), sync()), n, rounds
         )
@@ -303,6 +311,7 @@ def bench_models(args) -> dict:
         "train_batch": args.train_batch,
         "resolution": args.size,
         "amp": args.amp,
+        "compile": getattr(args, "compile", False),
         "channels_last": not args.no_channels_last,
         "kernels": LAYER_OVERRIDES.get("kernels", True),
         "norm": LAYER_OVERRIDES.get("norm", "conf/model"),
