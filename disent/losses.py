@@ -335,12 +335,15 @@ def generator_losses(
     return losses
 
 
-def discriminator_loss(energy_real: torch.Tensor, energy_fake: torch.Tensor, margin: float) -> torch.Tensor:
+def discriminator_loss(
+    energy_real: torch.Tensor, energy_fake: torch.Tensor, margin: float, prune: bool = True
+) -> torch.Tensor:
     """EBGAN margin loss that trains D: ``D(x) + max(0, m - D(G))`` (batch means).
 
     When every generated image is past the margin the second term and its gradient are exactly
     zero; it is then left out of the graph, so that D's backward pass skips the generated batch
-    (in the default runs most steps are such steps)."""
-    if not bool((energy_fake < margin).any()):
+    (in the default runs most steps are such steps).  ``prune=False`` keeps it (models trained stacked, where
+    the test would branch on one run's data)."""
+    if prune and not bool((energy_fake < margin).any()):
         return energy_real.mean()
     return energy_real.mean() + F.relu(margin - energy_fake).mean()

@@ -25,11 +25,13 @@ def learning_rate(t, step: int, steps_per_epoch: int, total_steps: int) -> float
 
 
 def make_optimizer(module, cfg_train) -> torch.optim.Optimizer:
-    """``train.optimizer`` (rmsprop as in the release, or adam) over ``module``'s parameters at ``train.lr``."""
+    """``train.optimizer`` (rmsprop as in the release, or adam) over ``module``'s parameters (or a list of
+    tensors: stacked models' weights, :mod:`disent.stack`) at ``train.lr``."""
     name = cfg_train.get("optimizer", "rmsprop")
     if name not in OPTIMIZERS:
         raise ValueError(f"train.optimizer={name!r}; choose from {', '.join(OPTIMIZERS)}")
-    return OPTIMIZERS[name](module.parameters(), lr=cfg_train.lr)
+    params = module.parameters() if isinstance(module, torch.nn.Module) else module
+    return OPTIMIZERS[name](params, lr=cfg_train.lr)
 
 
 def build_discriminator(model) -> Discriminator:

@@ -72,12 +72,18 @@ def sh_shading_reference(normal: torch.Tensor, sh: torch.Tensor) -> torch.Tensor
 
 
 class _SHShading(torch.autograd.Function):
-    """Shading layer with the supplement's analytic backward."""
+    """Shading layer with the supplement's analytic backward (in torch.func's form, so that ``vmap`` can batch it
+    over stacked models: its ops batch as they are)."""
+
+    generate_vmap_rule = True
 
     @staticmethod
-    def forward(ctx, normal, sh):
-        ctx.save_for_backward(normal, sh)
+    def forward(normal, sh):
         return torch.einsum("bck,bkhw->bchw", sh, sh_basis(normal, 1))  # Eq. 4
+
+    @staticmethod
+    def setup_context(ctx, inputs, output):
+        ctx.save_for_backward(*inputs)
 
     @staticmethod
     def backward(ctx, grad):

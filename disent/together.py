@@ -5,8 +5,10 @@ folder with its own config, seed and lock (:func:`queue_run`: the same seeded in
 the sweep has launched them all, :func:`train_queued` trains them side by side, one thread each, each on its own
 CUDA stream on a GPU, so that one card runs the small kernels of several models at once, then evaluates each into
 its ``eval.json``.  A training step draws no random numbers, so each run's numbers are the ones it trains to alone
-(``tests/test_train.py`` checks this on two tiny runs).  Only Hydra's basic launcher runs a sweep's jobs in this
-process: another launcher would set the jobs up in processes that never train them, so it is refused.
+(``tests/test_launchers.py`` checks this on two tiny runs).  With ``train.stack=true`` runs that differ only in
+their seed train as one stacked model instead (:mod:`disent.stack`), equal to alone to float rounding.  Only
+Hydra's basic launcher runs a sweep's jobs in this process: another launcher would set the jobs up in processes
+that never train them, so it is refused.
 """
 
 from __future__ import annotations
@@ -69,5 +71,35 @@ def train_queued() -> list[tuple[Path, dict | BaseException]]:
         finally:
             lock.release()
 
+    states = [s for s, _ in queued]
+    if all(s.cfg.train.get("stack", False) for s in states):
+        from disent.stack import why_not_stacked
+
+        if (why := why_not_stacked(states)) is None:
+            return train_stacked_queued(queued)
+        print(f"train.stack: training side by side instead ({why})")
     with ThreadPoolExecutor(len(queued), "run") as pool:
         return list(pool.map(guarded, queued))
+
+
+def train_stacked_queued(queued: list) -> list[tuple[Path, dict | BaseException]]:
+    """The queued runs as one stacked model (:mod:`disent.stack`), then each one's evaluation; an error in the
+    stacked training stops every run."""
+    from disent.stack import train_stacked
+
+    states = [s for s, _ in queued]
+    print(f"training {len(states)} run(s) stacked: " + ", ".join(str(s.run_dir) for s in states))
+    try:
+        ends = train_stacked(states)
+        results = []
+        for s, (stopped, batch) in zip(states, ends):
+            try:
+                results.append((s.run_dir, finish(s, stopped, batch)))
+            except Exception as e:  # noqa: BLE001  (reported per run)
+                results.append((s.run_dir, e))
+        return results
+    except Exception as e:  # noqa: BLE001  (the stack stopped: every run ends with its error)
+        return [(s.run_dir, e) for s in states]
+    finally:
+        for _, lock in queued:
+            lock.release()

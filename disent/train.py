@@ -327,22 +327,32 @@ def train_loop(s: Training) -> tuple[str, dict | None]:
     return stopped, batch
 
 
-def after_step(s: Training, epoch: int, lr: float, ips: float, losses: dict, batch: dict) -> None:
-    """What follows a step: its log record, the validation record, a sample grid and a checkpoint, each when due."""
+def due(s: Training) -> dict:
+    """What follows step ``s.step`` (just taken): its log record, the validation record, a sample grid, a checkpoint."""
     t, step = s.cfg.train, s.step
-    if step % t.log_every == 0 or step == s.total_steps:
+    return {
+        "log": step % t.log_every == 0 or step == s.total_steps,
+        "val": s.val_batch is not None and step % t.get("val_every", 0) == 0,
+        "sample": bool(t.sample_every) and step % t.sample_every == 0,
+        "checkpoint": step % t.checkpoint_every == 0 or step % s.steps_per_epoch == 0 or step == s.total_steps,
+    }
+
+
+def after_step(s: Training, epoch: int, lr: float, ips: float, losses: dict, batch: dict) -> None:
+    """What follows a step, each when due (:func:`due`)."""
+    step, now = s.step, due(s)
+    if now["log"]:
         record = {"step": step, "epoch": epoch, "wall": s.wall, "lr": lr, "images_per_s": ips}
         s.log.write(record | {k: v.item() for k, v in losses.items()})
-    val_every = t.get("val_every", 0)
-    if s.val_batch is not None and step % val_every == 0:  # wall: training seconds only
+    if now["val"]:  # wall: training seconds only
         t1 = time.perf_counter()
         val = validate(s.model, s.val_batch)
         n, seconds = len(s.val_batch["image"]), time.perf_counter() - t1
         val = {**val, **s.val_trivial, "n": n, "seconds": seconds}
         s.log.write({"step": step, "epoch": epoch, "wall": s.wall, "minutes": s.wall / 60, "val": val})
-    if t.sample_every and step % t.sample_every == 0:
+    if now["sample"]:
         save_samples(s.run_dir / "samples" / f"step{step:06d}.png", batch, s.model(batch["image"]))
-    if step % t.checkpoint_every == 0 or step % s.steps_per_epoch == 0 or step == s.total_steps:
+    if now["checkpoint"]:
         checkpoint(s)
         s.last_saved = step
 

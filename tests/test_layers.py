@@ -35,7 +35,7 @@ LAYERS = (  # lowest first: (name, module prefixes)
         ),
     ),
     ("targets", ("disent.lighting.targets", "disent.eval.evaluate")),
-    ("train", ("disent.train", "disent.together")),
+    ("train", ("disent.train", "disent.stack", "disent.together")),
     ("the run catalogue", ("disent.runs",)),  # finding, reading and labelling runs: what the studies measure
     ("studies", ("disent.eval", "disent.edit", "disent.lighting", "disent.bench", "disent.photos", "disent.ship")),
     ("publishing and the report", ("disent.publish", "disent.report", "disent.__main__", "disent")),

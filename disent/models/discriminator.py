@@ -26,4 +26,9 @@ class Discriminator(nn.Module):
 
     def energy(self, image: torch.Tensor) -> torch.Tensor:
         """Per-image reconstruction error ``[B]``."""
-        return (self(image) - image).pow(2).flatten(1).mean(1)
+        return energy_of(self(image), image)
+
+
+def energy_of(reconstruction: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
+    """EBGAN's energy ``[B]`` from D's ``reconstruction`` of ``image``: their mean squared difference per image."""
+    return (reconstruction - image).pow(2).flatten(1).mean(1)

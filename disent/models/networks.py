@@ -91,8 +91,19 @@ class Encoder(nn.Module):
         return (F.relu(z) if act == "relu" else torch.sigmoid(z) if act == "sigmoid" else z), tuple(switches)
 
 
+def scatter_unpool(x: torch.Tensor, switches: torch.Tensor, kernel_size: int = 2) -> torch.Tensor:
+    """``F.max_unpool2d(x, switches, 2)`` as a scatter into zeros: the same values and gradient, and, unlike
+    max_unpool2d, a batching rule under ``torch.func.vmap`` (models trained stacked, :mod:`disent.stack`)."""
+    B, C, H, W = x.shape
+    out = x.new_zeros(B, C, kernel_size * H * kernel_size * W)
+    out = out.scatter(2, switches.reshape(B, C, -1), x.reshape(B, C, -1))
+    return out.view(B, C, kernel_size * H, kernel_size * W)
+
+
 class Decoder(nn.Module):
     """Code ``[B,code_dim]`` -> map ``[B,out_channels,H,W]`` (no output nonlinearity)."""
+
+    scatter_unpool = False  # True: unpool by scatter_unpool (the same function; batches under vmap)
 
     def __init__(
         self,
@@ -132,7 +143,7 @@ class Decoder(nn.Module):
         last = len(self.convs) - 1
         for i, conv in enumerate(self.convs):
             x = (
-                F.max_unpool2d(x, switches[-1 - i], 2)
+                (scatter_unpool if self.scatter_unpool else F.max_unpool2d)(x, switches[-1 - i], 2)
                 if self.skips
                 else F.interpolate(x, scale_factor=2, mode="nearest")
             )
