@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The checks a GPU session runs, as one call: the CUDA tests, the model and SynthFaces benchmarks on the card, and a
-# slice of the long-rung suite (SETTINGS x 3 seeds, each setting's seeds trained together, batches rendered on the
-# card) with the whole suite's projected time.  At most 8 files land in OUT (a device call brings back no more).
+# slice of the long-rung suite (SETTINGS x 3 seeds, each setting's seeds trained as one stacked model, then side by
+# side, batches rendered on the card) with the whole suite's projected time.  At most 8 files land in OUT (a device
+# call brings back no more).
 #   ablations/gpu_check.sh OUT [STEPS]      # STEPS: training steps of each slice run (default 1000)
 # Where hydra-core is not installed (a bare GPU image), carry its wheels in .wheels/ (ignored by git), made here with
 #   pip download --no-deps -d .wheels hydra-core==1.3.8 omegaconf==2.3.1 antlr4-python3-runtime==4.9.3 emcee==3.1.6
@@ -44,7 +45,8 @@ slice() {  # slice NAME "OVERRIDES" [SUITE_OPTION...]: SETTINGS x 3 seeds traine
   cat "$root"/*.log >>"$OUT/slice.txt" 2>/dev/null
   $PY -m disent.bench.suite "$root" "$start" "$end" "$@" >"$OUT/$name.json"
 }
-slice slice "" --into "$BENCH_JSON"
+STACK=1 slice slice "" --into "$BENCH_JSON"  # the seeds as one stacked model (train.stack): the suite's figures
 cp "$BENCH_JSON" "$OUT/bench-$DEVICE.json" 2>/dev/null
-[ "${AMP:-0}" = 1 ] && slice slice_amp train.amp=true  # the same slice in bfloat16: its accuracy beside fp32's
+STACK=0 slice slice_threads ""  # the same seeds side by side, one thread and CUDA stream each
+[ "${AMP:-0}" = 1 ] && STACK=1 slice slice_amp train.amp=true  # stacked in bfloat16: its accuracy beside fp32's
 cat "$OUT"/slice*.json

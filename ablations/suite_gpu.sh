@@ -5,9 +5,10 @@
 #   ablations/suite_gpu.sh ROOT [OVERRIDE...]   # runs in ROOT/<setting>_s<seed>, then python -m disent.report --roots ROOT
 # A finished run (eval.json) is skipped and an interrupted one resumes in its folder, so the same command picks up
 # where a lost session stopped.  JOBS (processes side by side, default 6), TOGETHER=1 (each process trains one
-# setting's seeds together: train.together=true, one CUDA stream each), SEEDS ("0 1 2"), MODELS, ABLATIONS, DEVICE
-# (cuda), DATA_DEVICE (where batches are rendered: cpu, or cuda), WORKERS (CPU cores rendering each run's batches on
-# the CPU, 2), EXPERIMENT (long), REPORT=0 (no report) and PYTHON change it; OVERRIDE... go to every run.
+# setting's seeds together: train.together=true, one CUDA stream each; with STACK=1 as one stacked model), SEEDS
+# ("0 1 2"), MODELS, ABLATIONS, DEVICE (cuda), DATA_DEVICE (where batches are rendered: cpu, or cuda), WORKERS (CPU
+# cores rendering each run's batches on the CPU, 2), EXPERIMENT (long), REPORT=0 (no report) and PYTHON change it;
+# OVERRIDE... go to every run.
 set -euo pipefail
 ROOT=${1:?usage: ablations/suite_gpu.sh ROOT [OVERRIDE...]}
 shift
@@ -25,10 +26,11 @@ run() {  # one setting's unfinished seeds: one process per run, or one for them 
   [ ${#seeds[@]} -gt 0 ] || return 0
   mkdir -p "$ROOT"
   if [ "${TOGETHER:-0}" = 1 ]; then
-    local list
+    local list stack=false
     list=$(IFS=,; echo "${seeds[*]}")
+    [ "${STACK:-0}" = 1 ] && stack=true
     # shellcheck disable=SC2046,SC2086  # the overrides are words
-    ${PYTHON:-python} -m disent -m $overrides seed="$list" train.together=true $(common) "${@:2}" \
+    ${PYTHON:-python} -m disent -m $overrides seed="$list" train.together=true train.stack=$stack $(common) "${@:2}" \
       hydra.sweep.dir="$ROOT" hydra.sweep.subdir="${name}_s\${seed}" >>"$ROOT/$name.log" 2>&1
   else
     for seed in "${seeds[@]}"; do

@@ -54,13 +54,13 @@ def train_one(s) -> dict:
 
 
 def train_queued() -> list[tuple[Path, dict | BaseException]]:
-    """Train every queued run side by side, then empty the queue; ``(run folder, eval metrics or the error that
-    stopped it)`` per run, in the order they were set up.  One run's failure stops only that run."""
+    """Train every queued run side by side (or stacked: ``train.stack``), then empty the queue; ``(run folder, eval
+    metrics or the error that stopped it)`` per run, in the order they were set up.  Side by side, one run's failure
+    stops only that run."""
     queued = QUEUED[:]
     QUEUED.clear()
     if not queued:
         return []
-    print(f"training {len(queued)} run(s) together: " + ", ".join(str(s.run_dir) for s, _ in queued))
 
     def guarded(item):
         s, lock = item
@@ -78,6 +78,7 @@ def train_queued() -> list[tuple[Path, dict | BaseException]]:
         if (why := why_not_stacked(states)) is None:
             return train_stacked_queued(queued)
         print(f"train.stack: training side by side instead ({why})")
+    print(f"training {len(queued)} run(s) together: " + ", ".join(str(s.run_dir) for s, _ in queued))
     with ThreadPoolExecutor(len(queued), "run") as pool:
         return list(pool.map(guarded, queued))
 
