@@ -668,3 +668,29 @@ def test_a_compiled_run_trains_to_the_eager_runs_numbers(tmp_path):
         assert compiled[key] == pytest.approx(eager[key], rel=1e-3, abs=1e-5), key
     model = T.build_model(cfg_of(*TINY).model)
     model.load_state_dict(torch.load(tmp_path / "compiled" / "checkpoints" / "last.pt", weights_only=False)["model"])
+
+
+def test_stacked_optimiser_state_holds_each_runs_state_and_gives_it_back():
+    """Runs resumed from checkpoints train stacked from where each stood: their optimisers' state is stacked in
+    (:func:`disent.stack.stacked_optimizer`) and each run's slice comes back as its own
+    (:func:`disent.stack.run_slice`), the step count shared."""
+    from disent.stack import run_slice, stacked_optimizer
+
+    cfg = cfg_of(*TINY)
+    nets = [torch.nn.Linear(3, 2) for _ in range(2)]
+    opts = [T.make_optimizer(n, cfg.train) for n in nets]
+    for k, (n, o) in enumerate(zip(nets, opts)):
+        n(torch.full((4, 3), k + 1.0)).square().sum().backward()
+        o.step()
+    stacked = [torch.stack([n.weight.detach() for n in nets]), torch.stack([n.bias.detach() for n in nets])]
+    opt = stacked_optimizer(opts, stacked, cfg.train)
+    for i, o in enumerate(opts):
+        mine, back = o.state_dict(), run_slice(opt.state_dict(), i)
+        assert back["param_groups"] == mine["param_groups"]
+        for j, state in mine["state"].items():
+            assert set(back["state"][j]) == set(state)
+            for key, value in state.items():
+                assert torch.equal(back["state"][j][key], value), (i, j, key)
+    first, other = run_slice(opt.state_dict(), 0)["state"][0], opts[1].state_dict()["state"][0]
+    kept = [k for k, v in other.items() if v.dim()]  # the optimiser's running averages (not its step count)
+    assert kept and not any(torch.equal(first[k], other[k]) for k in kept)  # two runs' own states, not one twice
