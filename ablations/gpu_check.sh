@@ -27,7 +27,7 @@ $PY -m pytest -q -p no:cacheprovider tests/test_render.py tests/test_data.py -k 
 if [ "${BENCH:-1}" = 1 ]; then
   bench="--models explicit --device $DEVICE"
   # shellcheck disable=SC2086  # words
-  { $PY -m disent.bench peak models data $bench --out "$BENCH_JSON"
+  { $PY -m disent.bench peak models data stack $bench --out "$BENCH_JSON"
     $PY -m disent.bench models $bench --compile --no-bf16 --out /tmp/disent-bench-compiled/bench-compiled.json
   } >"$OUT/bench.txt" 2>&1
   cp /tmp/disent-bench-compiled/bench-compiled.json "$OUT/bench-$DEVICE-compiled.json" 2>/dev/null

@@ -27,6 +27,9 @@ def tiny_run(tmp_path_factory):
                 "models",
                 "profile",
                 "norm_cost",
+                "stack",
+                "--runs",
+                "2",
                 "--models",
                 "explicit",
                 "implicit",
@@ -288,3 +291,15 @@ def test_the_models_benchmark_times_compiled_steps_with_compile(tmp_path):
     assert b["models_setup"]["compile"] is True
     explicit = b["models"]["explicit"]
     assert explicit["train_img_s"] > 0 and explicit["train_flops_per_image"] > 0
+
+
+def test_the_stack_benchmark_times_stacked_runs_beside_the_same_runs_one_after_another(tiny_run):
+    """``stack``: the runs' images/s stacked and one after another, each against the peak measured beside it, the
+    same FLOPs per image for both, and their ratio."""
+    s = tiny_run["stack"]
+    assert s["runs"] == 2 and s["batch"] == 2 and s["flops_per_image"] > 0
+    for key in ("sequential", "stacked"):
+        assert s[f"{key}_img_s"] > 0 and s[f"{key}_flops_per_image"] == s["flops_per_image"]
+        expected = s["flops_per_image"] * s[f"{key}_img_s"] / 1e9 / s[f"{key}_peak_gflops"]
+        assert s[f"{key}_fraction_of_peak"] == pytest.approx(expected)
+    assert s["stacked_over_sequential"] == pytest.approx(s["stacked_img_s"] / s["sequential_img_s"])

@@ -12,6 +12,7 @@ import torch
 
 import disent.bench as bench
 from disent.bench import bench_json, data, lighting, measure_peak_gflops, median_time, models, print_table, save
+from disent.bench.stack import bench_stack
 from disent.runtime import tune_malloc  # the same setting as training (train.malloc_tuning)
 from disent.storage import tool_folder
 
@@ -55,6 +56,7 @@ SUBCOMMANDS: dict[str, Callable] = {
     "render": bench_render,
     "data": data.bench_data,
     "models": models.bench_models,
+    "stack": bench_stack,
     "norm_cost": models.bench_norm_cost,
     "profile": models.bench_profile,
     "time_to_accuracy": models.bench_time_to_accuracy,
@@ -120,6 +122,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--run", default=None, help="run folder for time_to_accuracy (default: newest under outputs/)")
     p.add_argument("--peak-n", type=int, default=2048, help="side of the square matmul that measures the peak")
     p.add_argument("--train-batch", type=int, default=64, help="batch of the models' training steps")
+    p.add_argument("--runs", type=int, default=3, help="runs stacked by the stack benchmark (train.stack)")
     p.add_argument(
         "--infer-batches", type=int, nargs="+", default=[1, 64, 256], help="inference batches (64 is the headline)"
     )
