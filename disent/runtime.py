@@ -4,6 +4,7 @@
 - :class:`Prefetcher`: training batches rendered ahead in background threads (``train.prefetch``, ``_workers``).
 - :class:`single_thread`: one torch thread inside (SynthFaces generation is written for one core).
 - :func:`single_core`: one torch thread and one OpenBLAS thread (the lighting experiments).
+- :func:`used_here`: a batch rendered on another thread's CUDA stream claimed by this one's (``train.together``).
 - :func:`compile_networks`: torch.compile of the model and D in place (``train.compile``, ``bench --compile``).
 - :func:`per_device`: a cached tensor builder (SynthFaces' mesh, masks, banks) copied once to the device it is
   asked on, where batches are rendered on the training device (``data.device``).
@@ -189,3 +190,13 @@ def compile_networks(*networks) -> None:
     for net in networks:
         if net is not None:
             net.compile()
+
+
+def used_here(batch: dict) -> dict:
+    """``batch`` with its GPU tensors marked as used by this thread's CUDA stream (``record_stream``): a batch
+    rendered on another thread's stream (``data.device=cuda``) is then not handed back to the allocator while a run
+    on its own stream (``train.together``) still reads it.  Nothing on the CPU."""
+    for v in batch.values():
+        if torch.is_tensor(v) and v.is_cuda:
+            v.record_stream(torch.cuda.current_stream(v.device))
+    return batch

@@ -37,7 +37,7 @@ from disent.lighting.targets import target_fit, with_fitted_lhat
 from disent.models import build_model, checkpoint_path
 from disent.models.shipped import load_weights
 from disent.optim import build_discriminator, learning_rate, loss_weights, make_optimizer
-from disent.runtime import Prefetcher, compile_networks, tune_malloc
+from disent.runtime import Prefetcher, compile_networks, tune_malloc, used_here
 from disent.storage import (
     MetricsLog,
     RunLock,
@@ -304,7 +304,7 @@ def train_loop(s: Training) -> tuple[str, dict | None]:
                 for g in opt.param_groups if opt is not None else []:
                     g["lr"] = lr
             t0 = time.perf_counter()
-            batch = to_device(prefetch.get(s.step), s.device, t.channels_last)
+            batch = used_here(to_device(prefetch.get(s.step), s.device, t.channels_last))
             with torch.autocast(s.device.type, dtype=torch.bfloat16, enabled=t.get("amp", False)):  # shading: fp32
                 losses = train_step(s.model, s.disc, s.opt_g, s.opt_d, batch, s.cfg.loss, s.step)
             if "nonfinite" in losses:
