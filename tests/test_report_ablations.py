@@ -7,7 +7,7 @@ import pytest
 
 from disent import report
 from disent.eval.ablation import ablation_table, to_markdown
-from disent.report import ablations, claims, tables
+from disent.report import ablations, tables, targets
 from disent.runs import composed_config, find_runs
 from tests.run_fakes import fake_suite, make_run
 
@@ -302,18 +302,18 @@ def test_ablation_runs_whose_normals_failed_are_named_by_how(tmp_path):
 
 
 def test_target_source_names_the_lighting_row_of_a_settings_e_recon_l_target():
-    assert claims.target_source("(defaults)") == claims.target_source("+experiment=long") == "lhat"
-    assert claims.target_source("loss.recon_L_target=sh_pseudo_eroded") == "lhat_eroded"
-    assert claims.target_source("loss.recon_L_scale=sh_pseudo loss.recon_L_target=sh_texture") == (
+    assert targets.target_source("(defaults)") == targets.target_source("+experiment=long") == "lhat"
+    assert targets.target_source("loss.recon_L_target=sh_pseudo_eroded") == "lhat_eroded"
+    assert targets.target_source("loss.recon_L_scale=sh_pseudo loss.recon_L_target=sh_texture") == (
         "texture_model_lhat_scale"
     )
-    assert claims.target_source("loss.recon_L_oracle_mix=0.25") == "oracle_mix_0.25"
-    assert claims.target_source("loss.recon_L_target=sh_network") == "network_explicit"
-    assert claims.target_source("loss.recon_L_network=implicit loss.recon_L_target=sh_network") == "network_implicit"
+    assert targets.target_source("loss.recon_L_oracle_mix=0.25") == "oracle_mix_0.25"
+    assert targets.target_source("loss.recon_L_target=sh_network") == "network_explicit"
+    assert targets.target_source("loss.recon_L_network=implicit loss.recon_L_target=sh_network") == "network_implicit"
     both = "loss.recon_L_network=implicit loss.recon_L_target=sh_network_texture"
-    assert claims.target_source(both) == "network_implicit_texture"
-    assert claims.target_source(f"{both} loss.recon_L_network_share=0.6") == "network_implicit_texture"
-    assert claims.target_source(f"{both} loss.recon_L_network_share=0.4") is None  # the rows are at 0.6
+    assert targets.target_source(both) == "network_implicit_texture"
+    assert targets.target_source(f"{both} loss.recon_L_network_share=0.6") == "network_implicit_texture"
+    assert targets.target_source(f"{both} loss.recon_L_network_share=0.4") is None  # the rows are at 0.6
     where = f"{both} loss.recon_L_network_share=0.4 loss.lhat_gray=true"  # the network and its share come along
     assert ablations.setting_picks(where, "loss.recon_L_target=sh_network_texture") == [
         "loss.recon_L_target=sh_network_texture",
@@ -321,8 +321,8 @@ def test_target_source_names_the_lighting_row_of_a_settings_e_recon_l_target():
         "loss.recon_L_network_share=0.4",
     ]
     truth = "true_pixels_normals_albedo"  # the truth's shape, at whichever scale
-    assert claims.target_source("+experiment=long loss.recon_L_target=sh") == truth
-    assert claims.target_source("loss.recon_L_oracle_mix=1.0 loss.recon_L_target=sh_texture") == truth
-    assert claims.target_source("loss.recon_L_oracle_mix=0.5 loss.recon_L_target=sh_texture") is None  # no such row
-    assert claims.target_source("loss.lhat_gray=true") is None  # changes more than the target
-    assert claims.target_source("+ablation=no_bws") is None
+    assert targets.target_source("+experiment=long loss.recon_L_target=sh") == truth
+    assert targets.target_source("loss.recon_L_oracle_mix=1.0 loss.recon_L_target=sh_texture") == truth
+    assert targets.target_source("loss.recon_L_oracle_mix=0.5 loss.recon_L_target=sh_texture") is None  # no such row
+    assert targets.target_source("loss.lhat_gray=true") is None  # changes more than the target
+    assert targets.target_source("+ablation=no_bws") is None

@@ -13,11 +13,11 @@ and writes every page at one revision; nothing is kept from an earlier build.  `
 folder and fails where a committed page differs from the rebuild other than in its build line.
 
 The front page is :mod:`~disent.report.front`; each appendix page lists its sections in :data:`PAGES`, each section a
-``sec_*`` function of :mod:`~disent.report.claims` (targets and the paper's claims), :mod:`~disent.report.ablations`,
-:mod:`~disent.report.training` (runs, ceiling, teaser, recipe, learning curves), :mod:`~disent.report.tools` (SH
-variance, stability, methods, photos), :mod:`~disent.report.benchmarks` and :mod:`~disent.report.lighting`.  They
-share :mod:`~disent.report.document` (a page), :mod:`~disent.report.tables` (spreads, verdicts, cells) and
-:mod:`~disent.report.pictures`.
+``sec_*`` function of :mod:`~disent.report.targets`, :mod:`~disent.report.claims` (the paper's claims),
+:mod:`~disent.report.ablations`, :mod:`~disent.report.training` (runs, ceiling, teaser, recipe, learning curves),
+:mod:`~disent.report.tools` (SH variance, stability, methods, photos), :mod:`~disent.report.benchmarks` and
+:mod:`~disent.report.lighting`.  They share :mod:`~disent.report.document` (a page), :mod:`~disent.report.tables`
+(spreads, verdicts, cells) and :mod:`~disent.report.pictures`.
 """
 
 from __future__ import annotations
@@ -35,10 +35,11 @@ from disent.publish import publish, write_records
 from disent.report import front
 from disent.report.ablations import sec_ablation
 from disent.report.benchmarks import sec_bench
-from disent.report.claims import sec_claims, sec_targets
+from disent.report.claims import sec_claims
 from disent.report.document import Report
 from disent.report.lighting import sec_lighting
 from disent.report.tables import Glance
+from disent.report.targets import sec_targets
 from disent.report.tools import sec_methods, sec_photos, sec_sh_variance, sec_stability
 from disent.report.training import (
     sec_ceiling,

@@ -119,7 +119,7 @@ ABLATION_CLAIMS = (
 )
 # E_recon-L targets other than the paper's L-hat: an override (one ending in "=" stands for each of its values,
 # setting_picks; {} in the words) -> its name in words (what no_pseudo_light takes away in a setting that names it),
-# and the claims' paragraph on what it buys, read against the same setting without it (claims.light_target_lines)
+# and the claims' paragraph on what it buys, read against the same setting without it (targets.light_target_lines)
 LIGHT_TARGETS = {
     "loss.recon_L_target=sh_texture": (
         "the texture model's L-hat in L-hat's place",
