@@ -205,15 +205,8 @@ def _truth_rows(model, net, src, true_edit, recon0, attribute: str, spread: dict
     i_attr = ATTRIBUTES.index(attribute)
     r_in = read(net, src["image"])
     rt = read(net, true_edit["image"])
-    row = summarize(
-        attribute,
-        "-",
-        "truth",
-        1.0,
-        r_in["p"][:, i_attr],
-        rt,
-        leakage(r_in, rt, src["image"], true_edit["image"], src["matte"], attribute, spread),
-    )
+    leak = leakage(r_in, rt, src["image"], true_edit["image"], src["matte"], attribute, spread)
+    row = summarize(attribute, "-", "truth", 1.0, r_in["p"][:, i_attr], rt, leak)
     # the face region of the faces with and without it: the paper's face masks leave hair out (Sec. 5.2,
     # Limitations), and SynthFaces greys a senior face's hair, which no face code reaches. change_in_face: the
     # share of the true change there, what a model drawing all of it there and nothing outside draws
@@ -282,17 +275,8 @@ def edit_table(
     r0 = read(net, recon0)
     i_attr = ATTRIBUTES.index(attribute)
     p0 = r0["p"][:, i_attr]
-    rows = [
-        summarize(
-            attribute,
-            "-",
-            "reconstruction",
-            0.0,
-            p0,
-            r0,
-            leakage(r0, r0, recon0, recon0, src["matte"], attribute, spread),
-        )
-    ]
+    leak = leakage(r0, r0, recon0, recon0, src["matte"], attribute, spread)
+    rows = [summarize(attribute, "-", "reconstruction", 0.0, p0, r0, leak)]
     shown = {"input": src["image"][:n_show], "recon": recon0[:n_show]}
     shares = None
     if truth_override is not None:
@@ -307,17 +291,8 @@ def edit_table(
                 edited = model.decode(codes)["recon"]
                 r = read(net, edited)
                 shown[(label, method, s)] = edited[:n_show]
-                rows.append(
-                    summarize(
-                        attribute,
-                        label,
-                        method,
-                        s,
-                        p0,
-                        r,
-                        leakage(r0, r, recon0, edited, src["matte"], attribute, spread),
-                    )
-                )
+                leak = leakage(r0, r, recon0, edited, src["matte"], attribute, spread)
+                rows.append(summarize(attribute, label, method, s, p0, r, leak))
                 rows[-1]["step"] = step_along_attribute(codes0, codes, pool, manifolds)
                 if shares is not None:  # how much of the true change the edit draws, with no reader
                     rows[-1].update(shares(edited))
@@ -649,30 +624,16 @@ def run_measurements(a) -> None:
     read_identity = net_info.get("val", {}).get("identity_rmse_std", math.inf) < IDENTITY_READABLE
     if not read_identity:
         print(
-            f"the measuring net cannot read identity (held-out RMSE >= {IDENTITY_READABLE} std): "
-            "d_identity is left out",
-            flush=True,
+            f"the measuring net cannot read identity (held-out RMSE >= {IDENTITY_READABLE} std): d_identity is left out"
         )
     lambdas = tuple(a.lambdas or DEFAULT_LAMBDAS)
     alphas = tuple(a.alphas or DEFAULT_ALPHAS)
     rows = []
     for attribute in a.attributes:
         t0 = time.time()
-        r, shown = edit_table(
-            model,
-            net,
-            SynthFaces,
-            attribute,
-            a.pool_size,
-            a.sources,
-            lambdas,
-            alphas,
-            resolution=R,
-            seed=a.seed,
-            truth_override=truth_override,
-            read_identity=read_identity,
-            background=background,
-        )
+        sizes = (a.pool_size, a.sources, lambdas, alphas)
+        kw = {"resolution": R, "seed": a.seed, "read_identity": read_identity, "background": background}
+        r, shown = edit_table(model, net, SynthFaces, attribute, *sizes, truth_override=truth_override, **kw)
         rows += r
         print(f"{attribute}: {len(r)} rows in {time.time() - t0:.0f} s", flush=True)
         if not figures:

@@ -272,6 +272,21 @@ def face_attributes(order: dict, rows: list[str]) -> dict:
     return out
 
 
+def failure_bins(scenes: dict, labels: dict, names: list) -> dict:
+    """A split's scenes binned by |yaw| (``YAW_BINS``), by thirds of the pixels fitted and by each attribute of
+    ``names`` (``labels``: its per-face labels, none where absent): ``{bin: boolean mask over the scenes}``."""
+    yaw, pixels = np.abs(scenes["yaw"]), np.array(scenes["pixels"])
+    thirds = np.quantile(pixels, [1 / 3, 2 / 3])
+    none = np.zeros(len(pixels), bool)
+    return {
+        **{f"yaw {lo:g}-{hi:g} deg": (yaw >= lo) & (yaw < hi) for lo, hi in zip(YAW_BINS, YAW_BINS[1:])},
+        "fewest pixels": pixels <= thirds[0],
+        "middle third": (pixels > thirds[0]) & (pixels <= thirds[1]),
+        "most pixels": pixels > thirds[1],
+        **{f"with {a}": np.asarray(labels[a], bool)[scenes["index"]] if a in labels else none for a in names},
+    }
+
+
 def failure_lines(order: dict, rows: list[str], attributes: dict | None = None) -> list[str]:
     """Where the order choice fails: for each of ``rows`` (names after ``split/``) read with each scene's outcome
     (``scenes``, :func:`disent.lighting.order_study.order_confusion`), its evidence accuracy by |yaw|, by the
@@ -287,19 +302,7 @@ def failure_lines(order: dict, rows: list[str], attributes: dict | None = None) 
                 continue
             truth = np.array(scenes["true_order"])
             right = np.array(scenes["evidence"]) == truth
-            yaw, pixels = np.abs(scenes["yaw"]), np.array(scenes["pixels"])
-            thirds = np.quantile(pixels, [1 / 3, 2 / 3])
-            labels = (attributes or {}).get(split, {})
-            bins = {
-                **{f"yaw {lo:g}-{hi:g} deg": (yaw >= lo) & (yaw < hi) for lo, hi in zip(YAW_BINS, YAW_BINS[1:])},
-                "fewest pixels": pixels <= thirds[0],
-                "middle third": (pixels > thirds[0]) & (pixels <= thirds[1]),
-                "most pixels": pixels > thirds[1],
-                **{
-                    f"with {a}": np.asarray(labels[a], bool)[scenes["index"]] if a in labels else np.zeros_like(right)
-                    for a in names
-                },
-            }
+            bins = failure_bins(scenes, (attributes or {}).get(split, {}), names)
             acc, n = float(right.mean()), len(right)
             cells.append(
                 f"| {split} | `{row}` | {acc:.2f} ({n}) | "
