@@ -694,3 +694,36 @@ def test_stacked_optimiser_state_holds_each_runs_state_and_gives_it_back():
     first, other = run_slice(opt.state_dict(), 0)["state"][0], opts[1].state_dict()["state"][0]
     kept = [k for k, v in other.items() if v.dim()]  # the optimiser's running averages (not its step count)
     assert kept and not any(torch.equal(first[k], other[k]) for k in kept)  # two runs' own states, not one twice
+
+
+def test_a_nonfinite_loss_in_stacked_runs_stops_them_all_and_keeps_each_ones_last_good_checkpoint(
+    tmp_path, monkeypatch
+):
+    """``train.stack``: a term that turns non-finite in one run's slice stops the stack with the run and the term
+    named, and every run keeps its own last good checkpoint (each its own weights: two seeds, two models)."""
+    from disent.stack import train_stacked
+
+    calls = {"n": 0}
+    bws = L.TERM_FUNCTIONS["BWS"]
+
+    def flaky(out, batch, c=0.75):  # under vmap: one call a step for the whole stack
+        calls["n"] += 1
+        v = bws(out, batch, c)
+        return v * float("nan") if calls["n"] == 4 else v
+
+    over = (*TINY, "train.epochs=3", "train.max_steps=null", "train.checkpoint_every=2", "train.stack=true")
+    for seed in (0, 1):
+        (tmp_path / f"s{seed}").mkdir()
+    states = [T.set_up(cfg_of(*over, f"seed={seed}"), tmp_path / f"s{seed}") for seed in (0, 1)]
+    initial = [s.model.state_dict()["encoder.convs.0.weight"].clone() for s in states]
+    monkeypatch.setitem(L.TERM_FUNCTIONS, "BWS", flaky)
+    with pytest.raises(NonFiniteLoss, match=r"'BWS' is not finite at step 3 in .*s0 .*stacked with 1 other.*step 2"):
+        train_stacked(states)
+    weights = []
+    for seed in (0, 1):
+        ck = load_checkpoint(tmp_path / f"s{seed}" / "checkpoints" / "last.pt")
+        assert ck["step"] == 2 and ck["cfg"]["seed"] == seed
+        assert all(torch.isfinite(v).all() for v in ck["model"].values())
+        weights.append(ck["model"]["encoder.convs.0.weight"])
+        assert not torch.equal(weights[-1], initial[seed])  # the run's trained slice, copied back before saving
+    assert not torch.equal(*weights)
