@@ -19,7 +19,7 @@ def check_metrics(model, cfg, n: int = CHECK_IMAGES) -> dict:
     from disent.data import make_dataset
     from disent.eval.evaluate import evaluate_model
 
-    test = make_dataset(cfg.data, "test", cfg.data.get("test_size"))
+    test = make_dataset(cfg.data, "test", cfg.data.get("test_size"), device="cpu")
     m = evaluate_model(model, test, limit=n)
     return {k: m[k] for k in CHECK_KEYS if k in m}
 

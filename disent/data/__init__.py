@@ -20,11 +20,12 @@ from disent.data.synth import ATTR_PRIOR, EFFECTS, LIGHT_BANK, LIGHT_NAMES, SPLI
 DATASETS = ("synth", "folder")  # conf/data/<name>.yaml
 
 
-def make_dataset(cfg_data, split: str, size: int | None = None):
-    """The data set named by ``data.name``: SynthFaces (``synth``) or a folder of photos (``folder``)."""
+def make_dataset(cfg_data, split: str, size: int | None = None, device=None):
+    """The data set named by ``data.name``: SynthFaces (``synth``) or a folder of photos (``folder``).  SynthFaces
+    renders on ``device``, by default ``data.device`` (training's batches; evaluation asks for the CPU)."""
     if cfg_data.name == "synth":
         effects = OmegaConf.to_container(cfg_data.effects) if cfg_data.get("effects") else None
-        device = cfg_data.get("device", "cpu")  # where batches are rendered: data.device
+        device = device or cfg_data.get("device", "cpu")
         return SynthFaces(split, cfg_data.resolution, cfg_data.seed, size, effects, device=device)
     if cfg_data.name == "folder":
         from disent.data.photos.folder import build as build_folder

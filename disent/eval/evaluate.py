@@ -47,7 +47,7 @@ def evaluate(model, cfg, n: int, trivial: dict | None) -> dict:
     scored on the same images where the data has ground truth."""
     from disent.eval.metrics import reconstruction_metrics
 
-    test = make_dataset(cfg.data, "test", cfg.data.get("test_size"))
+    test = make_dataset(cfg.data, "test", cfg.data.get("test_size"), device="cpu")
     model = model.to("cpu")
     if "normal" in test[0]:
         return evaluate_model(model, test, limit=n, trivial=trivial, light_target=target_light_of(cfg.loss))
@@ -140,7 +140,7 @@ def score(source) -> dict:
     from disent.models import load_run
 
     model, cfg = load_run(source)
-    trivial = trivial_baselines(make_dataset(cfg.data, "train", cfg.data.get("train_size")))
+    trivial = trivial_baselines(make_dataset(cfg.data, "train", cfg.data.get("train_size"), device="cpu"))
     return evaluate(model.eval(), cfg, cfg.train.eval_size, trivial)
 
 

@@ -77,6 +77,7 @@ def dataset_means(dataset, n: int = N_IMAGES, batch_size: int = 256) -> dict:
     sums = {"normal": 0.0, "albedo": 0.0, "uv": 0.0, "weight": 0.0, "sh": 0.0, **{k: 0.0 for k in optional}}
     count = 0
     for b in batches(dataset, batch_size, n):
+        b = {k: v.cpu() if torch.is_tensor(v) else v for k, v in b.items()}  # summed on the CPU (data.device aside)
         face = face_mask(b["matte"].double())
         sums["normal"] = sums["normal"] + (b["normal"].double() * face).sum(0)
         sums["albedo"] = sums["albedo"] + (b["albedo"].double() * face).sum(0)
