@@ -1,6 +1,6 @@
 """The training recipe's moving parts: the optimisers (``train.optimizer``), the learning-rate schedule
-(``train.schedule`` after ``train.warmup_steps``), the loss weights by step (``loss.early_weights``), and the EBGAN
-discriminator built to match its generator."""
+(``train.schedule`` after ``train.warmup_steps``), the loss weights by step (``loss.early_weights``), the EBGAN
+discriminator built to match its generator, and the weights a run starts from (``init``: a warm start)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,10 @@ import math
 
 import torch
 
-from disent.config import OPTIMIZERS, SCHEDULES, loss_setting
-from disent.models import Discriminator
+from disent.config import OPTIMIZERS, SCHEDULES, check_init, loss_setting
+from disent.models import Discriminator, checkpoint_path
+from disent.models.shipped import load_weights
+from disent.storage import load_checkpoint
 
 
 def learning_rate(t, step: int, steps_per_epoch: int, total_steps: int) -> float:
@@ -45,3 +47,13 @@ def loss_weights(cfg_loss, step: int) -> dict:
     if step < loss_setting(cfg_loss, "early_steps"):
         weights.update(loss_setting(cfg_loss, "early_weights") or {})
     return weights
+
+
+def warm_start(model, cfg) -> None:
+    """Load the model weights of ``cfg.init`` (a run folder, checkpoint or shipped name) into ``model``; its model
+    settings must be ``cfg.model``'s (:func:`disent.config.check_init`)."""
+    path = checkpoint_path(cfg.init)
+    ck = load_checkpoint(path)
+    check_init(cfg, ck.get("cfg"))
+    load_weights(model, ck["model"], path)  # a shipped model's half precision is cast back on loading
+    print(f"warm start from {path}")

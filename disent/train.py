@@ -23,7 +23,6 @@ from disent import losses as L
 from disent.config import (
     ConfigError,
     check_config,
-    check_init,
     config_differences,
     idle_settings,
     loss_setting,
@@ -34,9 +33,8 @@ from disent.eval.evaluate import evaluate, print_eval, trivial_baselines
 from disent.eval.scoring import validate
 from disent.eval.trivial import trivial_metrics
 from disent.lighting.targets import target_fit, with_fitted_lhat
-from disent.models import build_model, checkpoint_path
-from disent.models.shipped import load_weights
-from disent.optim import build_discriminator, learning_rate, loss_weights, make_optimizer
+from disent.models import build_model
+from disent.optim import build_discriminator, learning_rate, loss_weights, make_optimizer, warm_start
 from disent.runtime import Prefetcher, compile_networks, tune_malloc, used_here
 from disent.storage import (
     MetricsLog,
@@ -90,16 +88,6 @@ def train_step(model, disc, opt_g, opt_d, batch, cfg_loss, step: int = 0) -> dic
     if disc is not None:
         opt_d.step()
     return losses
-
-
-def warm_start(model, cfg) -> None:
-    """Load the model weights of ``cfg.init`` (a run folder, checkpoint or shipped name) into ``model``; its model
-    settings must be ``cfg.model``'s (:func:`disent.config.check_init`)."""
-    path = checkpoint_path(cfg.init)
-    ck = load_checkpoint(path)
-    check_init(cfg, ck.get("cfg"))
-    load_weights(model, ck["model"], path)  # a shipped model's half precision is cast back on loading
-    print(f"warm start from {path}")
 
 
 def run(cfg, run_dir) -> dict:

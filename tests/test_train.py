@@ -21,6 +21,7 @@ from disent.data import step_indices
 from disent.eval import evaluate as EV
 from disent.lighting import targets as TG
 from disent.models import load_run
+from disent.optim import warm_start
 from disent.runtime import Prefetcher
 from disent.storage import load_checkpoint
 from disent.train import NonFiniteLoss, run
@@ -86,18 +87,18 @@ def test_warm_start_loads_the_weights_and_refuses_another_model(tmp_path):
     run(cfg_of(*TINY, "model=implicit"), tmp_path / "source")
     cfg = cfg_of(*TINY, "model=implicit", f"init={tmp_path / 'source'}")
     model, fresh = T.build_model(cfg.model), T.build_model(cfg.model)
-    T.warm_start(model, cfg)
+    warm_start(model, cfg)
     source, _ = load_run(tmp_path / "source")
     assert all(torch.equal(v, source.state_dict()[k]) for k, v in model.state_dict().items())
     assert not all(torch.equal(v, fresh.state_dict()[k]) for k, v in model.state_dict().items())
     shipped = cfg_of(*TINY, "init=explicit")  # a shipped name: half precision, cast back on loading
     model = T.build_model(shipped.model)
-    T.warm_start(model, shipped)
+    warm_start(model, shipped)
     assert next(model.parameters()).dtype == torch.float32
     with pytest.raises(C.ConfigError, match="model.name 'implicit' there, 'explicit' here"):
-        T.warm_start(T.build_model(cfg_of(*TINY).model), cfg_of(*TINY, f"init={tmp_path / 'source'}"))
+        warm_start(T.build_model(cfg_of(*TINY).model), cfg_of(*TINY, f"init={tmp_path / 'source'}"))
     with pytest.raises(C.ConfigError, match="model.norm 'batch' there, 'group' here"):
-        T.warm_start(model, cfg_of(*TINY, "model=implicit", "model.norm=group", f"init={tmp_path / 'source'}"))
+        warm_start(model, cfg_of(*TINY, "model=implicit", "model.norm=group", f"init={tmp_path / 'source'}"))
 
 
 def test_resume_equals_an_uninterrupted_run(tmp_path, monkeypatch):
