@@ -1,4 +1,5 @@
-"""Runtime tuning, in one place: how the CPU is used, never what is computed.
+"""Runtime tuning, in one place: how the machine is used (CPU threads, memory, the device a table lives on, compiled
+kernels), never what is computed.
 
 - :func:`tune_malloc`: glibc keeps freed activations for reuse (``train.malloc_tuning``, the benchmarks).
 - :class:`Prefetcher`: training batches rendered ahead in background threads (``train.prefetch``, ``_workers``).
