@@ -41,6 +41,18 @@ def build_discriminator(model) -> Discriminator:
     return Discriminator(model.resolution, layers=model.layers)
 
 
+def set_learning_rate(lr: float, *optimizers) -> None:
+    """``lr`` in every parameter group of ``optimizers`` (None skipped): the step's scheduled rate."""
+    for opt in optimizers:
+        for g in opt.param_groups if opt is not None else []:
+            g["lr"] = lr
+
+
+def autocast(device, enabled: bool):
+    """bfloat16 mixed precision, as ``train.amp`` (no loss scaling needed); the shading layer stays float32."""
+    return torch.autocast(torch.device(device).type, dtype=torch.bfloat16, enabled=enabled)
+
+
 def loss_weights(cfg_loss, step: int) -> dict:
     """``loss.weights`` at ``step``: ``loss.early_weights`` in place of theirs for the first ``loss.early_steps``."""
     weights = dict(cfg_loss.weights)

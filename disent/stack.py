@@ -28,9 +28,19 @@ from disent.config import loss_setting
 from disent.data import to_device
 from disent.models.discriminator import energy_of
 from disent.models.networks import Decoder
-from disent.optim import learning_rate, loss_weights, make_optimizer
+from disent.optim import autocast, learning_rate, loss_weights, make_optimizer, set_learning_rate
 from disent.runtime import Prefetcher
-from disent.train import NonFiniteLoss, after_step, batch_maker, checkpoint, due, last_good, stop_reason
+from disent.train import (
+    NonFiniteLoss,
+    after_step,
+    batch_maker,
+    checkpoint,
+    due,
+    finite_flags,
+    last_good,
+    stop_reason,
+    update,
+)
 
 UNSTACKED = ("seed", "init", "resume")  # the settings stacked runs may differ in
 
@@ -102,18 +112,11 @@ class Stack:
     def step(self, batch: dict, cfg_loss, step: int) -> dict:
         """One update of every run; ``nonfinite``: ``(run index, term)`` where a term is not finite (then no update)."""
         losses = self.losses(batch, cfg_loss, step)
-        finite = torch.stack([v.detach().float() for v in losses.values()]).isfinite().tolist()  # one device sync
-        bad = [(i, k) for k, row in zip(losses, finite) for i, ok in enumerate(row) if not ok]
+        bad = [(i, k) for k, row in zip(losses, finite_flags(losses)) for i, ok in enumerate(row) if not ok]
         if bad:
             return {"nonfinite": bad, **losses}
-        self.opt_g.zero_grad(set_to_none=True)
-        if self.disc is not None:  # D's gradient first, graph kept for the generator's; each only into its own weights
-            self.opt_d.zero_grad(set_to_none=True)
-            losses["D"].sum().backward(inputs=list(self.disc_params.values()), retain_graph=True)
-        losses["total"].sum().backward(inputs=list(self.params.values()))  # the runs' sum: each run's own gradient
-        self.opt_g.step()
-        if self.disc is not None:
-            self.opt_d.step()
+        loss_d = losses["D"].sum() if self.disc is not None else None
+        update(self.opt_g, self.opt_d, losses["total"].sum(), loss_d)  # the runs' sums: each run's own gradient
         return losses
 
     def unstack_into(self) -> None:
@@ -124,8 +127,9 @@ class Stack:
                     (s.model, self.params, self.buffers),
                     (s.disc, self.disc_params, self.disc_buffers),
                 ):
+                    stacked = params | buffers if net is not None else {}
                     for name, v in (*net.named_parameters(), *net.named_buffers()) if net is not None else ():
-                        v.copy_((params | buffers)[name][i])
+                        v.copy_(stacked[name][i])
                 s.opt_g.load_state_dict(run_slice(self.opt_g.state_dict(), i))
                 if s.opt_d is not None:
                     s.opt_d.load_state_dict(run_slice(self.opt_d.state_dict(), i))
@@ -170,13 +174,11 @@ def train_stacked(states: list) -> list[tuple[str, dict | None]]:
                     checkpoint(s)
                 break
             epoch, lr = s0.step // s0.steps_per_epoch, learning_rate(t, s0.step, s0.steps_per_epoch, s0.total_steps)
-            for opt in (stack.opt_g, stack.opt_d):
-                for g in opt.param_groups if opt is not None else []:
-                    g["lr"] = lr
+            set_learning_rate(lr, stack.opt_g, stack.opt_d)
             t0 = time.perf_counter()
             batches = [to_device(p.get(s.step), s.device, t.channels_last) for p, s in zip(prefetch, states)]
             batch = {k: torch.stack([b[k] for b in batches]) for k in batches[0]}
-            with torch.autocast(s0.device.type, dtype=torch.bfloat16, enabled=t.get("amp", False)):
+            with autocast(s0.device, t.get("amp", False)):
                 losses = stack.step(batch, s0.cfg.loss, s0.step)
             if "nonfinite" in losses:
                 i, term = losses["nonfinite"][0]

@@ -34,7 +34,15 @@ from disent.eval.scoring import validate
 from disent.eval.trivial import trivial_metrics
 from disent.lighting.targets import target_fit, with_fitted_lhat
 from disent.models import build_model
-from disent.optim import build_discriminator, learning_rate, loss_weights, make_optimizer, warm_start
+from disent.optim import (
+    autocast,
+    build_discriminator,
+    learning_rate,
+    loss_weights,
+    make_optimizer,
+    set_learning_rate,
+    warm_start,
+)
 from disent.runtime import Prefetcher, compile_networks, tune_malloc, used_here
 from disent.storage import (
     MetricsLog,
@@ -74,20 +82,30 @@ def train_step(model, disc, opt_g, opt_d, batch, cfg_loss, step: int = 0) -> dic
         energy_real = disc.energy(batch["image"])
         losses["D"] = L.discriminator_loss(energy_real, energy_fake, cfg_loss.margin)
         losses["D_real"] = energy_real.mean().detach()
-    finite = torch.stack([v.detach().float() for v in losses.values()]).isfinite().tolist()  # one device sync
-    bad = [k for k, ok in zip(losses, finite) if not ok]
+    bad = [k for k, ok in zip(losses, finite_flags(losses)) if not ok]
     if bad:
         named = [k for k in bad if k != "total"] or bad
         return {"nonfinite": named, **losses}
-    opt_g.zero_grad(set_to_none=True)
-    if disc is not None:  # D's gradient first, graph kept for the generator's; each only into its own weights
-        opt_d.zero_grad(set_to_none=True)
-        losses["D"].backward(inputs=list(disc.parameters()), retain_graph=True)
-    losses["total"].backward(inputs=list(model.parameters()))
-    opt_g.step()
-    if disc is not None:
-        opt_d.step()
+    update(opt_g, opt_d, losses["total"], losses.get("D"))
     return losses
+
+
+def finite_flags(losses: dict) -> list:
+    """Whether each term of ``losses`` is finite (a row of runs per term for stacked runs); one device sync."""
+    return torch.stack([v.detach().float() for v in losses.values()]).isfinite().tolist()
+
+
+def update(opt_g, opt_d, total, loss_d=None) -> None:
+    """One simultaneous update: D's gradient first (``loss_d``, where there is a D), the graph kept for the
+    generator's (``total``); each loss flows only into the weights its own optimiser steps."""
+    opt_g.zero_grad(set_to_none=True)
+    if opt_d is not None:
+        opt_d.zero_grad(set_to_none=True)
+        loss_d.backward(inputs=[p for g in opt_d.param_groups for p in g["params"]], retain_graph=True)
+    total.backward(inputs=[p for g in opt_g.param_groups for p in g["params"]])
+    opt_g.step()
+    if opt_d is not None:
+        opt_d.step()
 
 
 def run(cfg, run_dir) -> dict:
@@ -288,12 +306,10 @@ def train_loop(s: Training) -> tuple[str, dict | None]:
                 break
             epoch = s.step // s.steps_per_epoch
             lr = learning_rate(t, s.step, s.steps_per_epoch, s.total_steps)
-            for opt in (s.opt_g, s.opt_d):
-                for g in opt.param_groups if opt is not None else []:
-                    g["lr"] = lr
+            set_learning_rate(lr, s.opt_g, s.opt_d)
             t0 = time.perf_counter()
             batch = used_here(to_device(prefetch.get(s.step), s.device, t.channels_last))
-            with torch.autocast(s.device.type, dtype=torch.bfloat16, enabled=t.get("amp", False)):  # shading: fp32
+            with autocast(s.device, t.get("amp", False)):  # the shading layer stays float32
                 losses = train_step(s.model, s.disc, s.opt_g, s.opt_d, batch, s.cfg.loss, s.step)
             if "nonfinite" in losses:
                 raise NonFiniteLoss(

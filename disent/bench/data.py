@@ -15,16 +15,14 @@ from __future__ import annotations
 import statistics
 import time
 
-import torch
-
-from disent.bench import print_table
+from disent.bench import device_sync, print_table
 
 
 def generation_rates(ds, n: int, rounds: int) -> tuple[float, float]:
     """``ds.get_batch`` (one torch thread, as SynthFaces renders) on ``rounds`` fresh blocks of ``n``
     indices, after one block that builds the generator's fixed tables: medians of (images per wall
     second, images per CPU second of this process).  Also the loader figure of ``disent.bench models``."""
-    sync = torch.cuda.synchronize if ds.device.type == "cuda" else (lambda: None)
+    sync = device_sync(str(ds.device))
     ds.get_batch(range(n))
     sync()
     wall, cpu = [], []

@@ -38,6 +38,7 @@ from omegaconf import OmegaConf
 from torch.utils.flop_counter import FlopCounterMode
 
 from disent.bench import device_sync, matmul, print_table, timed_rounds
+from disent.optim import autocast
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 MODELS = ("explicit", "implicit", "baseline")
@@ -132,11 +133,6 @@ def cpu_has_bf16() -> bool:
     except OSError:
         return False
     return "avx512_bf16" in flags or "amx_bf16" in flags
-
-
-def autocast(device, enabled: bool):
-    """bfloat16 mixed precision, as ``train.amp`` (no loss scaling needed); the shading layer stays float32."""
-    return torch.autocast(torch.device(device).type, dtype=torch.bfloat16, enabled=enabled)
 
 
 def inference(model, x, device, amp: bool, sync, calls: int = 1):
