@@ -68,7 +68,7 @@ def functional_copy(net: torch.nn.Module) -> torch.nn.Module:
         if dataclasses.is_dataclass(getattr(m, "layers", None)):
             m.layers = dataclasses.replace(m.layers, kernels=False)
         if isinstance(m, Decoder):
-            m.scatter_unpool = True
+            m.unpool_by_scatter = True
     return base
 
 

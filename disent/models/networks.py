@@ -103,7 +103,7 @@ def scatter_unpool(x: torch.Tensor, switches: torch.Tensor, kernel_size: int = 2
 class Decoder(nn.Module):
     """Code ``[B,code_dim]`` -> map ``[B,out_channels,H,W]`` (no output nonlinearity)."""
 
-    scatter_unpool = False  # True: unpool by scatter_unpool (the same function; batches under vmap)
+    unpool_by_scatter = False  # True: unpool by scatter_unpool (the same function; batches under vmap)
 
     def __init__(
         self,
@@ -143,7 +143,7 @@ class Decoder(nn.Module):
         last = len(self.convs) - 1
         for i, conv in enumerate(self.convs):
             x = (
-                (scatter_unpool if self.scatter_unpool else F.max_unpool2d)(x, switches[-1 - i], 2)
+                (scatter_unpool if self.unpool_by_scatter else F.max_unpool2d)(x, switches[-1 - i], 2)
                 if self.skips
                 else F.interpolate(x, scale_factor=2, mode="nearest")
             )
