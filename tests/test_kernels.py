@@ -150,3 +150,24 @@ def test_kernels_on_and_off_agree_in_float32_channels_last(name):
         for k, v in plain(x).items():
             if torch.is_tensor(v):
                 torch.testing.assert_close(fast(x)[k], v, rtol=1e-4, atol=1e-5, msg=k)
+
+
+def test_the_scatter_unpooling_is_max_unpool2d_and_batches_under_vmap():
+    """``networks.scatter_unpool`` (what stacked models unpool with) gives ``F.max_unpool2d``'s values and gradient,
+    channels-last input too, and runs under ``torch.func.vmap`` over a stack of maps."""
+    import torch.nn.functional as F
+
+    from disent.models.networks import scatter_unpool
+
+    g = torch.Generator().manual_seed(0)
+    x = torch.randn(3, 5, 16, 16, generator=g)
+    pooled, idx = F.max_pool2d(x, 2, return_indices=True)
+    pooled.requires_grad_()
+    grad = torch.randn(3, 5, 16, 16, generator=g)
+    for y in (pooled, pooled.contiguous(memory_format=torch.channels_last)):
+        plain, scattered = F.max_unpool2d(y, idx, 2), scatter_unpool(y, idx, 2)
+        assert torch.equal(plain, scattered)
+        assert torch.equal(*(torch.autograd.grad(out, pooled, grad)[0] for out in (plain, scattered)))
+    stacked = torch.stack([pooled.detach(), 2 * pooled.detach()])
+    out = torch.func.vmap(lambda p, i: scatter_unpool(p, i, 2), in_dims=(0, None))(stacked, idx)
+    assert torch.equal(out[1], 2 * F.max_unpool2d(pooled.detach(), idx, 2))
